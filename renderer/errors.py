@@ -1,0 +1,25 @@
+"""Typed errors of the renderer. Each message says what was wrong and what to do about it."""
+
+
+class RenderError(Exception):
+    """Base class of every error the renderer raises on purpose."""
+
+
+class InvalidInputError(RenderError, ValueError):
+    """An input (file, array, parameter) is malformed or out of range."""
+
+
+class EnvironmentMapError(InvalidInputError):
+    """An environment map cannot be read or contains unusable texels."""
+
+
+class MeshError(InvalidInputError):
+    """A mesh or a frame of vertex positions is unusable."""
+
+
+class GLContextError(RenderError, RuntimeError):
+    """No usable OpenGL 4.5 context, or a context used from the wrong thread."""
+
+
+class ShaderError(RenderError, RuntimeError):
+    """A shader failed to compile or link; the message names the file and line."""

@@ -1,0 +1,102 @@
+"""The one place that creates OpenGL contexts, and the thread check that guards them.
+
+A `GLContext` owns a headless moderngl context on EGL (Mesa llvmpipe on a CPU machine, the
+vendor's driver on a GPU machine; the code path is the same). GL is used from the thread that
+created the context only: every public entry point of the renderer calls `check_thread()`.
+Scale by processes, not threads.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import moderngl
+
+from ..errors import GLContextError
+from . import rawgl
+
+
+@dataclass
+class StageTimer:
+    """Per-stage timings of one frame: wall clock after `ctx.finish()` and, where the driver's timer
+    queries mean something (not on llvmpipe, see GL-NOTES), GPU time from GL_TIME_ELAPSED queries."""
+
+    wall_ms: dict[str, float] = field(default_factory=dict)
+    gpu_ms: dict[str, float] = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        return {"wall_ms": dict(self.wall_ms), "gpu_ms": dict(self.gpu_ms),
+                "total_wall_ms": float(sum(self.wall_ms.values()))}
+
+
+class GLContext:
+    """Owner of one headless OpenGL 4.5 core context; not thread-safe by design (see module doc)."""
+
+    def __init__(self, backend: str | None = "egl", device_index: int | None = None):
+        t0 = time.perf_counter()
+        kwargs = {"require": 450}
+        if backend:
+            kwargs["backend"] = backend
+        if device_index is None and os.environ.get("GARMENT_RENDER_EGL_DEVICE"):
+            device_index = int(os.environ["GARMENT_RENDER_EGL_DEVICE"])
+        if device_index is not None:
+            kwargs["device_index"] = device_index
+        try:
+            self.ctx = moderngl.create_standalone_context(**kwargs)
+        except Exception as exc:  # moderngl raises plain Exception subclasses here
+            raise GLContextError(
+                f"could not create an OpenGL 4.5 context through {backend or 'the default backend'}: {exc}. "
+                "On Debian/Ubuntu install Mesa's EGL (libegl1 libegl-mesa0 libgl1-mesa-dri), "
+                "e.g. by running scripts/setup.sh; on NVIDIA hosts the driver's EGL vendor file must be present."
+            ) from exc
+        self.create_ms = (time.perf_counter() - t0) * 1e3
+        self._thread = threading.get_ident()
+        self.gl = rawgl.RawGL()
+        self.renderer_name = self.ctx.info.get("GL_RENDERER", "?")
+        self.version = self.ctx.info.get("GL_VERSION", "?")
+        # Timer queries report nonsense on llvmpipe (GL-NOTES); only trust them on real GPUs.
+        self.gpu_timers_meaningful = "llvmpipe" not in self.renderer_name.lower()
+        self._released = False
+
+    # -- threading --------------------------------------------------------------------------
+    def check_thread(self) -> None:
+        if self._released:
+            raise GLContextError("this GL context has been released; create a new Renderer")
+        if threading.get_ident() != self._thread:
+            raise GLContextError(
+                "the GL context was used from a thread other than the one that created it; "
+                "OpenGL contexts are bound to one thread: submit work to the render thread instead"
+            )
+
+    # -- timing -----------------------------------------------------------------------------
+    @contextmanager
+    def stage(self, timer: StageTimer | None, name: str):
+        """Time a stage: wall clock including a `finish()` so that queued GL work is counted."""
+        if timer is None:
+            yield
+            return
+        query = self.ctx.query(time=True) if self.gpu_timers_meaningful else None
+        t0 = time.perf_counter()
+        if query is not None:
+            with query:
+                yield
+        else:
+            yield
+        self.ctx.finish()
+        timer.wall_ms[name] = timer.wall_ms.get(name, 0.0) + (time.perf_counter() - t0) * 1e3
+        if query is not None:
+            timer.gpu_ms[name] = timer.gpu_ms.get(name, 0.0) + query.elapsed / 1e6
+
+    def info(self) -> dict:
+        return {"renderer": self.renderer_name, "version": self.version,
+                "context_create_ms": round(self.create_ms, 2)}
+
+    def release(self) -> None:
+        if not self._released:
+            self.check_thread()
+            self.ctx.release()
+            self._released = True

@@ -1,0 +1,118 @@
+"""The few raw OpenGL calls that moderngl does not wrap: cube-map-array textures.
+
+moderngl has no cube-map-array type (GL-NOTES). The PEM set is one GL_TEXTURE_CUBE_MAP_ARRAY
+(layer = region) so that the shading pass reads every region with one sampler and hardware
+trilinear filtering; it is created through GL 4.5 direct-state-access entry points looked up with
+eglGetProcAddress on the current context. Samplers are bound with `layout(binding = N)` in GLSL.
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+
+from ..errors import GLContextError
+
+GL_TEXTURE_CUBE_MAP_ARRAY = 0x9009
+GL_RGBA16F = 0x881A
+GL_RGBA32F = 0x8814
+GL_RGBA = 0x1908
+GL_FLOAT = 0x1406
+GL_WRITE_ONLY = 0x88B9
+GL_READ_WRITE = 0x88BA
+GL_TEXTURE_MIN_FILTER = 0x2801
+GL_TEXTURE_MAG_FILTER = 0x2800
+GL_LINEAR = 0x2601
+GL_LINEAR_MIPMAP_LINEAR = 0x2703
+GL_TEXTURE_MAX_LEVEL = 0x813D
+
+_u = ctypes.c_uint
+_i = ctypes.c_int
+
+
+class RawGL:
+    """Function pointers of the current context for cube-map arrays (names as in the GL spec)."""
+
+    _SIGNATURES = {
+        "glCreateTextures": (_u, _i, ctypes.POINTER(_u)),
+        "glTextureStorage3D": (_u, _i, _u, _i, _i, _i),
+        "glTextureParameteri": (_u, _u, _i),
+        "glBindImageTexture": (_u, _u, _i, ctypes.c_ubyte, _i, _u, _u),
+        "glBindTextureUnit": (_u, _u),
+        "glDeleteTextures": (_i, ctypes.POINTER(_u)),
+        "glGetTextureImage": (_u, _i, _u, _u, _i, ctypes.c_void_p),
+        "glGetTextureSubImage": (_u, _i, _i, _i, _i, _i, _i, _i, _u, _u, _i, ctypes.c_void_p),
+    }
+
+    def __init__(self):
+        try:
+            egl = ctypes.CDLL("libEGL.so.1")
+        except OSError as exc:
+            raise GLContextError(f"libEGL.so.1 not found ({exc}); install libegl1 (scripts/setup.sh does)") from exc
+        egl.eglGetProcAddress.restype = ctypes.c_void_p
+        egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
+        for name, args in self._SIGNATURES.items():
+            ptr = egl.eglGetProcAddress(name.encode())
+            if not ptr:
+                raise GLContextError(f"the OpenGL driver does not export {name} (GL 4.5 is required)")
+            setattr(self, name, ctypes.CFUNCTYPE(None, *args)(ptr))
+
+
+class CubeMapArray:
+    """A GL_TEXTURE_CUBE_MAP_ARRAY with immutable storage: `layers` cubes of `size`^2 faces, `levels`
+    MIP levels, RGBA16F or RGBA32F. Owned by whoever created it; `release()` frees GPU memory."""
+
+    def __init__(self, gl: RawGL, size: int, layers: int, levels: int, internal_format: int = GL_RGBA16F):
+        self.gl, self.size, self.layers, self.levels = gl, size, layers, levels
+        self.internal_format = internal_format
+        name = _u(0)
+        gl.glCreateTextures(GL_TEXTURE_CUBE_MAP_ARRAY, 1, ctypes.byref(name))
+        self.glo = name.value
+        gl.glTextureStorage3D(self.glo, levels, internal_format, size, size, 6 * layers)
+        gl.glTextureParameteri(self.glo, GL_TEXTURE_MIN_FILTER, GL_LINEAR_MIPMAP_LINEAR)
+        gl.glTextureParameteri(self.glo, GL_TEXTURE_MAG_FILTER, GL_LINEAR)
+        gl.glTextureParameteri(self.glo, GL_TEXTURE_MAX_LEVEL, levels - 1)
+
+    @property
+    def bytes_per_texel(self) -> int:
+        return 8 if self.internal_format == GL_RGBA16F else 16
+
+    @property
+    def nbytes(self) -> int:
+        total = 0
+        for lvl in range(self.levels):
+            s = max(1, self.size >> lvl)
+            total += 6 * self.layers * s * s * self.bytes_per_texel
+        return total
+
+    def bind_image(self, unit: int, level: int, access: int = GL_WRITE_ONLY) -> None:
+        self._check()
+        self.gl.glBindImageTexture(unit, self.glo, level, 1, 0, access, self.internal_format)
+
+    def bind_sampler(self, unit: int) -> None:
+        self._check()
+        self.gl.glBindTextureUnit(unit, self.glo)
+
+    def read_level(self, level: int, layers: slice | None = None) -> np.ndarray:
+        """Read one MIP level back: float32 (layers, 6, s, s, 4) in the cube.py face/row/col order."""
+        self._check()
+        s = max(1, self.size >> level)
+        first, count = 0, self.layers
+        if layers is not None:
+            first, stop, _ = layers.indices(self.layers)
+            count = stop - first
+        out = np.empty((count, 6, s, s, 4), np.float32)
+        self.gl.glGetTextureSubImage(self.glo, level, 0, 0, 6 * first, s, s, 6 * count, GL_RGBA, GL_FLOAT,
+                                     out.nbytes, out.ctypes.data)
+        return out
+
+    def _check(self) -> None:
+        if self.glo == 0:
+            raise GLContextError("cube-map array used after release()")
+
+    def release(self) -> None:
+        if self.glo:
+            name = _u(self.glo)
+            self.gl.glDeleteTextures(1, ctypes.byref(name))
+            self.glo = 0

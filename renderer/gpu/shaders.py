@@ -1,0 +1,88 @@
+"""GLSL source loading: files under the top-level `shaders/`, composed by `#include` and `#define`.
+
+Every included file is given its own GLSL source-string number through `#line <line> <file-id>`
+so that a compile error can be mapped back to a file and line; `ShaderError` carries that mapping.
+Sources are read once and cached (they do not change while a process runs).
+"""
+
+from __future__ import annotations
+
+import functools
+import re
+from pathlib import Path
+
+import moderngl
+
+from ..errors import ShaderError
+
+SHADER_DIR = Path(__file__).resolve().parents[2] / "shaders"
+_INCLUDE = re.compile(r'^\s*#include\s+"([^"]+)"\s*$')
+
+
+@functools.lru_cache(maxsize=None)
+def _read(name: str) -> str:
+    path = SHADER_DIR / name
+    if not path.is_file():
+        raise ShaderError(f"shader file {name!r} not found under {SHADER_DIR}")
+    return path.read_text()
+
+
+def compose(name: str, defines: dict[str, object] | None = None) -> tuple[str, list[str]]:
+    """Return (source, files): the composed source and the file name of each source-string number."""
+    files: list[str] = []
+    lines_out: list[str] = []
+
+    def emit(fname: str, stack: tuple[str, ...]) -> None:
+        if fname in stack:
+            raise ShaderError(f"circular #include of {fname!r} via {' -> '.join(stack)}")
+        fid = len(files)
+        files.append(fname)
+        lines_out.append(f"#line 1 {fid}")
+        for lineno, line in enumerate(_read(fname).splitlines(), start=1):
+            m = _INCLUDE.match(line)
+            if m:
+                emit(m.group(1), stack + (fname,))
+                lines_out.append(f"#line {lineno + 1} {fid}")
+            else:
+                lines_out.append(line)
+
+    emit(name, ())
+    body = "\n".join(lines_out)
+    head = ["#version 450 core"]
+    for key, value in (defines or {}).items():
+        head.append(f"#define {key} {value}")
+    if not body.lstrip().startswith("#line"):
+        raise ShaderError("internal: composed shader does not start with #line")
+    if "#version" in body:
+        raise ShaderError(f"{name}: remove '#version' from shader files; the loader adds it")
+    return "\n".join(head) + "\n" + body + "\n", files
+
+
+def _rewrite_log(log: str, files: list[str]) -> str:
+    # Mesa: "0:12(3): error: ..."; NVIDIA: "0(12) : error ..." -- the first number is our file id.
+    def sub(m: re.Match) -> str:
+        fid = int(m.group(1))
+        fname = files[fid] if fid < len(files) else f"<string {fid}>"
+        return f"{fname}:{m.group(2)}"
+
+    log = re.sub(r"\b(\d+):(\d+)\(\d+\)", sub, log)
+    return re.sub(r"\b(\d+)\((\d+)\)", sub, log)
+
+
+def _build(factory, files: list[str], what: str):
+    try:
+        return factory()
+    except moderngl.Error as exc:
+        raise ShaderError(f"{what} failed to compile or link:\n{_rewrite_log(str(exc), files)}") from exc
+
+
+def compute_shader(ctx: moderngl.Context, name: str, defines: dict | None = None) -> moderngl.ComputeShader:
+    src, files = compose(name, defines)
+    return _build(lambda: ctx.compute_shader(src), files, name)
+
+
+def program(ctx: moderngl.Context, vertex: str, fragment: str, defines: dict | None = None) -> moderngl.Program:
+    vs, vfiles = compose(vertex, defines)
+    fs, ffiles = compose(fragment, defines)
+    return _build(lambda: ctx.program(vertex_shader=vs, fragment_shader=fs), vfiles + ffiles,
+                  f"{vertex} + {fragment}")

@@ -1,0 +1,146 @@
+"""Glossiness g -> fractional MIP level, calibrated by lobe volume (Knuth et al. 2014, section 5).
+
+Model (Eq. 3, 4): g in [0, 1], Phong exponent s = 1 / (1 - g); the lobe around the reflection
+direction r is cos^s(angle(r, w)) on the hemisphere (s = 1: diffuse, s -> inf: mirror).
+
+Approximation: the response of the PEM MIP chain to an impulse (a black map with one white texel)
+at a fractional level l (trilinear lookup = linear blend of two levels, each bilinear) is a lobe
+around the impulse direction. Both lobes are scaled to peak 1 and compared by the volume of their
+3D radial plot, V = (1/3) * integral of r(w)^3 dw (the solid enclosed by the surface at radius
+r(w)). For the cosine lobe this is closed-form:
+
+    V_target(s) = (1/3) * 2*pi / (3 s + 1) = 2*pi*(1 - g) / (3 * (4 - g))
+
+written in g so that g = 1 (s = inf) gives V = 0 and the mirror level without a division by zero.
+The calibration tabulates V(l) on a fine grid of l for each face size and filter and inverts it.
+The paper's relative lobe error (Fig. 5) is the volume of the symmetric difference of the two
+radial solids at equal volume, in percent of the target volume.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..envmap.cube import sample_bilinear, texel_directions, texel_solid_angles
+from ..errors import InvalidInputError
+from .filters import Filter
+from .pem_reference import mip_levels, pem_chain
+
+STEPS_PER_LEVEL = 8
+_EVAL_FACE_MAX = 128  # the evaluation grid; finer than any lobe above level 0 at these sizes
+
+
+def check_glossiness(g: float) -> float:
+    g = float(g)
+    if not np.isfinite(g) or g < 0.0 or g > 1.0:
+        raise InvalidInputError(f"glossiness must be a number in [0, 1] (0 diffuse, 1 mirror), got {g}")
+    return g
+
+
+def phong_exponent(g: float) -> float:
+    """s = 1 / (1 - g) (Eq. 3); +inf at g = 1."""
+    g = check_glossiness(g)
+    return np.inf if g >= 1.0 else 1.0 / (1.0 - g)
+
+
+def target_volume(g: np.ndarray | float) -> np.ndarray:
+    """Radial-plot volume of the peak-1 cosine lobe of glossiness g (see module doc)."""
+    one_minus_g = 1.0 - np.asarray(g, np.float64)
+    return 2.0 * np.pi * one_minus_g / (3.0 * (3.0 + one_minus_g))
+
+
+def cosine_lobe(cos_angle: np.ndarray, s: float) -> np.ndarray:
+    """Peak-1 cosine lobe max(0, cos)^s; s = inf gives the mirror delta (1 at cos = 1 only)."""
+    c = np.clip(cos_angle, 0.0, 1.0)
+    if np.isinf(s):
+        return (c >= 1.0).astype(np.float64)
+    return c ** s
+
+
+@dataclass(frozen=True)
+class LobeTable:
+    """Impulse responses of one (face size, filter) chain, evaluated on a sphere grid."""
+
+    face_size: int
+    filter: Filter
+    impulse_dir: np.ndarray          # (3,)
+    eval_dirs: np.ndarray            # (M, 3)
+    eval_omega: np.ndarray           # (M,) solid angles of the evaluation points
+    responses: np.ndarray            # (levels, M), raw response of each integer level
+    levels_grid: np.ndarray          # (K,) fractional levels
+    volumes: np.ndarray              # (K,) peak-1 radial volume at each fractional level
+
+    @property
+    def n_levels(self) -> int:
+        return self.responses.shape[0]
+
+    def lobe(self, level: float) -> np.ndarray:
+        """Peak-1 response (M,) at a fractional level, as a trilinear lookup would give it."""
+        level = float(np.clip(level, 0.0, self.n_levels - 1))
+        lo = int(np.floor(level))
+        hi = min(lo + 1, self.n_levels - 1)
+        t = level - lo
+        r = (1.0 - t) * self.responses[lo] + t * self.responses[hi]
+        return r / max(r.max(), 1e-300)
+
+    def level_for_glossiness(self, g: float) -> float:
+        """Fractional MIP level whose lobe volume equals that of glossiness g."""
+        v = float(target_volume(check_glossiness(g)))
+        return float(np.interp(v, self.volumes, self.levels_grid))
+
+    def relative_error(self, g: float) -> float:
+        """Volume of the symmetric difference between target and calibrated lobe / target volume."""
+        g = check_glossiness(g)
+        s = phong_exponent(g)
+        approx = self.lobe(self.level_for_glossiness(g))
+        target = cosine_lobe(self.eval_dirs @ self.impulse_dir, s)
+        vt = float(target_volume(g))
+        if vt <= 0:
+            return float("nan")
+        return float((np.abs(approx ** 3 - target ** 3) * self.eval_omega).sum() / 3.0 / vt)
+
+
+@functools.lru_cache(maxsize=16)
+def lobe_table(face_size: int, kind: Filter | str = Filter.SQRT_COSINE) -> LobeTable:
+    """Calibrate one (face size, filter) pair. Deterministic and cached per process (~1 s at 128^2)."""
+    kind = Filter.parse(kind)
+    if face_size < 2 or face_size & (face_size - 1):
+        raise InvalidInputError(f"face size must be a power of two >= 2, got {face_size}")
+    # Impulse at the texel just below-right of the +Z face centre (face 4).
+    face, row, col = 4, face_size // 2, face_size // 2
+    impulse = np.zeros((6, face_size, face_size, 1))
+    impulse[face, row, col, 0] = 1.0
+    chain = pem_chain(impulse, kind)
+    impulse_dir = texel_directions(face_size)[face, row, col]
+
+    m = min(face_size, _EVAL_FACE_MAX)
+    dirs = texel_directions(m).reshape(-1, 3)
+    omega = np.broadcast_to(texel_solid_angles(m), (6, m, m)).reshape(-1)
+    # Level 0 is evaluated on the texel grid itself when it is finer than the evaluation grid.
+    responses = np.stack([sample_bilinear(level, dirs)[..., 0] for level in chain])
+
+    n_levels = len(chain)
+    grid = np.linspace(0.0, n_levels - 1, (n_levels - 1) * STEPS_PER_LEVEL + 1)
+    table = LobeTable(face_size, kind, impulse_dir, dirs, omega, responses, grid, np.zeros(0))
+    vols = np.array([(table.lobe(l) ** 3 * omega).sum() / 3.0 for l in grid])
+    vols = np.maximum.accumulate(vols)  # volume grows with blur; make the inverse well defined
+    return LobeTable(face_size, kind, impulse_dir, dirs, omega, responses, grid, vols)
+
+
+def level_for_glossiness(g: float, face_size: int, kind: Filter | str = Filter.SQRT_COSINE) -> float:
+    return lobe_table(face_size, Filter.parse(kind)).level_for_glossiness(g)
+
+
+def diffuse_level(face_size: int, kind: Filter | str = Filter.SQRT_COSINE) -> float:
+    """The level of the s = 1 cosine lobe: where the diffuse term is looked up."""
+    return level_for_glossiness(0.0, face_size, kind)
+
+
+def levels_needed(face_size: int, kind: Filter | str, glossiness_range: tuple[float, float]) -> int:
+    """Number of MIP levels (from 0) a scene needs to look up every g in the range and the diffuse lobe."""
+    lo_g, hi_g = glossiness_range
+    deepest = max(diffuse_level(face_size, kind), level_for_glossiness(min(lo_g, hi_g), face_size, kind))
+    return min(mip_levels(face_size), int(np.ceil(deepest)) + 1)

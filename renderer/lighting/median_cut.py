@@ -1,0 +1,135 @@
+"""Median-cut subdivision of a cube map into regions of equal energy, one directional light each.
+
+Debevec, "A median cut algorithm for light probe sampling" (SIGGRAPH 2008 classes), applied to
+each of the six cube faces separately as in Knuth et al. 2014, section 4: every face is cut k
+times, each time every region is split across its longer side where its energy is halved, giving
+N = 6 * 2^k regions. Energy of a texel = luminance x exact texel solid angle, so regions near face
+corners (smaller texels) are not over-weighted. Every texel belongs to exactly one region
+(Knuth et al. Eq. 1): the partition is stored as a label per texel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..envmap.cube import cube_solid_angles, texel_directions
+from ..errors import InvalidInputError
+
+# Rec. ITU-R BT.709 luminance weights (linear RGB).
+LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])
+
+
+@dataclass(frozen=True)
+class RegionSet:
+    """The partition of a cube map and its lights.
+
+    labels: int32 (6, F, F), region id of every texel; ids are face-major (face * 2^k + i).
+    directions: float64 (N, 3), unit direction of each light (energy centroid of its region).
+    solid_angle_sr: float64 (N,), solid angle of each region.
+    energy_rgb: float64 (N, 3), integral of radiance over the region (W/m^2 per channel if the map
+        is in W/(m^2 sr)).
+    rects: int32 (N, 5): face, row0, row1, col0, col1 (half-open) of each region.
+    """
+
+    labels: np.ndarray
+    directions: np.ndarray
+    solid_angle_sr: np.ndarray
+    energy_rgb: np.ndarray
+    rects: np.ndarray
+
+    @property
+    def n_regions(self) -> int:
+        return int(self.directions.shape[0])
+
+    @property
+    def energy_luminance(self) -> np.ndarray:
+        return self.energy_rgb @ LUMINANCE_RGB
+
+    def angular_radius_rad(self) -> np.ndarray:
+        """Radius of the cone with the region's solid angle: Omega = 2*pi*(1 - cos r)."""
+        return np.arccos(np.clip(1.0 - self.solid_angle_sr / (2.0 * np.pi), -1.0, 1.0))
+
+
+def regions_per_face(n_lights: int) -> int:
+    """Validate N = 6 * 2^k and return 2^k."""
+    per_face = n_lights // 6
+    if n_lights < 6 or n_lights % 6 or per_face & (per_face - 1):
+        raise InvalidInputError(
+            f"--lights must be 6 * 2^k (6, 12, 24, 48, 96, 192, 384, ...), got {n_lights}: "
+            "median cut is applied per cube face and halves every region at each step"
+        )
+    return per_face
+
+
+def _cut_face(energy: np.ndarray, cuts: int) -> list[tuple[int, int, int, int]]:
+    """Median-cut one face's energy grid (F, F) `cuts` times; returns (r0, r1, c0, c1) rectangles."""
+    rects = [(0, energy.shape[0], 0, energy.shape[1])]
+    for _ in range(cuts):
+        nxt = []
+        for r0, r1, c0, c1 in rects:
+            h, w = r1 - r0, c1 - c0
+            axis = 0 if h >= w else 1  # split across the longer side (rows if taller)
+            length = h if axis == 0 else w
+            if length < 2:
+                raise InvalidInputError(
+                    "the cube face is too small for this many lights: a region of one texel cannot be "
+                    "split; use a larger --face-size or fewer --lights"
+                )
+            block = energy[r0:r1, c0:c1]
+            profile = block.sum(axis=1 - axis)  # energy per row (axis 0) or per column (axis 1)
+            cum = np.cumsum(profile)
+            total = cum[-1]
+            if total > 0:
+                # First index where the cumulative energy reaches half: the median line.
+                split = int(np.searchsorted(cum, 0.5 * total)) + 1
+                # Choose the side of the median texel that balances better.
+                if split - 1 >= 1 and abs(cum[split - 2] - 0.5 * total) <= abs(cum[split - 1] - 0.5 * total):
+                    split -= 1
+            else:
+                split = length // 2  # no energy: cut geometrically
+            split = min(max(split, 1), length - 1)
+            if axis == 0:
+                nxt += [(r0, r0 + split, c0, c1), (r0 + split, r1, c0, c1)]
+            else:
+                nxt += [(r0, r1, c0, c0 + split), (r0, r1, c0 + split, c1)]
+        rects = nxt
+    return rects
+
+
+def median_cut(cube: np.ndarray, n_lights: int) -> RegionSet:
+    """Partition `cube` (6, F, F, 3) float into `n_lights` = 6 * 2^k regions, one light per region."""
+    per_face = regions_per_face(n_lights)
+    cuts = per_face.bit_length() - 1
+    n = cube.shape[1]
+    if per_face > n * n:
+        raise InvalidInputError(f"{n_lights} lights need at least {per_face} texels per face; face size {n} has {n * n}")
+    omega = cube_solid_angles(n)
+    rgb = np.asarray(cube, np.float64)
+    lum = np.maximum(rgb @ LUMINANCE_RGB, 0.0)
+    energy = lum * omega
+    dirs = texel_directions(n)
+
+    labels = np.empty((6, n, n), np.int32)
+    out_dirs = np.empty((n_lights, 3))
+    out_omega = np.empty(n_lights)
+    out_energy = np.empty((n_lights, 3))
+    out_rects = np.empty((n_lights, 5), np.int32)
+    for face in range(6):
+        for j, (r0, r1, c0, c1) in enumerate(_cut_face(energy[face], cuts)):
+            rid = face * per_face + j
+            labels[face, r0:r1, c0:c1] = rid
+            e = energy[face, r0:r1, c0:c1]
+            w = omega[face, r0:r1, c0:c1]
+            d = dirs[face, r0:r1, c0:c1]
+            # Light at the energy centroid; a black region falls back to its solid-angle centroid.
+            weights = e if e.sum() > 0 else w
+            c = (weights[..., None] * d).sum(axis=(0, 1))
+            out_dirs[rid] = c / np.linalg.norm(c)
+            out_omega[rid] = w.sum()
+            out_energy[rid] = (rgb[face, r0:r1, c0:c1] * w[..., None]).sum(axis=(0, 1))
+            out_rects[rid] = (face, r0, r1, c0, c1)
+    for arr in (labels, out_dirs, out_omega, out_energy, out_rects):
+        arr.setflags(write=False)
+    return RegionSet(labels, out_dirs, out_omega, out_energy, out_rects)

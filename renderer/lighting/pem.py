@@ -1,0 +1,161 @@
+"""The PEM set: one partial environment map per median-cut region, each with its MIP chain, built on
+the GPU with compute shaders (Knuth et al. 2014, sections 3.1, 3.2 and 4).
+
+Storage is one GL_TEXTURE_CUBE_MAP_ARRAY in RGBA16F (the paper's format, Fig. 8), layer i = region
+i. Each region is stored divided by its own scale (its brightest channel value at level 0), so every
+stored texel is <= 1 and a sun of 1e6 never overflows half floats (65504); the shading pass multiplies
+the scale back in float32. The build works on batches of regions so that its float32 scratch
+buffers stay bounded whatever the region count.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InvalidInputError
+from ..gpu.context import GLContext, StageTimer
+from ..gpu.rawgl import GL_RGBA16F, CubeMapArray
+from ..gpu.shaders import compute_shader
+from .filters import Filter, taps_1d
+from .glossiness import LobeTable, lobe_table
+from .median_cut import RegionSet, median_cut
+from .pem_reference import mip_levels
+
+SCRATCH_BUDGET_BYTES = 64 << 20  # bound on the two float32 scratch buffers of one batch
+
+
+@dataclass(frozen=True)
+class PEMSettings:
+    """Everything that changes a PEM set (and so its cache key)."""
+
+    n_lights: int = 48
+    filter: Filter = Filter.SQRT_COSINE
+    levels: int | None = None  # None: the full chain down to 1x1 faces
+
+    def key(self) -> tuple:
+        return (self.n_lights, self.filter.value, self.levels)
+
+
+class PEMSet:
+    """The GPU-resident PEMs of one environment map. Owns its texture; `release()` frees it."""
+
+    def __init__(self, gl: GLContext, cube: np.ndarray, settings: PEMSettings = PEMSettings(),
+                 timer: StageTimer | None = None):
+        gl.check_thread()
+        cube = np.asarray(cube, np.float32)
+        if cube.ndim != 4 or cube.shape[0] != 6 or cube.shape[1] != cube.shape[2] or cube.shape[3] < 3:
+            raise InvalidInputError(f"cube map must have shape (6, F, F, 3), got {cube.shape}")
+        n = cube.shape[1]
+        if n < 4 or n & (n - 1):
+            raise InvalidInputError(f"PEM face size must be a power of two >= 4, got {n}")
+        if not np.all(np.isfinite(cube)) or np.any(cube < 0):
+            raise InvalidInputError("cube map has NaN, Inf or negative texels; load it with repair=True")
+        self.gl = gl
+        self.settings = settings
+        self.face_size = n
+        full = mip_levels(n)
+        self.levels = full if settings.levels is None else int(np.clip(settings.levels, 1, full))
+
+        t0 = time.perf_counter()
+        self.regions: RegionSet = median_cut(cube[..., :3], settings.n_lights)
+        self.median_cut_ms = (time.perf_counter() - t0) * 1e3
+        n_regions = self.regions.n_regions
+
+        # Per-region scale: the brightest channel of the region's texels (1 for a black region).
+        flat = cube[..., :3].reshape(-1, 3).max(axis=1)
+        peak = np.zeros(n_regions)
+        np.maximum.at(peak, self.regions.labels.reshape(-1), flat)
+        self.scale = np.where(peak > 0, peak, 1.0).astype(np.float64)
+
+        self.texture = CubeMapArray(gl.gl, n, n_regions, self.levels, GL_RGBA16F)
+        t0 = time.perf_counter()
+        try:
+            with gl.stage(timer, "pem_build"):
+                self._build(cube)
+        except Exception:
+            self.texture.release()
+            raise
+        self.build_ms = (time.perf_counter() - t0) * 1e3
+        self.lobes: LobeTable = lobe_table(n, settings.filter)
+
+    # -- build ------------------------------------------------------------------------------
+    def _build(self, cube: np.ndarray) -> None:
+        ctx = self.gl.ctx
+        n, n_regions = self.face_size, self.regions.n_regions
+        env4 = np.zeros((6, n, n, 4), np.float32)
+        env4[..., :3] = cube[..., :3]
+        buffers = [ctx.buffer(env4.tobytes()),
+                   ctx.buffer(np.ascontiguousarray(self.regions.labels, np.int32).tobytes()),
+                   ctx.buffer((1.0 / self.scale).astype(np.float32).tobytes())]
+        per_region_bytes = 6 * max(1, (n // 2) ** 2) * 16
+        batch = int(max(1, min(n_regions, SCRATCH_BUDGET_BYTES // (2 * per_region_bytes))))
+        buffers.append(ctx.buffer(reserve=batch * per_region_bytes))  # binding 3: filtered level
+        buffers.append(ctx.buffer(reserve=batch * per_region_bytes))  # binding 4: reduced level
+        progs = {}
+        try:
+            for i, b in enumerate(buffers):
+                b.bind_to_storage_buffer(i)
+            progs["level0"] = compute_shader(ctx, "pem/level0.comp")
+            progs["down_env"] = compute_shader(ctx, "pem/downsample.comp", {"FROM_ENV": 1})
+            progs["down"] = compute_shader(ctx, "pem/downsample.comp")
+            progs["filter"] = compute_shader(ctx, "pem/filter.comp")
+            progs["filter"]["u_taps"].value = tuple(float(t) for t in taps_1d(self.settings.filter))
+
+            for first in range(0, n_regions, batch):
+                count = min(batch, n_regions - first)
+                groups = lambda size: ((size + 7) // 8, (size + 7) // 8, 6 * count)  # noqa: E731
+                self.texture.bind_image(0, 0)
+                p = progs["level0"]
+                p["u_n"].value, p["u_first_region"].value = n, first
+                p.run(*groups(n))
+                for level in range(1, self.levels):
+                    size = n >> level
+                    p = progs["down_env"] if level == 1 else progs["down"]
+                    p["u_n"].value = size
+                    if "u_first_region" in p:
+                        p["u_first_region"].value = first
+                    ctx.memory_barrier()
+                    p.run(*groups(size))
+                    ctx.memory_barrier()
+                    self.texture.bind_image(0, level)
+                    p = progs["filter"]
+                    p["u_n"].value, p["u_first_region"].value = size, first
+                    p.run(*groups(size))
+            ctx.memory_barrier()
+        finally:
+            for p in progs.values():
+                p.release()
+            for b in buffers:
+                b.release()
+
+    # -- queries ----------------------------------------------------------------------------
+    @property
+    def n_regions(self) -> int:
+        return self.regions.n_regions
+
+    @property
+    def nbytes(self) -> int:
+        return self.texture.nbytes
+
+    def diffuse_level(self) -> float:
+        return min(self.lobes.level_for_glossiness(0.0), self.levels - 1)
+
+    def level_for_glossiness(self, g: float) -> float:
+        return min(self.lobes.level_for_glossiness(g), self.levels - 1)
+
+    def read_level(self, level: int) -> np.ndarray:
+        """All regions' texels of one level, unscaled to radiance: float32 (N, 6, s, s, 3)."""
+        data = self.texture.read_level(level)[..., :3]
+        return data * self.scale.astype(np.float32)[:, None, None, None, None]
+
+    def summary(self) -> dict:
+        return {"n_regions": self.n_regions, "face_size": self.face_size, "levels": self.levels,
+                "filter": self.settings.filter.value, "build_ms": round(self.build_ms, 2),
+                "median_cut_ms": round(self.median_cut_ms, 2), "bytes": self.nbytes,
+                "diffuse_level": round(self.diffuse_level(), 3)}
+
+    def release(self) -> None:
+        self.texture.release()
