@@ -80,6 +80,17 @@ class PEMSet:
             raise
         self.build_ms = (time.perf_counter() - t0) * 1e3
         self.lobes: LobeTable = lobe_table(n, settings.filter)
+        # The map itself, for the background seen behind the scene (level 0 only).
+        self.env_texture = gl.ctx.texture_cube((n, n), 3, dtype="f4")
+        for face in range(6):
+            self.env_texture.write(face, np.ascontiguousarray(cube[face, ..., :3]).tobytes())
+
+    GLOSS_TABLE_SIZE = 257
+
+    def gloss_table(self) -> np.ndarray:
+        """Fractional MIP level for g = k / 256, k = 0..256, clamped to the levels built: float32 (257,)."""
+        g = np.linspace(0.0, 1.0, self.GLOSS_TABLE_SIZE)
+        return np.array([self.level_for_glossiness(x) for x in g], np.float32)
 
     # -- build ------------------------------------------------------------------------------
     def _build(self, cube: np.ndarray) -> None:
@@ -138,7 +149,7 @@ class PEMSet:
 
     @property
     def nbytes(self) -> int:
-        return self.texture.nbytes
+        return self.texture.nbytes  # the PEMs; the float32 background cube is extra
 
     def diffuse_level(self) -> float:
         return min(self.lobes.level_for_glossiness(0.0), self.levels - 1)
@@ -159,3 +170,4 @@ class PEMSet:
 
     def release(self) -> None:
         self.texture.release()
+        self.env_texture.release()

@@ -1,0 +1,70 @@
+"""Pinhole camera: look-at view, OpenGL perspective projection, and a default that frames the scene."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InvalidInputError
+
+
+@dataclass(frozen=True)
+class Camera:
+    """eye, target, up in world space; vertical field of view in degrees."""
+
+    eye: tuple[float, float, float]
+    target: tuple[float, float, float]
+    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    fov_y_deg: float = 35.0
+
+    def __post_init__(self):
+        e, t, u = (np.asarray(v, np.float64) for v in (self.eye, self.target, self.up))
+        if not (np.all(np.isfinite(e)) and np.all(np.isfinite(t)) and np.all(np.isfinite(u))):
+            raise InvalidInputError("camera eye, target and up must be finite")
+        if np.linalg.norm(t - e) <= 0:
+            raise InvalidInputError("camera eye and target must differ")
+        if np.linalg.norm(np.cross(t - e, u)) <= 1e-12 * np.linalg.norm(t - e) * np.linalg.norm(u):
+            raise InvalidInputError("camera up must not be parallel to the viewing direction")
+        if not 1.0 <= self.fov_y_deg <= 170.0:
+            raise InvalidInputError(f"fov must be in [1, 170] degrees, got {self.fov_y_deg}")
+
+    def view(self) -> np.ndarray:
+        e, t, u = (np.asarray(v, np.float64) for v in (self.eye, self.target, self.up))
+        f = (t - e) / np.linalg.norm(t - e)
+        s = np.cross(f, u)
+        s /= np.linalg.norm(s)
+        up = np.cross(s, f)
+        m = np.eye(4)
+        m[0, :3], m[1, :3], m[2, :3] = s, up, -f
+        m[:3, 3] = -m[:3, :3] @ e
+        return m
+
+    def projection(self, aspect: float, near: float, far: float) -> np.ndarray:
+        f = 1.0 / np.tan(np.radians(self.fov_y_deg) / 2.0)
+        m = np.zeros((4, 4))
+        m[0, 0], m[1, 1] = f / aspect, f
+        m[2, 2] = (far + near) / (near - far)
+        m[2, 3] = 2.0 * far * near / (near - far)
+        m[3, 2] = -1.0
+        return m
+
+    def view_proj(self, aspect: float, centre: np.ndarray, radius: float) -> np.ndarray:
+        """View-projection with near/far planes fitted around the scene's bounding sphere."""
+        dist = float(np.linalg.norm(np.asarray(self.eye) - centre))
+        far = dist + 2.0 * radius
+        near = max(dist - 2.0 * radius, far * 1e-4)
+        return self.projection(aspect, near, far) @ self.view()
+
+
+def default_camera(centre: np.ndarray, radius: float, aspect: float = 1.0, fov_y_deg: float = 35.0,
+                   direction=(0.0, 0.2, 1.0)) -> Camera:
+    """Frames the bounding sphere from the front (+Z), slightly above, for a Y-up scene."""
+    d = np.asarray(direction, np.float64)
+    d /= np.linalg.norm(d)
+    half = np.radians(fov_y_deg) / 2.0
+    if aspect < 1.0:
+        half = np.arctan(np.tan(half) * aspect)
+    dist = 1.05 * radius / np.sin(half)
+    eye = np.asarray(centre, np.float64) + dist * d
+    return Camera(tuple(eye), tuple(np.asarray(centre, np.float64)), (0.0, 1.0, 0.0), fov_y_deg)

@@ -1,0 +1,246 @@
+"""The renderer a service holds for hours: PEM sets built once per environment map, scenes uploaded
+once, then frame after frame with new vertex positions and no new GL objects.
+
+A frame's path: positions -> normals -> shadow maps (moments, one per light) -> blur -> shading
+(paper Eq. 5) -> readback. Every stage is timed (wall clock after a finish; GPU timer queries where
+the driver's are meaningful).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from enum import Enum
+
+import moderngl
+import numpy as np
+
+from .camera import Camera, default_camera
+from .errors import InvalidInputError
+from .gpu.context import GLContext, StageTimer
+from .gpu.shaders import program
+from .lighting.pem import PEMSet, PEMSettings
+from .mesh import Mesh
+from .scene import Scene
+from .shading.material import Material
+from .shadows.lights import blur_sigma_texels, fit_light_view_proj, pack_lights
+from .shadows.vsm import ShadowMaps
+
+
+class ShadingMode(str, Enum):
+    """The paper's Figure 6 comparison: full method, no occlusion, grey AO, AO with colour."""
+
+    FULL = "full"
+    NO_OCCLUSION = "none"
+    AO_GREY = "ao"
+    AO_COLOUR = "ao-color"
+
+
+_MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_GREY: 2, ShadingMode.AO_COLOUR: 3}
+
+
+class Background(str, Enum):
+    ENVIRONMENT = "env"
+    BLACK = "black"
+
+
+@dataclass(frozen=True)
+class FrameSettings:
+    """Per-frame quality and output settings (the PEM set's own settings are in PEMSettings)."""
+
+    width: int = 512
+    height: int = 512
+    shadow_size: int = 256
+    blur_scale: float = 1.0
+    bleed_reduction: float = 0.2
+    min_variance: float = 1e-6
+    normal_offset_texels: float = 1.5
+    mode: ShadingMode = ShadingMode.FULL
+    background: Background = Background.ENVIRONMENT
+
+    def __post_init__(self):
+        if not (1 <= self.width <= 8192 and 1 <= self.height <= 8192):
+            raise InvalidInputError(f"image size must be within 1..8192 per side, got {self.width}x{self.height}")
+        if not (0.0 <= self.bleed_reduction < 1.0):
+            raise InvalidInputError(f"bleed reduction must be in [0, 1), got {self.bleed_reduction}")
+        if not (0.0 <= self.blur_scale <= 100.0) or not np.isfinite(self.blur_scale):
+            raise InvalidInputError(f"blur scale must be in [0, 100], got {self.blur_scale}")
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        d["mode"], d["background"] = self.mode.value, self.background.value
+        return d
+
+
+@dataclass
+class Frame:
+    """A rendered frame. image: float32 (H, W, 4) linear HDR RGB + coverage alpha, row 0 at the top."""
+
+    image: np.ndarray
+    timings: dict
+    settings: dict = field(default_factory=dict)
+
+
+class Renderer:
+    """Owns the GL context (or borrows one) and the per-size GPU resources reused across frames."""
+
+    def __init__(self, gl: GLContext | None = None):
+        self._owns_gl = gl is None
+        self.gl = gl or GLContext()
+        ctx = self.gl.ctx
+        defines = {"GLOSS_TABLE_SIZE": PEMSet.GLOSS_TABLE_SIZE}
+        self.shade_prog = program(ctx, "shading/surface.vert", "shading/surface.frag", defines)
+        self.bg_prog = program(ctx, "shading/background.vert", "shading/background.frag")
+        self.bg_vao = ctx.vertex_array(self.bg_prog, [])
+        self._shadow_maps = None
+        self._target = None
+        self._lights_buf = None
+        self._gloss_buf = ctx.buffer(reserve=4 * PEMSet.GLOSS_TABLE_SIZE)
+        # The moments program is needed to build vertex arrays before any shadow map exists.
+        self._shadow_prog = program(ctx, "shadows/moments.vert", "shadows/moments.frag")
+
+    # -- resources --------------------------------------------------------------------------
+    def build_pems(self, cube: np.ndarray, settings: PEMSettings = PEMSettings(),
+                   timer: StageTimer | None = None) -> PEMSet:
+        """Build the PEM set of a cube map (6, F, F, 3); the caller owns it (cache it per map)."""
+        return PEMSet(self.gl, cube, settings, timer)
+
+    def create_scene(self, meshes: list[Mesh], materials: list[Material] | None = None,
+                     casters: list[bool] | None = None) -> Scene:
+        materials = materials or [Material() for _ in meshes]
+        return Scene(self.gl, meshes, materials, self.shade_prog, self._shadow_prog, casters)
+
+    def _shadow_maps_for(self, size: int, n_lights: int):
+        sm = self._shadow_maps
+        if sm is None or sm.size != size or sm.n_lights != n_lights:
+            if sm is not None:
+                sm.release()
+            self._shadow_maps = ShadowMaps(self.gl, size, n_lights, self._shadow_prog)
+        return self._shadow_maps
+
+    def _target_for(self, w: int, h: int):
+        if self._target is None or self._target[0] != (w, h):
+            if self._target is not None:
+                for obj in self._target[1:]:
+                    obj.release()
+            ctx = self.gl.ctx
+            color = ctx.renderbuffer((w, h), 4, dtype="f4")
+            depth = ctx.depth_renderbuffer((w, h))
+            self._target = ((w, h), ctx.framebuffer([color], depth), color, depth)
+        return self._target[1]
+
+    def _lights_buffer(self, data: np.ndarray) -> moderngl.Buffer:
+        if self._lights_buf is None or self._lights_buf.size != data.nbytes:
+            if self._lights_buf is not None:
+                self._lights_buf.release()
+            self._lights_buf = self.gl.ctx.buffer(reserve=data.nbytes)
+        self._lights_buf.write(data.tobytes())
+        return self._lights_buf
+
+    # -- a frame ----------------------------------------------------------------------------
+    def render(self, scene: Scene, pems: PEMSet, settings: FrameSettings = FrameSettings(),
+               camera: Camera | None = None, positions: list[np.ndarray | None] | None = None,
+               normals: list[np.ndarray | None] | None = None) -> Frame:
+        gl, ctx = self.gl, self.gl.ctx
+        gl.check_thread()
+        timer = StageTimer()
+        t_frame = time.perf_counter()
+
+        t0 = time.perf_counter()
+        if positions is not None:
+            scene.set_positions(positions, normals)
+        timer.wall_ms["upload"] = (time.perf_counter() - t0) * 1e3
+
+        # Lights: directions and energies from the PEM set, projections fitted to the casters now.
+        regions = pems.regions
+        n = regions.n_regions
+        lo, hi = scene.bounds(casters_only=True)
+        sigma = blur_sigma_texels(regions.angular_radius_rad(), settings.shadow_size, settings.blur_scale)
+        vp = np.stack([fit_light_view_proj(regions.directions[i], lo, hi, sigma[i], settings.shadow_size)
+                       for i in range(n)])
+        lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
+                             sigma, np.ones(n))
+        lights_buf = self._lights_buffer(lights)
+
+        shadowed = settings.mode is not ShadingMode.NO_OCCLUSION
+        shadow_maps = self._shadow_maps_for(settings.shadow_size, n)
+        if shadowed:
+            shadow_maps.render([sm.vao_shadow for sm in scene.meshes if sm.caster], lights_buf, timer)
+
+        # Shading.
+        w, h = settings.width, settings.height
+        lo_all, hi_all = scene.bounds()
+        centre = 0.5 * (lo_all + hi_all)
+        radius = max(0.5 * float(np.linalg.norm(hi_all - lo_all)), 1e-30)
+        camera = camera or default_camera(centre, radius, w / h)
+        view_proj = camera.view_proj(w / h, centre, radius)
+        fbo = self._target_for(w, h)
+        with gl.stage(timer, "shading"):
+            fbo.use()
+            ctx.viewport = (0, 0, w, h)
+            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+            lights_buf.bind_to_storage_buffer(0)
+            self._gloss_buf.write(pems.gloss_table().tobytes())
+            self._gloss_buf.bind_to_storage_buffer(1)
+            pems.texture.bind_sampler(0)
+            shadow_maps.moments.use(location=1)
+            if settings.background is Background.ENVIRONMENT:
+                ctx.disable(moderngl.DEPTH_TEST)
+                pems.env_texture.use(location=2)
+                self.bg_prog["u_inv_view_proj"].write(np.linalg.inv(view_proj).T.astype(np.float32).tobytes())
+                self.bg_vao.render(moderngl.TRIANGLES, vertices=3)
+            ctx.enable(moderngl.DEPTH_TEST)
+            ctx.disable(moderngl.CULL_FACE)
+            p = self.shade_prog
+            p["u_view_proj"].write(view_proj.T.astype(np.float32).tobytes())
+            p["u_camera_pos"].value = tuple(float(x) for x in camera.eye)
+            p["u_n_lights"].value = n
+            p["u_mode"].value = _MODE_INDEX[settings.mode]
+            p["u_diffuse_level"].value = pems.diffuse_level()
+            p["u_min_variance"].value = settings.min_variance
+            p["u_bleed_reduction"].value = settings.bleed_reduction
+            extent = 2.0 * float(np.linalg.norm(hi - lo))
+            p["u_normal_offset"].value = settings.normal_offset_texels * extent / settings.shadow_size
+            for sm in scene.meshes:
+                sm.albedo_tex.use(location=3)
+                sm.gloss_tex.use(location=4)
+                p["u_use_albedo_map"].value = sm.use_maps[0]
+                p["u_use_gloss_map"].value = sm.use_maps[1]
+                sm.vao_shade.render(moderngl.TRIANGLES)
+            ctx.disable(moderngl.DEPTH_TEST)
+
+        t0 = time.perf_counter()
+        raw = fbo.read(components=4, dtype="f4")
+        image = np.frombuffer(raw, np.float32).reshape(h, w, 4)[::-1].copy()  # GL rows start at the bottom
+        timer.wall_ms["readback"] = (time.perf_counter() - t0) * 1e3
+
+        timings = timer.as_dict()
+        timings["frame_wall_ms"] = (time.perf_counter() - t_frame) * 1e3
+        timings["n_lights"] = n
+        timings["n_triangles"] = scene.n_triangles
+        timings["device"] = gl.renderer_name
+        info = {"frame": settings.as_dict(), "pems": pems.summary(),
+                "camera": {"eye": list(camera.eye), "target": list(camera.target), "fov_y_deg": camera.fov_y_deg},
+                "shadow_bytes": shadow_maps.nbytes if shadowed else 0}
+        return Frame(image, timings, info)
+
+    def release(self) -> None:
+        self.gl.check_thread()
+        if self._shadow_maps is not None:
+            self._shadow_maps.release()
+        if self._target is not None:
+            for obj in self._target[1:]:
+                obj.release()
+        if self._lights_buf is not None:
+            self._lights_buf.release()
+        self._gloss_buf.release()
+        for obj in (self.bg_vao, self.bg_prog, self.shade_prog, self._shadow_prog):
+            obj.release()
+        if self._owns_gl:
+            self.gl.release()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.release()

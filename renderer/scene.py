@@ -1,0 +1,119 @@
+"""GPU-resident meshes of a scene. Topology and materials are uploaded once; every frame only
+writes new positions (and normals) into the existing buffers, so a service can render frame after
+frame for hours without creating GL objects."""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+
+from .errors import MeshError
+from .gpu.context import GLContext
+from .mesh import Mesh, vertex_normals
+from .shading.material import Material
+
+
+class SceneMesh:
+    """One mesh's buffers, vertex arrays and material textures; owned by its `Scene`."""
+
+    def __init__(self, gl: GLContext, mesh: Mesh, material: Material, shade_prog, shadow_prog, caster: bool):
+        ctx = gl.ctx
+        self.mesh, self.material, self.caster = mesh, material, caster
+        self.n_vertices = mesh.positions.shape[0]
+        albedo, mat = material.vertex_arrays(self.n_vertices)
+        albedo_map, gloss_map = material.maps()
+        if (albedo_map is not None or gloss_map is not None) and mesh.uvs is None:
+            raise MeshError(f"mesh {mesh.name!r} has material maps but no UVs")
+        uvs = mesh.uvs if mesh.uvs is not None else np.zeros((self.n_vertices, 2), np.float32)
+        self.positions = mesh.positions
+        normals = vertex_normals(mesh.positions, mesh.faces)
+        self.vbo_pos = ctx.buffer(np.ascontiguousarray(mesh.positions, np.float32).tobytes(), dynamic=True)
+        self.vbo_nrm = ctx.buffer(normals.astype(np.float32).tobytes(), dynamic=True)
+        self.vbo_albedo = ctx.buffer(albedo.tobytes())
+        self.vbo_mat = ctx.buffer(mat.tobytes())
+        self.vbo_uv = ctx.buffer(np.ascontiguousarray(uvs, np.float32).tobytes())
+        self.ibo = ctx.buffer(np.ascontiguousarray(mesh.faces, np.int32).tobytes())
+        self.textures = []
+        self.albedo_tex = self._texture(ctx, albedo_map, 3, (1.0, 1.0, 1.0))
+        self.gloss_tex = self._texture(ctx, gloss_map, 2, (0.0, 0.0))
+        self.use_maps = (albedo_map is not None, gloss_map is not None)
+        self.vao_shade = ctx.vertex_array(shade_prog, [
+            (self.vbo_pos, "3f", "in_position"), (self.vbo_nrm, "3f", "in_normal"),
+            (self.vbo_albedo, "3f", "in_albedo"), (self.vbo_mat, "2f", "in_material"),
+            (self.vbo_uv, "2f", "in_uv")], index_buffer=self.ibo, index_element_size=4)
+        self.vao_shadow = ctx.vertex_array(shadow_prog, [(self.vbo_pos, "3f", "in_position")],
+                                           index_buffer=self.ibo, index_element_size=4)
+
+    def _texture(self, ctx, data, comps, default):
+        if data is None:
+            data = np.asarray(default, np.float32).reshape(1, 1, comps)
+        h, w = data.shape[:2]
+        # Row 0 of an image is its top; GL's t = 0 is the bottom: flip so that uv (0, 0) is bottom-left.
+        tex = ctx.texture((w, h), comps, np.ascontiguousarray(data[::-1], np.float32).tobytes(), dtype="f4")
+        tex.build_mipmaps()
+        tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+        self.textures.append(tex)
+        return tex
+
+    def set_positions(self, positions: np.ndarray, normals: np.ndarray | None = None) -> None:
+        """New frame: positions (V, 3) float32 (validated by the caller through Mesh.with_positions)."""
+        if normals is None:
+            normals = vertex_normals(positions, self.mesh.faces)
+        self.positions = positions
+        self.vbo_pos.write(np.ascontiguousarray(positions, np.float32).tobytes())
+        self.vbo_nrm.write(np.ascontiguousarray(normals, np.float32).tobytes())
+
+    def release(self) -> None:
+        for obj in (self.vao_shade, self.vao_shadow, self.vbo_pos, self.vbo_nrm, self.vbo_albedo, self.vbo_mat,
+                    self.vbo_uv, self.ibo, *self.textures):
+            obj.release()
+
+
+class Scene:
+    """Meshes of one scene (garment plus body, ...) with their materials, resident on the GPU."""
+
+    def __init__(self, gl: GLContext, meshes: list[Mesh], materials: list[Material], shade_prog, shadow_prog,
+                 casters: list[bool] | None = None):
+        gl.check_thread()
+        if not meshes:
+            raise MeshError("a scene needs at least one mesh")
+        if len(materials) != len(meshes):
+            raise MeshError(f"got {len(meshes)} meshes but {len(materials)} materials")
+        casters = casters or [True] * len(meshes)
+        self.gl = gl
+        self.meshes: list[SceneMesh] = []
+        try:
+            for m, mat, c in zip(meshes, materials, casters):
+                self.meshes.append(SceneMesh(gl, m, mat, shade_prog, shadow_prog, c))
+        except Exception:
+            self.release()
+            raise
+
+    def set_positions(self, positions: list[np.ndarray | None], normals: list[np.ndarray | None] | None = None):
+        self.gl.check_thread()
+        if len(positions) != len(self.meshes):
+            raise MeshError(f"got positions for {len(positions)} meshes, the scene has {len(self.meshes)}")
+        normals = normals or [None] * len(positions)
+        for sm, p, n in zip(self.meshes, positions, normals):
+            if p is not None:
+                sm.set_positions(p, n)
+
+    def bounds(self, casters_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        los, his = [], []
+        for sm in self.meshes:
+            if casters_only and not sm.caster:
+                continue
+            los.append(sm.positions.min(axis=0))
+            his.append(sm.positions.max(axis=0))
+        if not los:
+            return self.bounds(False)
+        return np.min(los, axis=0).astype(np.float64), np.max(his, axis=0).astype(np.float64)
+
+    @property
+    def n_triangles(self) -> int:
+        return int(sum(sm.mesh.faces.shape[0] for sm in self.meshes))
+
+    def release(self) -> None:
+        for sm in self.meshes:
+            sm.release()
+        self.meshes = []

@@ -1,0 +1,84 @@
+"""Per-light GPU data and light-space projections fitted to the casters' bounds.
+
+Each median-cut region becomes a directional light at its energy centroid. Its shadow map is an
+orthographic view along -direction whose square footprint and depth range are fitted to the
+bounding box of the shadow casters, widened by the blur's reach so that filtering never reads past
+the map's edge.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Mirror of `struct Light` in shaders/common/lights.glsl (std430; mat4 is column-major).
+LIGHT_DTYPE = np.dtype([
+    ("view_proj", np.float32, (16,)),
+    ("dir_scale", np.float32, (4,)),
+    ("params", np.float32, (4,)),
+    ("energy", np.float32, (4,)),
+])
+
+# Assumed occluder-to-receiver distance as a fraction of the shadow map's footprint; it turns a
+# region's angular radius into a blur width (penumbra ~ distance * tan(angular radius)).
+PENUMBRA_DEPTH_FRACTION = 0.1
+MIN_SIGMA_TEXELS = 0.5
+MAX_BLUR_RADIUS = 32
+
+
+def light_basis(direction: np.ndarray) -> np.ndarray:
+    """Rows: right, up, forward (= -direction) of a light looking at the scene. (3, 3) float64."""
+    f = -np.asarray(direction, np.float64)
+    f /= np.linalg.norm(f)
+    hint = np.array([0.0, 1.0, 0.0]) if abs(f[1]) < 0.99 else np.array([1.0, 0.0, 0.0])
+    right = np.cross(f, hint)
+    right /= np.linalg.norm(right)
+    up = np.cross(right, f)
+    return np.stack([right, up, f])
+
+
+def blur_sigma_texels(angular_radius_rad: np.ndarray, shadow_size: int, blur_scale: float) -> np.ndarray:
+    theta = np.minimum(angular_radius_rad, np.radians(60.0))
+    sigma = blur_scale * np.tan(theta) * shadow_size * PENUMBRA_DEPTH_FRACTION
+    return np.clip(sigma, MIN_SIGMA_TEXELS if blur_scale > 0 else 0.0, MAX_BLUR_RADIUS / 3.0)
+
+
+def fit_light_view_proj(direction: np.ndarray, lo: np.ndarray, hi: np.ndarray, sigma_texels: float,
+                        shadow_size: int) -> np.ndarray:
+    """World -> light clip matrix (4, 4) float64: x, y in [-1, 1] over the casters' box, depth z in
+    [0, 1] from the nearest to the farthest corner (GL clip space with w = 1)."""
+    basis = light_basis(direction)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    ls = corners @ basis.T
+    cmin, cmax = ls.min(axis=0), ls.max(axis=0)
+    centre = 0.5 * (cmin + cmax)
+    half = 0.5 * max(cmax[0] - cmin[0], cmax[1] - cmin[1])
+    half = max(half, 1e-12 * max(1.0, float(np.abs(centre).max())), 1e-30)
+    # Widen by the blur's reach (3 sigma texels) plus one texel for rasterization at the border.
+    half *= 1.0 + 2.0 * (3.0 * sigma_texels + 1.0) / shadow_size
+    depth = max(cmax[2] - cmin[2], 1e-30)
+    z0 = cmin[2] - 0.01 * depth
+    z_range = 1.02 * depth
+    m = np.zeros((4, 4))
+    m[0, :3] = basis[0] / half
+    m[0, 3] = -centre[0] / half
+    m[1, :3] = basis[1] / half
+    m[1, 3] = -centre[1] / half
+    m[2, :3] = basis[2] / z_range
+    m[2, 3] = -z0 / z_range
+    m[3, 3] = 1.0
+    return m
+
+
+def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma, shadowed) -> np.ndarray:
+    """Build the std430 array of `struct Light` for n lights."""
+    n = len(directions)
+    arr = np.zeros(n, LIGHT_DTYPE)
+    arr["view_proj"] = np.transpose(view_proj, (0, 2, 1)).reshape(n, 16)  # column-major for GLSL
+    arr["dir_scale"][:, :3] = directions
+    arr["dir_scale"][:, 3] = scales
+    arr["params"][:, 0] = sigma
+    arr["params"][:, 1] = shadowed
+    arr["params"][:, 2] = solid_angle_sr
+    arr["energy"][:, :3] = energy_rgb
+    arr["energy"][:, 3] = np.asarray(energy_rgb) @ np.array([0.2126, 0.7152, 0.0722])
+    return arr

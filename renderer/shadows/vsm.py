@@ -1,0 +1,113 @@
+"""Variance shadow maps, one per light, re-rendered every frame (Knuth et al. 2014, sec. 4).
+
+Moments (z, z^2) are 32-bit floats in a 2D texture array (layer = light). All lights are drawn in
+batches of instanced draws (instance = light, gl_Layer from the vertex shader); the nearest surface
+is kept by MIN blending. A separable Gaussian blur whose width follows each region's angular size
+then softens them. The arrays are allocated once per (size, light count) and reused frame after
+frame.
+"""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+
+from ..errors import InvalidInputError
+from ..gpu.context import GLContext, StageTimer
+from ..gpu.shaders import compute_shader
+from .lights import MAX_BLUR_RADIUS
+
+# Lights per instanced draw: bounds the layered framebuffer (GL_MAX_FRAMEBUFFER_LAYERS >= 2048).
+LAYERS_PER_BATCH = 64
+
+
+class ShadowMaps:
+    """GPU state of the shadow pass for a fixed shadow-map size and light count."""
+
+    def __init__(self, gl: GLContext, size: int, n_lights: int, moments_prog: moderngl.Program):
+        """`moments_prog` (shadows/moments.vert + .frag) is the caller's: the casters' vertex arrays use it."""
+        gl.check_thread()
+        if size < 16 or size > 8192:
+            raise InvalidInputError(f"shadow-map size must be in [16, 8192], got {size}")
+        self.gl, self.size, self.n_lights = gl, size, n_lights
+        ctx = gl.ctx
+        self.moments = ctx.texture_array((size, size, n_lights), 2, dtype="f4")
+        self.moments.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        self.moments.repeat_x = self.moments.repeat_y = False
+        self.scratch = ctx.texture_array((size, size, n_lights), 2, dtype="f4")
+        self._fbos = []
+        # One framebuffer per batch of layers would need layer offsets that moderngl cannot set;
+        # instead each batch renders into a batch-sized array that is then blurred into place.
+        self.batch_layers = min(n_lights, LAYERS_PER_BATCH)
+        self.target = (self.moments if n_lights <= LAYERS_PER_BATCH
+                       else ctx.texture_array((size, size, self.batch_layers), 2, dtype="f4"))
+        self.fbo = ctx.framebuffer(color_attachments=[self.target])
+        self.prog = moments_prog
+        self.blur = compute_shader(ctx, "shadows/blur.comp")
+        self.copy = compute_shader(ctx, "shadows/copy_layers.comp") if self.target is not self.moments else None
+
+    @property
+    def nbytes(self) -> int:
+        n = 2 if self.target is self.moments else 3
+        return self.size * self.size * 8 * (2 * self.n_lights if n == 2 else 2 * self.n_lights + self.batch_layers)
+
+    def render(self, vaos: list[moderngl.VertexArray], lights_buffer: moderngl.Buffer,
+               timer: StageTimer | None = None, enabled: bool = True) -> None:
+        """Render and blur the moments of every light. `vaos` draw the casters with `self.prog`."""
+        gl, ctx = self.gl, self.gl.ctx
+        gl.check_thread()
+        lights_buffer.bind_to_storage_buffer(0)
+        groups = ((self.size + 7) // 8, (self.size + 7) // 8)
+        for first in range(0, self.n_lights, self.batch_layers):
+            count = min(self.batch_layers, self.n_lights - first)
+            with gl.stage(timer, "shadow_maps"):
+                self.fbo.use()
+                ctx.viewport = (0, 0, self.size, self.size)
+                self.fbo.clear(1.0, 1.0, 0.0, 0.0)
+                if enabled:
+                    ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+                    ctx.enable(moderngl.BLEND)
+                    ctx.blend_equation = moderngl.MIN
+                    self.prog["u_first_light"].value = first
+                    for vao in vaos:
+                        vao.render(moderngl.TRIANGLES, instances=count)
+                    ctx.blend_equation = moderngl.FUNC_ADD
+                    ctx.disable(moderngl.BLEND)
+            with gl.stage(timer, "blur"):
+                src = self.target
+                self.blur["u_first_light"].value = first
+                self.blur["u_max_radius"].value = MAX_BLUR_RADIUS
+                # Horizontal: target -> scratch; vertical: scratch -> moments (at layer offset `first`).
+                ctx.memory_barrier()
+                src.bind_to_image(1, read=True, write=False)
+                self.scratch.bind_to_image(2, read=False, write=True)
+                self.blur["u_axis"].value = (1, 0)
+                self.blur.run(*groups, count)
+                ctx.memory_barrier()
+                if self.copy is None:
+                    self.scratch.bind_to_image(1, read=True, write=False)
+                    self.moments.bind_to_image(2, read=False, write=True)
+                    self.blur["u_axis"].value = (0, 1)
+                    self.blur.run(*groups, count)
+                else:
+                    self.scratch.bind_to_image(1, read=True, write=False)
+                    self.target.bind_to_image(2, read=False, write=True)
+                    self.blur["u_axis"].value = (0, 1)
+                    self.blur.run(*groups, count)
+                    ctx.memory_barrier()
+                    self.target.bind_to_image(1, read=True, write=False)
+                    self.moments.bind_to_image(2, read=False, write=True)
+                    self.copy["u_first_layer"].value = first
+                    self.copy.run(*groups, count)
+                ctx.memory_barrier()
+
+    def read(self) -> np.ndarray:
+        """Blurred moments, float32 (n_lights, size, size, 2); row 0 is the bottom of light space."""
+        return np.frombuffer(self.moments.read(), np.float32).reshape(self.n_lights, self.size, self.size, 2)
+
+    def release(self) -> None:
+        for obj in {id(o): o for o in (self.fbo, self.target, self.moments, self.scratch)}.values():
+            obj.release()
+        self.blur.release()
+        if self.copy is not None:
+            self.copy.release()

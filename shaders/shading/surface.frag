@@ -1,0 +1,93 @@
+// Final lighting, Knuth et al. 2014 Eq. 5: c = sum_i VIS_i * PEM_i(dir, g).
+// Diffuse: PEM_i looked up along the normal at the calibrated s = 1 level, times the albedo.
+// Glossy: PEM_i looked up along the reflection vector at the level calibrated for g, times the
+// specular weight. VIS_i is the variance-shadow-map visibility of light i.
+#include "common/lights.glsl"
+
+layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
+layout(std430, binding = 1) readonly buffer GlossLevels { float level_of_g[]; };  // GLOSS_TABLE_SIZE
+layout(binding = 0) uniform samplerCubeArray u_pem;          // layer i = region i, scaled by 1/scale_i
+layout(binding = 1) uniform sampler2DArray u_moments;        // layer i = light i (blurred moments)
+layout(binding = 3) uniform sampler2D u_albedo_map;          // multiplies the vertex albedo
+layout(binding = 4) uniform sampler2D u_gloss_map;           // (specular, glossiness), replaces the vertex values
+uniform bool u_use_albedo_map;
+uniform bool u_use_gloss_map;
+
+uniform vec3 u_camera_pos;
+uniform int u_n_lights;
+uniform int u_mode;                // 0 full method, 1 no occlusion, 2 grey AO, 3 colour AO
+uniform float u_diffuse_level;
+uniform float u_min_variance;
+uniform float u_bleed_reduction;   // Lauritzen's light-bleeding reduction: clip p_max below this
+uniform float u_normal_offset;     // world units, pushes the shadow lookup off the surface
+
+in vec3 v_ws_position;
+in vec3 v_ws_normal;
+in vec3 v_albedo;
+in vec2 v_material;
+in vec2 v_uv;
+
+out vec4 o_color;
+
+float linstep(float lo, float hi, float x) { return clamp((x - lo) / (hi - lo), 0.0, 1.0); }
+
+// Chebyshev's one-tailed inequality on the blurred depth moments (Donnelly & Lauritzen 2006).
+float visibility(int i, vec3 ws_pos) {
+    if (lights[i].params.y < 0.5) return 1.0;
+    vec4 p = lights[i].view_proj * vec4(ws_pos, 1.0);
+    vec2 uv = p.xy * 0.5 + 0.5;
+    if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
+    vec2 m = texture(u_moments, vec3(uv, float(i))).xy;
+    float t = p.z;
+    if (t <= m.x) return 1.0;
+    float variance = max(m.y - m.x * m.x, u_min_variance);
+    float d = t - m.x;
+    float p_max = variance / (variance + d * d);
+    return linstep(u_bleed_reduction, 1.0, p_max);
+}
+
+float gloss_level(float g) {
+    float x = clamp(g, 0.0, 1.0) * float(GLOSS_TABLE_SIZE - 1);
+    int k = min(int(x), GLOSS_TABLE_SIZE - 2);
+    return mix(level_of_g[k], level_of_g[k + 1], x - float(k));
+}
+
+void main() {
+    vec3 n = normalize(v_ws_normal);
+    vec3 to_eye = normalize(u_camera_pos - v_ws_position);
+    if (dot(n, to_eye) < 0.0) n = -n;   // cloth is two-sided: shade the side the camera sees
+    vec3 r = reflect(-to_eye, n);
+    vec3 albedo = u_use_albedo_map ? v_albedo * texture(u_albedo_map, v_uv).rgb : v_albedo;
+    vec2 material = u_use_gloss_map ? texture(u_gloss_map, v_uv).rg : v_material;
+    float specular = material.x;
+    float level_g = gloss_level(material.y);
+    vec3 shadow_pos = v_ws_position + u_normal_offset * n;
+
+    vec3 diffuse = vec3(0.0), glossy = vec3(0.0);
+    vec3 ao_rgb = vec3(0.0), ao_norm = vec3(0.0);
+    for (int i = 0; i < u_n_lights; ++i) {
+        float scale = lights[i].dir_scale.w;
+        vec3 pem_d = scale * textureLod(u_pem, vec4(n, float(i)), u_diffuse_level).rgb;
+        vec3 pem_g = specular > 0.0 ? scale * textureLod(u_pem, vec4(r, float(i)), level_g).rgb : vec3(0.0);
+        float vis = u_mode == 1 ? 1.0 : visibility(i, shadow_pos);
+        if (u_mode == 0 || u_mode == 1) {
+            diffuse += vis * pem_d;
+            glossy += vis * pem_g;
+        } else {
+            // Ambient-occlusion baselines (paper Fig. 6): unshadowed lighting times an occlusion factor
+            // that averages VIS_i with cosine weights, by solid angle (grey) or by energy (colour).
+            float cosine = max(dot(n, lights[i].dir_scale.xyz), 0.0);
+            vec3 w = u_mode == 2 ? vec3(lights[i].params.z) : lights[i].energy.rgb;
+            ao_rgb += vis * cosine * w;
+            ao_norm += cosine * w;
+            diffuse += pem_d;
+            glossy += pem_g;
+        }
+    }
+    if (u_mode >= 2) {
+        vec3 ao = ao_rgb / max(ao_norm, vec3(1e-30));
+        diffuse *= ao;
+        glossy *= ao;
+    }
+    o_color = vec4(albedo * diffuse + specular * glossy, 1.0);
+}

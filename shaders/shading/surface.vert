@@ -1,0 +1,23 @@
+// Shading pass: world-space position, normal and material per vertex.
+in vec3 in_position;     // world space
+in vec3 in_normal;       // world space, unit length
+in vec3 in_albedo;       // diffuse reflectance, linear RGB
+in vec2 in_material;     // x: specular weight, y: glossiness g in [0, 1]
+in vec2 in_uv;           // texture coordinates of the material maps
+
+uniform mat4 u_view_proj;
+
+out vec3 v_ws_position;
+out vec3 v_ws_normal;
+out vec3 v_albedo;
+out vec2 v_material;
+out vec2 v_uv;
+
+void main() {
+    v_ws_position = in_position;
+    v_ws_normal = in_normal;
+    v_albedo = in_albedo;
+    v_material = in_material;
+    v_uv = in_uv;
+    gl_Position = u_view_proj * vec4(in_position, 1.0);
+}
