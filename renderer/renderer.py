@@ -19,7 +19,7 @@ from .camera import Camera, default_camera
 from .errors import InvalidInputError
 from .gpu.context import GLContext, StageTimer
 from .gpu.shaders import program
-from .lighting.pem import PEMSet, PEMSettings
+from .lighting.pem import REGIONS_PER_TEXTURE, PEMSet, PEMSettings
 from .mesh import Mesh
 from .scene import Scene
 from .shading.material import Material
@@ -88,7 +88,7 @@ class Renderer:
         self._owns_gl = gl is None
         self.gl = gl or GLContext()
         ctx = self.gl.ctx
-        defines = {"GLOSS_TABLE_SIZE": PEMSet.GLOSS_TABLE_SIZE}
+        defines = {"GLOSS_TABLE_SIZE": PEMSet.GLOSS_TABLE_SIZE, "REGIONS_PER_TEXTURE": REGIONS_PER_TEXTURE}
         self.shade_prog = program(ctx, "shading/surface.vert", "shading/surface.frag", defines)
         self.bg_prog = program(ctx, "shading/background.vert", "shading/background.frag")
         self.bg_vao = ctx.vertex_array(self.bg_prog, [])
@@ -182,7 +182,7 @@ class Renderer:
             lights_buf.bind_to_storage_buffer(0)
             self._gloss_buf.write(pems.gloss_table().tobytes())
             self._gloss_buf.bind_to_storage_buffer(1)
-            pems.texture.bind_sampler(0)
+            pems.bind(0, 5)
             shadow_maps.moments.use(location=1)
             if settings.background is Background.ENVIRONMENT:
                 ctx.disable(moderngl.DEPTH_TEST)

@@ -63,37 +63,49 @@ def regions_per_face(n_lights: int) -> int:
     return per_face
 
 
+def _split(energy: np.ndarray, rect: tuple[int, int, int, int]):
+    """Split one rectangle across its longer side where its energy is halved (two rectangles)."""
+    r0, r1, c0, c1 = rect
+    h, w = r1 - r0, c1 - c0
+    axis = 0 if h >= w else 1  # split across the longer side (rows if taller)
+    length = h if axis == 0 else w
+    profile = energy[r0:r1, c0:c1].sum(axis=1 - axis)  # energy per row (axis 0) or per column (axis 1)
+    cum = np.cumsum(profile)
+    total = cum[-1]
+    if total > 0:
+        # First index where the cumulative energy reaches half: the median line; then take the side
+        # of the median texel that balances better.
+        split = int(np.searchsorted(cum, 0.5 * total)) + 1
+        if split - 1 >= 1 and abs(cum[split - 2] - 0.5 * total) <= abs(cum[split - 1] - 0.5 * total):
+            split -= 1
+    else:
+        split = length // 2  # no energy: cut geometrically
+    split = min(max(split, 1), length - 1)
+    if axis == 0:
+        return (r0, r0 + split, c0, c1), (r0 + split, r1, c0, c1)
+    return (r0, r1, c0, c0 + split), (r0, r1, c0 + split, c1)
+
+
 def _cut_face(energy: np.ndarray, cuts: int) -> list[tuple[int, int, int, int]]:
-    """Median-cut one face's energy grid (F, F) `cuts` times; returns (r0, r1, c0, c1) rectangles."""
+    """Median-cut one face's energy grid (F, F) `cuts` times; returns 2^cuts (r0, r1, c0, c1) rectangles.
+
+    A region that has shrunk to one texel (a very bright texel) cannot be halved; it is kept, and
+    the largest splittable region of the face is split once more instead, so the count stays 2^k.
+    """
     rects = [(0, energy.shape[0], 0, energy.shape[1])]
+    size = lambda r: (r[1] - r[0]) * (r[3] - r[2])  # noqa: E731
     for _ in range(cuts):
+        target = 2 * len(rects)
         nxt = []
-        for r0, r1, c0, c1 in rects:
-            h, w = r1 - r0, c1 - c0
-            axis = 0 if h >= w else 1  # split across the longer side (rows if taller)
-            length = h if axis == 0 else w
-            if length < 2:
+        for rect in rects:
+            nxt += list(_split(energy, rect)) if size(rect) > 1 else [rect]
+        while len(nxt) < target:
+            big = max(range(len(nxt)), key=lambda i: size(nxt[i]))
+            if size(nxt[big]) < 2:
                 raise InvalidInputError(
-                    "the cube face is too small for this many lights: a region of one texel cannot be "
-                    "split; use a larger --face-size or fewer --lights"
-                )
-            block = energy[r0:r1, c0:c1]
-            profile = block.sum(axis=1 - axis)  # energy per row (axis 0) or per column (axis 1)
-            cum = np.cumsum(profile)
-            total = cum[-1]
-            if total > 0:
-                # First index where the cumulative energy reaches half: the median line.
-                split = int(np.searchsorted(cum, 0.5 * total)) + 1
-                # Choose the side of the median texel that balances better.
-                if split - 1 >= 1 and abs(cum[split - 2] - 0.5 * total) <= abs(cum[split - 1] - 0.5 * total):
-                    split -= 1
-            else:
-                split = length // 2  # no energy: cut geometrically
-            split = min(max(split, 1), length - 1)
-            if axis == 0:
-                nxt += [(r0, r0 + split, c0, c1), (r0 + split, r1, c0, c1)]
-            else:
-                nxt += [(r0, r1, c0, c0 + split), (r0, r1, c0 + split, c1)]
+                    "the cube face is too small for this many lights: every region is one texel; "
+                    "use a larger --face-size or fewer --lights")
+            nxt[big:big + 1] = list(_split(energy, nxt[big]))
         rects = nxt
     return rects
 

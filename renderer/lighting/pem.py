@@ -25,6 +25,10 @@ from .median_cut import RegionSet, median_cut
 from .pem_reference import mip_levels
 
 SCRATCH_BUDGET_BYTES = 64 << 20  # bound on the two float32 scratch buffers of one batch
+# GL_MAX_ARRAY_TEXTURE_LAYERS is 2048 on Mesa and NVIDIA: 341 cubes. 192 regions per texture keeps
+# power-of-two light counts in whole textures; 384 lights use two (the shader has two samplers).
+REGIONS_PER_TEXTURE = 192
+MAX_TEXTURES = 2
 
 
 @dataclass(frozen=True)
@@ -70,13 +74,17 @@ class PEMSet:
         np.maximum.at(peak, self.regions.labels.reshape(-1), flat)
         self.scale = np.where(peak > 0, peak, 1.0).astype(np.float64)
 
-        self.texture = CubeMapArray(gl.gl, n, n_regions, self.levels, GL_RGBA16F)
+        if n_regions > REGIONS_PER_TEXTURE * MAX_TEXTURES:
+            raise InvalidInputError(f"at most {REGIONS_PER_TEXTURE * MAX_TEXTURES} lights are supported, got {n_regions}")
+        self.textures = [CubeMapArray(gl.gl, n, min(REGIONS_PER_TEXTURE, n_regions - first), self.levels, GL_RGBA16F)
+                         for first in range(0, n_regions, REGIONS_PER_TEXTURE)]
         t0 = time.perf_counter()
         try:
             with gl.stage(timer, "pem_build"):
                 self._build(cube)
         except Exception:
-            self.texture.release()
+            for t in self.textures:
+                t.release()
             raise
         self.build_ms = (time.perf_counter() - t0) * 1e3
         self.lobes: LobeTable = lobe_table(n, settings.filter)
@@ -102,7 +110,9 @@ class PEMSet:
                    ctx.buffer(np.ascontiguousarray(self.regions.labels, np.int32).tobytes()),
                    ctx.buffer((1.0 / self.scale).astype(np.float32).tobytes())]
         per_region_bytes = 6 * max(1, (n // 2) ** 2) * 16
-        batch = int(max(1, min(n_regions, SCRATCH_BUDGET_BYTES // (2 * per_region_bytes))))
+        batch = int(max(1, min(REGIONS_PER_TEXTURE, SCRATCH_BUDGET_BYTES // (2 * per_region_bytes))))
+        while REGIONS_PER_TEXTURE % batch:  # a batch never straddles two textures
+            batch -= 1
         buffers.append(ctx.buffer(reserve=batch * per_region_bytes))  # binding 3: filtered level
         buffers.append(ctx.buffer(reserve=batch * per_region_bytes))  # binding 4: reduced level
         progs = {}
@@ -118,7 +128,11 @@ class PEMSet:
             for first in range(0, n_regions, batch):
                 count = min(batch, n_regions - first)
                 groups = lambda size: ((size + 7) // 8, (size + 7) // 8, 6 * count)  # noqa: E731
-                self.texture.bind_image(0, 0)
+                texture = self.textures[first // REGIONS_PER_TEXTURE]
+                texture_first = first - first % REGIONS_PER_TEXTURE
+                for name in ("level0", "filter"):
+                    progs[name]["u_texture_first_region"].value = texture_first
+                texture.bind_image(0, 0)
                 p = progs["level0"]
                 p["u_n"].value, p["u_first_region"].value = n, first
                 p.run(*groups(n))
@@ -131,7 +145,7 @@ class PEMSet:
                     ctx.memory_barrier()
                     p.run(*groups(size))
                     ctx.memory_barrier()
-                    self.texture.bind_image(0, level)
+                    texture.bind_image(0, level)
                     p = progs["filter"]
                     p["u_n"].value, p["u_first_region"].value = size, first
                     p.run(*groups(size))
@@ -149,7 +163,7 @@ class PEMSet:
 
     @property
     def nbytes(self) -> int:
-        return self.texture.nbytes  # the PEMs; the float32 background cube is extra
+        return sum(t.nbytes for t in self.textures)  # the PEMs; the float32 background cube is extra
 
     def diffuse_level(self) -> float:
         return min(self.lobes.level_for_glossiness(0.0), self.levels - 1)
@@ -157,9 +171,18 @@ class PEMSet:
     def level_for_glossiness(self, g: float) -> float:
         return min(self.lobes.level_for_glossiness(g), self.levels - 1)
 
+    def read_level_raw(self, level: int) -> np.ndarray:
+        """Stored (scaled) texels of one level: float32 (N, 6, s, s, 4)."""
+        return np.concatenate([t.read_level(level) for t in self.textures])
+
+    def bind(self, first_unit: int, second_unit: int) -> None:
+        """Bind the PEM textures for shading (regions 0..191 and 192..383)."""
+        self.textures[0].bind_sampler(first_unit)
+        self.textures[-1].bind_sampler(second_unit)
+
     def read_level(self, level: int) -> np.ndarray:
         """All regions' texels of one level, unscaled to radiance: float32 (N, 6, s, s, 3)."""
-        data = self.texture.read_level(level)[..., :3]
+        data = self.read_level_raw(level)[..., :3]
         return data * self.scale.astype(np.float32)[:, None, None, None, None]
 
     def summary(self) -> dict:
@@ -169,5 +192,6 @@ class PEMSet:
                 "diffuse_level": round(self.diffuse_level(), 3)}
 
     def release(self) -> None:
-        self.texture.release()
+        for t in self.textures:
+            t.release()
         self.env_texture.release()

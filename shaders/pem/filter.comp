@@ -13,6 +13,7 @@ layout(binding = 0, rgba16f) writeonly uniform imageCubeArray o_pem;
 
 uniform int u_n;
 uniform int u_first_region;
+uniform int u_texture_first_region;  // first region stored in the bound cube-map array
 uniform float u_taps[5];
 
 void main() {
@@ -31,5 +32,5 @@ void main() {
     }
     dst[(id.z * u_n + id.y) * u_n + id.x] = acc;
     int region = u_first_region + id.z / 6;
-    imageStore(o_pem, ivec3(id.x, id.y, 6 * region + face), vec4(acc.rgb * inv_scale[region], 1.0));
+    imageStore(o_pem, ivec3(id.x, id.y, 6 * (region - u_texture_first_region) + face), vec4(acc.rgb * inv_scale[region], 1.0));
 }

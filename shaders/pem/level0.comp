@@ -10,6 +10,7 @@ layout(binding = 0, rgba16f) writeonly uniform imageCubeArray o_pem;
 
 uniform int u_n;
 uniform int u_first_region;
+uniform int u_texture_first_region;  // first region stored in the bound cube-map array
 
 void main() {
     ivec3 id = ivec3(gl_GlobalInvocationID);
@@ -18,5 +19,5 @@ void main() {
     int region = u_first_region + id.z / 6;
     int t = (face * u_n + id.y) * u_n + id.x;
     vec4 value = labels[t] == region ? vec4(env[t].rgb * inv_scale[region], 1.0) : vec4(0.0, 0.0, 0.0, 1.0);
-    imageStore(o_pem, ivec3(id.x, id.y, 6 * region + face), value);
+    imageStore(o_pem, ivec3(id.x, id.y, 6 * (region - u_texture_first_region) + face), value);
 }

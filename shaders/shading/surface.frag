@@ -6,7 +6,8 @@
 
 layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
 layout(std430, binding = 1) readonly buffer GlossLevels { float level_of_g[]; };  // GLOSS_TABLE_SIZE
-layout(binding = 0) uniform samplerCubeArray u_pem;          // layer i = region i, scaled by 1/scale_i
+layout(binding = 0) uniform samplerCubeArray u_pem0;         // layer i = region i < 192, scaled by 1/scale_i
+layout(binding = 5) uniform samplerCubeArray u_pem1;         // layer i - 192 = region i >= 192
 layout(binding = 1) uniform sampler2DArray u_moments;        // layer i = light i (blurred moments)
 layout(binding = 3) uniform sampler2D u_albedo_map;          // multiplies the vertex albedo
 layout(binding = 4) uniform sampler2D u_gloss_map;           // (specular, glossiness), replaces the vertex values
@@ -28,6 +29,12 @@ in vec2 v_material;
 in vec2 v_uv;
 
 out vec4 o_color;
+
+// PEM_i(dir) at a fractional MIP level (trilinear, seamless across cube faces).
+vec3 pem(int i, vec3 dir, float level) {
+    if (i < REGIONS_PER_TEXTURE) return textureLod(u_pem0, vec4(dir, float(i)), level).rgb;
+    return textureLod(u_pem1, vec4(dir, float(i - REGIONS_PER_TEXTURE)), level).rgb;
+}
 
 float linstep(float lo, float hi, float x) { return clamp((x - lo) / (hi - lo), 0.0, 1.0); }
 
@@ -67,8 +74,8 @@ void main() {
     vec3 ao_rgb = vec3(0.0), ao_norm = vec3(0.0);
     for (int i = 0; i < u_n_lights; ++i) {
         float scale = lights[i].dir_scale.w;
-        vec3 pem_d = scale * textureLod(u_pem, vec4(n, float(i)), u_diffuse_level).rgb;
-        vec3 pem_g = specular > 0.0 ? scale * textureLod(u_pem, vec4(r, float(i)), level_g).rgb : vec3(0.0);
+        vec3 pem_d = scale * pem(i, n, u_diffuse_level);
+        vec3 pem_g = specular > 0.0 ? scale * pem(i, r, level_g) : vec3(0.0);
         float vis = u_mode == 1 ? 1.0 : visibility(i, shadow_pos);
         if (u_mode == 0 || u_mode == 1) {
             diffuse += vis * pem_d;

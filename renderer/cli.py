@@ -1,0 +1,194 @@
+"""`garment-render` command line. The flag names of `render` are a contract users' scripts rely on."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .errors import RenderError
+
+# Quality presets. Provisional: issue 3 replaces them by settings chosen from the measured benchmark.
+PRESETS = {
+    "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 1.0},
+    "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 1.0},
+    "accurate": {"lights": 96, "face_size": 256, "shadow_size": 512, "blur_scale": 1.0},
+}
+
+
+def _floats(n: int):
+    def parse(text: str) -> tuple:
+        try:
+            vals = tuple(float(x) for x in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {n} comma-separated numbers, got {text!r}") from None
+        if len(vals) == 1 and n == 3:
+            vals = vals * 3
+        if len(vals) != n:
+            raise argparse.ArgumentTypeError(f"expected {n} comma-separated numbers, got {text!r}")
+        return vals
+    return parse
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must look like 512x512, got {text!r}") from None
+    return w, h
+
+
+def add_scene_arguments(p: argparse.ArgumentParser) -> None:
+    """Scene, quality and output flags shared by `render` and the commands built on it."""
+    g = p.add_argument_group("scene")
+    g.add_argument("--env", type=Path, help="environment map (.exr or .hdr); default: bundled procedural studio")
+    g.add_argument("--layout", default="auto", choices=["auto", "latlong", "angular", "hcross", "vcross"])
+    g.add_argument("--repair", action="store_true", help="replace NaN/Inf/negative texels instead of failing")
+    g.add_argument("--mesh", type=Path, action="append", default=[],
+                   help="mesh file (PLY/OBJ/GLB); the first is the garment, others (e.g. the body) follow; "
+                        "default: bundled procedural dress and body")
+    g.add_argument("--up", choices=["y", "z"], default="y", help="up axis of the mesh files")
+    g.add_argument("--mesh-scale", type=float, default=1.0, help="scale applied to the mesh files (e.g. 0.01 for cm)")
+    g.add_argument("--albedo", type=_floats(3), default=(0.8, 0.2, 0.2), help="garment diffuse reflectance r,g,b")
+    g.add_argument("--specular", type=float, default=0.5, help="garment weight of the glossy lobe")
+    g.add_argument("--glossiness", type=float, default=0.8, help="garment glossiness g in [0,1] (paper Eq. 3)")
+    g.add_argument("--body-albedo", type=_floats(3), default=(0.55, 0.5, 0.45))
+    g.add_argument("--camera-eye", type=_floats(3))
+    g.add_argument("--camera-target", type=_floats(3))
+    g.add_argument("--fov", type=float, default=35.0, help="vertical field of view, degrees")
+    q = p.add_argument_group("quality")
+    q.add_argument("--preset", choices=sorted(PRESETS), default="balanced")
+    q.add_argument("--lights", type=int, help="regions / lights, 6 * 2^k")
+    q.add_argument("--face-size", type=int, help="PEM cube face size (power of two)")
+    q.add_argument("--filter", default="sqrt-cosine", choices=["none", "box", "gauss", "cosine", "sqrt-cosine"])
+    q.add_argument("--levels", type=int, help="MIP levels to build (default: the full chain)")
+    q.add_argument("--shadow-size", type=int, help="shadow-map size per light")
+    q.add_argument("--blur-scale", type=float, help="scale of the per-light shadow blur (0: hard shadows)")
+    q.add_argument("--bleed-reduction", type=float, default=0.2)
+    q.add_argument("--mode", default="full", choices=["full", "none", "ao", "ao-color"],
+                   help="full method, no occlusion, grey AO, AO with colour (paper Fig. 6)")
+    o = p.add_argument_group("output")
+    o.add_argument("--size", type=_size, default=(512, 512))
+    o.add_argument("--out", type=Path, help="tone-mapped sRGB PNG")
+    o.add_argument("--exr", type=Path, help="linear HDR EXR (RGBA float32)")
+    o.add_argument("--timings", type=Path, help="per-stage timings JSON")
+    o.add_argument("--exposure", type=float, help="exposure in EV (default: automatic)")
+    o.add_argument("--tone", default="filmic", choices=["filmic", "reinhard", "linear"])
+    o.add_argument("--background", default="env", choices=["env", "black"])
+
+
+def resolve_quality(args) -> dict:
+    q = dict(PRESETS[args.preset])
+    for key in ("lights", "face_size", "shadow_size", "blur_scale"):
+        if getattr(args, key) is not None:
+            q[key] = getattr(args, key)
+    return q
+
+
+def load_scene_inputs(args, face_size: int):
+    """Environment map and meshes + materials from the arguments (or the bundled defaults)."""
+    from .envmap import environment_from_array, load_environment, studio_environment
+    from .mesh import load_mesh
+    from .procedural import procedural_body, procedural_garment
+    from .shading.material import Material
+
+    if args.env is not None:
+        env = load_environment(args.env, layout=args.layout, face_size=face_size, repair=args.repair)
+    else:
+        env = environment_from_array(studio_environment(1024), "latlong", face_size, name="studio (bundled)")
+    if args.mesh:
+        meshes = [load_mesh(p, up=args.up, scale=args.mesh_scale) for p in args.mesh]
+    else:
+        meshes = [procedural_garment(), procedural_body()]
+    garment = Material(args.albedo, args.specular, args.glossiness)
+    body = Material(args.body_albedo, 0.1, 0.3)
+    return env, meshes, [garment] + [body] * (len(meshes) - 1)
+
+
+def cmd_render(args) -> int:
+    from .camera import Camera
+    from .envmap import write_exr
+    from .lighting.filters import Filter
+    from .lighting.pem import PEMSettings
+    from .renderer import Background, FrameSettings, Renderer, ShadingMode
+    from .shading.tonemap import ToneCurve, auto_exposure_ev, write_png
+
+    t_start = time.perf_counter()
+    q = resolve_quality(args)
+    env, meshes, materials = load_scene_inputs(args, q["face_size"])
+    t_loaded = time.perf_counter()
+    w, h = args.size
+    settings = FrameSettings(width=w, height=h, shadow_size=q["shadow_size"], blur_scale=q["blur_scale"],
+                             bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
+                             background=Background(args.background))
+    camera = None
+    if args.camera_eye is not None or args.camera_target is not None:
+        if args.camera_eye is None or args.camera_target is None:
+            raise SystemExit("error: give both --camera-eye and --camera-target")
+        camera = Camera(args.camera_eye, args.camera_target, fov_y_deg=args.fov)
+    with Renderer() as r:
+        pems = r.build_pems(env.cube, PEMSettings(q["lights"], Filter.parse(args.filter), args.levels))
+        scene = r.create_scene(meshes, materials)
+        frame = r.render(scene, pems, settings, camera)
+        scene.release()
+        pems.release()
+        gl_info = r.gl.info()
+    img = frame.image
+    if args.exr:
+        write_exr(args.exr, img)
+    exposure = args.exposure
+    if exposure is None:
+        exposure = auto_exposure_ev(img[..., :3], img[..., 3])
+    if args.out:
+        write_png(args.out, img, exposure, ToneCurve(args.tone))
+    report = {"timings": frame.timings, "settings": frame.info, "quality": q, "exposure_ev": exposure,
+              "environment": {"name": env.name, "layout": env.layout.value, "face_size": q["face_size"],
+                              "texel_report": env.texel_report.as_dict() if env.texel_report else None},
+              "meshes": [{"name": m.name, "vertices": int(m.positions.shape[0]), "faces": int(m.faces.shape[0])}
+                         for m in meshes],
+              "gl": gl_info, "load_ms": (t_loaded - t_start) * 1e3,
+              "total_ms": (time.perf_counter() - t_start) * 1e3}
+    if args.timings:
+        args.timings.write_text(json.dumps(report, indent=2, default=float))
+    stages = ", ".join(f"{k} {v:.1f} ms" for k, v in frame.timings["wall_ms"].items())
+    print(f"rendered {w}x{h}, {q['lights']} lights, PEM build {pems.build_ms:.0f} ms; frame: {stages}")
+    return 0
+
+
+def cmd_lobes(args) -> int:
+    from .lighting.lobe_figures import write_lobe_report
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_lobe_report(args.out, face_size=args.face_size)
+    print(f"wrote {args.out}/lobes_fig4.png, lobes_fig5.png, lobes.md, lobes.json")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="garment-render", description=__doc__)
+    sub = p.add_subparsers(dest="command", required=True)
+    r = sub.add_parser("render", help="render one frame")
+    add_scene_arguments(r)
+    r.set_defaults(func=cmd_render)
+    lo = sub.add_parser("lobes", help="reproduce the paper's Figures 4 and 5 (lobe cross sections and errors)")
+    lo.add_argument("--out", type=Path, default=Path("out/lobes"))
+    lo.add_argument("--face-size", type=int, default=128)
+    lo.set_defaults(func=cmd_lobes)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except RenderError as exc:
+        print(f"garment-render: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,49 @@
+"""Shared fixtures. One GL context per test session, created here only (moderngl's advice), used
+from the main thread; tests that need ../shared/assets skip with the reason when it is absent."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ASSETS = Path(__file__).resolve().parents[1].parent / "shared" / "assets"
+
+
+def asset(*parts: str) -> Path:
+    path = ASSETS.joinpath(*parts)
+    if not path.exists():
+        pytest.skip(f"needs the shared test assets ({path} not found; they live beside the repo in ../shared)")
+    return path
+
+
+@pytest.fixture(scope="session")
+def renderer():
+    from renderer.errors import GLContextError
+    from renderer.renderer import Renderer
+
+    try:
+        r = Renderer()
+    except GLContextError as exc:  # pragma: no cover - a machine without EGL
+        pytest.fail(f"no OpenGL 4.5 context: {exc}")
+    yield r
+    r.release()
+
+
+@pytest.fixture(scope="session")
+def gl(renderer):
+    return renderer.gl
+
+
+def sun_sky_cube(face_size: int, sun_dir, sun_radiance: float = 2000.0, sun_radius_deg: float = 3.0,
+                 sky=(0.2, 0.3, 0.5), ground=(0.1, 0.1, 0.1)) -> np.ndarray:
+    """A cube map (6, F, F, 3) float32: uniform sky and ground with one small bright sun disc."""
+    from renderer.envmap.cube import texel_directions
+
+    d = texel_directions(face_size)
+    s = np.asarray(sun_dir, np.float64)
+    s /= np.linalg.norm(s)
+    cube = np.where(d[..., 1:2] > 0, np.asarray(sky), np.asarray(ground)).astype(np.float32)
+    cube[(d @ s) > np.cos(np.radians(sun_radius_deg))] = sun_radiance
+    return cube

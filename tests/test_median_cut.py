@@ -1,0 +1,74 @@
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from renderer.envmap.cube import cube_solid_angles, dir_to_texel
+from renderer.errors import InvalidInputError
+from renderer.lighting.median_cut import LUMINANCE_RGB, median_cut
+
+from conftest import sun_sky_cube
+
+
+def _covered_once(rs, n):
+    count = np.zeros((6, n, n), int)
+    for face, r0, r1, c0, c1 in rs.rects:
+        count[face, r0:r1, c0:c1] += 1
+    return count
+
+
+@settings(max_examples=25, deadline=None)
+@given(k=st.integers(0, 5), n=st.sampled_from([8, 16, 32]), seed=st.integers(0, 2**31), power=st.floats(0, 12))
+def test_partition_covers_every_texel_exactly_once(k, n, seed, power):
+    n_lights = 6 * 2**k
+    cube = (np.random.default_rng(seed).random((6, n, n, 3)) ** power).astype(np.float32)
+    rs = median_cut(cube, n_lights)
+    assert rs.n_regions == n_lights
+    assert (_covered_once(rs, n) == 1).all()  # Eq. 1: union is the map, regions are disjoint
+    assert set(np.unique(rs.labels)) == set(range(n_lights))
+    # The labels and the rectangles describe the same partition.
+    for rid, (face, r0, r1, c0, c1) in enumerate(rs.rects):
+        assert (rs.labels[face, r0:r1, c0:c1] == rid).all()
+    omega = cube_solid_angles(n)
+    assert rs.solid_angle_sr.sum() == pytest.approx(4 * np.pi)
+    assert rs.energy_rgb.sum(axis=0) == pytest.approx((cube * omega[..., None]).sum(axis=(0, 1, 2)), rel=1e-9)
+    assert np.allclose(np.linalg.norm(rs.directions, axis=1), 1.0)
+
+
+def test_regions_of_a_face_hold_equal_energy_and_lights_sit_in_their_regions():
+    n = 64
+    cube = sun_sky_cube(n, (1, 2, 0.5), sun_radiance=50.0, sun_radius_deg=10)
+    rs = median_cut(cube, 96)
+    per_face = rs.energy_luminance.reshape(6, 16)
+    # Energy halves at every cut up to the granularity of one texel row.
+    for face in range(6):
+        e = per_face[face]
+        assert e.max() <= 2.5 * e.min() + 1e-9, (face, e)
+    face, row, col = dir_to_texel(rs.directions, n)
+    assert (rs.labels[face, row, col] == np.arange(96)).all()
+
+
+def test_bright_areas_get_small_regions():
+    cube = sun_sky_cube(64, (0, 0, 1), sun_radiance=1e4, sun_radius_deg=4)
+    rs = median_cut(cube, 48)
+    sun_regions = rs.rects[:, 0] == 4  # the +Z face holds the sun
+    assert rs.solid_angle_sr[sun_regions].min() < 0.2 * rs.solid_angle_sr[~sun_regions].min()
+
+
+@pytest.mark.parametrize("bad", [0, 5, 7, 18, 30, -6])
+def test_light_count_must_be_6_times_power_of_two(bad):
+    with pytest.raises(InvalidInputError, match="6 \\* 2\\^k"):
+        median_cut(np.ones((6, 8, 8, 3), np.float32), bad)
+
+
+def test_too_many_lights_for_face_size_is_an_error():
+    with pytest.raises(InvalidInputError, match="face"):
+        median_cut(np.ones((6, 4, 4, 3), np.float32), 6 * 32)
+
+
+def test_black_map_gives_geometric_partition():
+    rs = median_cut(np.zeros((6, 16, 16, 3), np.float32), 24)
+    assert (_covered_once(rs, 16) == 1).all()
+    assert np.all(rs.energy_rgb == 0)
+    assert np.allclose(rs.solid_angle_sr, 4 * np.pi / 24, rtol=0.3)
+    assert LUMINANCE_RGB.sum() == pytest.approx(1.0, abs=1e-4)
