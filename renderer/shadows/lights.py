@@ -22,7 +22,7 @@ LIGHT_DTYPE = np.dtype([
 # region's angular radius into a blur width (penumbra ~ distance * tan(angular radius)).
 PENUMBRA_DEPTH_FRACTION = 0.1
 MIN_SIGMA_TEXELS = 0.5
-MAX_BLUR_RADIUS = 32
+MAX_BLUR_RADIUS = 96  # texels; the box-cascade blur costs the same for any radius
 
 
 def light_basis(direction: np.ndarray) -> np.ndarray:

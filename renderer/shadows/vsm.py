@@ -74,32 +74,25 @@ class ShadowMaps:
                     ctx.blend_equation = moderngl.FUNC_ADD
                     ctx.disable(moderngl.BLEND)
             with gl.stage(timer, "blur"):
-                src = self.target
                 self.blur["u_first_light"].value = first
                 self.blur["u_max_radius"].value = MAX_BLUR_RADIUS
-                # Horizontal: target -> scratch; vertical: scratch -> moments (at layer offset `first`).
+                # Three box passes per axis, ping-ponging target <-> scratch: ends in target.
+                src, dst = self.target, self.scratch
+                for axis in ((1, 0), (0, 1)):
+                    self.blur["u_axis"].value = axis
+                    for _ in range(3):
+                        ctx.memory_barrier()
+                        src.bind_to_image(1, read=True, write=False)
+                        dst.bind_to_image(2, read=False, write=True)
+                        self.blur.run((self.size + 63) // 64, 1, count)
+                        src, dst = dst, src
                 ctx.memory_barrier()
-                src.bind_to_image(1, read=True, write=False)
-                self.scratch.bind_to_image(2, read=False, write=True)
-                self.blur["u_axis"].value = (1, 0)
-                self.blur.run(*groups, count)
-                ctx.memory_barrier()
-                if self.copy is None:
-                    self.scratch.bind_to_image(1, read=True, write=False)
-                    self.moments.bind_to_image(2, read=False, write=True)
-                    self.blur["u_axis"].value = (0, 1)
-                    self.blur.run(*groups, count)
-                else:
-                    self.scratch.bind_to_image(1, read=True, write=False)
-                    self.target.bind_to_image(2, read=False, write=True)
-                    self.blur["u_axis"].value = (0, 1)
-                    self.blur.run(*groups, count)
-                    ctx.memory_barrier()
+                if self.copy is not None:
                     self.target.bind_to_image(1, read=True, write=False)
                     self.moments.bind_to_image(2, read=False, write=True)
                     self.copy["u_first_layer"].value = first
                     self.copy.run(*groups, count)
-                ctx.memory_barrier()
+                    ctx.memory_barrier()
 
     def read(self) -> np.ndarray:
         """Blurred moments, float32 (n_lights, size, size, 2); row 0 is the bottom of light space."""

@@ -1,35 +1,50 @@
-// Variance shadow maps, pass 2: a separable Gaussian blur of the moments, one width per light.
-// The width follows the angular size of the light's region (Knuth et al. 2014, sec. 4): large dim
-// regions give soft shadows, small bright ones sharp shadows. Run twice: horizontal, then vertical.
-layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
+// Variance shadow maps, pass 2: blur of the moments with one width per light. The width follows the
+// angular size of the light's region (Knuth et al. 2014, sec. 4): large dim regions give soft
+// shadows, small bright ones sharp shadows.
+//
+// The Gaussian of standard deviation sigma is approximated by three successive box filters of
+// radius r with 3 * ((2r + 1)^2 - 1) / 12 = sigma^2 (central limit theorem; W. M. Wells, "Efficient
+// synthesis of Gaussian filters by cascaded uniform filters", IEEE PAMI 1986). Each box is a running
+// sum along a line, so the cost per texel does not grow with the width: one invocation per line.
+// Run for axis (1, 0) then (0, 1), three times each.
+layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 
 #include "common/lights.glsl"
 layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
 layout(binding = 1, rg32f) readonly uniform image2DArray u_src;
 layout(binding = 2, rg32f) writeonly uniform image2DArray o_dst;
 
-uniform ivec2 u_axis;          // (1, 0) horizontal or (0, 1) vertical
+uniform ivec2 u_axis;          // (1, 0): filter along rows; (0, 1): along columns
 uniform int u_first_light;
-uniform int u_max_radius;      // taps per side, caps the cost of very large regions
+uniform int u_max_radius;
 
 void main() {
-    ivec3 id = ivec3(gl_GlobalInvocationID);
+    int line = int(gl_GlobalInvocationID.x);
+    int layer = int(gl_GlobalInvocationID.z);
     ivec2 size = imageSize(u_src).xy;
-    if (id.x >= size.x || id.y >= size.y) return;
-    float sigma = lights[u_first_light + id.z].params.x;
-    vec2 acc = vec2(0.0);
-    if (sigma < 0.3) {
-        acc = imageLoad(u_src, id).xy;
-    } else {
-        int radius = min(int(ceil(3.0 * sigma)), u_max_radius);
-        float wsum = 0.0;
-        for (int k = -radius; k <= radius; ++k) {
-            ivec2 q = clamp(id.xy + k * u_axis, ivec2(0), size - 1);
-            float w = exp(-0.5 * float(k * k) / (sigma * sigma));
-            acc += w * imageLoad(u_src, ivec3(q, id.z)).xy;
-            wsum += w;
+    int length = u_axis.x == 1 ? size.x : size.y;
+    int lines = u_axis.x == 1 ? size.y : size.x;
+    if (line >= lines) return;
+    ivec2 ortho = ivec2(1, 1) - u_axis;
+    ivec2 origin = line * ortho;
+
+    float sigma = lights[u_first_light + layer].params.x;
+    int r = min(int(round(0.5 * (sqrt(4.0 * sigma * sigma + 1.0) - 1.0))), u_max_radius);
+    if (r <= 0) {
+        for (int i = 0; i < length; ++i) {
+            ivec3 p = ivec3(origin + i * u_axis, layer);
+            imageStore(o_dst, p, imageLoad(u_src, p));
         }
-        acc /= wsum;
+        return;
     }
-    imageStore(o_dst, id, vec4(acc, 0.0, 0.0));
+    // Clamp-to-edge running sum of width 2r + 1 (light-space borders hold empty, unoccluded texels).
+    vec2 sum = vec2(0.0);
+    for (int k = -r; k <= r; ++k) sum += imageLoad(u_src, ivec3(origin + clamp(k, 0, length - 1) * u_axis, layer)).xy;
+    float inv_width = 1.0 / float(2 * r + 1);
+    for (int i = 0; i < length; ++i) {
+        imageStore(o_dst, ivec3(origin + i * u_axis, layer), vec4(sum * inv_width, 0.0, 0.0));
+        int add = min(i + r + 1, length - 1);
+        int sub = max(i - r, 0);
+        sum += imageLoad(u_src, ivec3(origin + add * u_axis, layer)).xy - imageLoad(u_src, ivec3(origin + sub * u_axis, layer)).xy;
+    }
 }
