@@ -155,7 +155,7 @@ class Renderer:
         regions = pems.regions
         n = regions.n_regions
         lo, hi = scene.bounds(casters_only=True)
-        sigma = blur_sigma_texels(regions.angular_radius_rad(), settings.shadow_size, settings.blur_scale)
+        sigma = blur_sigma_texels(regions.light_radius_rad(), settings.shadow_size, settings.blur_scale)
         vp = np.stack([fit_light_view_proj(regions.directions[i], lo, hi, sigma[i], settings.shadow_size)
                        for i in range(n)])
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,

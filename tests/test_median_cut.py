@@ -72,3 +72,12 @@ def test_black_map_gives_geometric_partition():
     assert np.all(rs.energy_rgb == 0)
     assert np.allclose(rs.solid_angle_sr, 4 * np.pi / 24, rtol=0.3)
     assert LUMINANCE_RGB.sum() == pytest.approx(1.0, abs=1e-4)
+
+
+def test_light_spread_follows_the_energy_not_the_region_outline():
+    # A 2-degree sun inside a large, otherwise black region: the light is as small as the sun.
+    cube = sun_sky_cube(128, (0.1, 0.2, 1.0), sun_radiance=1e4, sun_radius_deg=2, sky=(0, 0, 0), ground=(0, 0, 0))
+    rs = median_cut(cube, 6)
+    sun = int(np.argmax(rs.energy_luminance))
+    assert rs.angular_radius_rad()[sun] > np.radians(30)
+    assert rs.light_radius_rad()[sun] == pytest.approx(np.radians(2), rel=0.25)

@@ -31,6 +31,10 @@ class RegionSet:
     energy_rgb: float64 (N, 3), integral of radiance over the region (W/m^2 per channel if the map
         is in W/(m^2 sr)).
     rects: int32 (N, 5): face, row0, row1, col0, col1 (half-open) of each region.
+    spread_rad: float64 (N,), angular radius of the region's light as seen from the scene: sqrt(2)
+        times the energy-weighted RMS angle between the region's texels and its light (exact for a
+        uniform disc). A large region whose energy sits in a small sun has a small spread: the
+        shadow's softness follows where the energy is, not the region's outline.
     """
 
     labels: np.ndarray
@@ -38,6 +42,7 @@ class RegionSet:
     solid_angle_sr: np.ndarray
     energy_rgb: np.ndarray
     rects: np.ndarray
+    spread_rad: np.ndarray
 
     @property
     def n_regions(self) -> int:
@@ -50,6 +55,10 @@ class RegionSet:
     def angular_radius_rad(self) -> np.ndarray:
         """Radius of the cone with the region's solid angle: Omega = 2*pi*(1 - cos r)."""
         return np.arccos(np.clip(1.0 - self.solid_angle_sr / (2.0 * np.pi), -1.0, 1.0))
+
+    def light_radius_rad(self) -> np.ndarray:
+        """Angular radius that sets the shadow softness: the energy spread, at most the region's cone."""
+        return np.minimum(self.spread_rad, self.angular_radius_rad())
 
 
 def regions_per_face(n_lights: int) -> int:
@@ -128,6 +137,7 @@ def median_cut(cube: np.ndarray, n_lights: int) -> RegionSet:
     out_omega = np.empty(n_lights)
     out_energy = np.empty((n_lights, 3))
     out_rects = np.empty((n_lights, 5), np.int32)
+    out_spread = np.empty(n_lights)
     for face in range(6):
         for j, (r0, r1, c0, c1) in enumerate(_cut_face(energy[face], cuts)):
             rid = face * per_face + j
@@ -139,9 +149,11 @@ def median_cut(cube: np.ndarray, n_lights: int) -> RegionSet:
             weights = e if e.sum() > 0 else w
             c = (weights[..., None] * d).sum(axis=(0, 1))
             out_dirs[rid] = c / np.linalg.norm(c)
+            cos_t = np.clip(d @ out_dirs[rid], -1.0, 1.0)
+            out_spread[rid] = np.sqrt(2.0 * (weights * np.arccos(cos_t) ** 2).sum() / weights.sum())
             out_omega[rid] = w.sum()
             out_energy[rid] = (rgb[face, r0:r1, c0:c1] * w[..., None]).sum(axis=(0, 1))
             out_rects[rid] = (face, r0, r1, c0, c1)
-    for arr in (labels, out_dirs, out_omega, out_energy, out_rects):
+    for arr in (labels, out_dirs, out_omega, out_energy, out_rects, out_spread):
         arr.setflags(write=False)
-    return RegionSet(labels, out_dirs, out_omega, out_energy, out_rects)
+    return RegionSet(labels, out_dirs, out_omega, out_energy, out_rects, out_spread)
