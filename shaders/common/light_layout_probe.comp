@@ -1,0 +1,15 @@
+// Test probe: copies every field of `struct Light` as GLSL sees it, so a test can check that
+// renderer/shadows/lights.py (LIGHT_DTYPE) lays the struct out as std430 does.
+layout(local_size_x = 1) in;
+#include "common/lights.glsl"
+layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
+layout(std430, binding = 1) writeonly buffer Out { vec4 o[]; };   // 7 vec4 per light
+
+void main() {
+    int i = int(gl_GlobalInvocationID.x);
+    Light l = lights[i];
+    for (int c = 0; c < 4; ++c) o[7 * i + c] = l.view_proj[c];
+    o[7 * i + 4] = l.dir_scale;
+    o[7 * i + 5] = l.params;
+    o[7 * i + 6] = l.energy;
+}

@@ -1,0 +1,62 @@
+"""The GPU layer: struct mirrors, shader composition and error reporting."""
+
+import numpy as np
+import pytest
+
+from renderer.errors import ShaderError
+from renderer.gpu.shaders import _rewrite_log, compose, compute_shader
+from renderer.shadows.lights import LIGHT_DTYPE, fit_light_view_proj, pack_lights
+
+
+def test_light_struct_mirror_matches_glsl_std430(gl):
+    rng = np.random.default_rng(0)
+    n = 5
+    vp = rng.random((n, 4, 4))
+    arr = pack_lights(rng.random((n, 3)), rng.random(n), rng.random(n), rng.random((n, 3)), vp,
+                      rng.random(n), np.ones(n))
+    assert LIGHT_DTYPE.itemsize == 112
+    ctx = gl.ctx
+    src = ctx.buffer(arr.tobytes())
+    out = ctx.buffer(reserve=n * 7 * 16)
+    src.bind_to_storage_buffer(0)
+    out.bind_to_storage_buffer(1)
+    cs = compute_shader(ctx, "common/light_layout_probe.comp")
+    cs.run(n)
+    got = np.frombuffer(out.read(), np.float32).reshape(n, 7, 4)
+    for obj in (cs, src, out):
+        obj.release()
+    # GLSL mat4 columns are the rows of the numpy (row-major) matrix transposed.
+    np.testing.assert_allclose(got[:, :4, :], np.transpose(vp, (0, 2, 1)), rtol=1e-6)
+    np.testing.assert_allclose(got[:, 4], arr["dir_scale"])
+    np.testing.assert_allclose(got[:, 5], arr["params"])
+    np.testing.assert_allclose(got[:, 6], arr["energy"])
+
+
+def test_light_projection_maps_the_casters_box_into_clip_space():
+    lo, hi = np.array([-1.0, 0.0, -2.0]), np.array([3.0, 2.0, 1.0])
+    corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    for d in ([0, 1, 0], [1, 1, 1], [0, -1, 0.001], [-0.3, 0.2, -1]):
+        m = fit_light_view_proj(np.asarray(d, float) / np.linalg.norm(d), lo, hi, 2.0, 256)
+        c = corners @ m.T
+        assert np.all(np.abs(c[:, :2]) <= 1.0) and np.all((c[:, 2] >= 0) & (c[:, 2] <= 1))
+        # Depth grows away from the light: the corner furthest along the light direction is nearest.
+        dist = corners[:, :3] @ np.asarray(d, float)
+        assert c[np.argmax(dist), 2] == pytest.approx(c[:, 2].min())
+
+
+def test_composed_shader_carries_line_directives_per_file():
+    src, files = compose("pem/filter.comp", {"X": 1})
+    assert src.startswith("#version 450 core\n#define X 1\n#line 1 0")
+    assert files == ["pem/filter.comp", "common/cube.glsl"]
+    assert "#line 1 1" in src
+
+
+def test_compile_errors_name_the_file_and_line():
+    log = "0:12(3): error: `foo' undeclared\n1:7(1): error: syntax error"
+    text = _rewrite_log(log, ["pem/filter.comp", "common/cube.glsl"])
+    assert "pem/filter.comp:12" in text and "common/cube.glsl:7" in text
+
+
+def test_missing_include_is_a_shader_error():
+    with pytest.raises(ShaderError, match="not found"):
+        compose("no/such.glsl")
