@@ -1,0 +1,90 @@
+"""Materials per vertex and from textures: woven fabrics mix yarns of different sheen."""
+
+import numpy as np
+import pytest
+
+from renderer.camera import Camera
+from renderer.errors import InvalidInputError, MeshError
+from renderer.lighting.pem import PEMSettings
+from renderer.mesh import Mesh
+from renderer.renderer import Background, FrameSettings, ShadingMode
+from renderer.shading.material import Material
+
+CAM = Camera((0.0, 0.0, 2.0), (0.0, 0.0, 0.0), fov_y_deg=40.0)
+QUAD_P = np.array([[-0.5, -0.5, 0], [0.5, -0.5, 0], [0.5, 0.5, 0], [-0.5, 0.5, 0]], np.float32)
+QUAD_F = np.array([[0, 1, 2], [0, 2, 3]])
+QUAD_UV = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32)
+UNSHADOWED = FrameSettings(64, 64, mode=ShadingMode.NO_OCCLUSION, background=Background.BLACK)
+
+
+@pytest.fixture(scope="module")
+def white_pems(renderer):
+    pems = renderer.build_pems(np.ones((6, 16, 16, 3), np.float32), PEMSettings(6))
+    yield pems
+    pems.release()
+
+
+def _render(renderer, pems, mesh, material):
+    scene = renderer.create_scene([mesh], [material])
+    try:
+        return renderer.render(scene, pems, UNSHADOWED, CAM).image
+    finally:
+        scene.release()
+
+
+def test_albedo_map_colours_the_surface_by_uv(renderer, white_pems):
+    tex = np.zeros((8, 8, 3), np.float32)
+    tex[:, :4] = (1, 0, 0)   # left half of the image red
+    tex[:, 4:] = (0, 1, 0)   # right half green
+    mesh = Mesh.from_arrays(QUAD_P, QUAD_F, uvs=QUAD_UV)
+    img = _render(renderer, white_pems, mesh, Material((1, 1, 1), 0.0, 0.0, albedo_map=tex))
+    left, right = img[32, 20, :3], img[32, 44, :3]
+    np.testing.assert_allclose(left, (1, 0, 0), atol=0.02)
+    np.testing.assert_allclose(right, (0, 1, 0), atol=0.02)
+
+
+def test_per_vertex_albedo_is_interpolated(renderer, white_pems):
+    mesh = Mesh.from_arrays(QUAD_P, QUAD_F)
+    albedo = np.array([[1, 0, 0], [0, 0, 1], [0, 0, 1], [1, 0, 0]], np.float32)  # red left, blue right
+    img = _render(renderer, white_pems, mesh, Material(albedo, 0.0, 0.0))
+    assert img[32, 12, 0] > 0.8 and img[32, 12, 2] < 0.2
+    assert img[32, 52, 2] > 0.8 and img[32, 52, 0] < 0.2
+
+
+def test_gloss_map_changes_sheen_per_texel(renderer):
+    # A sun-like spot reflected by a mirror half and a diffuse half of the same quad.
+    from conftest import sun_sky_cube
+
+    cube = sun_sky_cube(64, (0, 0, 1), sun_radiance=100.0, sun_radius_deg=10, sky=(0, 0, 0), ground=(0, 0, 0))
+    pems = renderer.build_pems(cube, PEMSettings(6))
+    gm = np.zeros((4, 4, 2), np.float32)
+    gm[..., 0] = 1.0
+    gm[:, :2, 1] = 1.0   # left: mirror
+    gm[:, 2:, 1] = 0.0   # right: diffuse lobe
+    p = QUAD_P.copy()
+    p[:, 0] *= 0.2       # a narrow quad near the optical axis: the mirror sees the spot
+    mesh = Mesh.from_arrays(p, QUAD_F, uvs=QUAD_UV)
+    try:
+        img = _render(renderer, pems, mesh, Material((0, 0, 0), 0.0, 0.0, gloss_map=gm))
+    finally:
+        pems.release()
+    cov = img[..., 3] > 0.5
+    cols = np.nonzero(cov.any(axis=0))[0]
+    mid = (cols.min() + cols.max()) // 2
+    mirror = img[20:44, cols.min() + 1:mid - 1, 0]
+    diffuse = img[20:44, mid + 2:cols.max(), 0]
+    assert mirror.mean() > 5 * diffuse.mean() > 0
+
+
+def test_bad_materials_are_rejected_with_a_reason():
+    with pytest.raises(InvalidInputError, match="glossiness"):
+        Material(glossiness=1.5).vertex_arrays(3)
+    with pytest.raises(InvalidInputError, match="NaN"):
+        Material(albedo=(np.nan, 0, 0)).vertex_arrays(3)
+    with pytest.raises(InvalidInputError, match=r"shape \(3,\) or \(4, 3\)"):
+        Material(albedo=np.ones((5, 3))).vertex_arrays(4)
+
+
+def test_material_maps_need_uvs(renderer):
+    with pytest.raises(MeshError, match="UVs"):
+        renderer.create_scene([Mesh.from_arrays(QUAD_P, QUAD_F)], [Material(albedo_map=np.ones((2, 2, 3)))])
