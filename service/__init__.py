@@ -1,0 +1,2 @@
+"""The HTTP render service (FastAPI): a thin layer over `renderer`; the dependency arrow points
+service -> renderer only."""
