@@ -98,6 +98,8 @@ class Renderer:
         self._gloss_buf = ctx.buffer(reserve=4 * PEMSet.GLOSS_TABLE_SIZE)
         # The moments program is needed to build vertex arrays before any shadow map exists.
         self._shadow_prog = program(ctx, "shadows/moments.vert", "shadows/moments.frag")
+        self.depth_prog = program(ctx, "shading/depth.vert", "shading/depth.frag")
+        self._programs = {"shade": self.shade_prog, "moments": self._shadow_prog, "depth": self.depth_prog}
 
     # -- resources --------------------------------------------------------------------------
     def build_pems(self, cube: np.ndarray, settings: PEMSettings = PEMSettings(),
@@ -108,7 +110,7 @@ class Renderer:
     def create_scene(self, meshes: list[Mesh], materials: list[Material] | None = None,
                      casters: list[bool] | None = None) -> Scene:
         materials = materials or [Material() for _ in meshes]
-        return Scene(self.gl, meshes, materials, self.shade_prog, self._shadow_prog, casters)
+        return Scene(self.gl, meshes, materials, self._programs, casters)
 
     def _shadow_maps_for(self, size: int, n_lights: int):
         sm = self._shadow_maps
@@ -191,8 +193,16 @@ class Renderer:
                 self.bg_vao.render(moderngl.TRIANGLES, vertices=3)
             ctx.enable(moderngl.DEPTH_TEST)
             ctx.disable(moderngl.CULL_FACE)
+            vp_bytes = view_proj.T.astype(np.float32).tobytes()
+            self.depth_prog["u_view_proj"].write(vp_bytes)
+            fbo.color_mask = (False, False, False, False)
+            for sm in scene.meshes:
+                sm.vao_depth.render(moderngl.TRIANGLES)
+            fbo.color_mask = (True, True, True, True)
+            fbo.depth_mask = False
+            ctx.depth_func = "<="
             p = self.shade_prog
-            p["u_view_proj"].write(view_proj.T.astype(np.float32).tobytes())
+            p["u_view_proj"].write(vp_bytes)
             p["u_camera_pos"].value = tuple(float(x) for x in camera.eye)
             p["u_n_lights"].value = n
             p["u_mode"].value = _MODE_INDEX[settings.mode]
@@ -207,6 +217,8 @@ class Renderer:
                 p["u_use_albedo_map"].value = sm.use_maps[0]
                 p["u_use_gloss_map"].value = sm.use_maps[1]
                 sm.vao_shade.render(moderngl.TRIANGLES)
+            fbo.depth_mask = True
+            ctx.depth_func = "<"
             ctx.disable(moderngl.DEPTH_TEST)
 
         t0 = time.perf_counter()
@@ -234,7 +246,7 @@ class Renderer:
         if self._lights_buf is not None:
             self._lights_buf.release()
         self._gloss_buf.release()
-        for obj in (self.bg_vao, self.bg_prog, self.shade_prog, self._shadow_prog):
+        for obj in (self.bg_vao, self.bg_prog, self.shade_prog, self._shadow_prog, self.depth_prog):
             obj.release()
         if self._owns_gl:
             self.gl.release()

@@ -16,7 +16,7 @@ from .shading.material import Material
 class SceneMesh:
     """One mesh's buffers, vertex arrays and material textures; owned by its `Scene`."""
 
-    def __init__(self, gl: GLContext, mesh: Mesh, material: Material, shade_prog, shadow_prog, caster: bool):
+    def __init__(self, gl: GLContext, mesh: Mesh, material: Material, programs: dict, caster: bool):
         ctx = gl.ctx
         self.mesh, self.material, self.caster = mesh, material, caster
         self.n_vertices = mesh.positions.shape[0]
@@ -37,12 +37,14 @@ class SceneMesh:
         self.albedo_tex = self._texture(ctx, albedo_map, 3, (1.0, 1.0, 1.0))
         self.gloss_tex = self._texture(ctx, gloss_map, 2, (0.0, 0.0))
         self.use_maps = (albedo_map is not None, gloss_map is not None)
-        self.vao_shade = ctx.vertex_array(shade_prog, [
+        self.vao_shade = ctx.vertex_array(programs["shade"], [
             (self.vbo_pos, "3f", "in_position"), (self.vbo_nrm, "3f", "in_normal"),
             (self.vbo_albedo, "3f", "in_albedo"), (self.vbo_mat, "2f", "in_material"),
             (self.vbo_uv, "2f", "in_uv")], index_buffer=self.ibo, index_element_size=4)
-        self.vao_shadow = ctx.vertex_array(shadow_prog, [(self.vbo_pos, "3f", "in_position")],
+        self.vao_shadow = ctx.vertex_array(programs["moments"], [(self.vbo_pos, "3f", "in_position")],
                                            index_buffer=self.ibo, index_element_size=4)
+        self.vao_depth = ctx.vertex_array(programs["depth"], [(self.vbo_pos, "3f", "in_position")],
+                                          index_buffer=self.ibo, index_element_size=4)
 
     def _texture(self, ctx, data, comps, default):
         if data is None:
@@ -64,7 +66,7 @@ class SceneMesh:
         self.vbo_nrm.write(np.ascontiguousarray(normals, np.float32).tobytes())
 
     def release(self) -> None:
-        for obj in (self.vao_shade, self.vao_shadow, self.vbo_pos, self.vbo_nrm, self.vbo_albedo, self.vbo_mat,
+        for obj in (self.vao_shade, self.vao_shadow, self.vao_depth, self.vbo_pos, self.vbo_nrm, self.vbo_albedo, self.vbo_mat,
                     self.vbo_uv, self.ibo, *self.textures):
             obj.release()
 
@@ -72,8 +74,9 @@ class SceneMesh:
 class Scene:
     """Meshes of one scene (garment plus body, ...) with their materials, resident on the GPU."""
 
-    def __init__(self, gl: GLContext, meshes: list[Mesh], materials: list[Material], shade_prog, shadow_prog,
+    def __init__(self, gl: GLContext, meshes: list[Mesh], materials: list[Material], programs: dict,
                  casters: list[bool] | None = None):
+        """`programs`: the renderer's "shade", "moments" and "depth" programs (owned by the renderer)."""
         gl.check_thread()
         if not meshes:
             raise MeshError("a scene needs at least one mesh")
@@ -84,7 +87,7 @@ class Scene:
         self.meshes: list[SceneMesh] = []
         try:
             for m, mat, c in zip(meshes, materials, casters):
-                self.meshes.append(SceneMesh(gl, m, mat, shade_prog, shadow_prog, c))
+                self.meshes.append(SceneMesh(gl, m, mat, programs, c))
         except Exception:
             self.release()
             raise
