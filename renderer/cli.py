@@ -8,8 +8,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 from .errors import RenderError
 
 # Quality presets. Provisional: issue 3 replaces them by settings chosen from the measured benchmark.
@@ -144,7 +142,11 @@ def cmd_render(args) -> int:
     if exposure is None:
         exposure = auto_exposure_ev(img[..., :3], img[..., 3])
     if args.out:
-        write_png(args.out, img, exposure, ToneCurve(args.tone))
+        png = img
+        if args.background == "env":  # the map fills the background: an opaque picture
+            png = img.copy()
+            png[..., 3] = 1.0
+        write_png(args.out, png, exposure, ToneCurve(args.tone))
     report = {"timings": frame.timings, "settings": frame.info, "quality": q, "exposure_ev": exposure,
               "environment": {"name": env.name, "layout": env.layout.value, "face_size": q["face_size"],
                               "texel_report": env.texel_report.as_dict() if env.texel_report else None},
