@@ -23,7 +23,7 @@ from .lighting.pem import REGIONS_PER_TEXTURE, PEMSet, PEMSettings
 from .mesh import Mesh
 from .scene import Scene
 from .shading.material import Material
-from .shadows.lights import blur_sigma_texels, fit_light_view_proj, pack_lights
+from .shadows.lights import blur_sigma_texels, fit_light_view_proj, pack_lights, shadow_layers
 from .shadows.vsm import ShadowMaps
 
 
@@ -55,6 +55,7 @@ class FrameSettings:
     bleed_reduction: float = 0.2
     min_variance: float = 1e-6
     normal_offset_texels: float = 1.5
+    shadow_threshold: float = 0.0  # lights below this share of the energy get no shadow map
     mode: ShadingMode = ShadingMode.FULL
     background: Background = Background.ENVIRONMENT
 
@@ -63,6 +64,8 @@ class FrameSettings:
             raise InvalidInputError(f"image size must be within 1..8192 per side, got {self.width}x{self.height}")
         if not (0.0 <= self.bleed_reduction < 1.0):
             raise InvalidInputError(f"bleed reduction must be in [0, 1), got {self.bleed_reduction}")
+        if not (0.0 <= self.shadow_threshold <= 1.0):
+            raise InvalidInputError(f"shadow threshold is a share of the energy in [0, 1], got {self.shadow_threshold}")
         if not (0.0 <= self.blur_scale <= 100.0) or not np.isfinite(self.blur_scale):
             raise InvalidInputError(f"blur scale must be in [0, 100], got {self.blur_scale}")
 
@@ -94,7 +97,7 @@ class Renderer:
         self.bg_vao = ctx.vertex_array(self.bg_prog, [])
         self._shadow_maps = None
         self._target = None
-        self._lights_buf = None
+        self._buffers: dict[str, moderngl.Buffer] = {}
         self._gloss_buf = ctx.buffer(reserve=4 * PEMSet.GLOSS_TABLE_SIZE)
         # The moments program is needed to build vertex arrays before any shadow map exists.
         self._shadow_prog = program(ctx, "shadows/moments.vert", "shadows/moments.frag")
@@ -131,13 +134,15 @@ class Renderer:
             self._target = ((w, h), ctx.framebuffer([color], depth), color, depth)
         return self._target[1]
 
-    def _lights_buffer(self, data: np.ndarray) -> moderngl.Buffer:
-        if self._lights_buf is None or self._lights_buf.size != data.nbytes:
-            if self._lights_buf is not None:
-                self._lights_buf.release()
-            self._lights_buf = self.gl.ctx.buffer(reserve=data.nbytes)
-        self._lights_buf.write(data.tobytes())
-        return self._lights_buf
+    def _buffer(self, name: str, data: bytes) -> moderngl.Buffer:
+        """A per-frame storage buffer, re-created only when its size changes."""
+        buf = self._buffers.get(name)
+        if buf is None or buf.size != len(data):
+            if buf is not None:
+                buf.release()
+            buf = self._buffers[name] = self.gl.ctx.buffer(reserve=len(data))
+        buf.write(data)
+        return buf
 
     # -- a frame ----------------------------------------------------------------------------
     def render(self, scene: Scene, pems: PEMSet, settings: FrameSettings = FrameSettings(),
@@ -160,14 +165,17 @@ class Renderer:
         sigma = blur_sigma_texels(regions.light_radius_rad(), settings.shadow_size, settings.blur_scale)
         vp = np.stack([fit_light_view_proj(regions.directions[i], lo, hi, sigma[i], settings.shadow_size)
                        for i in range(n)])
-        lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
-                             sigma, np.ones(n))
-        lights_buf = self._lights_buffer(lights)
-
         shadowed = settings.mode is not ShadingMode.NO_OCCLUSION
-        shadow_maps = self._shadow_maps_for(settings.shadow_size, n)
-        if shadowed:
-            shadow_maps.render([sm.vao_shadow for sm in scene.meshes if sm.caster], lights_buf, timer)
+        layers = shadow_layers(regions.energy_luminance, settings.shadow_threshold if shadowed else 2.0)
+        n_shadowed = int((layers >= 0).sum())
+        lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
+                             sigma, layers)
+        lights_buf = self._buffer("lights", lights.tobytes())
+        shadow_list = self._buffer("shadow_lights", np.nonzero(layers >= 0)[0].astype(np.int32).tobytes() or b"\0" * 4)
+
+        shadow_maps = self._shadow_maps_for(settings.shadow_size, max(n_shadowed, 1))
+        if n_shadowed:
+            shadow_maps.render([sm.vao_shadow for sm in scene.meshes if sm.caster], lights_buf, shadow_list, timer)
 
         # Shading.
         w, h = settings.width, settings.height
@@ -182,6 +190,7 @@ class Renderer:
             ctx.viewport = (0, 0, w, h)
             fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
             lights_buf.bind_to_storage_buffer(0)
+            shadow_list.bind_to_storage_buffer(2)
             self._gloss_buf.write(pems.gloss_table().tobytes())
             self._gloss_buf.bind_to_storage_buffer(1)
             pems.bind(0, 5)
@@ -229,11 +238,12 @@ class Renderer:
         timings = timer.as_dict()
         timings["frame_wall_ms"] = (time.perf_counter() - t_frame) * 1e3
         timings["n_lights"] = n
+        timings["shadowed_lights"] = n_shadowed
         timings["n_triangles"] = scene.n_triangles
         timings["device"] = gl.renderer_name
         info = {"frame": settings.as_dict(), "pems": pems.summary(),
                 "camera": {"eye": list(camera.eye), "target": list(camera.target), "fov_y_deg": camera.fov_y_deg},
-                "shadow_bytes": shadow_maps.nbytes if shadowed else 0}
+                "shadow_bytes": shadow_maps.nbytes if n_shadowed else 0, "shadowed_lights": n_shadowed}
         return Frame(image, timings, info)
 
     def release(self) -> None:
@@ -243,8 +253,8 @@ class Renderer:
         if self._target is not None:
             for obj in self._target[1:]:
                 obj.release()
-        if self._lights_buf is not None:
-            self._lights_buf.release()
+        for buf in self._buffers.values():
+            buf.release()
         self._gloss_buf.release()
         for obj in (self.bg_vao, self.bg_prog, self.shade_prog, self._shadow_prog, self.depth_prog):
             obj.release()

@@ -13,7 +13,7 @@ def test_light_struct_mirror_matches_glsl_std430(gl):
     n = 5
     vp = rng.random((n, 4, 4))
     arr = pack_lights(rng.random((n, 3)), rng.random(n), rng.random(n), rng.random((n, 3)), vp,
-                      rng.random(n), np.ones(n))
+                      rng.random(n), np.arange(n) - 1)
     assert LIGHT_DTYPE.itemsize == 112
     ctx = gl.ctx
     src = ctx.buffer(arr.tobytes())

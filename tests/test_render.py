@@ -195,3 +195,25 @@ def test_new_positions_reuse_gpu_objects_and_move_the_image(renderer):
     cols_a = np.nonzero(a.image[..., 3].max(axis=0))[0]
     cols_b = np.nonzero(b.image[..., 3].max(axis=0))[0]
     assert cols_b.mean() > cols_a.mean() + 3
+
+
+def test_lights_below_the_energy_threshold_get_no_shadow_map(renderer):
+    cube = sun_sky_cube(32, (0.4, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3)
+    scene = renderer.create_scene([sphere(0.4, (0, 0.6, 0)), plane(4.0)], [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
+    pems = renderer.build_pems(cube, PEMSettings(48))
+    try:
+        full = renderer.render(scene, pems, FrameSettings(64, 64), CAM)
+        some = renderer.render(scene, pems, FrameSettings(64, 64, shadow_threshold=0.01), CAM)
+        none_ = renderer.render(scene, pems, FrameSettings(64, 64, shadow_threshold=1.0), CAM)
+        unshadowed = renderer.render(scene, pems, FrameSettings(64, 64, mode=ShadingMode.NO_OCCLUSION), CAM)
+    finally:
+        pems.release()
+        scene.release()
+    assert full.timings["shadowed_lights"] == 48
+    assert 0 < some.timings["shadowed_lights"] < 48
+    assert none_.timings["shadowed_lights"] == 0 and "shadow_maps" not in none_.timings["wall_ms"]
+    np.testing.assert_array_equal(none_.image, unshadowed.image)
+    # Dropping the dim lights' shadows changes the image by far less than dropping all shadows.
+    err_some = np.abs(some.image - full.image)[..., :3].mean()
+    err_none = np.abs(none_.image - full.image)[..., :3].mean()
+    assert err_some < 0.1 * err_none

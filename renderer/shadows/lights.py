@@ -25,6 +25,17 @@ MIN_SIGMA_TEXELS = 0.5
 MAX_BLUR_RADIUS = 96  # texels; the box-cascade blur costs the same for any radius
 
 
+def shadow_layers(energy_luminance: np.ndarray, threshold: float) -> np.ndarray:
+    """Shadow-map layer of each light, -1 for lights whose share of the total energy is below
+    `threshold` (their PEMs are added unshadowed: an error too small to see, a pass saved)."""
+    total = float(energy_luminance.sum())
+    share = energy_luminance / total if total > 0 else np.zeros_like(energy_luminance)
+    shadowed = share >= threshold
+    layers = np.full(len(energy_luminance), -1, np.int32)
+    layers[shadowed] = np.arange(int(shadowed.sum()), dtype=np.int32)
+    return layers
+
+
 def light_basis(direction: np.ndarray) -> np.ndarray:
     """Rows: right, up, forward (= -direction) of a light looking at the scene. (3, 3) float64."""
     f = -np.asarray(direction, np.float64)
@@ -69,15 +80,15 @@ def fit_light_view_proj(direction: np.ndarray, lo: np.ndarray, hi: np.ndarray, s
     return m
 
 
-def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma, shadowed) -> np.ndarray:
-    """Build the std430 array of `struct Light` for n lights."""
+def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma, shadow_layer) -> np.ndarray:
+    """Build the std430 array of `struct Light` for n lights; shadow_layer[i] = -1: no shadow map."""
     n = len(directions)
     arr = np.zeros(n, LIGHT_DTYPE)
     arr["view_proj"] = np.transpose(view_proj, (0, 2, 1)).reshape(n, 16)  # column-major for GLSL
     arr["dir_scale"][:, :3] = directions
     arr["dir_scale"][:, 3] = scales
     arr["params"][:, 0] = sigma
-    arr["params"][:, 1] = shadowed
+    arr["params"][:, 1] = shadow_layer
     arr["params"][:, 2] = solid_angle_sr
     arr["energy"][:, :3] = energy_rgb
     arr["energy"][:, 3] = np.asarray(energy_rgb) @ np.array([0.2126, 0.7152, 0.0722])

@@ -25,6 +25,7 @@ class ShadowMaps:
     """GPU state of the shadow pass for a fixed shadow-map size and light count."""
 
     def __init__(self, gl: GLContext, size: int, n_lights: int, moments_prog: moderngl.Program):
+        """n_lights: the number of shadow-map layers (lights that have a shadow map)."""
         """`moments_prog` (shadows/moments.vert + .frag) is the caller's: the casters' vertex arrays use it."""
         gl.check_thread()
         if size < 16 or size > 8192:
@@ -52,11 +53,13 @@ class ShadowMaps:
         return self.size * self.size * 8 * (2 * self.n_lights if n == 2 else 2 * self.n_lights + self.batch_layers)
 
     def render(self, vaos: list[moderngl.VertexArray], lights_buffer: moderngl.Buffer,
-               timer: StageTimer | None = None, enabled: bool = True) -> None:
-        """Render and blur the moments of every light. `vaos` draw the casters with `self.prog`."""
+               shadow_lights_buffer: moderngl.Buffer, timer: StageTimer | None = None, enabled: bool = True) -> None:
+        """Render and blur the moments of every shadowed light (layer k: light shadow_lights[k]).
+        `vaos` draw the casters with `self.prog`."""
         gl, ctx = self.gl, self.gl.ctx
         gl.check_thread()
         lights_buffer.bind_to_storage_buffer(0)
+        shadow_lights_buffer.bind_to_storage_buffer(2)
         groups = ((self.size + 7) // 8, (self.size + 7) // 8)
         for first in range(0, self.n_lights, self.batch_layers):
             count = min(self.batch_layers, self.n_lights - first)

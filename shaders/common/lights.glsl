@@ -3,6 +3,9 @@
 struct Light {
     mat4 view_proj;      // world -> light clip space (orthographic, depth in [0, 1])
     vec4 dir_scale;      // xyz: unit direction towards the region's energy centroid; w: PEM scale
-    vec4 params;         // x: blur sigma (texels); y: 1 if the light has a shadow map; z: solid angle (sr)
+    vec4 params;         // x: blur sigma (texels); y: shadow-map layer, -1 if unshadowed; z: solid angle (sr)
     vec4 energy;         // rgb: region energy (radiance x sr); a: luminance energy
 };
+
+// Lights that have a shadow map, in layer order (layer k belongs to light shadow_lights[k]).
+layout(std430, binding = 2) readonly buffer ShadowLights { int shadow_lights[]; };

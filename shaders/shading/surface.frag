@@ -40,11 +40,12 @@ float linstep(float lo, float hi, float x) { return clamp((x - lo) / (hi - lo), 
 
 // Chebyshev's one-tailed inequality on the blurred depth moments (Donnelly & Lauritzen 2006).
 float visibility(int i, vec3 ws_pos) {
-    if (lights[i].params.y < 0.5) return 1.0;
+    float layer = lights[i].params.y;
+    if (layer < 0.0) return 1.0;   // no shadow map: the PEM is added unshadowed
     vec4 p = lights[i].view_proj * vec4(ws_pos, 1.0);
     vec2 uv = p.xy * 0.5 + 0.5;
     if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
-    vec2 m = texture(u_moments, vec3(uv, float(i))).xy;
+    vec2 m = texture(u_moments, vec3(uv, layer)).xy;
     float t = p.z;
     if (t <= m.x) return 1.0;
     float variance = max(m.y - m.x * m.x, u_min_variance);

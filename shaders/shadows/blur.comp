@@ -28,7 +28,7 @@ void main() {
     ivec2 ortho = ivec2(1, 1) - u_axis;
     ivec2 origin = line * ortho;
 
-    float sigma = lights[u_first_light + layer].params.x;
+    float sigma = lights[shadow_lights[u_first_light + layer]].params.x;
     int r = min(int(round(0.5 * (sqrt(4.0 * sigma * sigma + 1.0) - 1.0))), u_max_radius);
     if (r <= 0) {
         for (int i = 0; i < length; ++i) {

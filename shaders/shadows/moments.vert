@@ -7,11 +7,11 @@
 layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
 
 in vec3 in_position;
-uniform int u_first_light;
+uniform int u_first_light;   // first shadow-map layer of this batch
 out float v_depth;
 
 void main() {
-    int i = u_first_light + gl_InstanceID;
+    int i = shadow_lights[u_first_light + gl_InstanceID];
     vec4 p = lights[i].view_proj * vec4(in_position, 1.0);
     gl_Layer = gl_InstanceID;
     v_depth = p.z;                 // orthographic: w = 1, z already in [0, 1]
