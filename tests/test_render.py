@@ -217,3 +217,24 @@ def test_lights_below_the_energy_threshold_get_no_shadow_map(renderer):
     err_some = np.abs(some.image - full.image)[..., :3].mean()
     err_none = np.abs(none_.image - full.image)[..., :3].mean()
     assert err_some < 0.1 * err_none
+
+
+def test_scene_scale_does_not_change_the_image(renderer):
+    # Everything (camera framing, light-space fit, VSM depth, normal offset) is relative to the
+    # scene's bounds, so 1e-6 m and 1e6 m versions of one scene render the same picture.
+    pems = renderer.build_pems(sun_sky_cube(32, (0.5, 1, 0.3), sun_radiance=5e3), PEMSettings(48))
+    images = {}
+    try:
+        for scale in (1.0, 1e-6, 1e6):
+            meshes = [Mesh.from_arrays(m.positions.astype(np.float64) * scale, m.faces)
+                      for m in (sphere(0.4, (0, 0.6, 0)), plane(4.0))]
+            scene = renderer.create_scene(meshes, [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
+            try:
+                images[scale] = renderer.render(scene, pems, FrameSettings(64, 64)).image
+            finally:
+                scene.release()
+    finally:
+        pems.release()
+    for scale in (1e-6, 1e6):
+        assert np.isfinite(images[scale]).all()
+        assert np.abs(images[scale] - images[1.0]).mean() <= 1e-4 * np.abs(images[1.0]).mean()
