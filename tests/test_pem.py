@@ -85,3 +85,20 @@ def test_build_is_deterministic(renderer):
     finally:
         a.release()
         b.release()
+
+
+def test_exported_set_restores_bit_identical_without_rebuilding(renderer, tmp_path):
+    cube = sun_sky_cube(16, (1, 1, 0), sun_radiance=1e5)
+    built = renderer.build_pems(cube, PEMSettings(24))
+    path = tmp_path / "pems.npz"
+    np.savez(path, **built.export())
+    with np.load(path) as stored:
+        restored = type(built)(renderer.gl, cube, PEMSettings(24), stored=dict(stored))
+    try:
+        for level in range(built.levels):
+            assert np.array_equal(built.read_level_raw(level), restored.read_level_raw(level))
+        assert np.array_equal(built.scale, restored.scale)
+        assert np.array_equal(built.regions.labels, restored.regions.labels)
+    finally:
+        built.release()
+        restored.release()

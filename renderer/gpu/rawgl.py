@@ -19,6 +19,7 @@ GL_RGBA16F = 0x881A
 GL_RGBA32F = 0x8814
 GL_RGBA = 0x1908
 GL_FLOAT = 0x1406
+GL_HALF_FLOAT = 0x140B
 GL_WRITE_ONLY = 0x88B9
 GL_READ_WRITE = 0x88BA
 GL_TEXTURE_MIN_FILTER = 0x2801
@@ -43,6 +44,7 @@ class RawGL:
         "glDeleteTextures": (_i, ctypes.POINTER(_u)),
         "glGetTextureImage": (_u, _i, _u, _u, _i, ctypes.c_void_p),
         "glGetTextureSubImage": (_u, _i, _i, _i, _i, _i, _i, _i, _u, _u, _i, ctypes.c_void_p),
+        "glTextureSubImage3D": (_u, _i, _i, _i, _i, _i, _i, _i, _u, _u, ctypes.c_void_p),
     }
 
     def __init__(self):
@@ -106,6 +108,16 @@ class CubeMapArray:
         self.gl.glGetTextureSubImage(self.glo, level, 0, 0, 6 * first, s, s, 6 * count, GL_RGBA, GL_FLOAT,
                                      out.nbytes, out.ctypes.data)
         return out
+
+    def write_level(self, level: int, data: np.ndarray) -> None:
+        """Upload one whole MIP level: float16 (layers, 6, s, s, 4), as `read_level` returns (in half)."""
+        self._check()
+        s = max(1, self.size >> level)
+        data = np.ascontiguousarray(data, np.float16)
+        if data.shape != (self.layers, 6, s, s, 4):
+            raise ValueError(f"level {level} must have shape {(self.layers, 6, s, s, 4)}, got {data.shape}")
+        self.gl.glTextureSubImage3D(self.glo, level, 0, 0, 0, s, s, 6 * self.layers, GL_RGBA, GL_HALF_FLOAT,
+                                    data.ctypes.data)
 
     def _check(self) -> None:
         if self.glo == 0:

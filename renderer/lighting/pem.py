@@ -47,7 +47,9 @@ class PEMSet:
     """The GPU-resident PEMs of one environment map. Owns its texture; `release()` frees it."""
 
     def __init__(self, gl: GLContext, cube: np.ndarray, settings: PEMSettings = PEMSettings(),
-                 timer: StageTimer | None = None):
+                 timer: StageTimer | None = None, stored: dict | None = None):
+        """Build the PEMs of `cube` (6, F, F, 3) on the GPU, or upload a set saved by `export()`
+        (`stored`, e.g. from a disk cache) for the same cube and settings without rebuilding."""
         gl.check_thread()
         cube = np.asarray(cube, np.float32)
         if cube.ndim != 4 or cube.shape[0] != 6 or cube.shape[1] != cube.shape[2] or cube.shape[3] < 3:
@@ -64,15 +66,20 @@ class PEMSet:
         self.levels = full if settings.levels is None else int(np.clip(settings.levels, 1, full))
 
         t0 = time.perf_counter()
-        self.regions: RegionSet = median_cut(cube[..., :3], settings.n_lights)
+        if stored is None:
+            self.regions: RegionSet = median_cut(cube[..., :3], settings.n_lights)
+            # Per-region scale: the brightest channel of the region's texels (1 for a black region).
+            flat = cube[..., :3].reshape(-1, 3).max(axis=1)
+            peak = np.zeros(self.regions.n_regions)
+            np.maximum.at(peak, self.regions.labels.reshape(-1), flat)
+            self.scale = np.where(peak > 0, peak, 1.0).astype(np.float64)
+        else:
+            self.regions = RegionSet(**{k: np.asarray(stored["regions_" + k]) for k in RegionSet.__dataclass_fields__})
+            self.scale = np.asarray(stored["scale"], np.float64)
+            if self.regions.n_regions != settings.n_lights or int(stored["levels"]) != self.levels:
+                raise InvalidInputError("stored PEM set does not match the requested settings")
         self.median_cut_ms = (time.perf_counter() - t0) * 1e3
         n_regions = self.regions.n_regions
-
-        # Per-region scale: the brightest channel of the region's texels (1 for a black region).
-        flat = cube[..., :3].reshape(-1, 3).max(axis=1)
-        peak = np.zeros(n_regions)
-        np.maximum.at(peak, self.regions.labels.reshape(-1), flat)
-        self.scale = np.where(peak > 0, peak, 1.0).astype(np.float64)
 
         if n_regions > REGIONS_PER_TEXTURE * MAX_TEXTURES:
             raise InvalidInputError(f"at most {REGIONS_PER_TEXTURE * MAX_TEXTURES} lights are supported, got {n_regions}")
@@ -80,8 +87,11 @@ class PEMSet:
                          for first in range(0, n_regions, REGIONS_PER_TEXTURE)]
         t0 = time.perf_counter()
         try:
-            with gl.stage(timer, "pem_build"):
-                self._build(cube)
+            with gl.stage(timer, "pem_build" if stored is None else "pem_upload"):
+                if stored is None:
+                    self._build(cube)
+                else:
+                    self._upload(stored)
         except Exception:
             for t in self.textures:
                 t.release()
@@ -155,6 +165,22 @@ class PEMSet:
                 p.release()
             for b in buffers:
                 b.release()
+
+    def _upload(self, stored: dict) -> None:
+        for level in range(self.levels):
+            data = np.asarray(stored[f"level_{level}"])
+            for k, texture in enumerate(self.textures):
+                first = k * REGIONS_PER_TEXTURE
+                texture.write_level(level, data[first:first + texture.layers])
+
+    def export(self) -> dict[str, np.ndarray]:
+        """Everything needed to restore this set without rebuilding (the stored half floats, the
+        scales, the partition): arrays for np.savez. Restore with PEMSet(gl, cube, settings, stored=...)."""
+        out = {f"level_{level}": self.read_level_raw(level).astype(np.float16) for level in range(self.levels)}
+        out.update({"regions_" + k: getattr(self.regions, k) for k in RegionSet.__dataclass_fields__})
+        out["scale"] = self.scale
+        out["levels"] = np.int64(self.levels)
+        return out
 
     # -- queries ----------------------------------------------------------------------------
     @property

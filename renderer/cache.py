@@ -1,0 +1,144 @@
+"""The PEM-set cache: bounded in GPU memory with LRU eviction, persisted on disk.
+
+Key: the environment map's content hash, the cube face size, every PEM setting (light count, filter,
+levels) and a format version, so a change to any of them, or to the build code's output format,
+never returns a stale set. Disk entries are written atomically (temporary file + rename); an
+unreadable entry is rebuilt and replaced, never trusted.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import tempfile
+import time
+from collections import OrderedDict
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .gpu.context import GLContext
+from .lighting.pem import PEMSet, PEMSettings
+
+log = logging.getLogger(__name__)
+
+# Bump when the stored arrays or the build's numerical output change.
+FORMAT_VERSION = 1
+
+
+@dataclass
+class CacheStats:
+    hits: int = 0
+    misses: int = 0
+    disk_hits: int = 0
+    disk_errors: int = 0
+    evictions: int = 0
+    builds: int = 0
+    build_ms_total: float = 0.0
+    entries: int = 0
+    bytes: int = 0
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def cache_key(content_hash: str, face_size: int, settings: PEMSettings) -> str:
+    raw = f"v{FORMAT_VERSION}|{content_hash}|{face_size}|{settings.key()}"
+    return hashlib.sha256(raw.encode()).hexdigest()[:32]
+
+
+class PEMCache:
+    """name: shown in statistics; max_bytes: GPU bytes of PEMs kept resident; disk_dir: None for
+    memory only. Used from the GL thread only, like everything holding GPU objects."""
+
+    def __init__(self, gl: GLContext, max_bytes: int = 1 << 30, disk_dir: str | Path | None = None,
+                 name: str = "pem-sets"):
+        self.gl, self.max_bytes, self.name = gl, int(max_bytes), name
+        self.disk_dir = Path(disk_dir) if disk_dir else None
+        if self.disk_dir:
+            self.disk_dir.mkdir(parents=True, exist_ok=True)
+        self._entries: OrderedDict[str, PEMSet] = OrderedDict()
+        self.stats = CacheStats()
+
+    def get(self, content_hash: str, cube: np.ndarray, settings: PEMSettings) -> PEMSet:
+        """The PEM set of `cube` (identified by `content_hash`) for `settings`: from memory, from
+        disk, or built (and then stored in both)."""
+        self.gl.check_thread()
+        key = cache_key(content_hash, cube.shape[1], settings)
+        pems = self._entries.get(key)
+        if pems is not None:
+            self._entries.move_to_end(key)
+            self.stats.hits += 1
+            return pems
+        self.stats.misses += 1
+        pems = self._load(key, cube, settings)
+        if pems is None:
+            t0 = time.perf_counter()
+            pems = PEMSet(self.gl, cube, settings)
+            self.stats.builds += 1
+            self.stats.build_ms_total += (time.perf_counter() - t0) * 1e3
+            self._store(key, pems)
+        self._entries[key] = pems
+        self._evict(keep=key)
+        self._update()
+        return pems
+
+    def __contains__(self, key: str) -> bool:
+        return key in self._entries
+
+    def _path(self, key: str) -> Path | None:
+        return self.disk_dir / f"{key}.npz" if self.disk_dir else None
+
+    def _load(self, key: str, cube: np.ndarray, settings: PEMSettings) -> PEMSet | None:
+        path = self._path(key)
+        if path is None or not path.exists():
+            return None
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                stored = {k: data[k] for k in data.files}
+            pems = PEMSet(self.gl, cube, settings, stored=stored)
+        except Exception as exc:  # a truncated or foreign file: rebuild rather than trust it
+            log.warning("PEM cache entry %s is unreadable (%s); rebuilding it", path, exc)
+            self.stats.disk_errors += 1
+            return None
+        self.stats.disk_hits += 1
+        return pems
+
+    def _store(self, key: str, pems: PEMSet) -> None:
+        path = self._path(key)
+        if path is None:
+            return
+        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, **pems.export())
+            os.replace(tmp, path)
+        except OSError as exc:
+            log.warning("could not write PEM cache entry %s: %s", path, exc)
+            self.stats.disk_errors += 1
+            Path(tmp).unlink(missing_ok=True)
+
+    def _evict(self, keep: str) -> None:
+        while self._resident_bytes() > self.max_bytes and len(self._entries) > 1:
+            key, pems = next(iter(self._entries.items()))
+            if key == keep:
+                break
+            del self._entries[key]
+            pems.release()  # frees the GPU memory now, not at garbage collection
+            self.stats.evictions += 1
+
+    def _resident_bytes(self) -> int:
+        return sum(p.nbytes for p in self._entries.values())
+
+    def _update(self) -> None:
+        self.stats.entries = len(self._entries)
+        self.stats.bytes = self._resident_bytes()
+
+    def clear(self) -> None:
+        self.gl.check_thread()
+        for pems in self._entries.values():
+            pems.release()
+        self._entries.clear()
+        self._update()
