@@ -147,7 +147,7 @@ def cmd_render(args) -> int:
             png = img.copy()
             png[..., 3] = 1.0
         write_png(args.out, png, exposure, ToneCurve(args.tone))
-    report = {"timings": frame.timings, "settings": frame.info, "quality": q, "exposure_ev": exposure,
+    report = {"timings": frame.timings, "settings": frame.settings, "quality": q, "exposure_ev": exposure,
               "environment": {"name": env.name, "layout": env.layout.value, "face_size": q["face_size"],
                               "texel_report": env.texel_report.as_dict() if env.texel_report else None},
               "meshes": [{"name": m.name, "vertices": int(m.positions.shape[0]), "faces": int(m.faces.shape[0])}
