@@ -22,6 +22,7 @@ from renderer.envmap import (
     image_to_dir,
     latlong_row_solid_angles,
     read_hdr_image,
+    sample_bilinear,
     sky_environment,
     studio_environment,
     texel_directions,
@@ -330,7 +331,6 @@ def test_energy_conserved_for_other_layouts(layout):
     src_cube = to_cube(src, "latlong", 32)
     h, w = {Layout.ANGULAR: (256, 256), Layout.HCROSS: (192, 256), Layout.VCROSS: (256, 192)}[layout]
     d, valid = image_to_dir((np.arange(w) + 0.5)[None, :], (np.arange(h) + 0.5)[:, None], layout, h, w)
-    from renderer.envmap import sample_bilinear
     img = np.where(valid[..., None], sample_bilinear(src_cube, np.where(valid[..., None], d, 1.0)), 0.0)
     cube = to_cube(img.astype(np.float32), layout, 32)
     np.testing.assert_allclose(_cube_energy(cube), _cube_energy(src_cube), rtol=0.01)

@@ -244,8 +244,9 @@ def _parse_rgbe_header(data: bytes, path: Path) -> tuple[int, int, bool, bool, i
     """Parse the header and resolution string; returns (H, W, flip_y, flip_x, offset of the pixel data).
 
     FORMAT must be 32-bit_rle_rgbe. EXPOSURE (and COLORCORR, PRIMARIES, GAMMA) are ignored: EXPOSURE
-    records a multiplier already applied to the stored values, and like stb_image, OpenCV and the
-    pipelines that publish HDRIs we take the stored values as the radiance.
+    records a multiplier already applied to the stored values (dividing by it would give the values
+    before that), and like stb_image, OpenCV and the pipelines that publish HDRIs we take the stored
+    values as the radiance.
     """
     if not data.startswith(b"#?"):
         raise EnvironmentMapError(f"{path}: not a Radiance RGBE file (missing the '#?RADIANCE' first line)")
@@ -267,7 +268,8 @@ def _parse_rgbe_header(data: bytes, path: Path) -> tuple[int, int, bool, bool, i
         (ay, sh, ax, sw) = res
         height, width = int(sh), int(sw)
     except ValueError:
-        raise EnvironmentMapError(f"{path}: bad resolution line {' '.join(res)!r}; expected '-Y <height> +X <width>'")
+        raise EnvironmentMapError(
+            f"{path}: bad resolution line {' '.join(res)!r}; expected '-Y <height> +X <width>'") from None
     if ay not in ("-Y", "+Y") or ax not in ("+X", "-X"):
         raise EnvironmentMapError(
             f"{path}: orientation '{ay} {sh} {ax} {sw}' is not supported; only row-major orientations "
@@ -394,4 +396,6 @@ def _rgbe_to_float(rgbe: np.ndarray) -> np.ndarray:
     # match other tools bit for bit (e.g. rooitou_park's sun is 135 * 2^9 = 69120).
     exponent = rgbe[..., 3].astype(np.int32)
     scale = np.where(exponent == 0, np.float32(0), np.ldexp(np.float32(1), exponent - 136).astype(np.float32))
-    return rgbe[..., :3].astype(np.float32) * scale[..., None]
+    rgb = rgbe[..., :3].astype(np.float32)
+    rgb *= scale[..., None]  # in place: a 16k map is 1.5 GiB as float32
+    return rgb

@@ -432,7 +432,8 @@ def _bilinear(level: _Level, x_px: np.ndarray, y_px: np.ndarray, wrap_x: bool, u
     return out
 
 
-def to_cube(img: np.ndarray, layout: Layout | str, face_size: int, *, samples_per_axis: int | None = None) -> np.ndarray:
+def to_cube(img: np.ndarray, layout: Layout | str, face_size: int, *,
+            samples_per_axis: int | None = None) -> np.ndarray:
     """Resample an environment map (H, W, C) to a cube float32 (6, F, F, C) in the cube.py convention.
 
     Each cube texel is the solid-angle mean of the map over the texel (area-correct: no aliasing when
