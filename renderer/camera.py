@@ -68,3 +68,18 @@ def default_camera(centre: np.ndarray, radius: float, aspect: float = 1.0, fov_y
     dist = 1.05 * radius / np.sin(half)
     eye = np.asarray(centre, np.float64) + dist * d
     return Camera(tuple(eye), tuple(np.asarray(centre, np.float64)), (0.0, 1.0, 0.0), fov_y_deg)
+
+
+def bounds_sphere(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre and radius of the sphere around an axis-aligned box (what the default camera frames)."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    return 0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)), 1e-30)
+
+
+def frame_meshes(meshes, aspect: float = 1.0, fov_y_deg: float = 35.0) -> Camera:
+    """The default camera of a scene made of `meshes` (renderer.mesh.Mesh): the same one the
+    renderer uses when no camera is given, so other renderers (the reference) can match it."""
+    lo = np.min([m.positions.min(axis=0) for m in meshes], axis=0)
+    hi = np.max([m.positions.max(axis=0) for m in meshes], axis=0)
+    centre, radius = bounds_sphere(lo, hi)
+    return default_camera(centre, radius, aspect, fov_y_deg)

@@ -15,7 +15,7 @@ from enum import Enum
 import moderngl
 import numpy as np
 
-from .camera import Camera, default_camera
+from .camera import Camera, bounds_sphere, default_camera
 from .errors import InvalidInputError
 from .gpu.context import GLContext, StageTimer
 from .gpu.shaders import program
@@ -179,9 +179,7 @@ class Renderer:
 
         # Shading.
         w, h = settings.width, settings.height
-        lo_all, hi_all = scene.bounds()
-        centre = 0.5 * (lo_all + hi_all)
-        radius = max(0.5 * float(np.linalg.norm(hi_all - lo_all)), 1e-30)
+        centre, radius = bounds_sphere(*scene.bounds())
         camera = camera or default_camera(centre, radius, w / h)
         view_proj = camera.view_proj(w / h, centre, radius)
         fbo = self._target_for(w, h)
