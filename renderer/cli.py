@@ -67,8 +67,9 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--shadow-size", type=int, help="shadow-map size per light")
     q.add_argument("--blur-scale", type=float, help="scale of the per-light shadow blur (0: hard shadows)")
     q.add_argument("--bleed-reduction", type=float, default=0.2)
-    q.add_argument("--mode", default="full", choices=["full", "none", "ao", "ao-color"],
-                   help="full method, no occlusion, grey AO, AO with colour (paper Fig. 6)")
+    q.add_argument("--mode", default="full", choices=["full", "none", "ao", "ao-color", "many-lights"],
+                   help="full method, no occlusion, grey AO, AO with colour (paper Fig. 6), or the plain "
+                        "many-light baseline (the N lights shade as well as shadow)")
     o = p.add_argument_group("output")
     o.add_argument("--size", type=_size, default=(512, 512))
     o.add_argument("--out", type=Path, help="tone-mapped sRGB PNG")

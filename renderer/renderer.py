@@ -28,15 +28,18 @@ from .shadows.vsm import ShadowMaps
 
 
 class ShadingMode(str, Enum):
-    """The paper's Figure 6 comparison: full method, no occlusion, grey AO, AO with colour."""
+    """The paper's Figure 6 comparison (full method, no occlusion, grey AO, AO with colour) and the
+    plain many-light baseline."""
 
     FULL = "full"
     NO_OCCLUSION = "none"
     AO_GREY = "ao"
     AO_COLOUR = "ao-color"
+    MANY_LIGHTS = "many-lights"  # baseline: the N lights shade too (no PEMs), paper's introduction
 
 
-_MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_GREY: 2, ShadingMode.AO_COLOUR: 3}
+_MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_GREY: 2, ShadingMode.AO_COLOUR: 3,
+               ShadingMode.MANY_LIGHTS: 4}
 
 
 class Background(str, Enum):

@@ -238,3 +238,16 @@ def test_scene_scale_does_not_change_the_image(renderer):
     for scale in (1e-6, 1e6):
         assert np.isfinite(images[scale]).all()
         assert np.abs(images[scale] - images[1.0]).mean() <= 1e-4 * np.abs(images[1.0]).mean()
+
+
+def test_many_light_baseline_matches_the_furnace_for_diffuse(renderer, sphere_scene):
+    # N directional lights carrying the energy of a uniform map: a white diffuse sphere's average
+    # radiance approaches L (each point sees about half the lights, cosine-weighted).
+    pems = renderer.build_pems(np.full((6, 32, 32, 3), 1.0, np.float32), PEMSettings(384))
+    try:
+        frame = renderer.render(sphere_scene, pems, FrameSettings(64, 64, mode=ShadingMode.MANY_LIGHTS), CAM)
+    finally:
+        pems.release()
+    px = frame.image[covered(frame)][:, :3]
+    assert np.isfinite(px).all()
+    assert px.mean() == pytest.approx(1.0, rel=0.1)

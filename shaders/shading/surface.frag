@@ -16,7 +16,7 @@ uniform bool u_use_gloss_map;
 
 uniform vec3 u_camera_pos;
 uniform int u_n_lights;
-uniform int u_mode;                // 0 full method, 1 no occlusion, 2 grey AO, 3 colour AO
+uniform int u_mode;                // 0 full method, 1 no occlusion, 2 grey AO, 3 colour AO, 4 many lights
 uniform float u_diffuse_level;
 uniform float u_min_variance;
 uniform float u_bleed_reduction;   // Lauritzen's light-bleeding reduction: clip p_max below this
@@ -35,6 +35,8 @@ vec3 pem(int i, vec3 dir, float level) {
     if (i < REGIONS_PER_TEXTURE) return textureLod(u_pem0, vec4(dir, float(i)), level).rgb;
     return textureLod(u_pem1, vec4(dir, float(i - REGIONS_PER_TEXTURE)), level).rgb;
 }
+
+const float PI = 3.14159265358979;
 
 float linstep(float lo, float hi, float x) { return clamp((x - lo) / (hi - lo), 0.0, 1.0); }
 
@@ -70,10 +72,21 @@ void main() {
     float specular = material.x;
     float level_g = gloss_level(material.y);
     vec3 shadow_pos = v_ws_position + u_normal_offset * n;
+    // Phong exponent for the many-light baseline (Eq. 3), capped so that g = 1 stays finite.
+    float s_phong = 1.0 / max(1.0 - material.y, 1e-4);
 
     vec3 diffuse = vec3(0.0), glossy = vec3(0.0);
     vec3 ao_rgb = vec3(0.0), ao_norm = vec3(0.0);
     for (int i = 0; i < u_n_lights; ++i) {
+        if (u_mode == 4) {
+            // Baseline of the paper's introduction: the N lights used for shading as well as for
+            // shadows, each a directional light carrying its region's energy (no PEMs).
+            vec3 l = lights[i].dir_scale.xyz;
+            vec3 e = visibility(i, shadow_pos) * lights[i].energy.rgb;
+            diffuse += e * max(dot(n, l), 0.0) / PI;
+            glossy += e * (s_phong + 1.0) / (2.0 * PI) * pow(max(dot(r, l), 0.0), s_phong);
+            continue;
+        }
         float scale = lights[i].dir_scale.w;
         vec3 pem_d = scale * pem(i, n, u_diffuse_level);
         vec3 pem_g = specular > 0.0 ? scale * pem(i, r, level_g) : vec3(0.0);
@@ -92,7 +105,7 @@ void main() {
             glossy += pem_g;
         }
     }
-    if (u_mode >= 2) {
+    if (u_mode == 2 || u_mode == 3) {
         vec3 ao = ao_rgb / max(ao_norm, vec3(1e-30));
         diffuse *= ao;
         glossy *= ao;
