@@ -162,6 +162,52 @@ def cmd_render(args) -> int:
     return 0
 
 
+def cmd_reference(args) -> int:
+    """The Monte Carlo ground truth of the same scene, with the same output flags as `render`."""
+    from .camera import Camera, frame_meshes
+    from .envmap import write_exr
+    from .reference import render_reference
+    from .shading.tonemap import ToneCurve, auto_exposure_ev, write_png
+
+    face = args.face_size or 256  # the reference reads the map itself: a fine cube by default
+    env, meshes, materials = load_scene_inputs(args, face)
+    w, h = args.size
+    if args.camera_eye is not None and args.camera_target is not None:
+        camera = Camera(args.camera_eye, args.camera_target, fov_y_deg=args.fov)
+    else:
+        camera = frame_meshes(meshes, w / h, args.fov)
+    t0 = time.perf_counter()
+    ref = render_reference(meshes, materials, env.cube, camera, w, h, args.spp, seed=args.seed)
+    wall = time.perf_counter() - t0
+    img = ref.image
+    if args.exr:
+        write_exr(args.exr, img)
+    exposure = args.exposure if args.exposure is not None else auto_exposure_ev(img[..., :3], img[..., 3])
+    if args.out:
+        png = img.copy()
+        png[..., 3] = 1.0
+        write_png(args.out, png, exposure, ToneCurve(args.tone))
+    report = {"spp": args.spp, "seed": args.seed, "wall_s": wall, "rays_cast": int(ref.rays_cast),
+              "noise_floor_rel": float(ref.noise_floor_rel()), "environment": env.name, "face_size": face,
+              "camera": {"eye": list(camera.eye), "target": list(camera.target), "fov_y_deg": camera.fov_y_deg}}
+    if args.timings:
+        args.timings.write_text(json.dumps(report, indent=2))
+    print(f"reference {w}x{h}, {args.spp} spp: {wall:.1f} s, {ref.rays_cast / max(wall, 1e-9) / 1e6:.2f} M rays/s, "
+          f"relative noise (standard error / mean) {ref.noise_floor_rel():.4f}")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from .bench.run import BenchConfig, run_bench
+
+    cfg = BenchConfig.quick_config() if args.quick else BenchConfig()
+    if args.no_shared:
+        cfg.shared = False
+    run_bench(args.out, cfg)
+    print(f"wrote {args.out}/bench.json, bench.md, pareto.png")
+    return 0
+
+
 def cmd_lobes(args) -> int:
     from .lighting.lobe_figures import write_lobe_report
 
@@ -177,6 +223,16 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="render one frame")
     add_scene_arguments(r)
     r.set_defaults(func=cmd_render)
+    ref = sub.add_parser("reference", help="Monte Carlo ground truth of the same scene (embree ray casting)")
+    add_scene_arguments(ref)
+    ref.add_argument("--spp", type=int, default=256, help="samples per pixel (per technique)")
+    ref.add_argument("--seed", type=int, default=0)
+    ref.set_defaults(func=cmd_reference)
+    b = sub.add_parser("bench", help="sweep the quality knobs against the reference; write bench.json/md, pareto.png")
+    b.add_argument("--quick", action="store_true", help="a reduced sweep that finishes in minutes on 2 cores")
+    b.add_argument("--no-shared", action="store_true", help="bundled scene only (skip ../shared/assets)")
+    b.add_argument("--out", type=Path, default=Path("out/bench"))
+    b.set_defaults(func=cmd_bench)
     lo = sub.add_parser("lobes", help="reproduce the paper's Figures 4 and 5 (lobe cross sections and errors)")
     lo.add_argument("--out", type=Path, default=Path("out/lobes"))
     lo.add_argument("--face-size", type=int, default=128)

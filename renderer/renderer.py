@@ -87,6 +87,15 @@ class Frame:
     settings: dict = field(default_factory=dict)
 
 
+def _set_uniform(prog: moderngl.Program, name: str, value) -> None:
+    """Set a uniform if this program variant uses it (the compiler drops unused ones)."""
+    if name in prog:
+        if isinstance(value, bytes):
+            prog[name].write(value)
+        else:
+            prog[name].value = value
+
+
 class Renderer:
     """Owns the GL context (or borrows one) and the per-size GPU resources reused across frames."""
 
@@ -95,7 +104,8 @@ class Renderer:
         self.gl = gl or GLContext()
         ctx = self.gl.ctx
         defines = {"GLOSS_TABLE_SIZE": PEMSet.GLOSS_TABLE_SIZE, "REGIONS_PER_TEXTURE": REGIONS_PER_TEXTURE}
-        self.shade_prog = program(ctx, "shading/surface.vert", "shading/surface.frag", defines)
+        self._defines = defines
+        self._shade_progs: dict[ShadingMode, moderngl.Program] = {}
         self.bg_prog = program(ctx, "shading/background.vert", "shading/background.frag")
         self.bg_vao = ctx.vertex_array(self.bg_prog, [])
         self._shadow_maps = None
@@ -105,7 +115,14 @@ class Renderer:
         # The moments program is needed to build vertex arrays before any shadow map exists.
         self._shadow_prog = program(ctx, "shadows/moments.vert", "shadows/moments.frag")
         self.depth_prog = program(ctx, "shading/depth.vert", "shading/depth.frag")
-        self._programs = {"shade": self.shade_prog, "moments": self._shadow_prog, "depth": self.depth_prog}
+        self._programs = {"moments": self._shadow_prog, "depth": self.depth_prog}
+
+    def shade_program(self, mode: ShadingMode) -> moderngl.Program:
+        """The shading program of a mode, compiled on first use (one variant per mode)."""
+        if mode not in self._shade_progs:
+            self._shade_progs[mode] = program(self.gl.ctx, "shading/surface.vert", "shading/surface.frag",
+                                              {**self._defines, "MODE": _MODE_INDEX[mode]})
+        return self._shade_progs[mode]
 
     # -- resources --------------------------------------------------------------------------
     def build_pems(self, cube: np.ndarray, settings: PEMSettings = PEMSettings(),
@@ -211,22 +228,21 @@ class Renderer:
             fbo.color_mask = (True, True, True, True)
             fbo.depth_mask = False
             ctx.depth_func = "<="
-            p = self.shade_prog
-            p["u_view_proj"].write(vp_bytes)
-            p["u_camera_pos"].value = tuple(float(x) for x in camera.eye)
-            p["u_n_lights"].value = n
-            p["u_mode"].value = _MODE_INDEX[settings.mode]
-            p["u_diffuse_level"].value = pems.diffuse_level()
-            p["u_min_variance"].value = settings.min_variance
-            p["u_bleed_reduction"].value = settings.bleed_reduction
+            p = self.shade_program(settings.mode)
+            _set_uniform(p, "u_view_proj", vp_bytes)
+            _set_uniform(p, "u_camera_pos", tuple(float(x) for x in camera.eye))
+            _set_uniform(p, "u_n_lights", n)
+            _set_uniform(p, "u_diffuse_level", pems.diffuse_level())
+            _set_uniform(p, "u_min_variance", settings.min_variance)
+            _set_uniform(p, "u_bleed_reduction", settings.bleed_reduction)
             extent = 2.0 * float(np.linalg.norm(hi - lo))
-            p["u_normal_offset"].value = settings.normal_offset_texels * extent / settings.shadow_size
+            _set_uniform(p, "u_normal_offset", settings.normal_offset_texels * extent / settings.shadow_size)
             for sm in scene.meshes:
                 sm.albedo_tex.use(location=3)
                 sm.gloss_tex.use(location=4)
-                p["u_use_albedo_map"].value = sm.use_maps[0]
-                p["u_use_gloss_map"].value = sm.use_maps[1]
-                sm.vao_shade.render(moderngl.TRIANGLES)
+                _set_uniform(p, "u_use_albedo_map", sm.use_maps[0])
+                _set_uniform(p, "u_use_gloss_map", sm.use_maps[1])
+                sm.vao_shade(p).render(moderngl.TRIANGLES)
             fbo.depth_mask = True
             ctx.depth_func = "<"
             ctx.disable(moderngl.DEPTH_TEST)
@@ -257,7 +273,7 @@ class Renderer:
         for buf in self._buffers.values():
             buf.release()
         self._gloss_buf.release()
-        for obj in (self.bg_vao, self.bg_prog, self.shade_prog, self._shadow_prog, self.depth_prog):
+        for obj in (self.bg_vao, self.bg_prog, *self._shade_progs.values(), self._shadow_prog, self.depth_prog):
             obj.release()
         if self._owns_gl:
             self.gl.release()

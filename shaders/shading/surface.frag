@@ -2,7 +2,15 @@
 // Diffuse: PEM_i looked up along the normal at the calibrated s = 1 level, times the albedo.
 // Glossy: PEM_i looked up along the reflection vector at the level calibrated for g, times the
 // specular weight. VIS_i is the variance-shadow-map visibility of light i.
+//
+// MODE (a #define, one program per mode: llvmpipe runs both sides of uniform branches under a mask,
+// so unused modes would cost time): 0 full method, 1 no occlusion, 2 grey AO, 3 colour AO,
+// 4 the many-light baseline.
 #include "common/lights.glsl"
+
+// The depth pre-pass has laid down the nearest surface: test depth before shading, so that only
+// visible fragments pay for the lights.
+layout(early_fragment_tests) in;
 
 layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
 layout(std430, binding = 1) readonly buffer GlossLevels { float level_of_g[]; };  // GLOSS_TABLE_SIZE
@@ -16,7 +24,6 @@ uniform bool u_use_gloss_map;
 
 uniform vec3 u_camera_pos;
 uniform int u_n_lights;
-uniform int u_mode;                // 0 full method, 1 no occlusion, 2 grey AO, 3 colour AO, 4 many lights
 uniform float u_diffuse_level;
 uniform float u_min_variance;
 uniform float u_bleed_reduction;   // Lauritzen's light-bleeding reduction: clip p_max below this
@@ -29,12 +36,6 @@ in vec2 v_material;
 in vec2 v_uv;
 
 out vec4 o_color;
-
-// PEM_i(dir) at a fractional MIP level (trilinear, seamless across cube faces).
-vec3 pem(int i, vec3 dir, float level) {
-    if (i < REGIONS_PER_TEXTURE) return textureLod(u_pem0, vec4(dir, float(i)), level).rgb;
-    return textureLod(u_pem1, vec4(dir, float(i - REGIONS_PER_TEXTURE)), level).rgb;
-}
 
 const float PI = 3.14159265358979;
 
@@ -62,6 +63,35 @@ float gloss_level(float g) {
     return mix(level_of_g[k], level_of_g[k + 1], x - float(k));
 }
 
+// Accumulators of main(), shared with add_light() (GLSL has no closures).
+vec3 g_diffuse = vec3(0.0), g_glossy = vec3(0.0), g_ao_rgb = vec3(0.0), g_ao_norm = vec3(0.0);
+
+// Adds light i, given its PEM looked up along the normal (pem_d, diffuse level) and along the
+// reflection vector (pem_g, level of g), both still divided by the region's scale.
+void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 shadow_pos) {
+    float scale = lights[i].dir_scale.w;
+    pem_d *= scale;
+    pem_g *= scale;
+#if MODE == 1
+    g_diffuse += pem_d;
+    g_glossy += pem_g;
+#elif MODE == 0
+    float vis = visibility(i, shadow_pos);
+    g_diffuse += vis * pem_d;
+    g_glossy += vis * pem_g;
+#else
+    // Ambient-occlusion baselines (paper Fig. 6): unshadowed lighting times an occlusion factor
+    // that averages VIS_i with cosine weights, by solid angle (grey) or by energy (colour).
+    float vis = visibility(i, shadow_pos);
+    float cosine = max(dot(n, lights[i].dir_scale.xyz), 0.0);
+    vec3 w = MODE == 2 ? vec3(lights[i].params.z) : lights[i].energy.rgb;
+    g_ao_rgb += vis * cosine * w;
+    g_ao_norm += cosine * w;
+    g_diffuse += pem_d;
+    g_glossy += pem_g;
+#endif
+}
+
 void main() {
     vec3 n = normalize(v_ws_normal);
     vec3 to_eye = normalize(u_camera_pos - v_ws_position);
@@ -72,43 +102,42 @@ void main() {
     float specular = material.x;
     float level_g = gloss_level(material.y);
     vec3 shadow_pos = v_ws_position + u_normal_offset * n;
-    // Phong exponent for the many-light baseline (Eq. 3), capped so that g = 1 stays finite.
-    float s_phong = 1.0 / max(1.0 - material.y, 1e-4);
 
-    vec3 diffuse = vec3(0.0), glossy = vec3(0.0);
-    vec3 ao_rgb = vec3(0.0), ao_norm = vec3(0.0);
-    for (int i = 0; i < u_n_lights; ++i) {
-        if (u_mode == 4) {
-            // Baseline of the paper's introduction: the N lights used for shading as well as for
-            // shadows, each a directional light carrying its region's energy (no PEMs).
+#if MODE == 4
+    {
+        // Baseline of the paper's introduction: the N lights used for shading as well as for
+        // shadows, each a directional light carrying its region's energy (no PEMs).
+        float s_phong = 1.0 / max(1.0 - material.y, 1e-4);   // Eq. 3, capped so g = 1 stays finite
+        for (int i = 0; i < u_n_lights; ++i) {
             vec3 l = lights[i].dir_scale.xyz;
             vec3 e = visibility(i, shadow_pos) * lights[i].energy.rgb;
-            diffuse += e * max(dot(n, l), 0.0) / PI;
-            glossy += e * (s_phong + 1.0) / (2.0 * PI) * pow(max(dot(r, l), 0.0), s_phong);
-            continue;
-        }
-        float scale = lights[i].dir_scale.w;
-        vec3 pem_d = scale * pem(i, n, u_diffuse_level);
-        vec3 pem_g = specular > 0.0 ? scale * pem(i, r, level_g) : vec3(0.0);
-        float vis = u_mode == 1 ? 1.0 : visibility(i, shadow_pos);
-        if (u_mode == 0 || u_mode == 1) {
-            diffuse += vis * pem_d;
-            glossy += vis * pem_g;
-        } else {
-            // Ambient-occlusion baselines (paper Fig. 6): unshadowed lighting times an occlusion factor
-            // that averages VIS_i with cosine weights, by solid angle (grey) or by energy (colour).
-            float cosine = max(dot(n, lights[i].dir_scale.xyz), 0.0);
-            vec3 w = u_mode == 2 ? vec3(lights[i].params.z) : lights[i].energy.rgb;
-            ao_rgb += vis * cosine * w;
-            ao_norm += cosine * w;
-            diffuse += pem_d;
-            glossy += pem_g;
+            g_diffuse += e * max(dot(n, l), 0.0) / PI;
+            g_glossy += e * (s_phong + 1.0) / (2.0 * PI) * pow(max(dot(r, l), 0.0), s_phong);
         }
     }
-    if (u_mode == 2 || u_mode == 3) {
-        vec3 ao = ao_rgb / max(ao_norm, vec3(1e-30));
-        diffuse *= ao;
-        glossy *= ao;
+#else
+    {
+        // Two loops, one per PEM texture, so that the sampler choice is not a per-light branch
+        // (a divergent branch around texture lookups costs a third of the pass on llvmpipe).
+        int n0 = min(u_n_lights, REGIONS_PER_TEXTURE);
+        bool glossy = specular > 0.0;
+        for (int i = 0; i < n0; ++i) {
+            vec3 pem_d = textureLod(u_pem0, vec4(n, float(i)), u_diffuse_level).rgb;
+            vec3 pem_g = glossy ? textureLod(u_pem0, vec4(r, float(i)), level_g).rgb : vec3(0.0);
+            add_light(i, pem_d, pem_g, n, shadow_pos);
+        }
+        for (int i = n0; i < u_n_lights; ++i) {
+            float layer = float(i - REGIONS_PER_TEXTURE);
+            vec3 pem_d = textureLod(u_pem1, vec4(n, layer), u_diffuse_level).rgb;
+            vec3 pem_g = glossy ? textureLod(u_pem1, vec4(r, layer), level_g).rgb : vec3(0.0);
+            add_light(i, pem_d, pem_g, n, shadow_pos);
+        }
     }
-    o_color = vec4(albedo * diffuse + specular * glossy, 1.0);
+#endif
+    if (MODE == 2 || MODE == 3) {
+        vec3 ao = g_ao_rgb / max(g_ao_norm, vec3(1e-30));
+        g_diffuse *= ao;
+        g_glossy *= ao;
+    }
+    o_color = vec4(albedo * g_diffuse + specular * g_glossy, 1.0);
 }

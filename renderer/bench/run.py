@@ -1,0 +1,186 @@
+"""`garment-render bench`: the speed/accuracy trade of every quality knob, measured side by side in
+one run on one machine, against the Monte Carlo reference (with its own noise floor stated).
+
+One-at-a-time sweeps around the `balanced` preset (lights, PEM face size, shadow-map size, blur
+scale, filter), plus baselines timed in the same run on the same scenes: unshadowed prefiltered
+environment lighting, the plain many-light method, ambient occlusion times environment lighting
+(grey and colour), and the reference at the sample count that reaches the same error.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import frame_meshes
+from ..gpu.context import GLContext
+from ..lighting.filters import Filter
+from ..lighting.pem import PEMSettings
+from ..reference import mean_flip, relative_rmse, render_reference
+from ..renderer import FrameSettings, Renderer, ShadingMode
+from .scenes import BenchScene, bundled_scene, shared_scenes
+
+BALANCED = {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 1.0, "filter": "sqrt-cosine"}
+
+SWEEPS = {
+    "lights": [6, 12, 24, 48, 96, 192, 384],
+    "face_size": [32, 64, 128, 256],
+    "shadow_size": [64, 128, 256, 512],
+    "blur_scale": [0.0, 0.5, 1.0, 2.0, 4.0],
+    "filter": [f.value for f in Filter],
+}
+QUICK_SWEEPS = {
+    "lights": [6, 24, 48, 96],
+    "face_size": [64, 128],
+    "shadow_size": [128, 256],
+    "blur_scale": [0.0, 1.0],
+    "filter": ["none", "sqrt-cosine"],
+}
+BASELINE_MODES = [ShadingMode.NO_OCCLUSION, ShadingMode.MANY_LIGHTS, ShadingMode.AO_GREY, ShadingMode.AO_COLOUR]
+
+
+@dataclass
+class BenchConfig:
+    quick: bool = False
+    size: int = 256
+    frames: int = 5           # timed frames per setting (after one warm-up frame)
+    ref_spp: int = 256        # samples per pixel of the reference (two independent renders)
+    ladder: tuple = (1, 2, 4, 8, 16, 32, 64, 128)  # reference sample counts for equal-error timing
+    shared: bool = True
+
+    @classmethod
+    def quick_config(cls) -> "BenchConfig":
+        return cls(quick=True, size=128, frames=3, ref_spp=64, ladder=(1, 2, 4, 8, 16, 32))
+
+
+@dataclass
+class Row:
+    scene: str
+    env: str
+    knob: str
+    value: object
+    mode: str
+    settings: dict
+    frame_ms: float
+    stages_ms: dict
+    pem_build_ms: float
+    pem_bytes: int
+    shadow_bytes: int
+    rel_rmse: float
+    flip: float
+    ref_noise_rel_rmse: float
+    ref_noise_flip: float
+    ref_equal_error_spp: int | None = None
+    ref_equal_error_ms: float | None = None
+    speedup_vs_reference: float | None = None
+    extra: dict = field(default_factory=dict)
+
+
+def _settings_list(sweeps: dict) -> list[tuple[str, object, dict]]:
+    out = [("balanced", "balanced", dict(BALANCED))]
+    for knob, values in sweeps.items():
+        for v in values:
+            if v == BALANCED[knob]:
+                continue
+            s = dict(BALANCED)
+            s[knob] = v
+            out.append((knob, v, s))
+    return out
+
+
+def _time_frames(r: Renderer, scene, pems, fs: FrameSettings, camera, n: int):
+    r.render(scene, pems, fs, camera)  # warm-up: shader compilation, allocations
+    frames = [r.render(scene, pems, fs, camera) for _ in range(n)]
+    frame_ms = float(np.median([f.timings["frame_wall_ms"] for f in frames]))
+    stages = {k: float(np.median([f.timings["wall_ms"].get(k, 0.0) for f in frames])) for k in frames[0].timings["wall_ms"]}
+    return frames[-1], frame_ms, stages
+
+
+def bench_scene(r: Renderer, bs: BenchScene, cfg: BenchConfig, log=print) -> list[Row]:
+    size = cfg.size
+    camera = frame_meshes(bs.meshes, 1.0)
+    sweeps = QUICK_SWEEPS if cfg.quick else SWEEPS
+
+    # Ground truth and its own noise floor: two independent reference renders.
+    ref_cube = bs.cube(BALANCED["face_size"] * 2 if not cfg.quick else BALANCED["face_size"])
+    t0 = time.perf_counter()
+    ref_a = render_reference(bs.meshes, bs.materials, ref_cube, camera, size, size, cfg.ref_spp, seed=1)
+    ref_s = time.perf_counter() - t0
+    ref_b = render_reference(bs.meshes, bs.materials, ref_cube, camera, size, size, cfg.ref_spp, seed=2)
+    truth = ref_a.image
+    mask = truth[..., 3] > 0.5
+    noise_rmse = relative_rmse(ref_b.image, truth, mask)
+    noise_flip = mean_flip(ref_b.image, truth, mask)
+    log(f"  reference {cfg.ref_spp} spp: {ref_s:.1f} s; noise floor rel. RMSE {noise_rmse:.4f}, FLIP {noise_flip:.4f}")
+
+    # Reference error and time against sample count, for the equal-error comparison.
+    ladder = []
+    for spp in cfg.ladder:
+        t0 = time.perf_counter()
+        low = render_reference(bs.meshes, bs.materials, ref_cube, camera, size, size, spp, seed=100 + spp)
+        ladder.append((spp, (time.perf_counter() - t0) * 1e3, relative_rmse(low.image, truth, mask)))
+    log("  reference ladder: " + ", ".join(f"{s} spp {ms:.0f} ms err {e:.3f}" for s, ms, e in ladder))
+
+    def equal_error(err: float):
+        for spp, ms, e in ladder:
+            if e <= err:
+                return spp, ms
+        return None, None
+
+    rows = []
+    scene = r.create_scene(bs.meshes, bs.materials)
+    pem_cache: dict[tuple, object] = {}
+    try:
+        jobs = [(k, v, s, ShadingMode.FULL) for k, v, s in _settings_list(sweeps)]
+        jobs += [("baseline", m.value, dict(BALANCED), m) for m in BASELINE_MODES]
+        for knob, value, s, mode in jobs:
+            key = (s["face_size"], s["lights"], s["filter"])
+            if key not in pem_cache:
+                pem_cache[key] = r.build_pems(bs.cube(s["face_size"]), PEMSettings(s["lights"], Filter(s["filter"])))
+            pems = pem_cache[key]
+            fs = FrameSettings(size, size, shadow_size=s["shadow_size"], blur_scale=s["blur_scale"], mode=mode)
+            frame, frame_ms, stages = _time_frames(r, scene, pems, fs, camera, cfg.frames)
+            err = relative_rmse(frame.image, truth, mask)
+            flip = mean_flip(frame.image, truth, mask)
+            spp, ref_ms = equal_error(err)
+            row = Row(bs.name, bs.env_name, knob, value, mode.value, s, frame_ms, stages, pems.build_ms, pems.nbytes,
+                      frame.settings["shadow_bytes"], err, flip, noise_rmse, noise_flip, spp, ref_ms,
+                      (ref_ms / frame_ms) if ref_ms else None)
+            rows.append(row)
+            log(f"  {knob}={value} [{mode.value}]: {frame_ms:.0f} ms, rel. RMSE {err:.4f}, FLIP {flip:.4f}"
+                + (f", reference needs {spp} spp ({ref_ms:.0f} ms)" if spp else ", reference ladder never this good"))
+    finally:
+        for p in pem_cache.values():
+            p.release()
+        scene.release()
+    return rows
+
+
+def run_bench(out_dir: Path, cfg: BenchConfig, log=print) -> list[Row]:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    scenes = [bundled_scene()] + (shared_scenes() if cfg.shared else [])
+    gl = GLContext()
+    rows: list[Row] = []
+    with Renderer(gl) as r:
+        machine = {"gl_renderer": gl.renderer_name, "gl_version": gl.version, "cpu": platform.processor() or platform.machine(),
+                   "python": platform.python_version(), "date": time.strftime("%Y-%m-%d")}
+        for bs in scenes:
+            log(f"scene {bs.name} ({bs.env_name})")
+            rows += bench_scene(r, bs, cfg, log)
+            _write(out_dir, rows, machine, cfg)  # partial results survive an interrupted run
+    gl.release()
+    return rows
+
+
+def _write(out_dir: Path, rows: list[Row], machine: dict, cfg: BenchConfig) -> None:
+    from .report import write_markdown, write_pareto
+
+    (out_dir / "bench.json").write_text(json.dumps(
+        {"machine": machine, "config": asdict(cfg), "rows": [asdict(r) for r in rows]}, indent=1, default=float))
+    write_markdown(out_dir / "bench.md", rows, machine, cfg)
+    write_pareto(out_dir / "pareto.png", rows)

@@ -1,0 +1,65 @@
+"""The benchmark's scenes: a bundled one (always there) and the issue's target scenes on the shared
+assets (the newton shirt's last frame on its dress form under four probes of different kinds)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..envmap import environment_from_array, load_environment, studio_environment
+from ..mesh import Mesh, load_mesh
+from ..procedural import procedural_body, procedural_garment
+from ..shading.material import Material
+
+SHARED_ASSETS = Path(__file__).resolve().parents[2].parent / "shared" / "assets"
+
+# The four probes of different kinds named by the accuracy target (issue 3, section 7).
+TARGET_PROBES = {
+    "hard-sun": "rooitou_park_1k.hdr",
+    "interior": "empty_warehouse_01_1k.hdr",
+    "overcast": "potsdamer_platz_1k.hdr",
+    "night": "dikhololo_night_1k.hdr",
+}
+
+GARMENT = Material((0.8, 0.2, 0.2), 0.5, 0.8)
+BODY = Material((0.6, 0.6, 0.6), 0.1, 0.3)
+
+
+@dataclass
+class BenchScene:
+    name: str
+    env_name: str
+    meshes: list[Mesh]
+    materials: list[Material]
+    _env_loader: object = None
+    _envs: dict | None = None
+
+    def cube(self, face_size: int) -> np.ndarray:
+        """The environment as a cube of the requested face size (converted once per size)."""
+        self._envs = self._envs or {}
+        if face_size not in self._envs:
+            self._envs[face_size] = self._env_loader(face_size)
+        return self._envs[face_size].cube
+
+
+def bundled_scene() -> BenchScene:
+    studio = studio_environment(1024)
+    return BenchScene("studio-dress", "studio (procedural)", [procedural_garment(), procedural_body()],
+                      [GARMENT, BODY], lambda f: environment_from_array(studio, "latlong", f, name="studio"))
+
+
+def shared_scenes(probes: dict[str, str] = TARGET_PROBES) -> list[BenchScene]:
+    """The target scenes, or [] when ../shared/assets is absent (a user's machine)."""
+    sim = SHARED_ASSETS / "sim"
+    if not (sim / "newton_shirt_drape_f060.obj").exists():
+        return []
+    shirt = load_mesh(sim / "newton_shirt_drape_f060.obj", up="z")
+    form = load_mesh(sim / "newton_shirt_drape_colliders.obj", up="z")
+    out = []
+    for kind, fname in probes.items():
+        path = SHARED_ASSETS / "hdri" / fname
+        out.append(BenchScene(f"newton-shirt/{kind}", fname, [shirt, form], [GARMENT, BODY],
+                              lambda f, path=path: load_environment(path, face_size=f, repair=True)))
+    return out
