@@ -1,0 +1,77 @@
+"""Quality settings chosen from the measured benchmark table, never guessed.
+
+`garment-render bench` writes `bench.json`; `summarize` reduces it to one entry per setting (worst
+relative RMSE over the scenes, median frame time over the scenes) and `write_table` stores that in
+the package (`measured.json`), from which the presets and per-request budgets are chosen.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..errors import InvalidInputError
+
+MEASURED = Path(__file__).with_name("measured.json")
+
+# Error targets of the presets (relative RMSE against the Monte Carlo reference, worst scene).
+PRESET_ERROR = {"fast": 0.10, "balanced": 0.05}
+KNOBS = ("lights", "face_size", "shadow_size", "blur_scale", "filter")
+
+
+def summarize(bench: dict) -> dict:
+    """One entry per distinct setting of the full method: worst error and median time over scenes."""
+    groups: dict[tuple, list] = {}
+    for row in bench["rows"]:
+        if row["mode"] != "full":
+            continue
+        key = tuple(row["settings"][k] for k in KNOBS)
+        groups.setdefault(key, []).append(row)
+    entries = []
+    for key, rows in groups.items():
+        times = sorted(r["frame_ms"] for r in rows)
+        entries.append({"settings": dict(zip(KNOBS, key)),
+                        "worst_rel_rmse": max(r["rel_rmse"] for r in rows),
+                        "median_frame_ms": times[len(times) // 2],
+                        "scenes": sorted(r["scene"] for r in rows)})
+    return {"machine": bench["machine"], "size": bench["config"]["size"], "entries": entries}
+
+
+def write_table(bench_json: Path, out: Path = MEASURED) -> dict:
+    table = summarize(json.loads(Path(bench_json).read_text()))
+    out.write_text(json.dumps(table, indent=1))
+    return table
+
+
+def load_table(path: Path = MEASURED) -> dict | None:
+    return json.loads(path.read_text()) if path.exists() else None
+
+
+def choose(table: dict, frame_budget_ms: float | None = None, error_budget: float | None = None) -> dict:
+    """The measured setting that meets the budgets: with an error budget, the fastest setting whose
+    worst error is within it; with a frame budget, the most accurate setting within it; with both,
+    the most accurate within both. Returns the table entry (settings, error, time)."""
+    entries = table["entries"]
+    if frame_budget_ms is not None:
+        entries = [e for e in entries if e["median_frame_ms"] <= frame_budget_ms]
+    if error_budget is not None:
+        entries = [e for e in entries if e["worst_rel_rmse"] <= error_budget]
+    if not entries:
+        raise InvalidInputError(
+            f"no measured setting meets frame budget {frame_budget_ms} ms and error budget {error_budget} "
+            f"(measured on {table['machine'].get('gl_renderer', '?')}); relax a budget")
+    if error_budget is not None and frame_budget_ms is None:
+        return min(entries, key=lambda e: e["median_frame_ms"])
+    return min(entries, key=lambda e: (e["worst_rel_rmse"], e["median_frame_ms"]))
+
+
+def presets(table: dict) -> dict[str, dict]:
+    """fast / balanced: the fastest settings within 10 % / 5 % worst error; accurate: the lowest error."""
+    out = {}
+    for name, err in PRESET_ERROR.items():
+        try:
+            out[name] = choose(table, error_budget=err)["settings"]
+        except InvalidInputError:
+            pass
+    out["accurate"] = choose(table)["settings"]
+    return out

@@ -1,0 +1,40 @@
+import pytest
+
+from renderer.bench.budget import choose, presets, summarize
+from renderer.errors import InvalidInputError
+
+
+def _row(scene, lights, ms, err, mode="full"):
+    s = {"lights": lights, "face_size": 128, "shadow_size": 256, "blur_scale": 1.0, "filter": "sqrt-cosine"}
+    return {"scene": scene, "mode": mode, "settings": s, "frame_ms": ms, "rel_rmse": err}
+
+
+BENCH = {"machine": {"gl_renderer": "test"}, "config": {"size": 256}, "rows": [
+    _row("a", 6, 10, 0.20), _row("b", 6, 12, 0.15),
+    _row("a", 24, 30, 0.08), _row("b", 24, 32, 0.06),
+    _row("a", 48, 60, 0.04), _row("b", 48, 62, 0.045),
+    _row("a", 96, 120, 0.02), _row("b", 96, 118, 0.03),
+    _row("a", 48, 5, 0.9, mode="none"),          # baselines never become presets
+]}
+
+
+def test_summary_takes_the_worst_scene_and_skips_baselines():
+    table = summarize(BENCH)
+    by_lights = {e["settings"]["lights"]: e for e in table["entries"]}
+    assert set(by_lights) == {6, 24, 48, 96}
+    assert by_lights[24]["worst_rel_rmse"] == 0.08
+    assert by_lights[48]["worst_rel_rmse"] == 0.045
+
+
+def test_budgets_choose_from_the_measured_table():
+    table = summarize(BENCH)
+    assert choose(table, error_budget=0.05)["settings"]["lights"] == 48      # fastest within 5 %
+    assert choose(table, frame_budget_ms=40)["settings"]["lights"] == 24     # most accurate within 40 ms
+    assert choose(table, frame_budget_ms=100, error_budget=0.1)["settings"]["lights"] == 48
+    with pytest.raises(InvalidInputError, match="relax"):
+        choose(table, frame_budget_ms=5, error_budget=0.01)
+
+
+def test_presets_follow_the_error_targets():
+    p = presets(summarize(BENCH))
+    assert (p["fast"]["lights"], p["balanced"]["lights"], p["accurate"]["lights"]) == (24, 48, 96)
