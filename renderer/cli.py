@@ -10,8 +10,9 @@ from pathlib import Path
 
 from .errors import RenderError
 
-# Quality presets. Provisional: issue 3 replaces them by settings chosen from the measured benchmark.
-PRESETS = {
+# Quality presets used until a benchmark table is stored in the package (renderer/bench/measured.json,
+# written by `garment-render bench --store`); then the presets come from the measured table.
+DEFAULT_PRESETS = {
     "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 1.0},
     "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 1.0},
     "accurate": {"lights": 96, "face_size": 256, "shadow_size": 512, "blur_scale": 1.0},
@@ -59,7 +60,9 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--camera-target", type=_floats(3))
     g.add_argument("--fov", type=float, default=35.0, help="vertical field of view, degrees")
     q = p.add_argument_group("quality")
-    q.add_argument("--preset", choices=sorted(PRESETS), default="balanced")
+    q.add_argument("--preset", choices=sorted(DEFAULT_PRESETS), default="balanced")
+    q.add_argument("--frame-budget-ms", type=float, help="choose the most accurate measured setting within this time")
+    q.add_argument("--error-budget", type=float, help="choose the fastest measured setting within this rel. RMSE")
     q.add_argument("--lights", type=int, help="regions / lights, 6 * 2^k")
     q.add_argument("--face-size", type=int, help="PEM cube face size (power of two)")
     q.add_argument("--filter", default="sqrt-cosine", choices=["none", "box", "gauss", "cosine", "sqrt-cosine"])
@@ -80,8 +83,38 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--background", default="env", choices=["env", "black"])
 
 
+def presets() -> tuple[dict, str]:
+    """The presets and where they come from (the measured table when there is one)."""
+    from .bench.budget import load_table
+    from .bench.budget import presets as measured_presets
+
+    table = load_table()
+    if table is None:
+        return DEFAULT_PRESETS, "default (no measured table stored)"
+    found = measured_presets(table)
+    merged = {name: {k: v for k, v in found.get(name, DEFAULT_PRESETS[name]).items() if k != "filter"}
+              for name in DEFAULT_PRESETS}
+    return merged, f"measured on {table['machine'].get('gl_renderer', '?')} ({table['machine'].get('date', '?')})"
+
+
 def resolve_quality(args) -> dict:
-    q = dict(PRESETS[args.preset])
+    """Quality settings: a budget (chosen from the measured table), else the preset; explicit
+    flags override either. The result says where the settings came from."""
+    table_presets, source = presets()
+    if args.frame_budget_ms is not None or args.error_budget is not None:
+        from .bench.budget import choose, load_table
+        from .errors import InvalidInputError
+
+        table = load_table()
+        if table is None:
+            raise InvalidInputError("budgets need a measured table: run `garment-render bench --store` first")
+        entry = choose(table, args.frame_budget_ms, args.error_budget)
+        q = {k: v for k, v in entry["settings"].items() if k != "filter"}
+        q["source"] = (f"budget: measured {entry['median_frame_ms']:.1f} ms, worst rel. RMSE "
+                       f"{entry['worst_rel_rmse']:.4f} ({source})")
+    else:
+        q = dict(table_presets[args.preset])
+        q["source"] = f"preset {args.preset}, {source}"
     for key in ("lights", "face_size", "shadow_size", "blur_scale"):
         if getattr(args, key) is not None:
             q[key] = getattr(args, key)
@@ -205,6 +238,11 @@ def cmd_bench(args) -> int:
         cfg.shared = False
     run_bench(args.out, cfg)
     print(f"wrote {args.out}/bench.json, bench.md, pareto.png")
+    if args.store:
+        from .bench.budget import MEASURED, write_table
+
+        write_table(args.out / "bench.json")
+        print(f"stored the measured table in {MEASURED}")
     return 0
 
 
@@ -232,6 +270,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--quick", action="store_true", help="a reduced sweep that finishes in minutes on 2 cores")
     b.add_argument("--no-shared", action="store_true", help="bundled scene only (skip ../shared/assets)")
     b.add_argument("--out", type=Path, default=Path("out/bench"))
+    b.add_argument("--store", action="store_true",
+                   help="store the measured table in the package: presets and budgets are then chosen from it")
     b.set_defaults(func=cmd_bench)
     lo = sub.add_parser("lobes", help="reproduce the paper's Figures 4 and 5 (lobe cross sections and errors)")
     lo.add_argument("--out", type=Path, default=Path("out/lobes"))
