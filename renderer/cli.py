@@ -8,6 +8,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from .errors import RenderError
 
 # Quality presets used until a benchmark table is stored in the package (renderer/bench/measured.json,
@@ -195,6 +197,91 @@ def cmd_render(args) -> int:
     return 0
 
 
+def cmd_sequence(args) -> int:
+    """Render every frame of a mesh sequence with one PEM set and one scene (only positions change)."""
+    from .camera import Camera, frame_meshes
+    from .envmap import write_exr
+    from .lighting.filters import Filter
+    from .lighting.pem import PEMSettings
+    from .mesh import load_mesh
+    from .renderer import Background, FrameSettings, Renderer, ShadingMode
+    from .sequence import load_sequence, to_meshes
+    from .shading.material import Material
+    from .shading.tonemap import ToneCurve, auto_exposure_ev, to_png_bytes
+
+    if args.out is None:
+        raise SystemExit("error: sequence needs --out DIR (the folder for the numbered frames)")
+    q = resolve_quality(args)
+    args.mesh = list(args.body or [])
+    env, extra_meshes, materials = load_scene_inputs(args, q["face_size"])
+    if not args.body:
+        extra_meshes = []
+    # The first material is the garment's, the last the body's (load_scene_inputs' convention).
+    materials = [materials[0]] + [Material(args.body_albedo, 0.1, 0.3)] * len(extra_meshes)
+    topology = load_mesh(args.topology, up=args.up, scale=args.mesh_scale) if args.topology else None
+    seq = load_sequence(args.frames, up=args.up, scale=args.mesh_scale)
+    garment, positions = to_meshes(seq, topology, up=args.up, scale=args.mesh_scale)
+    meshes = [garment] + extra_meshes
+    w, h = args.size
+    if args.camera_eye is not None and args.camera_target is not None:
+        camera = Camera(args.camera_eye, args.camera_target, fov_y_deg=args.fov)
+    else:  # frame the whole sequence, so the camera does not move with the cloth
+        lo = positions.reshape(-1, 3).min(axis=0)
+        hi = positions.reshape(-1, 3).max(axis=0)
+        box = [type(garment).from_arrays(np.array([lo, hi, hi]), np.array([[0, 1, 2]]))]
+        camera = frame_meshes(box + extra_meshes, w / h, args.fov)
+    settings = FrameSettings(width=w, height=h, shadow_size=q["shadow_size"], blur_scale=q["blur_scale"],
+                             bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
+                             background=Background(args.background))
+    args.out.mkdir(parents=True, exist_ok=True)
+    timings, previews = [], []
+    exposure = args.exposure
+    with Renderer() as r:
+        pems = r.build_pems(env.cube, PEMSettings(q["lights"], Filter.parse(args.filter), args.levels))
+        scene = r.create_scene(meshes, materials)
+        try:
+            for k in range(seq.n_frames):
+                frame = r.render(scene, pems, settings, camera, positions=[positions[k]] + [None] * len(extra_meshes))
+                img = frame.image
+                if exposure is None:  # fixed from the first frame, so the sequence does not flicker
+                    exposure = auto_exposure_ev(img[..., :3], img[..., 3])
+                png = img.copy()
+                if args.background == "env":
+                    png[..., 3] = 1.0
+                (args.out / f"frame_{k:04d}.png").write_bytes(to_png_bytes(png, exposure, ToneCurve(args.tone)))
+                if args.exr_frames:
+                    write_exr(args.out / f"frame_{k:04d}.exr", img)
+                timings.append(frame.timings)
+                previews.append(k)
+                done = int(30 * (k + 1) / seq.n_frames)
+                print(f"\r[{'#' * done}{'.' * (30 - done)}] {k + 1}/{seq.n_frames} frames, "
+                      f"{frame.timings['frame_wall_ms']:.0f} ms", end="", file=sys.stderr, flush=True)
+            print(file=sys.stderr)
+        finally:
+            scene.release()
+            pems.release()
+    _write_preview(args.out, seq.n_frames)
+    ms = np.array([t["frame_wall_ms"] for t in timings])
+    summary = {"frames": seq.n_frames, "frame_ms_median": float(np.median(ms)), "frame_ms_p90": float(np.quantile(ms, 0.9)),
+               "pem_build_ms": pems.build_ms, "quality": q, "exposure_ev": exposure, "per_frame": timings}
+    (args.out / "timings.json").write_text(json.dumps(summary, indent=1, default=float))
+    print(f"rendered {seq.n_frames} frames to {args.out}: median {np.median(ms):.0f} ms per frame "
+          f"(p90 {np.quantile(ms, 0.9):.0f} ms), PEM build {pems.build_ms:.0f} ms once; preview.gif, timings.json")
+    return 0
+
+
+def _write_preview(out: Path, n_frames: int, max_side: int = 256) -> None:
+    """An animated GIF of the numbered PNGs, at most max_side pixels wide."""
+    from PIL import Image
+
+    frames = []
+    for k in range(n_frames):
+        im = Image.open(out / f"frame_{k:04d}.png").convert("RGB")
+        im.thumbnail((max_side, max_side))
+        frames.append(im)
+    frames[0].save(out / "preview.gif", save_all=True, append_images=frames[1:], duration=1000 // 24, loop=0)
+
+
 def cmd_reference(args) -> int:
     """The Monte Carlo ground truth of the same scene, with the same output flags as `render`."""
     from .camera import Camera, frame_meshes
@@ -261,6 +348,13 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="render one frame")
     add_scene_arguments(r)
     r.set_defaults(func=cmd_render)
+    sq = sub.add_parser("sequence", help="render a mesh sequence (OBJ folder, .pc2, .mdd, .npz) to numbered images")
+    add_scene_arguments(sq)
+    sq.add_argument("--frames", type=Path, required=True, help="folder of .obj files, or a .pc2/.mdd/.npz file")
+    sq.add_argument("--topology", type=Path, help="mesh giving the faces (and UVs) of a point cache")
+    sq.add_argument("--body", type=Path, action="append", help="static meshes rendered with the garment")
+    sq.add_argument("--exr-frames", action="store_true", help="also write a linear EXR per frame")
+    sq.set_defaults(func=cmd_sequence)
     ref = sub.add_parser("reference", help="Monte Carlo ground truth of the same scene (embree ray casting)")
     add_scene_arguments(ref)
     ref.add_argument("--spp", type=int, default=256, help="samples per pixel (per technique)")

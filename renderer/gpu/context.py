@@ -71,6 +71,9 @@ class GLContext:
                 "the GL context was used from a thread other than the one that created it; "
                 "OpenGL contexts are bound to one thread: submit work to the render thread instead"
             )
+        # Make this context current (about a microsecond): another context created on this thread
+        # would otherwise receive our raw GL calls (cube-map arrays go through eglGetProcAddress).
+        self.ctx.__enter__()
 
     # -- timing -----------------------------------------------------------------------------
     @contextmanager

@@ -1,0 +1,150 @@
+"""Mesh sequences as cloth tools export them: fixed topology, positions per frame.
+
+Formats: PC2 point caches (Blender, 3ds Max; little-endian), MDD point caches (LightWave, Blender;
+big-endian), a folder of OBJ files (one per frame, same vertex order), and NumPy `.npz` files with
+`positions` (F, V, 3) and `triangles`/`faces` (as the shared newton simulation is stored).
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import MeshError
+from .mesh import Mesh, load_mesh
+
+
+@dataclass(frozen=True)
+class Sequence:
+    """positions: float32 (F, V, 3) in the file's axes and units; faces: int32 (T, 3) or None when the
+    format carries no topology (point caches: give --topology)."""
+
+    positions: np.ndarray
+    faces: np.ndarray | None
+    name: str
+    frame_times: np.ndarray | None = None
+    converted: bool = False  # already in the renderer's Y-up axes and scale (OBJ folders)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.positions.shape[0])
+
+
+def _check(positions: np.ndarray, name: str) -> np.ndarray:
+    if positions.ndim != 3 or positions.shape[2] != 3 or positions.shape[0] == 0 or positions.shape[1] == 0:
+        raise MeshError(f"{name}: expected positions of shape (frames, vertices, 3), got {positions.shape}")
+    bad = ~np.isfinite(positions).all(axis=(1, 2))
+    if bad.any():
+        raise MeshError(f"{name}: {int(bad.sum())} frame(s) contain NaN or Inf positions, first frame {int(np.argmax(bad))}")
+    return positions
+
+
+def read_pc2(path: str | Path) -> Sequence:
+    """PC2: 'POINTCACHE2\\0', int32 version, int32 points, float32 start frame, float32 sample rate,
+    int32 samples, then samples x points x 3 float32, all little-endian."""
+    path = Path(path)
+    data = path.read_bytes()
+    if len(data) < 32 or data[:12] != b"POINTCACHE2\0":
+        raise MeshError(f"{path}: not a PC2 point cache (missing 'POINTCACHE2' header)")
+    _version, n_points, start, rate, n_samples = struct.unpack("<iiffi", data[12:32])
+    expected = 32 + n_samples * n_points * 12
+    if n_points <= 0 or n_samples <= 0 or len(data) < expected:
+        raise MeshError(f"{path}: PC2 header says {n_samples} frames of {n_points} points ({expected} bytes), "
+                        f"the file has {len(data)} bytes")
+    pos = np.frombuffer(data, "<f4", n_samples * n_points * 3, 32).reshape(n_samples, n_points, 3)
+    times = start + rate * np.arange(n_samples, dtype=np.float64)
+    return Sequence(_check(pos.astype(np.float32), str(path)), None, path.stem, times)
+
+
+def write_pc2(path: str | Path, positions: np.ndarray, start: float = 0.0, rate: float = 1.0) -> None:
+    positions = np.ascontiguousarray(positions, "<f4")
+    header = b"POINTCACHE2\0" + struct.pack("<iiffi", 1, positions.shape[1], start, rate, positions.shape[0])
+    Path(path).write_bytes(header + positions.tobytes())
+
+
+def read_mdd(path: str | Path) -> Sequence:
+    """MDD: int32 frames, int32 points, float32 times[frames], then frames x points x 3 float32,
+    all big-endian."""
+    path = Path(path)
+    data = path.read_bytes()
+    if len(data) < 8:
+        raise MeshError(f"{path}: too short for an MDD point cache")
+    n_frames, n_points = struct.unpack(">ii", data[:8])
+    expected = 8 + 4 * n_frames + n_frames * n_points * 12
+    if n_frames <= 0 or n_points <= 0 or len(data) < expected:
+        raise MeshError(f"{path}: MDD header says {n_frames} frames of {n_points} points ({expected} bytes), "
+                        f"the file has {len(data)} bytes")
+    times = np.frombuffer(data, ">f4", n_frames, 8).astype(np.float64)
+    pos = np.frombuffer(data, ">f4", n_frames * n_points * 3, 8 + 4 * n_frames).reshape(n_frames, n_points, 3)
+    return Sequence(_check(pos.astype(np.float32), str(path)), None, path.stem, times)
+
+
+def write_mdd(path: str | Path, positions: np.ndarray, fps: float = 30.0) -> None:
+    positions = np.ascontiguousarray(positions, ">f4")
+    f, v = positions.shape[:2]
+    times = (np.arange(f) / fps).astype(">f4")
+    Path(path).write_bytes(struct.pack(">ii", f, v) + times.tobytes() + positions.tobytes())
+
+
+def read_npz(path: str | Path) -> Sequence:
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            pos = np.asarray(z["positions"], np.float32)
+            key = "triangles" if "triangles" in z.files else "faces" if "faces" in z.files else None
+            faces = np.asarray(z[key], np.int32) if key else None
+            times = np.asarray(z["frame_times_s"], np.float64) if "frame_times_s" in z.files else None
+    except (OSError, KeyError, ValueError) as exc:
+        raise MeshError(f"{path}: not a sequence .npz with a 'positions' array ({exc})") from exc
+    return Sequence(_check(pos, str(path)), faces, path.stem, times)
+
+
+def read_obj_folder(path: str | Path, up: str = "y", scale: float = 1.0) -> Sequence:
+    files = sorted(Path(path).glob("*.obj"))
+    if not files:
+        raise MeshError(f"{path}: no .obj files in the folder")
+    meshes = [load_mesh(f, up=up, scale=scale) for f in files]
+    first = meshes[0]
+    for f, m in zip(files, meshes):
+        if m.positions.shape != first.positions.shape or not np.array_equal(m.faces, first.faces):
+            raise MeshError(f"{f}: topology differs from {files[0].name} (a sequence needs the same vertices and faces)")
+    return Sequence(np.stack([m.positions for m in meshes]), np.asarray(first.faces), Path(path).name,
+                    converted=True)
+
+
+def load_sequence(path: str | Path, up: str = "y", scale: float = 1.0) -> Sequence:
+    """Any supported sequence. Point caches are returned in their file's axes and units; OBJ folders
+    already converted by `up` and `scale` (as load_mesh does)."""
+    path = Path(path)
+    if path.is_dir():
+        return read_obj_folder(path, up, scale)
+    suffix = path.suffix.lower()
+    readers = {".pc2": read_pc2, ".mdd": read_mdd, ".npz": read_npz}
+    if suffix not in readers:
+        raise MeshError(f"{path}: unknown sequence format {suffix!r}; use a folder of .obj files, .pc2, .mdd or .npz")
+    if not path.exists():
+        raise MeshError(f"{path}: no such file")
+    return readers[suffix](path)
+
+
+def to_meshes(seq: Sequence, topology: Mesh | None, up: str = "y", scale: float = 1.0) -> tuple[Mesh, np.ndarray]:
+    """The first frame as a validated Mesh and all frames' positions converted to the renderer's
+    Y-up axes and the given scale: (mesh, positions float32 (F, V, 3))."""
+    from .mesh import z_up_to_y_up
+
+    pos = seq.positions
+    if seq.faces is None and topology is None:
+        raise MeshError(f"{seq.name}: a point cache has no faces; give the topology mesh (--topology)")
+    faces = seq.faces if seq.faces is not None else topology.faces
+    if topology is not None and topology.positions.shape[0] != pos.shape[1]:
+        raise MeshError(f"{seq.name}: {pos.shape[1]} points per frame but the topology mesh has "
+                        f"{topology.positions.shape[0]} vertices")
+    if not seq.converted:
+        if up == "z":
+            pos = np.stack([z_up_to_y_up(p) for p in pos])
+        pos = (pos * np.float32(scale)).astype(np.float32)
+    mesh = Mesh.from_arrays(pos[0], faces, uvs=topology.uvs if topology is not None else None, name=seq.name)
+    return mesh, pos
