@@ -1,0 +1,459 @@
+"""Monte Carlo ground truth: the renderer's lighting model (shaders/shading/surface.frag, paper Eq. 5)
+without its approximations (no median cut, no PEM prefiltering, no lobe calibration, no variance
+shadow maps), by ray casting with embree. Every accuracy number of the project is measured against it.
+
+Model, per pixel (row, col), one primary ray through the pixel centre from the near plane of the
+renderer's projection (so near clipping matches the rasterizer). At the first hit x:
+
+    n   = normalized barycentric mix of the vertex normals, flipped to face the camera (two-sided cloth)
+    r   = reflect(-view, n)
+    c   = albedo   * integral L(w) V(x, w) max(0, n.w) / pi dw
+        + specular * integral L(w) V(x, w) (s + 1) / (2 pi) max(0, r.w)^s dw,   s = 1 / (1 - g)
+
+with albedo, specular and g the barycentric mix of `Material.vertex_arrays` (times / replaced by the
+material's texture maps, bilinear on their base level), L the piecewise-constant cube map (the
+radiance of the texel containing w) and V(x, w) = 1 when a ray from x + eps * sign(n_g.w) * n_g
+towards w hits nothing (n_g the triangle's geometric normal: the origin is pushed to the side of the
+surface the ray leaves from; eps = SHADOW_EPS_REL * scene radius). The glossy lobe is not clipped by
+the horizon of n, as in the renderer's lookup along r; the part of it that goes below the surface is
+blocked by V for closed objects. g = 1 is the mirror: L(r) V(x, r), evaluated once, no sampling.
+Pixels that hit nothing show L along the view ray with alpha 0.
+
+Estimator (Veach 1997, ch. 9: multiple importance sampling, power heuristic with beta = 2). Per
+pixel and per sample index k < spp:
+  * one environment sample w_e ~ p_env (`EnvironmentSampler`), shared by both terms: one shadow ray
+    where either integrand is nonzero, weighted f * p_env / (p_env^2 + q^2) per term (q = f: both
+    BRDF-sampling densities equal their integrands, see below);
+  * one cosine-weighted sample around n for the diffuse term (q_d = max(0, n.w) / pi; Malley's method),
+    weighted q_d^2 / (q_d^2 + p_env^2), when the albedo is not black;
+  * one Phong-lobe sample around r for the glossy term (q_g = lobe itself, cos = xi^(1 / (s + 1));
+    Lafortune & Willems 1994), weighted q_g^2 / (q_g^2 + p_env^2), when specular > 0 and g < 1.
+So spp = samples per technique per pixel, at most 3 shadow rays per sample; rays whose integrand is
+zero (below the horizon, black texel) are not cast.
+
+Batches and stratification: sample k goes to batch k % batches (batches = min(batches, spp)); the
+estimate is the mean of all samples and its per-pixel standard error comes from the spread of the
+batch means (one-way ANOVA: E[sum_b n_b (m_b - m)^2] = (B - 1) sigma^2 for batch sizes n_b). Within a
+batch the samples are stratified in one dimension per technique, which keeps every batch mean
+unbiased and the batches independent, so the error estimate stays honest: sample j of n_b picks its
+texel with a uniform number in [j, j + 1) / n_b (through the CDF, so the bright texels get their
+exact share of the samples: the variance of "did this sample find the sun" is gone), and its
+cosine / Phong sample takes its polar angle from the reversed stratum [n_b - 1 - j, n_b - j) / n_b.
+Measured: the noise at 256 spp falls from 4.7 % to 2.6 % (studio dress) and 4.0 % to 3.2 % (shirt
+under a hard sun); with one sample per batch the estimator is plain Monte Carlo.
+
+Determinism: the random stream of every chunk of (samples x pixels) is seeded by (seed, batch, first
+sample, first pixel), and the chunking depends only on the image, spp, batches and the module constants.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..camera import Camera, bounds_sphere
+from ..errors import InvalidInputError, MeshError
+from ..mesh import FALLBACK_NORMAL, Mesh, bounds, vertex_normals
+from ..shading.material import Material
+from .envsampling import EnvironmentSampler
+
+# Pixel-samples processed at once: about 1 KB of float64 temporaries each, so ~0.25 GB at peak.
+RAYS_PER_CHUNK = 1 << 18
+# Shadow-ray origin offset along the geometric normal, relative to the scene's bounding radius.
+# embree works in float32 (after trimesh rescales the scene to a ~100-unit box): ~1e-7 relative.
+SHADOW_EPS_REL = 1e-4
+# Glossiness closer to 1 than this is the mirror (s > 1e7: a lobe ~0.03 degrees wide, far inside any texel).
+MIRROR_ONE_MINUS_G = 1e-7
+
+
+@dataclass(frozen=True)
+class ReferenceFrame:
+    """A reference render.
+
+    image:     float32 (H, W, 4), linear RGB radiance + coverage alpha (0 or 1), row 0 at the top,
+               the same layout as `renderer.Frame.image`.
+    noise_std: float32 (H, W, 3), standard error of each pixel's estimate (from the batches; NaN
+               where only one batch was possible, 0 for the background and mirror-only pixels).
+    spp: samples per technique per pixel. rays_cast: primary + shadow rays. wall_s: seconds.
+    """
+
+    image: np.ndarray
+    noise_std: np.ndarray
+    spp: int
+    rays_cast: int
+    wall_s: float
+
+    def noise_floor_rel(self) -> float:
+        """Mean standard error / mean radiance over the covered pixels (NaN if none is covered)."""
+        covered = self.image[..., 3] > 0.5
+        if not covered.any():
+            return float("nan")
+        mean_radiance = float(self.image[covered][:, :3].astype(np.float64).mean())
+        if mean_radiance <= 0:
+            return float("nan")
+        return float(self.noise_std[covered].astype(np.float64).mean()) / mean_radiance
+
+
+def render_reference(meshes: list[Mesh], materials: list[Material], cube: np.ndarray, camera: Camera,
+                     width: int, height: int, spp: int, seed: int = 0, batches: int = 8) -> ReferenceFrame:
+    """Render the ground truth of a scene (see the module doc for the model and the estimator).
+
+    meshes, materials: one material per mesh, as `Renderer.create_scene` takes them.
+    cube: (6, F, F, 3) linear RGB environment, OpenGL cube convention.
+    camera: the renderer's camera; near/far are fitted to the scene's bounds as the renderer does.
+    spp: samples per technique per pixel (>= 1). batches: independent batches for the noise estimate.
+    Cost: ~1.2-2 M rays/s on one core (embree plus numpy); peak memory ~0.25 GB + ~0.4 KB per pixel.
+    """
+    t0 = time.perf_counter()
+    width, height, spp, batches, seed = _check_counts(width, height, spp, batches, seed)
+    if not isinstance(camera, Camera):
+        raise InvalidInputError(f"camera must be a renderer.camera.Camera; got {type(camera).__name__}")
+    scene = _SceneArrays.build(meshes, materials)
+    sampler = EnvironmentSampler(cube)
+
+    centre, radius = bounds_sphere(*bounds(meshes))
+    origins, dirs = primary_rays(camera, width, height, centre, radius)
+    tri = scene.intersector.intersects_first(origins, dirs)
+    hit = tri >= 0
+    surf = _surface(scene, tri[hit], origins[hit], dirs[hit])
+    tracer = _ShadowTracer(scene.intersector, SHADOW_EPS_REL * radius)
+
+    mean, std = _integrate(sampler, tracer, surf, spp, min(batches, spp), seed)
+
+    image = np.zeros((height * width, 4), np.float32)
+    noise = np.zeros((height * width, 3), np.float32)
+    image[~hit, :3] = sampler.radiance(dirs[~hit])
+    image[hit, :3] = mean
+    image[hit, 3] = 1.0
+    noise[hit] = std
+    image, noise = image.reshape(height, width, 4), noise.reshape(height, width, 3)
+    image.setflags(write=False)
+    noise.setflags(write=False)
+    return ReferenceFrame(image, noise, spp, int(width * height + tracer.rays_cast), time.perf_counter() - t0)
+
+
+def primary_rays(camera: Camera, width: int, height: int, centre: np.ndarray,
+                 radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rays through the pixel centres, row-major from the top row: (origins on the near plane, unit
+    directions), each float64 (H * W, 3). Pixel (row, col) is NDC ((col + 0.5) / W * 2 - 1,
+    1 - (row + 0.5) / H * 2), unprojected through the inverse of the renderer's view-projection."""
+    inv = np.linalg.inv(camera.view_proj(width / height, np.asarray(centre, np.float64), radius))
+    y, x = np.meshgrid(1.0 - (np.arange(height) + 0.5) / height * 2.0, (np.arange(width) + 0.5) / width * 2.0 - 1.0,
+                       indexing="ij")
+    ends = []
+    for z in (-1.0, 1.0):  # the near and far planes
+        p = np.stack([x.ravel(), y.ravel(), np.full(x.size, z), np.ones(x.size)], axis=1) @ inv.T
+        ends.append(p[:, :3] / p[:, 3:])
+    d = ends[1] - ends[0]
+    return ends[0], d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+# --- scene ------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _SceneArrays:
+    """All meshes concatenated in order (vertex order kept), with per-vertex shading inputs."""
+
+    positions: np.ndarray   # float64 (V, 3)
+    faces: np.ndarray       # int64 (T, 3), indices into the concatenated vertices
+    normals: np.ndarray     # float64 (V, 3), `vertex_normals` of each mesh
+    albedo: np.ndarray      # float64 (V, 3)
+    material: np.ndarray    # float64 (V, 2) = (specular, glossiness)
+    uvs: np.ndarray         # float64 (V, 2) (zeros for meshes without UVs)
+    face_mesh: np.ndarray   # int64 (T,) the mesh of each triangle
+    maps: tuple             # per mesh: (albedo_map or None, gloss_map or None)
+    intersector: object     # trimesh.ray.ray_pyembree.RayMeshIntersector
+
+    @classmethod
+    def build(cls, meshes: list[Mesh], materials: list[Material]) -> _SceneArrays:
+        import trimesh
+        from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+        meshes, materials = list(meshes), list(materials)
+        if not meshes or len(meshes) != len(materials):
+            raise InvalidInputError(f"need one material per mesh; got {len(meshes)} meshes, {len(materials)} materials")
+        pos, faces, nrm, alb, mat, uvs, face_mesh, maps = [], [], [], [], [], [], [], []
+        offset = 0
+        for i, (mesh, material) in enumerate(zip(meshes, materials)):
+            if not isinstance(mesh, Mesh) or not isinstance(material, Material):
+                raise InvalidInputError("meshes must be renderer.mesh.Mesh and materials renderer.shading.Material")
+            n = mesh.n_vertices
+            a, m = material.vertex_arrays(n)
+            albedo_map, gloss_map = material.maps()
+            if (albedo_map is not None or gloss_map is not None) and mesh.uvs is None:
+                raise MeshError(f"mesh {mesh.name!r} has material maps but no UVs")
+            pos.append(mesh.positions)
+            faces.append(mesh.faces.astype(np.int64) + offset)
+            nrm.append(vertex_normals(mesh.positions, mesh.faces))
+            alb.append(a)
+            mat.append(m)
+            uvs.append(mesh.uvs if mesh.uvs is not None else np.zeros((n, 2), np.float32))
+            face_mesh.append(np.full(mesh.n_faces, i, np.int64))
+            maps.append((albedo_map, gloss_map))
+            offset += n
+        positions = np.concatenate(pos).astype(np.float64)
+        faces = np.concatenate(faces)
+        tm = trimesh.Trimesh(vertices=positions, faces=faces, process=False)
+        def cat(parts):
+            return np.concatenate(parts).astype(np.float64)
+
+        return cls(positions, faces, cat(nrm), cat(alb), cat(mat), cat(uvs), np.concatenate(face_mesh),
+                   tuple(maps), RayMeshIntersector(tm))
+
+
+@dataclass
+class _Surface:
+    """Shading inputs at the N primary hits, float64."""
+
+    x: np.ndarray          # (N, 3) hit points, on the triangle's plane
+    n: np.ndarray          # (N, 3) shading normal, facing the camera
+    n_geom: np.ndarray     # (N, 3) geometric normal (winding side, not flipped)
+    r: np.ndarray          # (N, 3) reflection of the view ray about n
+    albedo: np.ndarray     # (N, 3)
+    specular: np.ndarray   # (N,)
+    glossiness: np.ndarray  # (N,)
+
+
+def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np.ndarray) -> _Surface:
+    f = scene.faces[tri]
+    p0, p1, p2 = (scene.positions[f[:, k]] for k in range(3))
+    e1, e2 = p1 - p0, p2 - p0
+    # Moller & Trumbore 1997 in float64 on the triangle embree reported (embree itself is float32).
+    pvec = np.cross(dirs, e2)
+    det = _dot(e1, pvec)
+    det = np.where(np.abs(det) > 1e-300, det, 1e-300)
+    tvec = origins - p0
+    b1 = _dot(tvec, pvec) / det
+    b2 = _dot(dirs, np.cross(tvec, e1)) / det
+    bary = np.clip(np.stack([1.0 - b1 - b2, b1, b2], axis=1), 0.0, None)
+    bary /= np.maximum(bary.sum(axis=1, keepdims=True), 1e-300)
+
+    def mix(attr: np.ndarray) -> np.ndarray:  # barycentric interpolation of a per-vertex attribute
+        return np.einsum("nk,nkc->nc", bary, attr[f])
+
+    x = bary[:, 0:1] * p0 + bary[:, 1:2] * p1 + bary[:, 2:3] * p2
+    n_geom = _normalize(np.cross(e1, e2), fallback=None)
+    n = _normalize(mix(scene.normals), fallback=n_geom)
+    n = np.where(_dot(n, -dirs)[:, None] < 0.0, -n, n)  # two-sided, as in surface.frag
+    r = dirs - 2.0 * _dot(dirs, n)[:, None] * n
+
+    albedo = mix(scene.albedo)
+    material = mix(scene.material)
+    mesh_of = scene.face_mesh[tri]
+    uv_all = mix(scene.uvs) if any(a is not None or g is not None for a, g in scene.maps) else None
+    for i, (albedo_map, gloss_map) in enumerate(scene.maps):
+        sel = np.flatnonzero(mesh_of == i)
+        if sel.size == 0 or (albedo_map is None and gloss_map is None):
+            continue
+        uv = uv_all[sel]
+        if albedo_map is not None:
+            albedo[sel] *= _texture_bilinear(albedo_map, uv)
+        if gloss_map is not None:
+            material[sel] = _texture_bilinear(gloss_map, uv)
+    return _Surface(x, n, n_geom, r, albedo, material[:, 0], np.clip(material[:, 1], 0.0, 1.0))
+
+
+def _texture_bilinear(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear lookup with repeat wrapping, GL convention (uv (0, 0) is the bottom-left of the image,
+    whose row 0 is its top, as `scene.SceneMesh` uploads it): img (H, W, C), uv (N, 2) -> (N, C)."""
+    h, w = img.shape[:2]
+    x = uv[:, 0] * w - 0.5
+    y = (1.0 - uv[:, 1]) * h - 0.5
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+    out = 0.0
+    for dy, wy in ((0, 1.0 - fy), (1, fy)):
+        for dx, wx in ((0, 1.0 - fx), (1, fx)):
+            out = out + wy * wx * img[(y0 + dy) % h, (x0 + dx) % w].astype(np.float64)
+    return out
+
+
+# --- integration ------------------------------------------------------------------------------
+
+
+class _ShadowTracer:
+    """V(x, w) by any-hit queries; counts the rays it casts."""
+
+    def __init__(self, intersector, eps: float):
+        self.intersector, self.eps, self.rays_cast = intersector, eps, 0
+
+    def visible(self, x: np.ndarray, n_geom: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """bool (M,): the ray from x, offset to the side of the surface w points to, escapes."""
+        if len(w) == 0:
+            return np.zeros(0, bool)
+        side = np.where(_dot(n_geom, w) >= 0.0, self.eps, -self.eps)
+        self.rays_cast += len(w)
+        return ~self.intersector.intersects_any(x + side[:, None] * n_geom, w)
+
+
+def _integrate(sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: _Surface, spp: int, batches: int,
+               seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel estimate (N, 3) and its standard error (N, 3)."""
+    n_px = len(surf.x)
+    if n_px == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    one_minus_g = 1.0 - surf.glossiness
+    mirror = (surf.specular > 0) & (one_minus_g <= MIRROR_ONE_MINUS_G)
+    has_d = surf.albedo.max(axis=1) > 0
+    has_g = (surf.specular > 0) & ~mirror
+    exponent = 1.0 / np.maximum(one_minus_g, MIRROR_ONE_MINUS_G)
+
+    # Batch b holds the samples k = b, b + B, ...: n_b of them. Batches run one after the other, so
+    # memory holds one batch sum and the running mean / between-batch sum of squares (Chan et al.
+    # 1979's pairwise update), whatever the sample count.
+    counts = np.bincount(np.arange(spp) % batches, minlength=batches)
+    mean = np.zeros((n_px, 3))
+    between_ss = np.zeros((n_px, 3))
+    done = 0
+    per_chunk = max(1, RAYS_PER_CHUNK // n_px)  # samples per chunk
+    px_chunk = min(n_px, RAYS_PER_CHUNK)
+    for b, n_b in enumerate(counts):
+        batch_sum = np.zeros((n_px, 3))
+        for j0 in range(0, n_b, per_chunk):
+            n_j = min(per_chunk, n_b - j0)
+            for p0 in range(0, n_px, px_chunk):
+                p1 = min(n_px, p0 + px_chunk)
+                rng = np.random.default_rng([seed, b, j0, p0])
+                pix = np.tile(np.arange(p0, p1), n_j)
+                j = np.repeat(np.arange(j0, j0 + n_j), p1 - p0)
+                # Stratified within the batch (see the module doc): sample j of n_b draws its texel
+                # from [j, j + 1) / n_b, its BRDF sample's polar angle from the reversed stratum.
+                u_texel = (j + rng.random(len(j))) / n_b
+                u_lobe = (n_b - 1 - j + rng.random(len(j))) / n_b
+                est = _sample_chunk(sampler, tracer, surf, pix, has_d, has_g, exponent, rng, u_texel, u_lobe)
+                batch_sum[p0:p1] += est.reshape(n_j, p1 - p0, 3).sum(axis=0)
+        delta = batch_sum / n_b - mean
+        mean += delta * (n_b / (done + n_b))
+        between_ss += delta ** 2 * (done * n_b / (done + n_b))
+        done += n_b
+    if batches >= 2:
+        # E[sum_b n_b (m_b - m)^2] = (B - 1) sigma^2, sigma^2 the variance of one sample.
+        std = np.sqrt(between_ss / (batches - 1) / spp)
+    else:
+        std = np.full((n_px, 3), np.nan)
+
+    if mirror.any():  # deterministic: no variance
+        idx = np.flatnonzero(mirror)
+        w = surf.r[idx]
+        vis = tracer.visible(surf.x[idx], surf.n_geom[idx], w)
+        mean[idx] += surf.specular[idx, None] * sampler.radiance(w) * vis[:, None]
+    return mean, std
+
+
+def _sample_chunk(sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: _Surface, pix: np.ndarray,
+                  has_d: np.ndarray, has_g: np.ndarray, exponent: np.ndarray, rng: np.random.Generator,
+                  u_texel: np.ndarray, u_lobe: np.ndarray) -> np.ndarray:
+    """One sample of every technique for each entry of pix (pixel indices, repeated per sample):
+    the MIS-weighted contributions, float64 (M, 3)."""
+    m = len(pix)
+    est = np.zeros((m, 3))
+    n, r, x, ng = surf.n[pix], surf.r[pix], surf.x[pix], surf.n_geom[pix]
+    albedo, spec, s = surf.albedo[pix], surf.specular[pix], exponent[pix]
+    d_on, g_on = has_d[pix], has_g[pix]
+
+    # (a) environment sampling, shared by both terms.
+    w, p_env = sampler.sample(m, rng, u_texel)
+    radiance = sampler.radiance(w)
+    cos_n = _dot(n, w)
+    f_d = np.where(d_on & (cos_n > 0.0), cos_n / np.pi, 0.0)
+    f_g = np.where(g_on, _phong_lobe(_dot(r, w), s), 0.0)
+    # f * L * V / p_env * p_env^2 / (p_env^2 + q^2), with q = f for both BRDF-sampling techniques.
+    weight = albedo * (f_d * p_env / (p_env ** 2 + f_d ** 2))[:, None] \
+        + (spec * f_g * p_env / (p_env ** 2 + f_g ** 2))[:, None]
+    need = ((f_d > 0.0) | (f_g > 0.0)) & (radiance.max(axis=1) > 0.0)
+    _add_visible(est, need, tracer, x, ng, w, radiance * weight)
+
+    # (b1) cosine-weighted hemisphere around n, for the diffuse term.
+    idx = np.flatnonzero(d_on)
+    if idx.size:
+        w, q = _sample_cosine(n[idx], rng, u_lobe[idx])
+        radiance, p_env = sampler.radiance_pdf(w)
+        weight = albedo[idx] * (q ** 2 / (q ** 2 + p_env ** 2))[:, None]
+        need = (q > 0.0) & (radiance.max(axis=1) > 0.0)
+        _add_visible(est, need, tracer, x[idx], ng[idx], w, radiance * weight, idx)
+
+    # (b2) Phong lobe around r, for the glossy term.
+    idx = np.flatnonzero(g_on)
+    if idx.size:
+        w, q = _sample_phong(r[idx], s[idx], rng, u_lobe[idx])
+        radiance, p_env = sampler.radiance_pdf(w)
+        weight = (spec[idx] * q ** 2 / (q ** 2 + p_env ** 2))[:, None]
+        need = (q > 0.0) & (radiance.max(axis=1) > 0.0)
+        _add_visible(est, need, tracer, x[idx], ng[idx], w, radiance * weight, idx)
+    return est
+
+
+def _add_visible(est, need, tracer, x, ng, w, value, idx=None) -> None:
+    """est[idx][need] += value[need] where the shadow ray escapes."""
+    sel = np.flatnonzero(need)
+    vis = tracer.visible(x[sel], ng[sel], w[sel])
+    sel = sel[vis]
+    target = sel if idx is None else idx[sel]
+    est[target] += value[sel]  # one entry per pixel-sample: indices are unique
+
+
+def _phong_lobe(cos_r: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Normalized Phong lobe (s + 1) / (2 pi) max(0, cos)^s (paper Eq. 3; integrates to 1)."""
+    c = np.maximum(cos_r, 0.0)
+    with np.errstate(under="ignore"):
+        return (s + 1.0) / (2.0 * np.pi) * c ** s
+
+
+def _sample_cosine(n: np.ndarray, rng: np.random.Generator, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cosine-weighted directions around unit n (M, 3) (Malley's method: uniform on the disc, lifted to
+    the hemisphere; sin^2 = u0) and their pdf cos / pi. u0 (M,): uniform numbers, possibly stratified."""
+    rad, phi = np.sqrt(u0), 2.0 * np.pi * rng.random(len(n))
+    cos_t = np.sqrt(np.maximum(1.0 - u0, 0.0))
+    return _to_world(n, rad * np.cos(phi), rad * np.sin(phi), cos_t), cos_t / np.pi
+
+
+def _sample_phong(r: np.ndarray, s: np.ndarray, rng: np.random.Generator,
+                  u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Directions from the normalized Phong lobe around unit r (M, 3) with exponents s (M,): the CDF of
+    cos is cos^(s + 1), so cos = u0^(1 / (s + 1)) (Lafortune & Willems 1994). Returns (dirs, pdf = lobe)."""
+    cos_t = u0 ** (1.0 / (s + 1.0))
+    sin_t = np.sqrt(np.maximum(1.0 - cos_t * cos_t, 0.0))
+    phi = 2.0 * np.pi * rng.random(len(r))
+    w = _to_world(r, sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t)
+    return w, _phong_lobe(cos_t, s)
+
+
+def _to_world(axis: np.ndarray, lx: np.ndarray, ly: np.ndarray, lz: np.ndarray) -> np.ndarray:
+    """Local (lx, ly, lz) in an orthonormal frame whose z is the unit axis (M, 3): Duff et al. 2017,
+    "Building an orthonormal basis, revisited" (branchless, no singularity)."""
+    ax, ay, az = axis[:, 0], axis[:, 1], axis[:, 2]
+    sign = np.where(az >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + az)
+    b = ax * ay * a
+    t = np.stack([1.0 + sign * ax * ax * a, sign * b, -sign * ax], axis=1)
+    bt = np.stack([b, sign + ay * ay * a, -ay], axis=1)
+    w = t * lx[:, None] + bt * ly[:, None] + axis * lz[:, None]
+    return w / np.linalg.norm(w, axis=1, keepdims=True)
+
+
+# --- helpers ----------------------------------------------------------------------------------
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", a, b)
+
+
+def _normalize(v: np.ndarray, fallback: np.ndarray | None) -> np.ndarray:
+    length = np.linalg.norm(v, axis=1, keepdims=True)
+    ok = length > 1e-300
+    out = v / np.where(ok, length, 1.0)
+    return np.where(ok, out, np.asarray(FALLBACK_NORMAL) if fallback is None else fallback)
+
+
+def _check_counts(width, height, spp, batches, seed) -> tuple[int, int, int, int, int]:
+    def as_int(value, name, lo, hi):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= value <= hi:
+            raise InvalidInputError(f"{name} must be an integer in [{lo}, {hi}]; got {value!r}")
+        return int(value)
+
+    return (as_int(width, "width", 1, 8192), as_int(height, "height", 1, 8192), as_int(spp, "spp", 1, 1 << 20),
+            as_int(batches, "batches", 1, 1024), as_int(seed, "seed", 0, 2**63 - 1))

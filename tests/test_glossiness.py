@@ -1,0 +1,160 @@
+"""Glossiness -> MIP level calibration (renderer/lighting/glossiness.py, paper section 5)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from renderer.errors import InvalidInputError
+from renderer.lighting.filters import Filter
+from renderer.lighting.glossiness import (
+    cosine_lobe,
+    diffuse_level,
+    level_for_glossiness,
+    lobe_table,
+    phong_exponent,
+    target_volume,
+)
+
+FACES = (8, 32)
+unit = st.floats(min_value=0.0, max_value=1.0, allow_nan=False)
+filters = st.sampled_from(list(Filter))
+faces = st.sampled_from(FACES)
+outside = st.one_of(
+    st.floats(max_value=-1e-12, allow_nan=False),   # -0.0 is a valid g (it equals 0)
+    st.floats(min_value=1.0 + 1e-12, allow_nan=False),
+    st.just(math.nan),
+)
+
+
+def lobe_volume(table, level: float) -> float:
+    return float((table.lobe(level) ** 3 * table.eval_omega).sum() / 3.0)
+
+
+# ---------------------------------------------------------------- properties (hypothesis)
+
+@settings(max_examples=200, deadline=None)
+@given(g1=unit, g2=unit, kind=filters, face=faces)
+def test_level_monotone_non_increasing_in_g(g1, g2, kind, face):
+    table = lobe_table(face, kind)
+    lo, hi = sorted((g1, g2))
+    assert table.level_for_glossiness(lo) >= table.level_for_glossiness(hi)
+
+
+@settings(max_examples=200, deadline=None)
+@given(g=unit, kind=filters, face=faces)
+def test_level_in_range(g, kind, face):
+    table = lobe_table(face, kind)
+    level = table.level_for_glossiness(g)
+    assert math.isfinite(level)
+    assert 0.0 <= level <= table.n_levels - 1
+    assert level == level_for_glossiness(g, face, kind)
+
+
+@settings(max_examples=100, deadline=None)
+@given(g=outside, kind=filters)
+def test_glossiness_outside_unit_interval_raises(g, kind):
+    table = lobe_table(8, kind)
+    with pytest.raises(InvalidInputError):
+        table.level_for_glossiness(g)
+    with pytest.raises(InvalidInputError):
+        level_for_glossiness(g, 8, kind)
+    with pytest.raises(InvalidInputError):
+        phong_exponent(g)
+    with pytest.raises(InvalidInputError):
+        table.relative_error(g)
+
+
+@settings(max_examples=100, deadline=None)
+@given(g1=unit, g2=unit)
+def test_target_volume_decreasing(g1, g2):
+    lo, hi = sorted((g1, g2))
+    assert target_volume(lo) >= target_volume(hi) >= 0.0
+
+
+# ---------------------------------------------------------------- unit tests
+
+@pytest.mark.parametrize("face", [32, 64])
+@pytest.mark.parametrize("kind", list(Filter))
+@pytest.mark.parametrize("g", [0.0, 1e-7, 1.0 - 1e-7, 1.0])
+def test_level_finite_at_edges(g, kind, face):
+    table = lobe_table(face, kind)
+    level = table.level_for_glossiness(g)
+    assert math.isfinite(level) and 0.0 <= level <= table.n_levels - 1
+
+
+@pytest.mark.parametrize("kind", list(Filter))
+def test_mirror_is_level_zero_and_diffuse_deepest(kind):
+    table = lobe_table(32, kind)
+    assert table.level_for_glossiness(1.0) == 0.0
+    assert diffuse_level(32, kind) == table.level_for_glossiness(0.0) == max(
+        table.level_for_glossiness(g) for g in np.linspace(0.0, 1.0, 21))
+
+
+def test_target_volume_end_points():
+    assert float(target_volume(1.0)) == 0.0
+    assert float(target_volume(0.0)) == pytest.approx(math.pi / 6.0, rel=1e-12)
+
+
+@pytest.mark.parametrize("s", [1.0, 2.0, 7.0, 100.0])
+def test_target_volume_is_the_radial_volume_of_cos_s(s):
+    # V = (1/3) * 2 pi * int_0^1 c^(3s) dc = 2 pi / (3 (3s + 1)); numeric check of the closed form.
+    c = np.linspace(0.0, 1.0, 200001)
+    numeric = 2.0 * np.pi / 3.0 * np.trapezoid(c ** (3.0 * s), c)
+    assert float(target_volume(1.0 - 1.0 / s)) == pytest.approx(numeric, rel=1e-4)
+
+
+def test_phong_exponent_and_cosine_lobe():
+    assert phong_exponent(0.0) == 1.0
+    assert phong_exponent(0.5) == 2.0
+    assert phong_exponent(1.0) == math.inf
+    c = np.array([-1.0, 0.0, 0.5, 1.0])
+    np.testing.assert_allclose(cosine_lobe(c, 2.0), [0.0, 0.0, 0.25, 1.0])
+    np.testing.assert_array_equal(cosine_lobe(c, math.inf), [0.0, 0.0, 0.0, 1.0])
+
+
+@pytest.mark.parametrize("kind", list(Filter))
+def test_lobe_is_peak_one_and_centred_on_impulse(kind):
+    table = lobe_table(32, kind)
+    for level in (0.0, 1.5, table.n_levels - 1.0):
+        lobe = table.lobe(level)
+        assert lobe.max() == pytest.approx(1.0)
+        assert np.all(lobe >= -1e-12)
+    peak_dir = table.eval_dirs[np.argmax(table.lobe(0.0))]
+    assert float(peak_dir @ table.impulse_dir) > 0.999
+
+
+def test_bad_face_size_and_filter():
+    with pytest.raises(InvalidInputError):
+        lobe_table(48, Filter.BOX)
+    with pytest.raises(InvalidInputError):
+        lobe_table(32, "median")
+
+
+# The issue's "an impulse map reproduces the calibrated lobe": the impulse response at the calibrated
+# level has the target lobe's volume. The volume is strongly convex within a level, so the grid that is
+# inverted needs fine steps (STEPS_PER_LEVEL = 32; with 8 the lobe came out 3-7.5 % too small here).
+@pytest.mark.parametrize("face, g", [
+    (32, 0.0), (32, 0.5), (32, 0.8), (32, 0.9),
+    (64, 0.0), (64, 0.5), (64, 0.8), (64, 0.9),
+])
+def test_impulse_map_reproduces_calibrated_lobe(face, g):
+    table = lobe_table(face, Filter.SQRT_COSINE)
+    volume = lobe_volume(table, table.level_for_glossiness(g))
+    assert volume == pytest.approx(float(target_volume(g)), rel=0.02)
+
+
+@pytest.mark.parametrize("face", [32, 64, 128])
+def test_sqrt_cosine_diffuse_error_below_30_percent(face):
+    assert lobe_table(face, Filter.SQRT_COSINE).relative_error(0.0) < 0.30
+
+
+def test_volume_table_consistent_at_grid_nodes():
+    # At the tabulated levels themselves the inversion is exact (up to the monotone envelope).
+    table = lobe_table(32, Filter.SQRT_COSINE)
+    for level, vol in zip(table.levels_grid[::4], table.volumes[::4]):
+        assert lobe_volume(table, level) == pytest.approx(vol, rel=1e-9)
