@@ -59,6 +59,7 @@ class FrameSettings:
     min_variance: float = 1e-6
     normal_offset_texels: float = 1.5
     shadow_threshold: float = 0.0  # lights below this share of the energy get no shadow map
+    horizon: bool = False          # VIS_i includes the tangent plane (see surface.frag); off: the paper
     mode: ShadingMode = ShadingMode.FULL
     background: Background = Background.ENVIRONMENT
 
@@ -189,7 +190,7 @@ class Renderer:
         layers = shadow_layers(regions.energy_luminance, settings.shadow_threshold if shadowed else 2.0)
         n_shadowed = int((layers >= 0).sum())
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
-                             sigma, layers)
+                             sigma, layers, regions.light_radius_rad())
         lights_buf = self._buffer("lights", lights.tobytes())
         shadow_list = self._buffer("shadow_lights", np.nonzero(layers >= 0)[0].astype(np.int32).tobytes() or b"\0" * 4)
 
@@ -235,6 +236,7 @@ class Renderer:
             _set_uniform(p, "u_diffuse_level", pems.diffuse_level())
             _set_uniform(p, "u_min_variance", settings.min_variance)
             _set_uniform(p, "u_bleed_reduction", settings.bleed_reduction)
+            _set_uniform(p, "u_horizon", settings.horizon)
             extent = 2.0 * float(np.linalg.norm(hi - lo))
             _set_uniform(p, "u_normal_offset", settings.normal_offset_texels * extent / settings.shadow_size)
             for sm in scene.meshes:

@@ -251,3 +251,21 @@ def test_many_light_baseline_matches_the_furnace_for_diffuse(renderer, sphere_sc
     px = frame.image[covered(frame)][:, :3]
     assert np.isfinite(px).all()
     assert px.mean() == pytest.approx(1.0, rel=0.1)
+
+
+def test_horizon_term_stops_light_from_below_an_open_sheet(renderer):
+    # A sun below a single-sided sheet: the shadow map cannot block it (the sheet is the first surface
+    # the sun sees) and the PEM's diffuse lobe reaches past 90 degrees. The horizon term removes it.
+    cube = sun_sky_cube(32, (1.0, -0.25, 0.0), sun_radiance=1e3, sun_radius_deg=4, sky=(0, 0, 0), ground=(0, 0, 0))
+    cam = Camera((0.0, 3.0, 0.5), (0.0, 0.0, 0.0), fov_y_deg=40.0)
+    scene = renderer.create_scene([plane(2.0)], [Material((0.8, 0.8, 0.8))])
+    pems = renderer.build_pems(cube, PEMSettings(24))
+    try:
+        leak = renderer.render(scene, pems, FrameSettings(32, 32, background=Background.BLACK), cam).image
+        clipped = renderer.render(scene, pems, FrameSettings(32, 32, horizon=True, background=Background.BLACK), cam).image
+    finally:
+        pems.release()
+        scene.release()
+    top = leak[..., 3] > 0.5
+    assert leak[top][:, :3].mean() > 0.01                    # the paper's method leaks the sun through
+    assert clipped[top][:, :3].mean() < 0.01 * leak[top][:, :3].mean()

@@ -80,8 +80,10 @@ def fit_light_view_proj(direction: np.ndarray, lo: np.ndarray, hi: np.ndarray, s
     return m
 
 
-def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma, shadow_layer) -> np.ndarray:
-    """Build the std430 array of `struct Light` for n lights; shadow_layer[i] = -1: no shadow map."""
+def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma, shadow_layer,
+                radius_rad=None) -> np.ndarray:
+    """Build the std430 array of `struct Light` for n lights; shadow_layer[i] = -1: no shadow map;
+    radius_rad: angular radius of each light's energy (for the horizon term), default 0."""
     n = len(directions)
     arr = np.zeros(n, LIGHT_DTYPE)
     arr["view_proj"] = np.transpose(view_proj, (0, 2, 1)).reshape(n, 16)  # column-major for GLSL
@@ -90,6 +92,7 @@ def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma
     arr["params"][:, 0] = sigma
     arr["params"][:, 1] = shadow_layer
     arr["params"][:, 2] = solid_angle_sr
+    arr["params"][:, 3] = np.sin(np.clip(np.asarray(radius_rad if radius_rad is not None else np.zeros(n)), 1e-3, np.pi / 2))
     arr["energy"][:, :3] = energy_rgb
     arr["energy"][:, 3] = np.asarray(energy_rgb) @ np.array([0.2126, 0.7152, 0.0722])
     return arr

@@ -28,6 +28,7 @@ uniform float u_diffuse_level;
 uniform float u_min_variance;
 uniform float u_bleed_reduction;   // Lauritzen's light-bleeding reduction: clip p_max below this
 uniform float u_normal_offset;     // world units, pushes the shadow lookup off the surface
+uniform bool u_horizon;            // include the tangent plane in VIS_i
 
 in vec3 v_ws_position;
 in vec3 v_ws_normal;
@@ -77,6 +78,14 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 shadow_pos) {
     g_glossy += pem_g;
 #elif MODE == 0
     float vis = visibility(i, shadow_pos);
+    if (u_horizon) {
+        // The tangent plane blocks light from below the surface. A shadow map cannot see this on
+        // open cloth (the sheet itself is the first surface from a light behind it) and the PEM's
+        // diffuse lobe reaches past 90 degrees: keep the share of the light's energy (a disc of
+        // angular radius r around its direction) that lies above the plane.
+        float sin_r = lights[i].params.w;
+        vis *= clamp((dot(n, lights[i].dir_scale.xyz) + sin_r) / (2.0 * sin_r), 0.0, 1.0);
+    }
     g_diffuse += vis * pem_d;
     g_glossy += vis * pem_g;
 #else
