@@ -25,7 +25,8 @@ from ..reference import mean_flip, relative_rmse, render_reference
 from ..renderer import FrameSettings, Renderer, ShadingMode
 from .scenes import BenchScene, bundled_scene, shared_scenes
 
-BALANCED = {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 1.0, "filter": "sqrt-cosine"}
+BALANCED = {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 1.0, "filter": "sqrt-cosine",
+            "horizon": False}
 
 SWEEPS = {
     "lights": [6, 12, 24, 48, 96, 192, 384],
@@ -33,6 +34,7 @@ SWEEPS = {
     "shadow_size": [64, 128, 256, 512],
     "blur_scale": [0.0, 0.5, 1.0, 2.0, 4.0],
     "filter": [f.value for f in Filter],
+    "horizon": [False, True],
 }
 QUICK_SWEEPS = {
     "lights": [6, 24, 48, 96],
@@ -40,6 +42,7 @@ QUICK_SWEEPS = {
     "shadow_size": [128, 256],
     "blur_scale": [0.0, 1.0],
     "filter": ["none", "sqrt-cosine"],
+    "horizon": [False, True],
 }
 BASELINE_MODES = [ShadingMode.NO_OCCLUSION, ShadingMode.MANY_LIGHTS, ShadingMode.AO_GREY, ShadingMode.AO_COLOUR]
 
@@ -143,7 +146,8 @@ def bench_scene(r: Renderer, bs: BenchScene, cfg: BenchConfig, log=print) -> lis
             if key not in pem_cache:
                 pem_cache[key] = r.build_pems(bs.cube(s["face_size"]), PEMSettings(s["lights"], Filter(s["filter"])))
             pems = pem_cache[key]
-            fs = FrameSettings(size, size, shadow_size=s["shadow_size"], blur_scale=s["blur_scale"], mode=mode)
+            fs = FrameSettings(size, size, shadow_size=s["shadow_size"], blur_scale=s["blur_scale"], mode=mode,
+                               horizon=s["horizon"])
             frame, frame_ms, stages = _time_frames(r, scene, pems, fs, camera, cfg.frames)
             err = relative_rmse(frame.image, truth, mask)
             flip = mean_flip(frame.image, truth, mask)
