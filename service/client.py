@@ -1,0 +1,252 @@
+"""A Python client for simulators: upload an environment map, register a scene, then send each
+simulation frame's positions (numpy in) and get the image (numpy or PIL out) with its timings.
+
+    from service.client import RenderClient
+    with RenderClient("http://127.0.0.1:8000", token=None) as c:
+        env = c.upload_environment("studio.exr")
+        scene = c.create_scene(env["id"], faces=faces, positions=p0, up="z",
+                               material={"albedo": [0.8, 0.2, 0.2], "specular": 0.5, "glossiness": 0.8},
+                               quality={"preset": "fast"}, output={"width": 512, "height": 512})
+        for p in simulation:                                  # (V, 3) float32 per frame
+            frame = c.send_frame(scene["id"], p)
+            frame.array(), frame.pil(), frame.timings       # uint8 (H, W, 3|4); PIL image; {stage: ms}
+
+A 503 (queue full) is retried after its Retry-After delay, up to `max_retries` times; other errors
+raise `ServiceError` with the service's message.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+OCTET = "application/octet-stream"
+
+
+class ServiceError(Exception):
+    """An error answer: status, the service's machine-readable code and its message."""
+
+    def __init__(self, status: int, code: str, detail: str):
+        super().__init__(f"{status} {code}: {detail}")
+        self.status, self.code, self.detail = status, code, detail
+
+
+def parse_server_timing(header: str | None) -> dict[str, float]:
+    out: dict[str, float] = {}
+    for part in (header or "").split(","):
+        name, _, params = part.strip().partition(";")
+        for p in params.split(";"):
+            k, _, v = p.strip().partition("=")
+            if k == "dur" and name:
+                out[name] = float(v)
+    return out
+
+
+@dataclass
+class FrameResult:
+    """One rendered frame. content: PNG or EXR bytes; timings: per-stage milliseconds."""
+
+    content: bytes
+    media_type: str
+    timings: dict[str, float]
+    headers: dict = field(default_factory=dict)
+    retries: int = 0
+
+    @property
+    def frame_index(self) -> int | None:
+        v = self.headers.get("x-frame-index")
+        return int(v) if v is not None else None
+
+    def pil(self):
+        """A PIL image (PNG frames only)."""
+        from PIL import Image
+
+        if self.media_type != "image/png":
+            raise ValueError(f"pil() needs a PNG frame, this one is {self.media_type}")
+        return Image.open(io.BytesIO(self.content))
+
+    def array(self) -> np.ndarray:
+        """PNG: uint8 (H, W, 3) sRGB, or (H, W, 4) with coverage alpha. EXR: float32 (H, W, 4) linear RGBA."""
+        if self.media_type == "image/x-exr":
+            import OpenEXR
+
+            f = OpenEXR.File(io.BytesIO(self.content))
+            ch = f.channels()
+            if "RGBA" in ch:
+                return np.asarray(ch["RGBA"].pixels, np.float32)
+            return np.stack([np.asarray(ch[c].pixels, np.float32) for c in "RGBA"], -1)
+        return np.asarray(self.pil())
+
+
+def _as_f32(a, what: str) -> bytes:
+    arr = np.ascontiguousarray(a, dtype="<f4")
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{what} must have shape (V, 3); got {arr.shape}")
+    return arr.tobytes()
+
+
+class RenderClient:
+    def __init__(self, base_url: str, token: str | None = None, timeout: float = 300.0, max_retries: int = 50,
+                 max_retry_wait_s: float = 5.0, http: httpx.Client | None = None):
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        self.http = http or httpx.Client(base_url=base_url, headers=headers, timeout=timeout)
+        self.max_retries, self.max_retry_wait_s = max_retries, max_retry_wait_s
+        self.retries = 0  # 503 answers retried so far
+
+    def close(self) -> None:
+        self.http.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # -- plumbing ----------------------------------------------------------------------------------
+    def _request(self, method: str, url: str, **kw) -> tuple[httpx.Response, int]:
+        retries = 0
+        while True:
+            r = self.http.request(method, url, **kw)
+            if r.status_code == 503 and retries < self.max_retries:
+                retries += 1
+                self.retries += 1
+                wait = float(r.headers.get("retry-after", "1"))
+                time.sleep(min(wait, self.max_retry_wait_s) * (0.5 + 0.5 * np.random.random()))
+                continue
+            if r.status_code >= 400:
+                try:
+                    body = r.json()
+                    raise ServiceError(r.status_code, body.get("code", "?"), body.get("detail", r.text))
+                except (json.JSONDecodeError, ValueError, AttributeError):
+                    raise ServiceError(r.status_code, "?", r.text) from None
+            return r, retries
+
+    def _json(self, method: str, url: str, **kw):
+        r, _ = self._request(method, url, **kw)
+        return r.json() if r.content else None
+
+    @staticmethod
+    def _frame(r: httpx.Response, retries: int) -> FrameResult:
+        mt = r.headers.get("content-type", "").split(";")[0]
+        timings = parse_server_timing(r.headers.get("server-timing"))
+        if mt == "application/json":
+            body = r.json()
+            img = body["image"]
+            return FrameResult(base64.b64decode(img["base64"]), img["media_type"], body["timings_ms"],
+                               dict(r.headers), retries)
+        return FrameResult(r.content, mt, timings, dict(r.headers), retries)
+
+    # -- operations --------------------------------------------------------------------------------
+    def live(self) -> dict:
+        return self._json("GET", "/health/live")
+
+    def ready(self) -> bool:
+        return self.http.get("/health/ready").status_code == 200
+
+    def stats(self) -> dict:
+        return self._json("GET", "/stats")
+
+    def metrics(self) -> str:
+        return self.http.get("/metrics").text
+
+    def upload_environment(self, source: str | Path | bytes, layout: str = "auto", repair: bool = False,
+                           name: str | None = None, **quality) -> dict:
+        """source: a path to an .exr/.hdr file or its bytes. quality: preset, lights, face_size, filter, levels."""
+        data = Path(source).read_bytes() if isinstance(source, (str, Path)) else bytes(source)
+        if name is None and isinstance(source, (str, Path)):
+            name = Path(source).name
+        params = {"layout": layout, "repair": str(repair).lower(), **{k: v for k, v in quality.items() if v is not None}}
+        if name:
+            params["name"] = name
+        return self._json("POST", "/environments", params=params, content=data, headers={"Content-Type": OCTET})
+
+    def environment(self, env_id: str) -> dict:
+        return self._json("GET", f"/environments/{env_id}")
+
+    def upload_mesh(self, source: str | Path | bytes, format: str | None = None, up: str = "y",
+                    scale: float = 1.0) -> dict:
+        if isinstance(source, (str, Path)):
+            format = format or Path(source).suffix.lstrip(".").lower()
+            data = Path(source).read_bytes()
+        else:
+            data = bytes(source)
+        if not format:
+            raise ValueError("give the mesh format (obj, ply, glb, gltf, stl)")
+        return self._json("POST", "/meshes", params={"format": format, "up": up, "scale": scale}, content=data,
+                          headers={"Content-Type": OCTET})
+
+    @staticmethod
+    def mesh_spec(positions=None, faces=None, uvs=None, material: dict | None = None, mesh_id: str | None = None,
+                  name: str | None = None) -> dict:
+        spec: dict = {"material": material or {}}
+        if mesh_id is not None:
+            spec["mesh_id"] = mesh_id
+        else:
+            spec["positions"] = np.asarray(positions, np.float64).tolist()
+            spec["faces"] = np.asarray(faces, np.int64).tolist()
+            if uvs is not None:
+                spec["uvs"] = np.asarray(uvs, np.float64).tolist()
+        if name:
+            spec["name"] = name
+        return spec
+
+    def scene_spec(self, environment_id: str, positions=None, faces=None, uvs=None, material: dict | None = None,
+                   mesh_id: str | None = None, body: dict | None = None, camera: dict | None = None,
+                   quality: dict | None = None, output: dict | None = None, up: str = "y",
+                   name: str = "scene") -> dict:
+        spec = {"name": name, "environment_id": environment_id, "up": up,
+                "garment": self.mesh_spec(positions, faces, uvs, material, mesh_id, name="garment"),
+                "quality": quality or {}, "output": output or {}}
+        if body is not None:
+            spec["body"] = body
+        if camera is not None:
+            spec["camera"] = camera
+        return spec
+
+    def create_scene(self, environment_id: str, **kw) -> dict:
+        """kw: positions, faces, uvs, material, mesh_id, body (a mesh_spec dict), camera, quality, output, up, name."""
+        return self._json("POST", "/scenes", json=self.scene_spec(environment_id, **kw))
+
+    def delete_scene(self, scene_id: str) -> None:
+        self._request("DELETE", f"/scenes/{scene_id}")
+
+    def send_frame(self, scene_id: str, positions, normals=None, body_positions=None, body_normals=None,
+                   format: str = "png", exposure: float | None = None, frame_index: int | None = None) -> FrameResult:
+        """positions: (V, 3) in the scene's up axis; the optional blocks follow the layout in codecs.py."""
+        blocks, parts = [], []
+        for name, a in (("positions", positions), ("normals", normals), ("body_positions", body_positions),
+                        ("body_normals", body_normals)):
+            if a is not None:
+                blocks.append(name)
+                parts.append(_as_f32(a, name))
+        headers = {"Content-Type": OCTET, "X-Frame-Layout": ",".join(blocks)}
+        if frame_index is not None:
+            headers["X-Frame-Index"] = str(frame_index)
+        params = {"format": format} if format else {}
+        if exposure is not None:
+            params["exposure"] = exposure
+        r, retries = self._request("POST", f"/scenes/{scene_id}/frames", content=b"".join(parts), headers=headers,
+                                   params=params)
+        return self._frame(r, retries)
+
+    def send_batch(self, scene_id: str, frames, image: str = "png") -> list[FrameResult]:
+        """frames: (F, V, 3) garment positions. Returns one FrameResult per frame, in order."""
+        arr = np.ascontiguousarray(frames, dtype="<f4")
+        if arr.ndim != 3 or arr.shape[2] != 3:
+            raise ValueError(f"frames must have shape (F, V, 3); got {arr.shape}")
+        r, retries = self._request("POST", f"/scenes/{scene_id}/frames/batch", content=arr.tobytes(),
+                                   headers={"Content-Type": OCTET}, params={"format": "json", "image": image})
+        return [FrameResult(base64.b64decode(f["image"]["base64"]), f["image"]["media_type"], f["timings_ms"],
+                            {"x-frame-index": str(f["frame_index"])}, retries) for f in r.json()["frames"]]
+
+    def render_once(self, spec: dict, format: str = "png") -> FrameResult:
+        """Stateless render of a whole scene (a `scene_spec(...)` dict)."""
+        r, retries = self._request("POST", "/render", json=spec, params={"format": format})
+        return self._frame(r, retries)

@@ -1,0 +1,222 @@
+"""What the routes do, without HTTP: add an environment map, make sure a PEM set exists, register a
+scene, and find an environment or a scene by id (in memory, else restored from the state directory,
+which is how several worker processes, or a restarted service, share them)."""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import time
+from dataclasses import dataclass, field
+
+import anyio
+import numpy as np
+
+from renderer.cache import cache_key
+from renderer.envmap import environment_from_array
+from renderer.lighting.pem import PEMSettings
+
+from .codecs import decode_hdr, sniff_hdr_kind
+from .errors import ConflictError, NotFoundError, PayloadTooLargeError, QueueFullError
+from .registry import EnvironmentRecord, EnvironmentStore, MeshStore, PemInfo, SceneMeshInfo, SceneRecord, SceneStore
+from .schemas import MeshSpec, QualitySpec, SceneCreate
+from .settings import ServiceSettings
+from .specs import Quality, prepare_scene, resolve_quality
+from .state import StateDir
+from .worker import GLResources, RenderWorker
+
+
+@dataclass
+class Services:
+    """The long-lived objects of one app (made in the lifespan), passed to the operations."""
+
+    settings: ServiceSettings
+    worker: RenderWorker
+    environments: EnvironmentStore
+    scenes: SceneStore
+    meshes: MeshStore
+    presets: dict
+    state: StateDir | None = None
+    _restoring: dict[str, asyncio.Lock] = field(default_factory=dict)
+
+    def quality(self, spec: QualitySpec) -> Quality:
+        from .schemas import OutputSpec
+
+        return resolve_quality(spec, OutputSpec(width=16, height=16), self.presets, self.settings)
+
+    def _lock(self, key: str) -> asyncio.Lock:
+        return self._restoring.setdefault(key, asyncio.Lock())
+
+
+# -- environments ----------------------------------------------------------------------------------
+
+
+async def add_environment(svc: Services, data: bytes, layout: str, repair: bool, name: str | None,
+                          face_size: int, env_id: str | None = None) -> tuple[EnvironmentRecord, bool]:
+    """Register an uploaded map, decoded once per distinct file (the first cube resampled at `face_size`
+    checks layout and texels). Returns (record, cached): cached when the same file or image came before."""
+    file_sha = await anyio.to_thread.run_sync(lambda: hashlib.sha256(data).hexdigest())
+    env = svc.environments.find_file(file_sha, layout, repair)
+    cached = env is not None
+    if env is None:
+        kind = sniff_hdr_kind(data)
+        label = name or f"upload-{file_sha[:8]}.{kind}"
+        t0 = time.perf_counter()
+        pixels = await anyio.to_thread.run_sync(decode_hdr, data, kind, label, svc.settings.max_env_pixels)
+        if pixels.shape[0] * pixels.shape[1] > svc.settings.max_env_pixels:
+            raise PayloadTooLargeError(
+                f"environment map {label!r} has {pixels.shape[1]}x{pixels.shape[0]} pixels, more than the limit "
+                f"{svc.settings.max_env_pixels} (GARMENT_RENDER_MAX_ENV_PIXELS)")
+        decode_ms = (time.perf_counter() - t0) * 1e3
+        pixels.setflags(write=False)
+        first = await anyio.to_thread.run_sync(
+            lambda: environment_from_array(pixels, layout, face_size, name=label, repair=repair))
+        record = EnvironmentRecord(id=env_id or "env_" + first.content_hash[:16], name=label, layout=first.layout,
+                                   content_hash=first.content_hash, file_sha256=file_sha,
+                                   source_shape=tuple(pixels.shape), texel_report=first.texel_report, repair=repair,
+                                   pixels=pixels, decode_ms=decode_ms)
+        record.cubes[face_size] = first.cube
+        env, created = svc.environments.add(record, layout)
+        cached = not created
+        if created and svc.state is not None and env_id is None:
+            meta = {"kind": kind, "layout": layout, "repair": repair, "name": label, "file_sha256": file_sha}
+            await anyio.to_thread.run_sync(svc.state.save_environment, env.id, data, meta)
+    return env, cached
+
+
+async def ensure_pem_set(worker: RenderWorker, env: EnvironmentRecord, face_size: int,
+                         pem_settings: PEMSettings) -> PemInfo:
+    """The PEM set through the cache on the GL thread (a hit when resident); the first time, remember
+    what the service shows of it (lights, build time, regions for the preview)."""
+    cube = await anyio.to_thread.run_sync(env.cube, face_size)
+    key = cache_key(env.content_hash, face_size, pem_settings)
+
+    def job(gl: GLResources) -> None:
+        pems, source = gl.pem_set(env.content_hash, cube, pem_settings)
+        env.note_pem_set(key, face_size, pem_settings, pems, source)
+
+    await worker.call(job)
+    return env.pem_sets[key]
+
+
+async def find_environment(svc: Services, env_id: str) -> EnvironmentRecord:
+    try:
+        return svc.environments.get(env_id)
+    except NotFoundError:
+        if svc.state is None:
+            raise
+    async with svc._lock(env_id):
+        try:
+            return svc.environments.get(env_id)
+        except NotFoundError:
+            pass
+        stored = await anyio.to_thread.run_sync(svc.state.load_environment, env_id)
+        if stored is None:
+            raise NotFoundError(f"unknown environment id {env_id!r}; upload the map with POST /environments "
+                                "(ids are listed by GET /environments)")
+        data, meta = stored
+        face_size = svc.quality(QualitySpec()).face_size
+        env, _ = await add_environment(svc, data, meta["layout"], meta["repair"], meta["name"], face_size,
+                                       env_id=env_id)
+        return env
+
+
+# -- scenes ----------------------------------------------------------------------------------------
+
+
+def _to_scene_up(positions: np.ndarray, up: str) -> list:
+    """Inverse of z_up_to_y_up for the stored scene body: (x, y, z) Y-up -> (x, -z, y) Z-up (exact)."""
+    p = np.asarray(positions, np.float64)
+    if up == "z":
+        p = np.stack([p[:, 0], -p[:, 2], p[:, 1]], axis=1)
+    return p.tolist()
+
+
+async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = None) -> SceneRecord:
+    svc.scenes.check_room()
+    env = await find_environment(svc, body.environment_id)
+    prepared = await anyio.to_thread.run_sync(prepare_scene, body, svc.presets, svc.meshes, svc.settings)
+    q = prepared.quality
+    cube = await anyio.to_thread.run_sync(env.cube, q.face_size)
+    key = cache_key(env.content_hash, q.face_size, q.pem)
+    record = SceneRecord(
+        id=scene_id or svc.scenes.new_id(), name=body.name, environment=env, face_size=q.face_size,
+        pem_settings=q.pem, frame_settings=q.frame, camera=prepared.camera, up=body.up,
+        meshes=[SceneMeshInfo(role, m.name, m.n_vertices, m.n_faces, m.uvs is not None, m.faces)
+                for role, m in zip(prepared.roles, prepared.meshes)],
+        quality=q.info, output=body.output.model_dump(), pem_key=key)
+
+    def job(gl: GLResources) -> None:
+        pems, source = gl.pem_set(env.content_hash, cube, q.pem)
+        env.note_pem_set(key, q.face_size, q.pem, pems, source)
+        record.gpu = gl.renderer.create_scene(prepared.meshes, prepared.materials)
+        svc.scenes.add(record)  # here, so a scene made just before a request timeout is still listed (and freed)
+
+    await svc.worker.call(job)
+    if svc.state is not None and scene_id is None:
+        # Stored with every mesh inline (an uploaded file may be unknown to the process that restores it).
+        inline = {}
+        for role, mesh in zip(prepared.roles, prepared.meshes):
+            spec: MeshSpec = getattr(body, role)
+            if spec.mesh_id is not None:
+                inline[role] = MeshSpec(name=mesh.name, positions=_to_scene_up(mesh.positions, body.up),
+                                        faces=mesh.faces.tolist(),
+                                        uvs=None if mesh.uvs is None else mesh.uvs.tolist(), material=spec.material)
+        stored = body.model_copy(update=inline)
+        await anyio.to_thread.run_sync(svc.state.save_scene, record.id, stored.model_dump_json())
+    return record
+
+
+async def find_scene(svc: Services, scene_id: str) -> SceneRecord:
+    try:
+        return svc.scenes.get(scene_id)
+    except NotFoundError:
+        if svc.state is None:
+            raise
+    async with svc._lock(scene_id):
+        try:
+            return svc.scenes.get(scene_id)
+        except NotFoundError:
+            pass
+        text = await anyio.to_thread.run_sync(svc.state.load_scene, scene_id)
+        if text is None:
+            raise NotFoundError(f"unknown scene id {scene_id!r}; register the scene with POST /scenes")
+        return await create_scene(svc, SceneCreate.model_validate_json(text), scene_id=scene_id)
+
+
+async def delete_environment(svc: Services, env_id: str) -> None:
+    users = [s for s in svc.scenes.using_environment(env_id)]
+    if users:
+        raise ConflictError(f"environment {env_id} is used by scenes {users}; delete them first")
+    try:
+        svc.environments.remove(env_id)
+    except NotFoundError:
+        if svc.state is None or svc.state.load_environment(env_id) is None:
+            raise
+    if svc.state is not None:
+        svc.state.delete_environment(env_id)
+
+
+async def delete_scene(svc: Services, scene_id: str) -> None:
+    try:
+        rec = svc.scenes.pop(scene_id)
+    except NotFoundError:
+        if svc.state is None or svc.state.load_scene(scene_id) is None:
+            raise
+        svc.state.delete_scene(scene_id)
+        return
+    rec.released = True  # frames still queued for it answer 404
+
+    def job(gl: GLResources) -> None:
+        if rec.gpu is not None:
+            rec.gpu.release()
+            rec.gpu = None
+
+    try:
+        await svc.worker.call(job)
+    except QueueFullError:  # keep it registered: the client retries the delete
+        rec.released = False
+        svc.scenes.add(rec)
+        raise
+    if svc.state is not None:
+        svc.state.delete_scene(scene_id)

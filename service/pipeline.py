@@ -1,0 +1,133 @@
+"""The path of a frame through the service, shared by the frame, batch and one-shot endpoints:
+
+    body bytes -> decode + validate + normals (thread) -> queue -> GL thread: PEM set (cache), upload,
+    shadow maps, blur, shading, readback -> tone map + PNG / EXR (thread) -> response + Server-Timing
+
+Stage names in timings, Server-Timing and the Prometheus histogram: decode, normals, queue, the
+renderer's own stages (upload, shadow_maps, blur, shading, readback), render (the renderer's frame
+wall time), gl_job (the whole job on the GL thread), encode, and total (handler start to answer).
+"""
+
+from __future__ import annotations
+
+import base64
+import os
+import time
+from dataclasses import dataclass
+
+import anyio
+from fastapi import Request
+from fastapi.responses import JSONResponse, Response
+
+from renderer.renderer import Frame
+
+from .codecs import FrameArrays, encode_exr, encode_png
+from .errors import NotAcceptableError, NotFoundError
+from .registry import SceneRecord
+from .schemas import ImageFormat
+from .worker import GLResources
+
+MEDIA = {ImageFormat.PNG: "image/png", ImageFormat.EXR: "image/x-exr", ImageFormat.JSON: "application/json"}
+
+
+def negotiate(fmt: ImageFormat | None, request: Request) -> ImageFormat:
+    """`?format=` wins; else the Accept header (image/x-exr, application/json, image/png); PNG by default."""
+    if fmt is not None:
+        return fmt
+    accept = request.headers.get("accept", "")
+    if not accept.strip():
+        return ImageFormat.PNG
+    types = [part.split(";")[0].strip().lower() for part in accept.split(",")]
+    for t in types:
+        if t in ("image/x-exr", "image/exr", "image/aces"):
+            return ImageFormat.EXR
+        if t == "application/json":
+            return ImageFormat.JSON
+        if t in ("image/png", "image/*", "*/*"):
+            return ImageFormat.PNG
+    raise NotAcceptableError(f"cannot answer with {accept!r}; frames come as image/png, image/x-exr or "
+                             "application/json (or choose with ?format=png|exr|json)")
+
+
+def render_job(scene: SceneRecord, arrays: FrameArrays | None):
+    """The GL-thread part of one frame of a registered scene."""
+    def job(gl: GLResources) -> tuple[Frame, str]:
+        if scene.released or scene.gpu is None:
+            raise NotFoundError(f"scene {scene.id} was deleted while this frame waited")
+        env = scene.environment
+        pems, source = gl.pem_set(env.content_hash, env.cubes[scene.face_size], scene.pem_settings)
+        frame = gl.renderer.render(scene.gpu, pems, scene.frame_settings, scene.camera,
+                                   positions=arrays.positions if arrays else None,
+                                   normals=arrays.normals if arrays else None)
+        return frame, source
+    return job
+
+
+@dataclass
+class Encoded:
+    content: bytes
+    media_type: str
+    exposure_ev: float | None
+    encode_ms: float
+
+
+def encode(frame: Frame, fmt: ImageFormat, output: dict, exposure_ev: float | None, compress_level: int,
+           json_image: ImageFormat = ImageFormat.PNG) -> Encoded:
+    """Tone map and encode (in a worker thread). JSON mode embeds `json_image` as base64 elsewhere."""
+    t0 = time.perf_counter()
+    kind = json_image if fmt is ImageFormat.JSON else fmt
+    ev = None
+    if kind is ImageFormat.EXR:
+        content = encode_exr(frame.image)
+    else:
+        ev_in = exposure_ev if exposure_ev is not None else output.get("exposure_ev")
+        content, ev = encode_png(frame.image, ev_in, output.get("tone", "filmic"),
+                                 opaque=output.get("background", "env") == "env", compress_level=compress_level)
+    return Encoded(content, MEDIA[kind], ev, (time.perf_counter() - t0) * 1e3)
+
+
+async def encode_async(frame, fmt, output, exposure_ev, compress_level, json_image=ImageFormat.PNG) -> Encoded:
+    return await anyio.to_thread.run_sync(encode, frame, fmt, output, exposure_ev, compress_level, json_image)
+
+
+def frame_timings(frame: Frame, decode_ms: float, normals_ms: float, queue_ms: float, job_ms: float,
+                  encode_ms: float, t_start: float) -> dict[str, float]:
+    t = {"decode": decode_ms, "normals": normals_ms, "queue": queue_ms}
+    t.update(frame.timings["wall_ms"])
+    t["render"] = float(frame.timings["frame_wall_ms"])
+    t["gl_job"] = job_ms
+    t["encode"] = encode_ms
+    t["total"] = (time.perf_counter() - t_start) * 1e3
+    return {k: round(float(v), 3) for k, v in t.items()}
+
+
+def server_timing(timings: dict[str, float]) -> str:
+    return ", ".join(f"{k};dur={v:.3f}" for k, v in timings.items())
+
+
+def render_info(frame: Frame, source: str) -> dict:
+    t = frame.timings
+    return {"n_lights": t["n_lights"], "shadowed_lights": t["shadowed_lights"], "n_triangles": t["n_triangles"],
+            "device": t["device"], "pem_source": source, "gpu_ms": t.get("gpu_ms", {})}
+
+
+def frame_payload(scene_id: str | None, index: int | None, frame: Frame, enc: Encoded, timings: dict,
+                  source: str) -> dict:
+    h, w = frame.image.shape[:2]
+    return {"scene_id": scene_id, "frame_index": index, "width": w, "height": h, "exposure_ev": enc.exposure_ev,
+            "timings_ms": timings, "render": render_info(frame, source),
+            "image": {"format": "exr" if enc.media_type == "image/x-exr" else "png", "media_type": enc.media_type,
+                      "base64": base64.b64encode(enc.content).decode("ascii")}}
+
+
+def frame_response(fmt: ImageFormat, scene_id: str | None, index: int | None, frame: Frame, enc: Encoded,
+                   timings: dict, source: str) -> Response:
+    headers = {"Server-Timing": server_timing(timings), "X-Render-Lights": str(frame.timings["n_lights"]),
+               "X-PEM-Source": source, "X-Render-Process": str(os.getpid()), "Cache-Control": "no-store"}
+    if index is not None:
+        headers["X-Frame-Index"] = str(index)
+    if enc.exposure_ev is not None:
+        headers["X-Exposure-EV"] = f"{enc.exposure_ev:.4f}"
+    if fmt is ImageFormat.JSON:
+        return JSONResponse(frame_payload(scene_id, index, frame, enc, timings, source), headers=headers)
+    return Response(enc.content, media_type=enc.media_type, headers=headers)

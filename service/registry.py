@@ -1,0 +1,280 @@
+"""What the service holds between requests: uploaded environment maps, uploaded mesh files and
+registered scenes. Plain Python objects guarded by locks, readable from any thread; the GPU side of a
+scene (`SceneRecord.gpu`) is only touched by jobs on the GL thread."""
+
+from __future__ import annotations
+
+import secrets
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from renderer.camera import Camera
+from renderer.envmap import EnvironmentMap, Layout, environment_from_array
+from renderer.envmap.io import TexelReport
+from renderer.lighting.pem import PEMSettings
+from renderer.mesh import Mesh
+from renderer.renderer import FrameSettings
+from renderer.scene import Scene
+
+from .errors import ConflictError, NotFoundError
+
+
+# -- environments --------------------------------------------------------------------------------
+
+
+@dataclass
+class PemInfo:
+    """What the service knows of one PEM set of an environment (the set itself lives in the cache)."""
+
+    key: str
+    face_size: int
+    settings: PEMSettings
+    source: str  # where the first request found it: "built", "disk" or "memory"
+    summary: dict
+    directions: np.ndarray  # (N, 3) unit, towards the light, world Y-up
+    energy_rgb: np.ndarray  # (N, 3)
+    solid_angle_sr: np.ndarray  # (N,)
+    labels: np.ndarray  # (6, F, F) region id per cube texel (for previews)
+    created: float = field(default_factory=time.time)
+
+
+@dataclass
+class EnvironmentRecord:
+    id: str
+    name: str
+    layout: Layout
+    content_hash: str
+    file_sha256: str
+    source_shape: tuple
+    texel_report: TexelReport | None
+    repair: bool
+    pixels: np.ndarray  # (H, W, 3) float32 as decoded (before repair), read-only: resampled per face size
+    decode_ms: float
+    created: float = field(default_factory=time.time)
+    cubes: dict[int, np.ndarray] = field(default_factory=dict)
+    pem_sets: dict[str, PemInfo] = field(default_factory=dict)
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def cube(self, face_size: int) -> np.ndarray:
+        """The cube map at `face_size` (resampled once, then kept); call off the GL thread."""
+        with self._lock:
+            cube = self.cubes.get(face_size)
+            if cube is None:
+                env = self._resample(face_size)
+                cube = self.cubes[face_size] = env.cube
+            return cube
+
+    def note_pem_set(self, key: str, face_size: int, settings: PEMSettings, pems, source: str) -> None:
+        """Remember what the service shows of a PEM set (on the GL thread, where `pems` may be read)."""
+        if key in self.pem_sets:
+            return
+        r = pems.regions
+        self.pem_sets.setdefault(key, PemInfo(
+            key=key, face_size=face_size, settings=settings, source=source, summary=pems.summary(),
+            directions=np.array(r.directions), energy_rgb=np.array(r.energy_rgb),
+            solid_angle_sr=np.array(r.solid_angle_sr), labels=np.array(r.labels)))
+
+    def _resample(self, face_size: int) -> EnvironmentMap:
+        env = environment_from_array(self.pixels, self.layout, face_size, name=self.name, repair=self.repair)
+        if env.content_hash != self.content_hash:  # pragma: no cover - the pixels are read-only
+            raise RuntimeError("environment pixels changed after upload")
+        return env
+
+
+class EnvironmentStore:
+    def __init__(self, max_environments: int):
+        self.max_environments = max_environments
+        self._by_id: OrderedDict[str, EnvironmentRecord] = OrderedDict()
+        self._by_file: dict[tuple, str] = {}
+        self._lock = threading.Lock()
+
+    def find_file(self, file_sha256: str, layout: str, repair: bool) -> EnvironmentRecord | None:
+        with self._lock:
+            env_id = self._by_file.get((file_sha256, layout, repair))
+            return self._by_id.get(env_id) if env_id else None
+
+    def add(self, record: EnvironmentRecord, requested_layout: str) -> tuple[EnvironmentRecord, bool]:
+        """Register a decoded map; an identical image (same pixels and layout) keeps its first record.
+        Returns (record, created)."""
+        with self._lock:
+            existing = self._by_id.get(record.id)
+            if existing is None and len(self._by_id) >= self.max_environments:
+                raise ConflictError(
+                    f"the service holds {self.max_environments} environment maps already (the limit, "
+                    "GARMENT_RENDER_MAX_ENVIRONMENTS); delete one with DELETE /environments/{id}")
+            self._by_file[(record.file_sha256, requested_layout, record.repair)] = record.id
+            if existing is not None:
+                return existing, False
+            self._by_id[record.id] = record
+            return record, True
+
+    def get(self, env_id: str) -> EnvironmentRecord:
+        with self._lock:
+            rec = self._by_id.get(env_id)
+        if rec is None:
+            raise NotFoundError(f"unknown environment id {env_id!r}; upload the map with POST /environments "
+                                "(ids are listed by GET /environments)")
+        return rec
+
+    def list(self) -> list[EnvironmentRecord]:
+        with self._lock:
+            return list(self._by_id.values())
+
+    def remove(self, env_id: str) -> EnvironmentRecord:
+        with self._lock:
+            rec = self._by_id.pop(env_id, None)
+            if rec is None:
+                raise NotFoundError(f"unknown environment id {env_id!r}")
+            for k in [k for k, v in self._by_file.items() if v == env_id]:
+                del self._by_file[k]
+            return rec
+
+    def __len__(self) -> int:
+        return len(self._by_id)
+
+
+# -- uploaded mesh files -------------------------------------------------------------------------
+
+
+@dataclass
+class MeshRecord:
+    id: str
+    mesh: Mesh
+    file_sha256: str
+    format: str
+    up: str
+    scale: float
+    created: float = field(default_factory=time.time)
+
+
+class MeshStore:
+    """Uploaded mesh files, kept until a scene is made from them (bounded; the oldest goes first)."""
+
+    def __init__(self, max_meshes: int):
+        self.max_meshes = max_meshes
+        self._by_id: OrderedDict[str, MeshRecord] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def add(self, record: MeshRecord) -> MeshRecord:
+        with self._lock:
+            existing = self._by_id.get(record.id)
+            if existing is not None:
+                self._by_id.move_to_end(record.id)
+                return existing
+            self._by_id[record.id] = record
+            while len(self._by_id) > self.max_meshes:
+                self._by_id.popitem(last=False)
+            return record
+
+    def get(self, mesh_id: str) -> MeshRecord:
+        with self._lock:
+            rec = self._by_id.get(mesh_id)
+        if rec is None:
+            raise NotFoundError(f"unknown mesh id {mesh_id!r}; upload the file with POST /meshes first "
+                                f"(at most {self.max_meshes} uploads are kept)")
+        return rec
+
+    def remove(self, mesh_id: str) -> None:
+        with self._lock:
+            if self._by_id.pop(mesh_id, None) is None:
+                raise NotFoundError(f"unknown mesh id {mesh_id!r}")
+
+    def list(self) -> list[MeshRecord]:
+        with self._lock:
+            return list(self._by_id.values())
+
+
+# -- scenes --------------------------------------------------------------------------------------
+
+
+@dataclass
+class SceneMeshInfo:
+    role: str  # "garment" or "body"
+    name: str
+    n_vertices: int
+    n_faces: int
+    has_uvs: bool
+    faces: np.ndarray  # (F, 3) int32, for normals computed off the GL thread
+
+
+@dataclass
+class SceneRecord:
+    """A registered scene. `gpu` is created, used and released on the GL thread only."""
+
+    id: str
+    name: str
+    environment: EnvironmentRecord
+    face_size: int
+    pem_settings: PEMSettings
+    frame_settings: FrameSettings
+    camera: Camera
+    up: str
+    meshes: list[SceneMeshInfo]
+    quality: dict
+    output: dict
+    pem_key: str = ""
+    gpu: Scene | None = None
+    released: bool = False
+    frames_rendered: int = 0
+    created: float = field(default_factory=time.time)
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def count_frames(self, n: int = 1) -> int:
+        with self._lock:
+            self.frames_rendered += n
+            return self.frames_rendered
+
+    def mesh(self, role: str) -> SceneMeshInfo | None:
+        return next((m for m in self.meshes if m.role == role), None)
+
+
+class SceneStore:
+    def __init__(self, max_scenes: int):
+        self.max_scenes = max_scenes
+        self._by_id: dict[str, SceneRecord] = {}
+        self._lock = threading.Lock()
+
+    @staticmethod
+    def new_id() -> str:
+        return "scn_" + secrets.token_hex(8)
+
+    def check_room(self) -> None:
+        with self._lock:
+            if len(self._by_id) >= self.max_scenes:
+                raise ConflictError(
+                    f"the service holds {self.max_scenes} scenes already (the limit, GARMENT_RENDER_MAX_SCENES); "
+                    "delete one with DELETE /scenes/{id}")
+
+    def add(self, record: SceneRecord) -> None:
+        with self._lock:
+            self._by_id[record.id] = record
+
+    def get(self, scene_id: str) -> SceneRecord:
+        with self._lock:
+            rec = self._by_id.get(scene_id)
+        if rec is None or rec.released:
+            raise NotFoundError(f"unknown scene id {scene_id!r}; register the scene with POST /scenes "
+                                "(scenes do not survive a restart of the service)")
+        return rec
+
+    def pop(self, scene_id: str) -> SceneRecord:
+        with self._lock:
+            rec = self._by_id.pop(scene_id, None)
+        if rec is None:
+            raise NotFoundError(f"unknown scene id {scene_id!r}")
+        return rec
+
+    def list(self) -> list[SceneRecord]:
+        with self._lock:
+            return list(self._by_id.values())
+
+    def using_environment(self, env_id: str) -> list[str]:
+        with self._lock:
+            return [s.id for s in self._by_id.values() if s.environment.id == env_id]
+
+    def __len__(self) -> int:
+        return len(self._by_id)

@@ -1,0 +1,238 @@
+"""Frames: new vertex positions in, an image and per-stage timings out.
+
+* `POST /scenes/{id}/frames`: body = raw little-endian float32, `application/octet-stream`, laid out
+  as `X-Frame-Layout` (or `?layout=`) says (codecs.py: positions[,normals][,body_positions][,body_normals];
+  default: the garment's positions, V x 3). Answer: PNG (default), EXR (`Accept: image/x-exr` or
+  `?format=exr`) or JSON (`?format=json`: timings + base64 image), with `Server-Timing`.
+  `X-Frame-Index` (any integer) is echoed back; the server's own count is in `X-Frame-Sequence`.
+* `POST /scenes/{id}/frames/batch`: F frames back to back (F x the frame's bytes); the GL thread
+  renders them in one job while finished frames are encoded in parallel. Answer: JSON (default,
+  `{"frames": [{timings_ms, image: {base64}}, ...]}`) or a zip (`?format=zip`: frame_00000.png ...
+  + timings.json); `?image=exr` for EXR images in either.
+* `POST /render`: stateless one-shot, the whole scene (SceneCreate JSON, positions inline) in the
+  request; nothing stays on the GPU afterwards.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import json
+import time
+import zipfile
+from typing import Annotated
+
+import anyio
+from fastapi import APIRouter, Depends, Header, Query, Request, Response
+
+from renderer.cache import cache_key
+
+from ..codecs import FrameArrays, check_frame_size, decode_frame, frame_nbytes, parse_layout
+from ..deps import OCTET_STREAM, MetricsDep, ServicesDep, SettingsDep, WorkerDep, raw_body, require_token
+from ..errors import InvalidRequestError, PayloadTooLargeError, RenderTimeoutError
+from ..pipeline import (
+    encode_async,
+    frame_payload,
+    frame_response,
+    frame_timings,
+    negotiate,
+    render_job,
+    server_timing,
+)
+from ..operations import find_environment, find_scene
+from ..schemas import BatchFormat, ImageFormat, SceneCreate
+from ..specs import prepare_scene
+from ..worker import GLResources
+
+router = APIRouter(tags=["frames"], dependencies=[Depends(require_token)])
+
+_FRAME_BODY = {"requestBody": {"required": True, "content": {
+    OCTET_STREAM: {"schema": {"type": "string", "format": "binary",
+                              "description": "V x 3 little-endian float32 per block of X-Frame-Layout"}}}}}
+_IMAGE_RESPONSES = {200: {"content": {"image/png": {}, "image/x-exr": {}, "application/json": {}},
+                          "description": "the frame; per-stage timings (ms) in Server-Timing"}}
+
+FormatQuery = Annotated[ImageFormat | None, Query(description="png | exr | json (default: from Accept, else png)")]
+ExposureQuery = Annotated[float | None, Query(ge=-64, le=64, description="EV; overrides the scene's exposure")]
+JsonImageQuery = Annotated[ImageFormat, Query(description="image format inside JSON answers: png | exr")]
+LayoutHeader = Annotated[str | None, Header(alias="X-Frame-Layout", description="blocks of the body")]
+
+
+def _json_image(image: ImageFormat) -> ImageFormat:
+    if image is ImageFormat.JSON:
+        raise InvalidRequestError("?image= chooses the image inside JSON answers: png or exr")
+    return image
+
+
+@router.post("/scenes/{scene_id}/frames", response_class=Response, openapi_extra=_FRAME_BODY,
+             responses=_IMAGE_RESPONSES, summary="Render a frame of a registered scene from raw float32 positions")
+async def post_frame(
+    scene_id: str, request: Request, svc: ServicesDep, worker: WorkerDep, settings: SettingsDep,
+    metrics: MetricsDep, format: FormatQuery = None, exposure: ExposureQuery = None,
+    image: JsonImageQuery = ImageFormat.PNG,
+    layout: Annotated[str | None, Query(description="same as X-Frame-Layout")] = None,
+    x_frame_layout: LayoutHeader = None,
+    x_frame_index: Annotated[int | None, Header(alias="X-Frame-Index")] = None,
+) -> Response:
+    t_start = time.perf_counter()
+    scene = await find_scene(svc, scene_id)
+    fmt = negotiate(format, request)
+    json_image = _json_image(image)
+    blocks = parse_layout(x_frame_layout or layout, scene)
+    body = await raw_body(request, (OCTET_STREAM,), "a frame of vertex positions")
+    arrays = await anyio.to_thread.run_sync(decode_frame, body, blocks, scene)
+    result = await worker.call(render_job(scene, arrays))
+    frame, source = result.value
+    sequence = scene.count_frames()
+    enc = await encode_async(frame, fmt, scene.output, exposure, settings.png_compress_level, json_image)
+    timings = frame_timings(frame, arrays.decode_ms, arrays.normals_ms, result.queue_ms, result.run_ms,
+                            enc.encode_ms, t_start)
+    metrics.observe_frame("frames", fmt.value, timings)
+    index = x_frame_index if x_frame_index is not None else sequence - 1
+    response = frame_response(fmt, scene.id, index, frame, enc, timings, source)
+    response.headers["X-Frame-Sequence"] = str(sequence)
+    return response
+
+
+@router.post("/scenes/{scene_id}/frames/batch", response_class=Response, openapi_extra=_FRAME_BODY,
+             responses={200: {"content": {"application/json": {}, "application/zip": {}}}},
+             summary="Render a sequence of frames (F x the frame's bytes) in one request")
+async def post_batch(
+    scene_id: str, request: Request, svc: ServicesDep, worker: WorkerDep, settings: SettingsDep,
+    metrics: MetricsDep,
+    format: Annotated[BatchFormat | None, Query(description="json (default) | zip")] = None,
+    image: JsonImageQuery = ImageFormat.PNG, exposure: ExposureQuery = None,
+    layout: Annotated[str | None, Query(description="same as X-Frame-Layout")] = None,
+    x_frame_layout: LayoutHeader = None,
+) -> Response:
+    t_start = time.perf_counter()
+    scene = await find_scene(svc, scene_id)
+    if format is None:
+        format = BatchFormat.ZIP if "application/zip" in request.headers.get("accept", "") else BatchFormat.JSON
+    json_image = _json_image(image)
+    blocks = parse_layout(x_frame_layout or layout, scene)
+    body = await raw_body(request, (OCTET_STREAM,), "a batch of frames")
+    per_frame = frame_nbytes(blocks, scene)
+    if len(body) % per_frame:
+        raise InvalidRequestError(
+            f"batch body has {len(body)} bytes, not a whole number of frames of {per_frame} bytes (layout "
+            f"'{','.join(blocks)}', {scene.mesh('garment').n_vertices} garment vertices, float32): "
+            f"{len(body) / per_frame:.3f} frames")
+    n_frames = len(body) // per_frame
+    if n_frames > settings.max_batch_frames:
+        raise PayloadTooLargeError(f"batch of {n_frames} frames exceeds the limit {settings.max_batch_frames} "
+                                   "(GARMENT_RENDER_MAX_BATCH_FRAMES); split it")
+    view = memoryview(body)
+
+    def decode_all() -> list[FrameArrays]:
+        out = []
+        for i in range(n_frames):
+            chunk = view[i * per_frame:(i + 1) * per_frame]
+            check_frame_size(len(chunk), blocks, scene)
+            try:
+                out.append(decode_frame(chunk, blocks, scene))
+            except ValueError as e:  # MeshError / InvalidInputError: say which frame
+                raise type(e)(f"batch frame {i}: {e}") from None
+        return out
+
+    frames_in = await anyio.to_thread.run_sync(decode_all)
+
+    # One GL job renders every frame; each finished frame is handed to the event loop and encoded in
+    # a worker thread while the GL thread renders the next.
+    loop = asyncio.get_running_loop()
+    ready: asyncio.Queue = asyncio.Queue()
+    stop = False
+
+    def job(gl: GLResources) -> None:
+        for i, arrays in enumerate(frames_in):
+            if stop:
+                return
+            t0 = time.perf_counter()
+            try:
+                out = render_job(scene, arrays)(gl)
+            except BaseException as exc:  # noqa: BLE001 - reported to the request
+                loop.call_soon_threadsafe(ready.put_nowait, (i, exc, 0.0))
+                return
+            loop.call_soon_threadsafe(ready.put_nowait, (i, out, (time.perf_counter() - t0) * 1e3))
+
+    submitted = worker.submit(job)
+    results: list[dict] = []
+    zip_buf = io.BytesIO()
+    zf = zipfile.ZipFile(zip_buf, "w", zipfile.ZIP_STORED) if format is BatchFormat.ZIP else None
+    totals: dict[str, float] = {}
+    try:
+        for k in range(n_frames):
+            try:
+                i, out, job_ms = await asyncio.wait_for(ready.get(), settings.request_timeout_s)
+            except (TimeoutError, asyncio.TimeoutError):
+                raise RenderTimeoutError(f"batch frame {k} took longer than {settings.request_timeout_s:g} s") \
+                    from None
+            if isinstance(out, BaseException):
+                raise out
+            frame, source = out
+            queue_ms = submitted.queue_ms if k == 0 else 0.0
+            t_frame = time.perf_counter()
+            enc = await encode_async(frame, ImageFormat.JSON if zf is None else json_image, scene.output,
+                                     exposure, settings.png_compress_level, json_image)
+            arrays = frames_in[i]
+            timings = frame_timings(frame, arrays.decode_ms, arrays.normals_ms, max(queue_ms, 0.0), job_ms,
+                                    enc.encode_ms, t_frame)
+            for key, v in timings.items():
+                totals[key] = totals.get(key, 0.0) + v
+            metrics.observe_frame("batch", format.value, timings)
+            sequence = scene.count_frames()
+            if zf is not None:
+                ext = "exr" if enc.media_type == "image/x-exr" else "png"
+                zf.writestr(f"frame_{i:05d}.{ext}", enc.content)
+                results.append({"frame_index": i, "sequence": sequence, "exposure_ev": enc.exposure_ev,
+                                "timings_ms": timings})
+            else:
+                results.append(frame_payload(scene.id, i, frame, enc, timings, source))
+            frames_in[i] = None  # free the decoded arrays as we go
+    finally:
+        stop = True
+    totals["total"] = (time.perf_counter() - t_start) * 1e3
+    totals = {k: round(v, 3) for k, v in totals.items()}
+    headers = {"Server-Timing": server_timing(totals), "X-Frame-Count": str(n_frames), "Cache-Control": "no-store"}
+    if zf is not None:
+        zf.writestr("timings.json", json.dumps({"scene_id": scene.id, "frames": results, "timings_ms": totals}))
+        zf.close()
+        return Response(zip_buf.getvalue(), media_type="application/zip", headers=headers)
+    payload = {"scene_id": scene.id, "n_frames": n_frames, "timings_ms": totals, "frames": results}
+    return Response(json.dumps(payload), media_type="application/json", headers=headers)
+
+
+@router.post("/render", response_class=Response, responses=_IMAGE_RESPONSES,
+             summary="Stateless one-shot render: the whole scene, positions inline, in the request")
+async def render_once(
+    body: SceneCreate, request: Request, settings: SettingsDep, worker: WorkerDep, svc: ServicesDep,
+    metrics: MetricsDep, format: FormatQuery = None,
+    exposure: ExposureQuery = None, image: JsonImageQuery = ImageFormat.PNG,
+) -> Response:
+    t_start = time.perf_counter()
+    fmt = negotiate(format, request)
+    json_image = _json_image(image)
+    env = await find_environment(svc, body.environment_id)
+    t0 = time.perf_counter()
+    prepared = await anyio.to_thread.run_sync(prepare_scene, body, svc.presets, svc.meshes, settings)
+    decode_ms = (time.perf_counter() - t0) * 1e3
+    q = prepared.quality
+    cube = await anyio.to_thread.run_sync(env.cube, q.face_size)
+    key = cache_key(env.content_hash, q.face_size, q.pem)
+
+    def job(gl: GLResources):
+        pems, source = gl.pem_set(env.content_hash, cube, q.pem)
+        env.note_pem_set(key, q.face_size, q.pem, pems, source)
+        scene = gl.renderer.create_scene(prepared.meshes, prepared.materials)
+        try:
+            return gl.renderer.render(scene, pems, q.frame, prepared.camera), source
+        finally:
+            scene.release()
+
+    result = await worker.call(job)
+    frame, source = result.value
+    enc = await encode_async(frame, fmt, body.output.model_dump(), exposure, settings.png_compress_level, json_image)
+    timings = frame_timings(frame, decode_ms, 0.0, result.queue_ms, result.run_ms, enc.encode_ms, t_start)
+    metrics.observe_frame("render", fmt.value, timings)
+    return frame_response(fmt, None, None, frame, enc, timings, source)
+

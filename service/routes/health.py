@@ -1,0 +1,51 @@
+"""Operations: liveness, readiness (the GL context is up and its thread runs), Prometheus metrics
+(no token needed), and service statistics as JSON (token needed, like every other resource)."""
+
+from __future__ import annotations
+
+import os
+
+from fastapi import APIRouter, Depends, Response
+from fastapi.responses import JSONResponse
+from prometheus_client import CONTENT_TYPE_LATEST
+
+from ..deps import EnvironmentsDep, MeshesDep, MetricsDep, ScenesDep, SettingsDep, WorkerDep, require_token
+
+router = APIRouter(tags=["health"])
+stats_router = APIRouter(tags=["health"], dependencies=[Depends(require_token)])
+
+
+@router.get("/health/live", summary="The process answers")
+async def live() -> dict:
+    return {"status": "ok"}
+
+
+@router.get("/health/ready", summary="The GL context is up and the render thread runs (else 503)",
+            responses={503: {"description": "not ready; the body says why"}})
+async def ready(worker: WorkerDep) -> JSONResponse:
+    if worker.ready:
+        return JSONResponse({"status": "ready", "gl": worker.gl_info, "queue_depth": worker.queue_depth})
+    reason = str(worker.startup_error) if worker.startup_error else "the render thread is not running"
+    return JSONResponse({"status": "not ready", "detail": reason}, status_code=503, headers={"Retry-After": "5"})
+
+
+@router.get("/metrics", summary="Prometheus metrics", response_class=Response,
+            responses={200: {"content": {CONTENT_TYPE_LATEST: {}}}})
+async def metrics(m: MetricsDep) -> Response:
+    return Response(m.render(), media_type=CONTENT_TYPE_LATEST)
+
+
+@stats_router.get("/stats", summary="Queue, GL thread, PEM cache and registry statistics as JSON")
+async def stats(worker: WorkerDep, settings: SettingsDep, envs: EnvironmentsDep, scenes: ScenesDep,
+                meshes: MeshesDep) -> dict:
+    w = worker.stats
+    return {
+        "ready": worker.ready, "gl": worker.gl_info, "process": {"pid": os.getpid()},
+        "queue": {"depth": worker.queue_depth, "capacity": settings.queue_size, "busy": worker.busy},
+        "jobs": {"done": w.jobs_done, "failed": w.jobs_failed, "rejected": w.jobs_rejected,
+                 "busy_ms_total": round(w.busy_ms_total, 1), "run_ms_ema": round(w.run_ms_ema, 2)},
+        "pem_cache": {"name": "pem-sets", "max_bytes": settings.pem_cache_bytes,
+                      "disk_dir": str(settings.pem_cache_dir) if settings.pem_cache_dir else None,
+                      **worker.cache_stats().as_dict()},
+        "counts": {"environments": len(envs), "scenes": len(scenes), "meshes": len(meshes.list())},
+    }

@@ -1,0 +1,96 @@
+"""Mesh files (PLY/OBJ/GLB/glTF/STL) uploaded once, read by trimesh with the file's vertex order kept,
+then referenced by `mesh_id` when a scene is registered. Same bytes + options give the same id."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+from typing import Annotated, Literal
+
+import anyio
+from fastapi import APIRouter, Depends, Query, Request, Response, status
+
+from renderer.errors import MeshError
+from renderer.mesh import load_mesh
+
+from ..deps import OCTET_STREAM, MeshesDep, SettingsDep, media_type, raw_body, require_token
+from ..errors import InvalidRequestError
+from ..registry import MeshRecord
+from ..schemas import MeshInfo
+from ..specs import check_counts
+
+router = APIRouter(prefix="/meshes", tags=["meshes"], dependencies=[Depends(require_token)])
+
+_FORMAT_OF_MEDIA = {"model/obj": "obj", "text/plain": "obj", "application/ply": "ply", "model/ply": "ply",
+                    "model/gltf-binary": "glb", "model/gltf+json": "gltf", "model/stl": "stl",
+                    "application/sla": "stl", "model/x.stl-binary": "stl"}
+MESH_MEDIA_TYPES = (OCTET_STREAM, *_FORMAT_OF_MEDIA)
+
+MeshFormat = Literal["obj", "ply", "glb", "gltf", "stl"]
+
+
+def mesh_info(rec: MeshRecord) -> MeshInfo:
+    s = rec.mesh.stats()
+    return MeshInfo(id=rec.id, name=rec.mesh.name, format=rec.format, n_vertices=s.n_vertices, n_faces=s.n_faces,
+                    has_uvs=rec.mesh.uvs is not None, bounds=s.bounds, n_degenerate=s.n_degenerate,
+                    n_unreferenced=s.n_unreferenced)
+
+
+def _load(data: bytes, fmt: str, up: str, scale: float, name: str):
+    fd, tmp = tempfile.mkstemp(suffix="." + fmt, prefix="mesh-")
+    path = Path(tmp)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        try:
+            mesh = load_mesh(path, up=up, scale=scale)
+        except MeshError as e:
+            raise MeshError(str(e).replace(str(path), f"uploaded {fmt.upper()} {name!r}")) from None
+    finally:
+        path.unlink(missing_ok=True)
+    from renderer.mesh import Mesh
+
+    return Mesh.from_arrays(mesh.positions, mesh.faces, mesh.uvs, name=name)
+
+
+@router.post("", response_model=MeshInfo, status_code=status.HTTP_201_CREATED,
+             openapi_extra={"requestBody": {"required": True, "content": {
+                 OCTET_STREAM: {"schema": {"type": "string", "format": "binary"}}}}},
+             summary="Upload a mesh file (vertex order kept) for POST /scenes {garment: {mesh_id}}")
+async def upload_mesh(
+    request: Request, settings: SettingsDep, meshes: MeshesDep,
+    format: Annotated[MeshFormat | None, Query(description="file format; default from the Content-Type")] = None,
+    up: Literal["y", "z"] = "y",
+    scale: Annotated[float, Query(gt=0, description="multiplies positions (0.01 for centimetres)")] = 1.0,
+    name: Annotated[str | None, Query(max_length=200)] = None,
+) -> MeshInfo:
+    data = await raw_body(request, MESH_MEDIA_TYPES, "a mesh file")
+    fmt = format or _FORMAT_OF_MEDIA.get(media_type(request))
+    if fmt is None:
+        raise InvalidRequestError("say the mesh file's format with ?format=obj|ply|glb|gltf|stl "
+                                  "(or a model/* Content-Type)")
+    digest = hashlib.sha256(data + f"|{fmt}|{up}|{scale!r}".encode()).hexdigest()
+    label = name or f"mesh-{digest[:8]}"
+    mesh = await anyio.to_thread.run_sync(_load, data, fmt, up, scale, label)
+    check_counts(mesh.n_vertices, mesh.n_faces, label, settings)
+    rec = meshes.add(MeshRecord(id="msh_" + digest[:16], mesh=mesh, file_sha256=digest, format=fmt, up=up,
+                                scale=scale))
+    return await anyio.to_thread.run_sync(mesh_info, rec)
+
+
+@router.get("", response_model=list[MeshInfo], summary="List uploaded mesh files")
+async def list_meshes(meshes: MeshesDep) -> list[MeshInfo]:
+    return [mesh_info(r) for r in meshes.list()]
+
+
+@router.get("/{mesh_id}", response_model=MeshInfo)
+async def get_mesh(mesh_id: str, meshes: MeshesDep) -> MeshInfo:
+    return mesh_info(meshes.get(mesh_id))
+
+
+@router.delete("/{mesh_id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response)
+async def delete_mesh(mesh_id: str, meshes: MeshesDep) -> Response:
+    meshes.remove(mesh_id)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

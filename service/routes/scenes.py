@@ -1,0 +1,53 @@
+"""Scenes: a garment (and optionally a body) registered once (topology, UVs, materials, camera,
+environment, quality, image size), then rendered frame after frame with new positions
+(routes/frames.py). The GPU side lives on the GL thread; with a state directory a scene is restored
+by id in any process (operations.find_scene)."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends, Response, status
+
+from .. import operations
+from ..deps import ScenesDep, ServicesDep, require_token
+from ..registry import SceneRecord
+from ..schemas import SceneCreate, SceneInfo, SceneMeshOut
+from ..specs import camera_dict
+from .environments import pem_set_info
+
+router = APIRouter(prefix="/scenes", tags=["scenes"], dependencies=[Depends(require_token)])
+
+
+def scene_info(rec: SceneRecord) -> SceneInfo:
+    pem = rec.environment.pem_sets.get(rec.pem_key)
+    return SceneInfo(
+        id=rec.id, name=rec.name, environment_id=rec.environment.id, up=rec.up,
+        meshes=[SceneMeshOut(role=m.role, name=m.name, n_vertices=m.n_vertices, n_faces=m.n_faces, has_uvs=m.has_uvs,
+                             frame_bytes=12 * m.n_vertices) for m in rec.meshes],
+        quality=rec.quality, output=rec.output, camera=camera_dict(rec.camera),
+        pem_set=pem_set_info(rec.environment, pem, with_lights=False) if pem else None,
+        frames_rendered=rec.frames_rendered, created=rec.created)
+
+
+@router.post("", response_model=SceneInfo, status_code=status.HTTP_201_CREATED,
+             summary="Register a scene (JSON: meshes inline or by mesh_id, materials, camera, quality, size)")
+async def create_scene(body: SceneCreate, svc: ServicesDep) -> SceneInfo:
+    """Positions given here (and in every frame) are in the scene's `up` axis; mesh files were rotated
+    at upload. Without a camera, one framing the initial meshes from +Z is fixed for the scene's life."""
+    return scene_info(await operations.create_scene(svc, body))
+
+
+@router.get("", response_model=list[SceneInfo], summary="List the scenes of this process")
+async def list_scenes(scenes: ScenesDep) -> list[SceneInfo]:
+    return [scene_info(s) for s in scenes.list()]
+
+
+@router.get("/{scene_id}", response_model=SceneInfo)
+async def get_scene(scene_id: str, svc: ServicesDep) -> SceneInfo:
+    return scene_info(await operations.find_scene(svc, scene_id))
+
+
+@router.delete("/{scene_id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response,
+               summary="Release a scene's GPU resources (and forget it in the state directory)")
+async def delete_scene(scene_id: str, svc: ServicesDep) -> Response:
+    await operations.delete_scene(svc, scene_id)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -1,0 +1,234 @@
+"""Request and response models (pydantic). Arrays travel as nested lists in JSON; per-frame vertex
+positions travel as raw little-endian float32 bytes (see routes/frames.py), never as JSON."""
+
+from __future__ import annotations
+
+from enum import Enum
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+
+class Preset(str, Enum):
+    FAST = "fast"
+    BALANCED = "balanced"
+    ACCURATE = "accurate"
+
+
+class FilterName(str, Enum):
+    NONE = "none"
+    BOX = "box"
+    GAUSS = "gauss"
+    COSINE = "cosine"
+    SQRT_COSINE = "sqrt-cosine"
+
+
+class LayoutName(str, Enum):
+    AUTO = "auto"
+    LATLONG = "latlong"
+    ANGULAR = "angular"
+    HCROSS = "hcross"
+    VCROSS = "vcross"
+
+
+class ModeName(str, Enum):
+    FULL = "full"
+    NONE = "none"
+    AO = "ao"
+    AO_COLOR = "ao-color"
+    MANY_LIGHTS = "many-lights"
+
+
+class ImageFormat(str, Enum):
+    PNG = "png"
+    EXR = "exr"
+    JSON = "json"
+
+
+class BatchFormat(str, Enum):
+    JSON = "json"
+    ZIP = "zip"
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+# -- quality and output --------------------------------------------------------------------------
+
+
+class QualitySpec(_Strict):
+    """A preset, refined by explicit knobs (each overrides the preset's value)."""
+
+    preset: Preset | None = Field(None, description="fast | balanced | accurate; default: the service's default")
+    lights: int | None = Field(None, description="median-cut regions = lights, 6 * 2^k", ge=6, le=384)
+    face_size: int | None = Field(None, description="PEM cube face size, a power of two", ge=4, le=2048)
+    filter: FilterName = FilterName.SQRT_COSINE
+    levels: int | None = Field(None, ge=1, le=12, description="MIP levels built (default: the full chain)")
+    shadow_size: int | None = Field(None, ge=16, le=4096, description="shadow-map size per light")
+    blur_scale: float | None = Field(None, ge=0.0, le=100.0, description="shadow blur scale (0: hard)")
+    bleed_reduction: float = Field(0.2, ge=0.0, lt=1.0)
+    shadow_threshold: float = Field(0.0, ge=0.0, le=1.0)
+    mode: ModeName = ModeName.FULL
+
+
+class OutputSpec(_Strict):
+    width: int = Field(512, ge=1)
+    height: int = Field(512, ge=1)
+    background: Literal["env", "black"] = "env"
+    exposure_ev: float | None = Field(None, description="fixed exposure in stops; null: automatic per frame")
+    tone: Literal["filmic", "reinhard", "linear"] = "filmic"
+
+
+class CameraSpec(_Strict):
+    eye: tuple[float, float, float]
+    target: tuple[float, float, float]
+    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    fov_y_deg: float = 35.0
+
+
+# -- meshes and materials --------------------------------------------------------------------------
+
+
+class MaterialSpec(_Strict):
+    """Scalars or per-vertex lists; maps are (H, W, 3) / (H, W, 2) nested lists and need mesh UVs."""
+
+    albedo: list[float] | list[list[float]] = Field([0.8, 0.8, 0.8], description="linear RGB (3,) or (V, 3)")
+    specular: float | list[float] = Field(0.0, description="glossy lobe weight, scalar or (V,)")
+    glossiness: float | list[float] = Field(0.5, description="paper's g in [0, 1], scalar or (V,)")
+    albedo_map: list[list[list[float]]] | None = None
+    gloss_map: list[list[list[float]]] | None = None
+
+
+class MeshSpec(_Strict):
+    """Either `mesh_id` (a file uploaded with POST /meshes) or inline `positions` + `faces`."""
+
+    mesh_id: str | None = None
+    name: str | None = None
+    positions: list[list[float]] | None = Field(None, description="(V, 3) initial positions, in the scene's up axis")
+    faces: list[list[int]] | None = Field(None, description="(F, 3) 0-based vertex indices, counter-clockwise")
+    uvs: list[list[float]] | None = Field(None, description="(V, 2) per-vertex texture coordinates")
+    material: MaterialSpec = Field(default_factory=MaterialSpec)
+
+    @model_validator(mode="after")
+    def _one_source(self) -> MeshSpec:
+        inline = self.positions is not None or self.faces is not None
+        if self.mesh_id is not None and inline:
+            raise ValueError("give either mesh_id or positions + faces, not both")
+        if self.mesh_id is None and (self.positions is None or self.faces is None):
+            raise ValueError("a mesh needs mesh_id, or both positions and faces")
+        return self
+
+
+class SceneCreate(_Strict):
+    """A scene: the garment (and optionally a body), lit by an uploaded environment map."""
+
+    name: str = "scene"
+    environment_id: str
+    up: Literal["y", "z"] = Field("y", description="up axis of inline positions, every frame and the camera")
+    garment: MeshSpec
+    body: MeshSpec | None = None
+    camera: CameraSpec | None = Field(None, description="default: frames the initial meshes from +Z (fixed)")
+    quality: QualitySpec = Field(default_factory=QualitySpec)
+    output: OutputSpec = Field(default_factory=OutputSpec)
+
+
+# -- answers ---------------------------------------------------------------------------------------
+
+
+class LightInfo(BaseModel):
+    direction: tuple[float, float, float]
+    energy_rgb: tuple[float, float, float]
+    energy_share: float
+    solid_angle_sr: float
+
+
+class PemSetInfo(BaseModel):
+    key: str
+    face_size: int
+    n_lights: int
+    filter: str
+    levels: int
+    source: str = Field(description="where the first request for it found it: built, disk or memory")
+    build_ms: float
+    median_cut_ms: float
+    bytes: int
+    lights: list[LightInfo] | None = None
+    preview_url: str
+
+
+class EnvironmentInfo(BaseModel):
+    id: str
+    name: str
+    layout: str
+    width: int
+    height: int
+    content_hash: str
+    file_sha256: str
+    repair: bool
+    texel_report: dict | None
+    decode_ms: float
+    created: float
+    pem_sets: list[PemSetInfo]
+    scenes: list[str] = []
+    cached: bool = Field(False, description="true when this upload matched an earlier one (nothing rebuilt)")
+
+
+class MeshInfo(BaseModel):
+    id: str
+    name: str
+    format: str
+    n_vertices: int
+    n_faces: int
+    has_uvs: bool
+    bounds: tuple[tuple[float, float, float], tuple[float, float, float]]
+    n_degenerate: int
+    n_unreferenced: int
+
+
+class SceneMeshOut(BaseModel):
+    role: str
+    name: str
+    n_vertices: int
+    n_faces: int
+    has_uvs: bool
+    frame_bytes: int = Field(description="bytes of one block of positions (or normals): V x 3 x 4")
+
+
+class SceneInfo(BaseModel):
+    id: str
+    name: str
+    environment_id: str
+    up: str
+    meshes: list[SceneMeshOut]
+    quality: dict[str, Any]
+    output: dict[str, Any]
+    camera: dict[str, Any]
+    pem_set: PemSetInfo | None
+    frames_rendered: int
+    created: float
+    default_layout: str = "positions"
+
+
+class FrameImage(BaseModel):
+    format: str
+    media_type: str
+    base64: str
+
+
+class FrameOut(BaseModel):
+    scene_id: str | None
+    frame_index: int | None
+    width: int
+    height: int
+    exposure_ev: float | None
+    timings_ms: dict[str, float]
+    render: dict[str, Any]
+    image: FrameImage
+
+
+class BatchOut(BaseModel):
+    scene_id: str
+    n_frames: int
+    timings_ms: dict[str, float]
+    frames: list[FrameOut]

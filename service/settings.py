@@ -1,0 +1,50 @@
+"""Service settings, read from the environment (prefix GARMENT_RENDER_) by pydantic-settings.
+
+The app factory takes a `ServiceSettings` and stores it on the app; handlers get it injected
+(`deps.SettingsDep`). There is no module-level instance: tests build apps with their own settings.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, SecretStr
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class ServiceSettings(BaseSettings):
+    """Every limit of the service. Sizes in bytes, times in seconds."""
+
+    model_config = SettingsConfigDict(env_prefix="GARMENT_RENDER_", extra="ignore")
+
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=0, le=65535)
+
+    # Request bodies (environment maps, mesh files, frames, batches, scene JSON): checked against the
+    # Content-Length header and against the bytes actually streamed.
+    max_upload_bytes: int = Field(256 << 20, ge=1024)
+    max_vertices: int = Field(2_000_000, ge=3, description="per mesh")
+    max_faces: int = Field(4_000_000, ge=1, description="per mesh")
+    max_image_side: int = Field(4096, ge=16, le=8192, description="largest rendered width or height, pixels")
+    max_env_pixels: int = Field(64 << 20, ge=64, description="largest uploaded environment map, width x height")
+    max_batch_frames: int = Field(1000, ge=1)
+    max_scenes: int = Field(64, ge=1)
+    max_environments: int = Field(32, ge=1)
+    max_meshes: int = Field(32, ge=1, description="uploaded mesh files kept for scene registration")
+
+    queue_size: int = Field(8, ge=1, description="jobs waiting for the GL thread; beyond it: 503 + Retry-After")
+    request_timeout_s: float = Field(120.0, gt=0, description="wait for the GL thread (queue + render), then 504")
+
+    pem_cache_bytes: int = Field(1 << 30, ge=0, description="GPU memory of PEM sets kept resident (LRU)")
+    pem_cache_dir: Path | None = Field(None, description="PEM sets persisted here; None: memory only")
+
+    state_dir: Path | None = Field(
+        None, description="environments and scenes kept here, so every worker process (and a restarted service) "
+                          "can restore them by id; None: in the memory of the process that made them")
+
+    token: SecretStr | None = Field(None, description="bearer token required on every endpoint but health")
+
+    default_preset: Literal["fast", "balanced", "accurate"] = "balanced"
+    png_compress_level: int = Field(1, ge=0, le=9, description="zlib level of served PNGs (1: ~3x faster than 6)")
+    startup_timeout_s: float = Field(60.0, gt=0, description="wait for the GL context at startup")

@@ -1,0 +1,151 @@
+"""From request models to validated renderer objects: meshes, materials, camera, quality. Runs in
+worker threads of the request handlers (validation touches every vertex), never on the GL thread,
+so that the GL job that creates a scene cannot fail half-way on bad input."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from renderer.camera import Camera, frame_meshes
+from renderer.lighting.filters import Filter
+from renderer.lighting.median_cut import regions_per_face
+from renderer.lighting.pem import PEMSettings
+from renderer.errors import MeshError
+from renderer.mesh import Mesh, z_up_to_y_up
+from renderer.renderer import Background, FrameSettings, ShadingMode
+from renderer.shading.material import Material
+
+from .errors import InvalidRequestError, PayloadTooLargeError
+from .registry import MeshStore
+from .schemas import CameraSpec, MaterialSpec, MeshSpec, OutputSpec, QualitySpec, SceneCreate
+from .settings import ServiceSettings
+
+
+@dataclass
+class Quality:
+    face_size: int
+    pem: PEMSettings
+    frame: FrameSettings
+    info: dict  # the resolved knobs and where they came from
+
+
+def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: ServiceSettings) -> Quality:
+    name = q.preset.value if q.preset is not None else settings.default_preset
+    knobs = dict(presets[name])
+    for key in ("lights", "face_size", "shadow_size", "blur_scale"):
+        value = getattr(q, key)
+        if value is not None:
+            knobs[key] = value
+    regions_per_face(int(knobs["lights"]))  # InvalidInputError naming the valid counts
+    fs = int(knobs["face_size"])
+    if fs & (fs - 1):
+        raise InvalidRequestError(f"quality.face_size must be a power of two (4..2048), got {fs}")
+    for side, value in (("width", out.width), ("height", out.height)):
+        if value > settings.max_image_side:
+            raise InvalidRequestError(f"output.{side} {value} exceeds the limit {settings.max_image_side} "
+                                      "(GARMENT_RENDER_MAX_IMAGE_SIDE)")
+    frame = FrameSettings(width=out.width, height=out.height, shadow_size=int(knobs["shadow_size"]),
+                          blur_scale=float(knobs["blur_scale"]), bleed_reduction=q.bleed_reduction,
+                          shadow_threshold=q.shadow_threshold, mode=ShadingMode(q.mode.value),
+                          background=Background(out.background))
+    pem = PEMSettings(int(knobs["lights"]), Filter(q.filter.value), q.levels)
+    info = {"preset": name, "lights": pem.n_lights, "face_size": fs, "filter": pem.filter.value,
+            "levels": q.levels, "shadow_size": frame.shadow_size, "blur_scale": frame.blur_scale,
+            "bleed_reduction": frame.bleed_reduction, "shadow_threshold": frame.shadow_threshold,
+            "mode": frame.mode.value}
+    return Quality(fs, pem, frame, info)
+
+
+def check_counts(n_vertices: int, n_faces: int, role: str, settings: ServiceSettings) -> None:
+    if n_vertices > settings.max_vertices:
+        raise PayloadTooLargeError(f"{role}: {n_vertices} vertices exceed the limit {settings.max_vertices} "
+                                   "(GARMENT_RENDER_MAX_VERTICES)")
+    if n_faces > settings.max_faces:
+        raise PayloadTooLargeError(f"{role}: {n_faces} faces exceed the limit {settings.max_faces} "
+                                   "(GARMENT_RENDER_MAX_FACES)")
+
+
+def build_mesh(spec: MeshSpec, role: str, up: str, meshes: MeshStore, settings: ServiceSettings) -> Mesh:
+    """The Mesh of a spec: an uploaded file (already Y-up) or inline arrays in the scene's up axis."""
+    if spec.mesh_id is not None:
+        mesh = meshes.get(spec.mesh_id).mesh
+        check_counts(mesh.n_vertices, mesh.n_faces, role, settings)
+        return mesh
+    check_counts(len(spec.positions), len(spec.faces), role, settings)
+    name = spec.name or role
+    if not spec.positions or not spec.faces:
+        # Caught here: an empty JSON list has shape (0,), which the renderer would call a flat array.
+        raise MeshError(f"mesh '{name}' ({role}) is empty: {len(spec.positions)} vertices, {len(spec.faces)} faces")
+    positions = np.asarray(spec.positions, dtype=np.float64) if _rectangular(spec.positions) else spec.positions
+    if up == "z" and isinstance(positions, np.ndarray) and positions.ndim == 2 and positions.shape[1:] == (3,):
+        positions = z_up_to_y_up(positions)
+    return Mesh.from_arrays(positions, np.asarray(spec.faces) if _rectangular(spec.faces) else spec.faces,
+                            spec.uvs, name=name)
+
+
+def _rectangular(rows: list) -> bool:
+    return bool(rows) and len({len(r) for r in rows}) == 1
+
+
+def build_material(spec: MaterialSpec, mesh: Mesh, role: str) -> Material:
+    """A Material checked against its mesh (shapes, ranges, maps need UVs) before any GL work."""
+    def arr(x):
+        return None if x is None else np.asarray(x, np.float32) if _rectangular_any(x) else _ragged(role, x)
+
+    mat = Material(albedo=arr(spec.albedo), specular=arr(spec.specular), glossiness=arr(spec.glossiness),
+                   albedo_map=arr(spec.albedo_map), gloss_map=arr(spec.gloss_map))
+    try:
+        mat.vertex_arrays(mesh.n_vertices)
+        mat.maps()
+    except ValueError as e:  # InvalidInputError is a ValueError
+        raise type(e)(f"{role} material: {e}") from None
+    if (spec.albedo_map is not None or spec.gloss_map is not None) and mesh.uvs is None:
+        raise InvalidRequestError(f"{role} material has texture maps but the mesh has no UVs; send uvs (V, 2)")
+    return mat
+
+
+def _rectangular_any(x) -> bool:
+    try:
+        np.asarray(x, np.float32)
+        return True
+    except ValueError:
+        return False
+
+
+def _ragged(role: str, x):
+    raise InvalidRequestError(f"{role} material: an array is ragged (rows of different lengths)")
+
+
+def build_camera(spec: CameraSpec | None, up: str, meshes: list[Mesh], aspect: float) -> Camera:
+    """The scene's fixed camera: the given one (rotated to Y-up), or one framing the initial meshes."""
+    if spec is None:
+        return frame_meshes(meshes, aspect)
+    vecs = [np.asarray(v, np.float64) for v in (spec.eye, spec.target, spec.up)]
+    if up == "z":
+        vecs = [z_up_to_y_up(v).astype(np.float64) for v in vecs]
+    return Camera(*(tuple(float(c) for c in v) for v in vecs), fov_y_deg=spec.fov_y_deg)
+
+
+def camera_dict(camera: Camera) -> dict:
+    return {"eye": [float(c) for c in camera.eye], "target": [float(c) for c in camera.target],
+            "up": [float(c) for c in camera.up], "fov_y_deg": camera.fov_y_deg, "space": "world, Y-up"}
+
+
+@dataclass
+class PreparedScene:
+    meshes: list[Mesh]
+    roles: list[str]
+    materials: list[Material]
+    camera: Camera
+    quality: Quality
+
+
+def prepare_scene(body: SceneCreate, presets: dict, meshes: MeshStore, settings: ServiceSettings) -> PreparedScene:
+    quality = resolve_quality(body.quality, body.output, presets, settings)
+    specs = [("garment", body.garment)] + ([("body", body.body)] if body.body is not None else [])
+    built = [build_mesh(spec, role, body.up, meshes, settings) for role, spec in specs]
+    materials = [build_material(spec.material, mesh, role) for (role, spec), mesh in zip(specs, built)]
+    camera = build_camera(body.camera, body.up, built, body.output.width / body.output.height)
+    return PreparedScene(built, [r for r, _ in specs], materials, camera, quality)

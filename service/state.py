@@ -1,0 +1,73 @@
+"""Environment maps and scenes written to a state directory (GARMENT_RENDER_STATE_DIR), so that any
+process of the service (uvicorn --workers N, each with its own GL context and memory) and a
+restarted one can restore them on first use, by id. Without a state directory they live in the
+memory of the process that made them.
+
+Layout: environments/<id>.json (how it was uploaded) + environments/<id>.<exr|hdr> (the bytes as
+uploaded); scenes/<id>.json (the SceneCreate body, meshes inline). Files are written to a temporary
+name and renamed, so a reader never sees half a file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _safe_id(item_id: str) -> str:
+    if not item_id or not all(c.isalnum() or c == "_" for c in item_id):
+        raise ValueError(f"not an id: {item_id!r}")
+    return item_id
+
+
+class StateDir:
+    def __init__(self, root: Path):
+        self.root = Path(root)
+        self.environments = self.root / "environments"
+        self.scenes = self.root / "scenes"
+        self.environments.mkdir(parents=True, exist_ok=True)
+        self.scenes.mkdir(parents=True, exist_ok=True)
+
+    # -- environments ----------------------------------------------------------------------------
+    def save_environment(self, env_id: str, data: bytes, meta: dict) -> None:
+        env_id = _safe_id(env_id)
+        _atomic_write(self.environments / f"{env_id}.{meta['kind']}", data)
+        _atomic_write(self.environments / f"{env_id}.json", json.dumps(meta).encode())
+
+    def load_environment(self, env_id: str) -> tuple[bytes, dict] | None:
+        try:
+            env_id = _safe_id(env_id)
+            meta = json.loads((self.environments / f"{env_id}.json").read_text())
+            return (self.environments / f"{env_id}.{meta['kind']}").read_bytes(), meta
+        except (OSError, ValueError, KeyError):
+            return None
+
+    def delete_environment(self, env_id: str) -> None:
+        for p in self.environments.glob(f"{_safe_id(env_id)}.*"):
+            p.unlink(missing_ok=True)
+
+    # -- scenes ----------------------------------------------------------------------------------
+    def save_scene(self, scene_id: str, body_json: str) -> None:
+        _atomic_write(self.scenes / f"{_safe_id(scene_id)}.json", body_json.encode())
+
+    def load_scene(self, scene_id: str) -> str | None:
+        try:
+            return (self.scenes / f"{_safe_id(scene_id)}.json").read_text()
+        except (OSError, ValueError):
+            return None
+
+    def delete_scene(self, scene_id: str) -> None:
+        (self.scenes / f"{_safe_id(scene_id)}.json").unlink(missing_ok=True)

@@ -1,0 +1,235 @@
+"""The render worker: the one thread per process that owns the GL context.
+
+It creates the `Renderer` and the `PEMCache` on its own thread (a context is bound to the thread that
+made it; the renderer checks this on every call) and then runs jobs from a bounded queue, one at a
+time. A job is a function of `GLResources`; its result comes back through a future. Everything that
+does not need GL (decoding request bodies, validating meshes, normals, tone mapping and PNG/EXR
+encoding) happens in the request handlers, off this thread, so the GL thread only uploads, renders
+and reads back.
+
+A full queue raises `QueueFullError` (503 + Retry-After) instead of waiting: a simulator retries, and
+the service never holds an unbounded backlog. Scale by processes (uvicorn --workers N), each with its
+own worker.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+from renderer.cache import CacheStats, PEMCache
+from renderer.errors import GLContextError
+from renderer.lighting.pem import PEMSet, PEMSettings
+from renderer.renderer import Renderer
+
+from .errors import NotReadyError, QueueFullError, RenderTimeoutError
+from .settings import ServiceSettings
+
+log = logging.getLogger("service.worker")
+
+T = TypeVar("T")
+
+
+@dataclass
+class GLResources:
+    """What a job may use; only ever touched on the worker's thread."""
+
+    renderer: Renderer
+    cache: PEMCache
+
+    def pem_set(self, content_hash: str, cube, settings: PEMSettings) -> tuple[PEMSet, str]:
+        """The PEM set from the cache and where it came from: "memory", "disk" or "built".
+
+        Fetched again for every frame rather than held by a scene: the cache may have evicted (and
+        released) it for another map since the last frame."""
+        before = self.cache.stats.as_dict()
+        pems = self.cache.get(content_hash, cube, settings)
+        after = self.cache.stats
+        if after.hits > before["hits"]:
+            return pems, "memory"
+        if after.disk_hits > before["disk_hits"]:
+            return pems, "disk"
+        return pems, "built"
+
+
+@dataclass
+class Job:
+    """A submitted job: its future and when it was queued, started and finished (perf_counter s)."""
+
+    fn: Callable[[GLResources], Any]
+    future: Future
+    enqueued: float
+    started: float = 0.0
+    finished: float = 0.0
+
+    @property
+    def queue_ms(self) -> float:
+        return (self.started - self.enqueued) * 1e3 if self.started else 0.0
+
+
+@dataclass
+class JobResult:
+    value: Any
+    queue_ms: float
+    run_ms: float
+
+
+@dataclass
+class WorkerStats:
+    jobs_done: int = 0
+    jobs_failed: int = 0
+    jobs_rejected: int = 0
+    busy_ms_total: float = 0.0
+    run_ms_ema: float = 0.0  # exponential moving average of a job's run time (Retry-After estimate)
+    cache: dict = field(default_factory=dict)
+
+
+class RenderWorker:
+    """Start with `start()` (blocks until the GL context is up or failed), stop with `stop()`."""
+
+    def __init__(self, settings: ServiceSettings):
+        self.settings = settings
+        self._queue: queue.Queue[Job | None] = queue.Queue(maxsize=settings.queue_size)
+        self._thread = threading.Thread(target=self._run, name="gl-render", daemon=True)
+        self._ready = threading.Event()
+        self._stopping = threading.Event()
+        self._gl: GLResources | None = None
+        self.startup_error: Exception | None = None
+        self.gl_info: dict = {}
+        self.stats = WorkerStats()
+        self._running_since: float | None = None
+        self._cleanup: list[Callable[[GLResources], None]] = []
+
+    # -- lifecycle (called from the app's lifespan) ---------------------------------------------
+    def start(self) -> None:
+        self._thread.start()
+        if not self._ready.wait(self.settings.startup_timeout_s):
+            self.startup_error = GLContextError(
+                f"the GL context was not up within {self.settings.startup_timeout_s} s")
+        if self.startup_error is not None:
+            log.error("render worker not ready: %s", self.startup_error)
+
+    def stop(self, timeout: float = 30.0) -> None:
+        """Fail the jobs still queued, let the running one finish, release every GL object."""
+        self._stopping.set()
+        while True:
+            try:
+                job = self._queue.get_nowait()
+            except queue.Empty:
+                break
+            if job is not None and job.future.set_running_or_notify_cancel():
+                job.future.set_exception(NotReadyError("the service is shutting down"))
+        try:
+            self._queue.put(None, timeout=timeout)
+        except queue.Full:  # pragma: no cover - the thread is wedged; it is a daemon
+            pass
+        if self._thread.is_alive():
+            self._thread.join(timeout)
+
+    def on_shutdown(self, fn: Callable[[GLResources], None]) -> None:
+        """Run `fn` on the GL thread before the context goes (release scenes the app still holds)."""
+        self._cleanup.append(fn)
+
+    @property
+    def ready(self) -> bool:
+        return self._ready.is_set() and self.startup_error is None and self._thread.is_alive() \
+            and not self._stopping.is_set()
+
+    @property
+    def queue_depth(self) -> int:
+        return self._queue.qsize()
+
+    @property
+    def busy(self) -> bool:
+        return self._running_since is not None
+
+    def cache_stats(self) -> CacheStats:
+        """A copy of the PEM cache statistics (ints read without a lock: a snapshot, possibly one job stale)."""
+        return CacheStats(**self._gl.cache.stats.as_dict()) if self._gl is not None else CacheStats()
+
+    # -- submitting ------------------------------------------------------------------------------
+    def submit(self, fn: Callable[[GLResources], T]) -> Job:
+        """Queue `fn` for the GL thread; QueueFullError (503) when the queue is full."""
+        if not self.ready:
+            reason = self.startup_error or "the render worker is not running"
+            raise NotReadyError(f"the renderer is not ready: {reason}")
+        job = Job(fn, Future(), time.perf_counter())
+        try:
+            self._queue.put_nowait(job)
+        except queue.Full:
+            self.stats.jobs_rejected += 1
+            depth = self.settings.queue_size + (1 if self.busy else 0)
+            retry = max(1.0, depth * self.stats.run_ms_ema / 1e3)
+            raise QueueFullError(
+                f"the render queue is full ({self.settings.queue_size} jobs waiting for the GL thread); "
+                f"retry after the Retry-After delay, or run more service processes", retry) from None
+        return job
+
+    async def call(self, fn: Callable[[GLResources], T], timeout: float | None = None) -> JobResult:
+        """Run `fn` on the GL thread and await it; a job still queued at the timeout is dropped."""
+        job = self.submit(fn)
+        fut = job.future
+        timeout = self.settings.request_timeout_s if timeout is None else timeout
+        try:
+            value = await asyncio.wait_for(asyncio.wrap_future(fut), timeout)
+        except (TimeoutError, asyncio.TimeoutError):
+            fut.cancel()  # only succeeds while queued; a running job finishes and is discarded
+            raise RenderTimeoutError(
+                f"no answer from the GL thread within {timeout:g} s (queue depth {self.queue_depth}); "
+                "lower the quality or the image size, or raise GARMENT_RENDER_REQUEST_TIMEOUT_S") from None
+        return JobResult(value, job.queue_ms, (job.finished - job.started) * 1e3)
+
+    # -- the GL thread -----------------------------------------------------------------------------
+    def _run(self) -> None:
+        try:
+            renderer = Renderer()
+            cache = PEMCache(renderer.gl, self.settings.pem_cache_bytes, self.settings.pem_cache_dir,
+                             name="pem-sets")
+        except Exception as exc:  # GLContextError, or an unwritable cache dir
+            self.startup_error = exc
+            self._ready.set()
+            return
+        self._gl = GLResources(renderer, cache)
+        self.gl_info = renderer.gl.info()
+        self._ready.set()
+        try:
+            while True:
+                job = self._queue.get()
+                if job is None:
+                    break
+                if not job.future.set_running_or_notify_cancel():
+                    continue  # timed out while queued
+                job.started = time.perf_counter()
+                self._running_since = job.started
+                try:
+                    result = job.fn(self._gl)
+                except BaseException as exc:  # noqa: BLE001 - every failure goes back to its request
+                    job.finished = time.perf_counter()
+                    self.stats.jobs_failed += 1
+                    job.future.set_exception(exc)
+                else:
+                    job.finished = time.perf_counter()
+                    self.stats.jobs_done += 1
+                    job.future.set_result(result)
+                finally:
+                    self._running_since = None
+                run_ms = (job.finished - job.started) * 1e3
+                self.stats.busy_ms_total += run_ms
+                ema = self.stats.run_ms_ema
+                self.stats.run_ms_ema = run_ms if ema == 0.0 else 0.8 * ema + 0.2 * run_ms
+        finally:
+            for fn in self._cleanup:
+                try:
+                    fn(self._gl)
+                except Exception:  # pragma: no cover
+                    log.exception("cleanup on the GL thread failed")
+            cache.clear()
+            renderer.release()
+            self._gl = None

@@ -1,0 +1,100 @@
+"""Start the real service (uvicorn, `python -m service.main`) on 127.0.0.1 in a subprocess for the
+service tests, wait until it is ready, stop it; plus the small scenes those tests share."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+ASSETS = ROOT.parent / "shared" / "assets"
+PISA = ASSETS / "hdri" / "pisa.hdr"
+
+# Small and fast: 12 lights, 32^2 PEM faces, 64^2 shadow maps, 64x64 images.
+FAST_QUALITY = {"preset": "fast", "lights": 12, "face_size": 32, "shadow_size": 64}
+SMALL_OUTPUT = {"width": 64, "height": 64}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class ServiceProcess:
+    def __init__(self, log_dir: Path, workers: int = 1, wait_for: str = "ready", **settings):
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.log_path = Path(log_dir) / f"service-{self.port}.log"
+        env = {k: v for k, v in os.environ.items() if not k.startswith("GARMENT_RENDER_")}
+        env.update({f"GARMENT_RENDER_{k.upper()}": str(v) for k, v in settings.items()})
+        self._log = open(self.log_path, "wb")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "service.main", "--host", "127.0.0.1", "--port", str(self.port),
+             "--log-level", "warning", "--workers", str(workers)], cwd=ROOT, env=env, stdout=self._log, stderr=subprocess.STDOUT)
+        self._wait_ready(wait_for)
+
+    def _wait_ready(self, wait_for: str, timeout: float = 60.0) -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"the service exited with {self.proc.returncode}:\n{self.log()}")
+            try:
+                if httpx.get(f"{self.url}/health/{wait_for}", timeout=2).status_code == 200:
+                    return
+            except httpx.TransportError:
+                pass
+            time.sleep(0.1)
+        self.stop()
+        raise RuntimeError(f"the service was not ready within {timeout} s:\n{self.log()}")
+
+    def log(self) -> str:
+        self._log.flush()
+        return self.log_path.read_text(errors="replace")[-5000:]
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(15)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self._log.close()
+
+
+def environment_bytes(tmp_dir: Path) -> tuple[bytes, str]:
+    """The shared Pisa probe when present, else a small procedural studio map written as EXR."""
+    if PISA.exists():
+        return PISA.read_bytes(), "pisa.hdr"
+    from renderer.envmap import studio_environment, write_exr
+
+    path = Path(tmp_dir) / "studio.exr"
+    write_exr(path, studio_environment(128))
+    return path.read_bytes(), "studio.exr"
+
+
+def garment(resolution: int = 32):
+    from renderer.procedural import procedural_garment
+
+    return procedural_garment(resolution)
+
+
+def scene_body(env_id: str, mesh, **extra) -> dict:
+    body = {"name": "test", "environment_id": env_id,
+            "garment": {"positions": np.asarray(mesh.positions).tolist(), "faces": np.asarray(mesh.faces).tolist(),
+                        "uvs": np.asarray(mesh.uvs).tolist() if mesh.uvs is not None else None,
+                        "material": {"albedo": [0.8, 0.2, 0.2], "specular": 0.5, "glossiness": 0.8}},
+            "quality": dict(FAST_QUALITY), "output": dict(SMALL_OUTPUT)}
+    body.update(extra)
+    return body

@@ -1,0 +1,548 @@
+"""The HTTP service, end to end: a real uvicorn server on 127.0.0.1 (a subprocess), spoken to with httpx.
+
+Each test proves a property a simulator relies on: frames come back as decodable images of the right
+size with timings; bad input is a 4xx that names the problem and leaves the service (and its caches)
+working; identical uploads cost nothing; the disk cache survives a restart; a full queue answers 503
+with Retry-After; the token is enforced; the metrics count what happened.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import threading
+import zipfile
+
+import httpx
+import numpy as np
+import pytest
+from PIL import Image
+
+from service_server import FAST_QUALITY, SMALL_OUTPUT, ServiceProcess, environment_bytes, garment, scene_body
+
+OCTET = {"Content-Type": "application/octet-stream"}
+MAX_UPLOAD = 4 << 20
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("service")
+    srv = ServiceProcess(tmp, pem_cache_dir=tmp / "pem-cache", max_upload_bytes=MAX_UPLOAD, queue_size=16)
+    yield srv
+    srv.stop()
+
+
+@pytest.fixture(scope="module")
+def http(server):
+    with httpx.Client(base_url=server.url, timeout=120) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def env_upload(http, tmp_path_factory):
+    data, name = environment_bytes(tmp_path_factory.mktemp("env"))
+    r = http.post("/environments", content=data, headers=OCTET,
+                  params={"name": name, "lights": 12, "face_size": 32, "preset": "fast"})
+    assert r.status_code == 201, r.text
+    return r.json(), data, name
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    return garment(32)
+
+
+@pytest.fixture(scope="module")
+def scene(http, env_upload, mesh):
+    r = http.post("/scenes", json=scene_body(env_upload[0]["id"], mesh))
+    assert r.status_code == 201, r.text
+    return r.json()
+
+
+def frame_bytes(positions) -> bytes:
+    return np.ascontiguousarray(positions, "<f4").tobytes()
+
+
+def post_frame(http, scene_id, positions, **kw):
+    headers = {**OCTET, **kw.pop("headers", {})}
+    return http.post(f"/scenes/{scene_id}/frames", content=frame_bytes(positions), headers=headers, **kw)
+
+
+def png_array(content: bytes) -> np.ndarray:
+    return np.asarray(Image.open(io.BytesIO(content)))
+
+
+def server_timing(header: str) -> dict[str, float]:
+    out = {}
+    for part in header.split(","):
+        name, _, dur = part.strip().partition(";dur=")
+        out[name] = float(dur)
+    return out
+
+
+def assert_error(r: httpx.Response, status: int, *words: str) -> None:
+    assert r.status_code == status, f"expected {status}, got {r.status_code}: {r.text}"
+    detail = r.json()["detail"]
+    for w in words:
+        assert w.lower() in detail.lower(), f"{w!r} not in {detail!r}"
+
+
+# -- basics ----------------------------------------------------------------------------------------
+
+
+def test_health_ready_and_docs(http):
+    assert http.get("/health/live").json() == {"status": "ok"}
+    ready = http.get("/health/ready")
+    assert ready.status_code == 200 and ready.json()["gl"]["renderer"]
+    paths = http.get("/openapi.json").json()["paths"]
+    for p in ("/environments", "/scenes", "/scenes/{scene_id}/frames", "/scenes/{scene_id}/frames/batch",
+              "/render", "/meshes", "/metrics", "/health/ready"):
+        assert p in paths
+    assert http.get("/docs").status_code == 200
+
+
+def test_png_frame_has_size_and_server_timing(http, scene, mesh):
+    r = post_frame(http, scene["id"], mesh.positions, headers={"X-Frame-Index": "41"})
+    assert r.status_code == 200, r.text
+    assert r.headers["content-type"] == "image/png"
+    img = png_array(r.content)
+    assert img.shape[:2] == (64, 64)
+    assert img.std() > 1.0  # a picture, not a flat colour
+    t = server_timing(r.headers["server-timing"])
+    for stage in ("decode", "queue", "shadow_maps", "shading", "render", "encode", "total"):
+        assert stage in t and t[stage] >= 0.0
+    assert t["total"] >= t["render"]
+    assert r.headers["x-frame-index"] == "41"
+
+
+def test_frames_follow_the_positions(http, scene, mesh):
+    a = png_array(post_frame(http, scene["id"], mesh.positions, params={"exposure": 0}).content).astype(int)
+    moved = np.asarray(mesh.positions) + np.array([0.15, 0.0, 0.0], np.float32)
+    b = png_array(post_frame(http, scene["id"], moved, params={"exposure": 0}).content).astype(int)
+    again = png_array(post_frame(http, scene["id"], mesh.positions, params={"exposure": 0}).content).astype(int)
+    assert np.abs(a - b).mean() > 1.0  # the garment moved in a fixed camera
+    assert np.abs(a - again).max() <= 1  # and the same positions give the same picture
+
+
+def test_json_frame(http, scene, mesh):
+    r = post_frame(http, scene["id"], mesh.positions, params={"format": "json"})
+    assert r.status_code == 200 and r.headers["content-type"] == "application/json"
+    body = r.json()
+    assert body["width"] == 64 and body["height"] == 64 and body["scene_id"] == scene["id"]
+    assert {"decode", "queue", "render", "encode", "total"} <= set(body["timings_ms"])
+    assert body["render"]["n_lights"] == 12
+    assert png_array(base64.b64decode(body["image"]["base64"])).shape[:2] == (64, 64)
+
+
+@pytest.mark.parametrize("how", ["accept", "query"])
+def test_exr_frame(http, scene, mesh, tmp_path, how):
+    import OpenEXR
+
+    kw = {"headers": {"Accept": "image/x-exr"}} if how == "accept" else {"params": {"format": "exr"}}
+    r = post_frame(http, scene["id"], mesh.positions, **kw)
+    assert r.status_code == 200 and r.headers["content-type"] == "image/x-exr"
+    path = tmp_path / "frame.exr"
+    path.write_bytes(r.content)
+    rgba = np.asarray(OpenEXR.File(str(path)).channels()["RGBA"].pixels, np.float32)
+    assert rgba.shape == (64, 64, 4)
+    assert np.isfinite(rgba).all() and rgba[..., :3].min() >= 0.0
+    coverage = rgba[..., 3]
+    assert 0.05 < (coverage > 0.5).mean() < 0.95  # the garment covers part of the frame
+    assert "render" in server_timing(r.headers["server-timing"])
+
+
+def test_normals_layout(http, scene, mesh):
+    from renderer.mesh import vertex_normals
+
+    n = vertex_normals(mesh.positions, mesh.faces)
+    body = frame_bytes(mesh.positions) + frame_bytes(n)
+    r = http.post(f"/scenes/{scene['id']}/frames", content=body,
+                  headers={**OCTET, "X-Frame-Layout": "positions,normals"})
+    assert r.status_code == 200, r.text
+    assert server_timing(r.headers["server-timing"])["normals"] < 1.0  # not recomputed
+    zero = frame_bytes(mesh.positions) + frame_bytes(np.zeros_like(n))
+    r = http.post(f"/scenes/{scene['id']}/frames", content=zero,
+                  headers={**OCTET, "X-Frame-Layout": "positions,normals"})
+    assert_error(r, 422, "zero-length normals")
+
+
+def test_batch_json_and_zip(http, scene, mesh):
+    frames = np.stack([np.asarray(mesh.positions) + np.float32(0.02 * k) for k in range(3)])
+    r = http.post(f"/scenes/{scene['id']}/frames/batch", content=frame_bytes(frames.reshape(-1, 3)), headers=OCTET)
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert body["n_frames"] == 3 and [f["frame_index"] for f in body["frames"]] == [0, 1, 2]
+    for f in body["frames"]:
+        assert png_array(base64.b64decode(f["image"]["base64"])).shape[:2] == (64, 64)
+        assert f["timings_ms"]["render"] > 0
+    r = http.post(f"/scenes/{scene['id']}/frames/batch", content=frame_bytes(frames.reshape(-1, 3)), headers=OCTET,
+                  params={"format": "zip"})
+    assert r.status_code == 200 and r.headers["content-type"] == "application/zip"
+    zf = zipfile.ZipFile(io.BytesIO(r.content))
+    assert sorted(zf.namelist()) == ["frame_00000.png", "frame_00001.png", "frame_00002.png", "timings.json"]
+    assert len(json.loads(zf.read("timings.json"))["frames"]) == 3
+    # A body that is not a whole number of frames names both sizes.
+    r = http.post(f"/scenes/{scene['id']}/frames/batch", content=frame_bytes(frames.reshape(-1, 3))[:-12],
+                  headers=OCTET)
+    assert_error(r, 422, "not a whole number of frames", str(12 * mesh.n_vertices))
+
+
+def test_one_shot_render(http, env_upload, mesh):
+    r = http.post("/render", json=scene_body(env_upload[0]["id"], mesh), params={"format": "json"})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert body["scene_id"] is None and body["width"] == 64
+    assert png_array(base64.b64decode(body["image"]["base64"])).shape[:2] == (64, 64)
+
+
+def test_mesh_file_upload_keeps_vertex_order(http, env_upload, mesh, tmp_path):
+    import trimesh
+
+    path = tmp_path / "garment.ply"
+    trimesh.Trimesh(np.asarray(mesh.positions), np.asarray(mesh.faces), process=False).export(path)
+    r = http.post("/meshes", content=path.read_bytes(), headers=OCTET, params={"format": "ply"})
+    assert r.status_code == 201, r.text
+    info = r.json()
+    assert info["n_vertices"] == mesh.n_vertices and info["n_faces"] == mesh.n_faces
+    body = scene_body(env_upload[0]["id"], mesh)
+    body["garment"] = {"mesh_id": info["id"], "material": {"albedo": [0.2, 0.3, 0.8]}}
+    r = http.post("/scenes", json=body)
+    assert r.status_code == 201, r.text
+    sid = r.json()["id"]
+    # The same positions in the file's order render the same picture as the registered pose.
+    a = post_frame(http, sid, mesh.positions, params={"format": "exr"})
+    b = http.post(f"/scenes/{sid}/frames", content=b"", headers=OCTET)
+    assert a.status_code == 200
+    assert_error(b, 422, "empty")
+    assert http.delete(f"/scenes/{sid}").status_code == 204
+    assert_error(post_frame(http, sid, mesh.positions), 404, "unknown scene")
+    r = http.post("/meshes", content=b"solid nothing\nendsolid", headers=OCTET, params={"format": "stl"})
+    assert r.status_code == 422, r.text
+
+
+def test_environment_details_and_preview(http, env_upload):
+    env = env_upload[0]
+    d = http.get(f"/environments/{env['id']}").json()
+    (pem,) = d["pem_sets"]
+    assert pem["n_lights"] == 12 and pem["face_size"] == 32 and pem["build_ms"] > 0
+    dirs = np.array([light["direction"] for light in pem["lights"]])
+    assert dirs.shape == (12, 3) and np.allclose(np.linalg.norm(dirs, axis=1), 1.0, atol=1e-6)
+    assert sum(light["energy_share"] for light in pem["lights"]) == pytest.approx(1.0, abs=1e-6)
+    r = http.get(pem["preview_url"], params={"width": 256})
+    assert r.status_code == 200 and r.headers["content-type"] == "image/png"
+    assert png_array(r.content).shape == (128, 256, 3)
+    assert env["id"] in [e["id"] for e in http.get("/environments").json()]
+
+
+def test_same_environment_twice_costs_nothing(http, env_upload):
+    first, data, name = env_upload
+    before = http.get("/stats").json()["pem_cache"]
+    r = http.post("/environments", content=data, headers=OCTET,
+                  params={"name": name, "lights": 12, "face_size": 32, "preset": "fast"})
+    assert r.status_code == 200, r.text
+    again = r.json()
+    assert again["id"] == first["id"] and again["cached"] is True
+    after = http.get("/stats").json()["pem_cache"]
+    assert after["hits"] == before["hits"] + 1
+    assert after["builds"] == before["builds"] and after["misses"] == before["misses"]
+
+
+# -- bad input -------------------------------------------------------------------------------------
+
+
+def test_bad_frames_are_4xx_naming_the_problem(http, scene, mesh):
+    sid, v = scene["id"], mesh.n_vertices
+    p = np.asarray(mesh.positions, np.float32)
+    r = http.post(f"/scenes/{sid}/frames", content=frame_bytes(p)[:-12], headers=OCTET)
+    assert_error(r, 422, f"{12 * v - 12} bytes", f"expects {12 * v} bytes")
+    r = http.post(f"/scenes/{sid}/frames", content=p.astype(np.float64).tobytes(), headers=OCTET)
+    assert_error(r, 422, "float64")
+    r = http.post(f"/scenes/{sid}/frames", content=frame_bytes(p)[:-5], headers=OCTET)
+    assert_error(r, 422, "not a multiple of 12")
+    for bad in (np.nan, np.inf, -np.inf):
+        q = p.copy()
+        q[7, 1] = bad
+        assert_error(post_frame(http, sid, q), 422, "NaN/Inf", "vertex 7")
+    r = http.post(f"/scenes/{sid}/frames", content=frame_bytes(p), headers={"Content-Type": "application/json"})
+    assert_error(r, 415, "application/octet-stream")
+    r = http.post(f"/scenes/{sid}/frames", content=frame_bytes(p), headers={**OCTET, "X-Frame-Layout": "positons"})
+    assert_error(r, 422, "unknown block")
+    r = http.post(f"/scenes/{sid}/frames", content=frame_bytes(p), headers={**OCTET, "X-Frame-Layout": "body_positions"})
+    assert_error(r, 422, "no body mesh")
+    assert_error(post_frame(http, "scn_nope", p), 404, "unknown scene")
+    assert_error(post_frame(http, sid, p, params={"format": "gif"}), 422, "format")
+    assert_error(post_frame(http, sid, p, headers={"Accept": "image/jpeg"}), 406, "image/png")
+    assert post_frame(http, sid, p).status_code == 200  # and the scene still renders
+
+
+@pytest.mark.parametrize("case, words", [
+    ("negative", ["negative vertex indices"]),
+    ("out_of_range", ["index past"]),
+    ("empty", ["empty"]),
+    ("quads", ["quads"]),
+    ("ragged", ["rectangular"]),
+    ("nan_albedo", ["albedo"]),
+    ("short_specular", ["specular"]),
+    ("bad_lights", ["6 * 2^k"]),
+    ("huge_image", ["exceeds the limit"]),
+    ("unknown_env", ["unknown environment"]),
+    ("unknown_mesh", ["unknown mesh"]),
+    ("missing_faces", ["positions and faces"]),
+    ("camera_degenerate", ["camera"]),
+])
+def test_bad_scenes_are_4xx_naming_the_problem(http, env_upload, mesh, case, words):
+    body = scene_body(env_upload[0]["id"], mesh)
+    g = body["garment"]
+    status = 422
+    if case == "negative":
+        g["faces"][3][1] = -2
+    elif case == "out_of_range":
+        g["faces"][5][2] = mesh.n_vertices + 10
+    elif case == "empty":
+        g.update(positions=[], faces=[], uvs=None)
+    elif case == "quads":
+        g["faces"] = [f + [0] for f in g["faces"]]
+    elif case == "ragged":
+        g["positions"][4] = [0.0, 1.0]
+    elif case == "nan_albedo":
+        g["material"]["albedo"] = [0.5, 1.5, 0.5]
+    elif case == "short_specular":
+        g["material"]["specular"] = [0.5, 0.5]
+    elif case == "bad_lights":
+        body["quality"]["lights"] = 10
+    elif case == "huge_image":
+        body["output"]["width"] = 5000
+    elif case == "unknown_env":
+        body["environment_id"] = "env_doesnotexist"
+        status = 404
+    elif case == "unknown_mesh":
+        body["garment"] = {"mesh_id": "msh_nope"}
+        status = 404
+    elif case == "missing_faces":
+        del g["faces"]
+    elif case == "camera_degenerate":
+        body["camera"] = {"eye": [0, 1, 2], "target": [0, 1, 2]}
+    r = http.post("/scenes", json=body)
+    assert_error(r, status, *words)
+
+
+def test_bad_environment_uploads(http, env_upload, tmp_path):
+    _, data, name = env_upload
+    r = http.post("/environments", content=data[: len(data) // 2], headers=OCTET, params={"name": "cut." + name})
+    assert_error(r, 422, "truncated")
+    r = http.post("/environments", content=b"\x89PNG\r\n\x1a\n" + bytes(100), headers=OCTET)
+    assert_error(r, 422, "not an OpenEXR or Radiance HDR", "PNG")
+    r = http.post("/environments", content=data, headers={"Content-Type": "text/plain"})
+    assert_error(r, 415, "environment map")
+    r = http.post("/environments", content=b"", headers=OCTET)
+    assert_error(r, 422, "empty")
+    r = http.post("/environments", content=data, headers=OCTET, params={"layout": "angular"})
+    assert_error(r, 422, "square")
+    r = http.post("/environments", content=data, headers=OCTET, params={"layout": "diagonal"})
+    assert_error(r, 422, "layout")
+    # A truncated EXR too (the other decoder).
+    from renderer.envmap import studio_environment, write_exr
+
+    exr = tmp_path / "s.exr"
+    write_exr(exr, studio_environment(64))
+    cut = exr.read_bytes()[:-200]
+    assert_error(http.post("/environments", content=cut, headers=OCTET), 422, "exr")
+    # Negative texels are refused unless repaired.
+    img = studio_environment(64)
+    img[3, 5] = -1.0
+    write_exr(exr, img)
+    assert_error(http.post("/environments", content=exr.read_bytes(), headers=OCTET), 422, "negative")
+    r = http.post("/environments", content=exr.read_bytes(), headers=OCTET,
+                  params={"repair": "true", "lights": 12, "face_size": 16})
+    assert r.status_code == 201 and r.json()["texel_report"]["n_negative"] == 3  # channel values
+    assert http.delete(f"/environments/{r.json()['id']}").status_code == 204
+    assert_error(http.get(f"/environments/{r.json()['id']}"), 404, "unknown environment")
+
+
+def test_oversized_uploads_are_413(http, scene):
+    big = bytes(MAX_UPLOAD + 1024)
+    r = http.post(f"/scenes/{scene['id']}/frames", content=big, headers=OCTET)
+    assert_error(r, 413, "Content-Length", str(MAX_UPLOAD))
+
+    def chunks():  # no Content-Length: the streamed size is what counts
+        for _ in range(5):
+            yield bytes(1 << 20)
+
+    r = http.post("/environments", content=chunks(), headers=OCTET)
+    assert_error(r, 413, "streamed", str(MAX_UPLOAD))
+
+
+def test_service_and_cache_survive_bad_input(http, server, scene, mesh):
+    assert server.alive()
+    assert http.get("/health/ready").status_code == 200
+    assert post_frame(http, scene["id"], mesh.positions).status_code == 200
+    stats = http.get("/stats").json()
+    assert stats["pem_cache"]["disk_errors"] == 0
+    cache_dir = stats["pem_cache"]["disk_dir"]
+    from pathlib import Path
+
+    files = sorted(p.name for p in Path(cache_dir).iterdir())
+    assert files and all(f.endswith(".npz") for f in files)  # no half-written entries
+    for f in Path(cache_dir).iterdir():
+        with np.load(f) as z:
+            assert "scale" in z.files
+
+
+def test_metrics_expose_frames_stages_queue_and_cache(http, scene, mesh):
+    post_frame(http, scene["id"], mesh.positions)
+    text = http.get("/metrics").text
+    for needle in ('garment_render_frames_total{endpoint="frames",format="png"}',
+                   'garment_render_stage_seconds_bucket{le="0.5",stage="render"}',
+                   'garment_render_stage_seconds_count{stage="encode"}',
+                   "garment_render_queue_depth ", "garment_render_pem_cache_hits_total ",
+                   "garment_render_pem_cache_misses_total ", "garment_render_pem_cache_bytes ",
+                   "garment_render_http_errors_total{"):
+        assert needle in text, needle
+    hits = [line for line in text.splitlines() if line.startswith("garment_render_pem_cache_hits_total ")]
+    assert float(hits[0].split()[-1]) > 0
+
+
+def test_python_client(server, env_upload, mesh):
+    from service.client import RenderClient, ServiceError
+
+    with RenderClient(server.url) as c:
+        sc = c.create_scene(env_upload[0]["id"], positions=mesh.positions, faces=mesh.faces,
+                            material={"albedo": [0.3, 0.6, 0.3]}, quality=FAST_QUALITY, output=SMALL_OUTPUT)
+        f = c.send_frame(sc["id"], mesh.positions, frame_index=7)
+        assert f.array().shape == (64, 64, 3) and f.pil().size == (64, 64)
+        assert f.frame_index == 7 and f.timings["render"] > 0
+        e = c.send_frame(sc["id"], mesh.positions, format="exr").array()
+        assert e.shape == (64, 64, 4) and e.dtype == np.float32
+        j = c.send_frame(sc["id"], mesh.positions, format="json")
+        assert j.array().shape == (64, 64, 3) and "encode" in j.timings
+        with pytest.raises(ServiceError) as err:
+            c.send_frame(sc["id"], mesh.positions[:-1])
+        assert err.value.status == 422 and "bytes" in err.value.detail
+        c.delete_scene(sc["id"])
+
+
+# -- restarts, queue bound, token --------------------------------------------------------------------
+
+
+def test_restart_finds_the_pem_set_on_disk(tmp_path, mesh):
+    data, name = environment_bytes(tmp_path)
+    params = {"name": name, "lights": 12, "face_size": 32}
+    first = ServiceProcess(tmp_path, pem_cache_dir=tmp_path / "cache")
+    try:
+        r = httpx.post(first.url + "/environments", content=data, headers=OCTET, params=params, timeout=60)
+        assert r.status_code == 201 and r.json()["pem_sets"][0]["source"] == "built"
+        assert httpx.get(first.url + "/stats").json()["pem_cache"]["builds"] == 1
+    finally:
+        first.stop()
+    second = ServiceProcess(tmp_path, pem_cache_dir=tmp_path / "cache")
+    try:
+        r = httpx.post(second.url + "/environments", content=data, headers=OCTET, params=params, timeout=60)
+        assert r.status_code == 201, r.text
+        assert r.json()["pem_sets"][0]["source"] == "disk"
+        cache = httpx.get(second.url + "/stats").json()["pem_cache"]
+        assert cache["disk_hits"] == 1 and cache["builds"] == 0
+        r = httpx.post(second.url + "/render", json=scene_body(r.json()["id"], mesh), timeout=60)
+        assert r.status_code == 200 and png_array(r.content).shape[:2] == (64, 64)
+    finally:
+        second.stop()
+
+
+def test_full_queue_answers_503_with_retry_after(tmp_path):
+    srv = ServiceProcess(tmp_path, queue_size=1)
+    try:
+        data, name = environment_bytes(tmp_path)
+        env = httpx.post(srv.url + "/environments", content=data, headers=OCTET,
+                         params={"lights": 24, "face_size": 32}, timeout=60).json()
+        big = garment(96)
+        body = scene_body(env["id"], big, quality={**FAST_QUALITY, "lights": 24, "shadow_size": 256},
+                          output={"width": 256, "height": 256})
+        sid = httpx.post(srv.url + "/scenes", json=body, timeout=60).json()["id"]
+        payload = frame_bytes(big.positions)
+        results: list[httpx.Response] = []
+        lock = threading.Lock()
+
+        def shoot():
+            with httpx.Client(timeout=60) as c:
+                r = c.post(f"{srv.url}/scenes/{sid}/frames", content=payload, headers=OCTET)
+            with lock:
+                results.append(r)
+
+        threads = [threading.Thread(target=shoot) for _ in range(8)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        codes = sorted(r.status_code for r in results)
+        assert set(codes) <= {200, 503} and codes.count(503) >= 1 and codes.count(200) >= 2, codes
+        busy = next(r for r in results if r.status_code == 503)
+        assert int(busy.headers["retry-after"]) >= 1
+        assert busy.json()["code"] == "queue_full" and "queue is full" in busy.json()["detail"]
+
+        # A client that retries on 503 gets every frame exactly once.
+        from service.client import RenderClient
+
+        got: dict[int, int] = {}
+
+        def simulate(k: int):
+            with RenderClient(srv.url, max_retry_wait_s=0.2) as c:
+                for i in range(3):
+                    f = c.send_frame(sid, big.positions, frame_index=100 * k + i)
+                    with lock:
+                        got[f.frame_index] = got.get(f.frame_index, 0) + 1
+
+        threads = [threading.Thread(target=simulate, args=(k,)) for k in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert got == {100 * k + i: 1 for k in range(4) for i in range(3)}
+        assert "garment_render_jobs_total{outcome=\"rejected\"}" in httpx.get(srv.url + "/metrics").text
+    finally:
+        srv.stop()
+
+
+@pytest.fixture(scope="module")
+def strict_server(tmp_path_factory):
+    """A token, and a request timeout far below any render."""
+    srv = ServiceProcess(tmp_path_factory.mktemp("strict"), token="s3cret", request_timeout_s=0.001)
+    yield srv
+    srv.stop()
+
+
+def test_bearer_token_on_every_endpoint_but_health(strict_server):
+    url = strict_server.url
+    for path in ("/environments", "/scenes", "/meshes", "/stats"):
+        r = httpx.get(url + path)
+        assert_error(r, 401, "bearer token")
+        assert r.headers["www-authenticate"] == "Bearer"
+        assert_error(httpx.get(url + path, headers={"Authorization": "Bearer wrong"}), 401, "wrong")
+        assert httpx.get(url + path, headers={"Authorization": "Bearer s3cret"}).status_code == 200
+    r = httpx.post(url + "/scenes/x/frames", content=b"1234", headers=OCTET)
+    assert r.status_code == 401
+    for path in ("/health/live", "/health/ready", "/metrics"):
+        assert httpx.get(url + path).status_code == 200
+
+
+def test_request_timeout_is_504_and_the_service_goes_on(strict_server, tmp_path):
+    data, name = environment_bytes(tmp_path)
+    auth = {"Authorization": "Bearer s3cret"}
+    r = httpx.post(strict_server.url + "/environments", content=data, headers={**OCTET, **auth},
+                   params={"lights": 12, "face_size": 32}, timeout=60)
+    assert_error(r, 504, "no answer from the GL thread")
+    assert httpx.get(strict_server.url + "/health/ready").status_code == 200
+    assert strict_server.alive()
+
+
+def test_no_gl_context_is_not_ready_and_503(tmp_path):
+    srv = ServiceProcess(tmp_path, wait_for="live", egl_device=99)  # the renderer reads GARMENT_RENDER_EGL_DEVICE
+    try:
+        r = httpx.get(srv.url + "/health/ready")
+        assert r.status_code == 503 and "OpenGL" in r.json()["detail"]
+        data, _ = environment_bytes(tmp_path)
+        r = httpx.post(srv.url + "/environments", content=data, headers=OCTET)
+        assert_error(r, 503, "not ready", "OpenGL")
+        assert r.headers["retry-after"]
+        assert "garment_render_gl_ready 0.0" in httpx.get(srv.url + "/metrics").text
+    finally:
+        srv.stop()

@@ -1,0 +1,65 @@
+"""Scenes and environments in a state directory: a restarted service, and every process of a
+multi-process one, restore them by id on first use."""
+
+from __future__ import annotations
+
+import httpx
+import numpy as np
+
+from service_server import ServiceProcess, environment_bytes, garment, scene_body
+
+OCTET = {"Content-Type": "application/octet-stream"}
+
+
+def test_restarted_service_restores_scene_by_id(tmp_path):
+    data, name = environment_bytes(tmp_path)
+    mesh = garment(32)
+    settings = {"state_dir": tmp_path / "state", "pem_cache_dir": tmp_path / "cache"}
+    first = ServiceProcess(tmp_path, **settings)
+    try:
+        env = httpx.post(first.url + "/environments", content=data, headers=OCTET,
+                         params={"name": name, "lights": 12, "face_size": 32}, timeout=60).json()
+        scene = httpx.post(first.url + "/scenes", json=scene_body(env["id"], mesh), timeout=60).json()
+        before = httpx.post(f"{first.url}/scenes/{scene['id']}/frames", content=np.asarray(mesh.positions).tobytes(),
+                            headers=OCTET, params={"format": "exr"}, timeout=60)
+        assert before.status_code == 200
+    finally:
+        first.stop()
+    second = ServiceProcess(tmp_path, **settings)
+    try:
+        after = httpx.post(f"{second.url}/scenes/{scene['id']}/frames", content=np.asarray(mesh.positions).tobytes(),
+                           headers=OCTET, params={"format": "exr"}, timeout=60)
+        assert after.status_code == 200, after.text
+        assert after.content == before.content  # the same scene, camera and PEM set: the same linear image
+        assert after.headers["x-pem-source"] == "memory"  # loaded from disk while the scene was restored
+        assert httpx.get(f"{second.url}/environments/{env['id']}").status_code == 200
+        assert httpx.delete(f"{second.url}/scenes/{scene['id']}").status_code == 204
+        r = httpx.post(f"{second.url}/scenes/{scene['id']}/frames", content=np.asarray(mesh.positions).tobytes(),
+                       headers=OCTET)
+        assert r.status_code == 404
+    finally:
+        second.stop()
+
+
+def test_two_processes_share_scenes_through_the_state_dir(tmp_path):
+    """What `uvicorn --workers N` relies on, made deterministic: two processes on two ports, one state dir."""
+    data, name = environment_bytes(tmp_path)
+    mesh = garment(16)
+    settings = {"state_dir": tmp_path / "state", "pem_cache_dir": tmp_path / "cache"}
+    a = ServiceProcess(tmp_path, **settings)
+    b = ServiceProcess(tmp_path, **settings)
+    try:
+        env = httpx.post(a.url + "/environments", content=data, headers=OCTET,
+                         params={"name": name, "lights": 12, "face_size": 32}, timeout=60).json()
+        sid = httpx.post(a.url + "/scenes", json=scene_body(env["id"], mesh), timeout=60).json()["id"]
+        frames = [np.asarray(mesh.positions) + np.float32(0.01 * k) for k in range(4)]
+        for k, p in enumerate(frames):  # alternate between the processes, as a load balancer would
+            srv = (a, b)[k % 2]
+            r = httpx.post(f"{srv.url}/scenes/{sid}/frames", content=p.astype("<f4").tobytes(), headers=OCTET,
+                           timeout=60)
+            assert r.status_code == 200, r.text
+            assert r.headers["x-render-process"] == str(srv.proc.pid)
+        assert httpx.get(f"{b.url}/scenes/{sid}").json()["frames_rendered"] == 2
+    finally:
+        a.stop()
+        b.stop()
