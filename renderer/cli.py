@@ -333,6 +333,15 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def cmd_serve(args) -> int:
+    # The one place the command line reaches the service layer; the renderer's library code never
+    # imports it (the dependency arrow is service -> renderer).
+    import importlib
+
+    importlib.import_module("service.main").serve(args.host, args.port, workers=args.workers, log_level=args.log_level)
+    return 0
+
+
 def cmd_lobes(args) -> int:
     from .lighting.lobe_figures import write_lobe_report
 
@@ -367,6 +376,12 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--store", action="store_true",
                    help="store the measured table in the package: presets and budgets are then chosen from it")
     b.set_defaults(func=cmd_bench)
+    sv = sub.add_parser("serve", help="run the HTTP render service (uvicorn); settings: GARMENT_RENDER_* variables")
+    sv.add_argument("--host", default="127.0.0.1")
+    sv.add_argument("--port", type=int, default=8000)
+    sv.add_argument("--workers", type=int, default=1, help="processes, each with its own GL context")
+    sv.add_argument("--log-level", default="info")
+    sv.set_defaults(func=cmd_serve)
     lo = sub.add_parser("lobes", help="reproduce the paper's Figures 4 and 5 (lobe cross sections and errors)")
     lo.add_argument("--out", type=Path, default=Path("out/lobes"))
     lo.add_argument("--face-size", type=int, default=128)
