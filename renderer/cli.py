@@ -15,9 +15,9 @@ from .errors import RenderError
 # Quality presets used until a benchmark table is stored in the package (renderer/bench/measured.json,
 # written by `garment-render bench --store`); then the presets come from the measured table.
 DEFAULT_PRESETS = {
-    "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 1.0},
-    "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 1.0},
-    "accurate": {"lights": 96, "face_size": 256, "shadow_size": 512, "blur_scale": 1.0},
+    "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 0.1},
+    "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.1},
+    "accurate": {"lights": 96, "face_size": 256, "shadow_size": 512, "blur_scale": 0.1},
 }
 
 

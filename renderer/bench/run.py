@@ -25,14 +25,14 @@ from ..reference import mean_flip, relative_rmse, render_reference
 from ..renderer import FrameSettings, Renderer, ShadingMode
 from .scenes import BenchScene, bundled_scene, shared_scenes
 
-BALANCED = {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 1.0, "filter": "sqrt-cosine",
+BALANCED = {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.1, "filter": "sqrt-cosine",
             "horizon": False}
 
 SWEEPS = {
     "lights": [6, 12, 24, 48, 96, 192, 384],
     "face_size": [32, 64, 128, 256],
     "shadow_size": [64, 128, 256, 512],
-    "blur_scale": [0.0, 0.5, 1.0, 2.0, 4.0],
+    "blur_scale": [0.0, 0.1, 0.25, 0.5, 1.0, 2.0],
     "filter": [f.value for f in Filter],
     "horizon": [False, True],
 }
@@ -40,7 +40,7 @@ QUICK_SWEEPS = {
     "lights": [6, 24, 48, 96],
     "face_size": [64, 128],
     "shadow_size": [128, 256],
-    "blur_scale": [0.0, 1.0],
+    "blur_scale": [0.0, 0.1, 1.0],
     "filter": ["none", "sqrt-cosine"],
     "horizon": [False, True],
 }
