@@ -143,8 +143,28 @@ def load_scene_inputs(args, face_size: int):
     return env, meshes, [garment] + [body] * (len(meshes) - 1)
 
 
+def camera_from_args(args, framed_meshes, aspect: float):
+    """--camera-eye and --camera-target (both, with --fov), else the renderer's default framing of
+    `framed_meshes` with --fov."""
+    from .camera import Camera, frame_meshes
+
+    if args.camera_eye is not None or args.camera_target is not None:
+        if args.camera_eye is None or args.camera_target is None:
+            raise SystemExit("error: give both --camera-eye and --camera-target")
+        return Camera(args.camera_eye, args.camera_target, fov_y_deg=args.fov)
+    return frame_meshes(framed_meshes, aspect, args.fov)
+
+
+def png_image(img: np.ndarray, opaque: bool) -> np.ndarray:
+    """The image to tone-map into a PNG: alpha is coverage, or 1 where the map fills the background."""
+    if not opaque:
+        return img
+    out = img.copy()
+    out[..., 3] = 1.0
+    return out
+
+
 def cmd_render(args) -> int:
-    from .camera import Camera
     from .envmap import write_exr
     from .lighting.filters import Filter
     from .lighting.pem import PEMSettings
@@ -159,11 +179,7 @@ def cmd_render(args) -> int:
     settings = FrameSettings(width=w, height=h, shadow_size=q["shadow_size"], blur_scale=q["blur_scale"],
                              bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
                              background=Background(args.background))
-    camera = None
-    if args.camera_eye is not None or args.camera_target is not None:
-        if args.camera_eye is None or args.camera_target is None:
-            raise SystemExit("error: give both --camera-eye and --camera-target")
-        camera = Camera(args.camera_eye, args.camera_target, fov_y_deg=args.fov)
+    camera = camera_from_args(args, meshes, w / h)
     with Renderer() as r:
         pems = r.build_pems(env.cube, PEMSettings(q["lights"], Filter.parse(args.filter), args.levels))
         scene = r.create_scene(meshes, materials)
@@ -178,11 +194,7 @@ def cmd_render(args) -> int:
     if exposure is None:
         exposure = auto_exposure_ev(img[..., :3], img[..., 3])
     if args.out:
-        png = img
-        if args.background == "env":  # the map fills the background: an opaque picture
-            png = img.copy()
-            png[..., 3] = 1.0
-        write_png(args.out, png, exposure, ToneCurve(args.tone))
+        write_png(args.out, png_image(img, args.background == "env"), exposure, ToneCurve(args.tone))
     report = {"timings": frame.timings, "settings": frame.settings, "quality": q, "exposure_ev": exposure,
               "environment": {"name": env.name, "layout": env.layout.value, "face_size": q["face_size"],
                               "texel_report": env.texel_report.as_dict() if env.texel_report else None},
@@ -199,7 +211,6 @@ def cmd_render(args) -> int:
 
 def cmd_sequence(args) -> int:
     """Render every frame of a mesh sequence with one PEM set and one scene (only positions change)."""
-    from .camera import Camera, frame_meshes
     from .envmap import write_exr
     from .lighting.filters import Filter
     from .lighting.pem import PEMSettings
@@ -223,13 +234,11 @@ def cmd_sequence(args) -> int:
     garment, positions = to_meshes(seq, topology, up=args.up, scale=args.mesh_scale)
     meshes = [garment] + extra_meshes
     w, h = args.size
-    if args.camera_eye is not None and args.camera_target is not None:
-        camera = Camera(args.camera_eye, args.camera_target, fov_y_deg=args.fov)
-    else:  # frame the whole sequence, so the camera does not move with the cloth
-        lo = positions.reshape(-1, 3).min(axis=0)
-        hi = positions.reshape(-1, 3).max(axis=0)
-        box = [type(garment).from_arrays(np.array([lo, hi, hi]), np.array([[0, 1, 2]]))]
-        camera = frame_meshes(box + extra_meshes, w / h, args.fov)
+    # Frame the whole sequence, so the camera does not move with the cloth.
+    lo = positions.reshape(-1, 3).min(axis=0)
+    hi = positions.reshape(-1, 3).max(axis=0)
+    box = type(garment).from_arrays(np.array([lo, hi, hi]), np.array([[0, 1, 2]]))
+    camera = camera_from_args(args, [box] + extra_meshes, w / h)
     settings = FrameSettings(width=w, height=h, shadow_size=q["shadow_size"], blur_scale=q["blur_scale"],
                              bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
                              background=Background(args.background))
@@ -245,9 +254,7 @@ def cmd_sequence(args) -> int:
                 img = frame.image
                 if exposure is None:  # fixed from the first frame, so the sequence does not flicker
                     exposure = auto_exposure_ev(img[..., :3], img[..., 3])
-                png = img.copy()
-                if args.background == "env":
-                    png[..., 3] = 1.0
+                png = png_image(img, args.background == "env")
                 (args.out / f"frame_{k:04d}.png").write_bytes(to_png_bytes(png, exposure, ToneCurve(args.tone)))
                 if args.exr_frames:
                     write_exr(args.out / f"frame_{k:04d}.exr", img)
@@ -284,7 +291,6 @@ def _write_preview(out: Path, n_frames: int, max_side: int = 256) -> None:
 
 def cmd_reference(args) -> int:
     """The Monte Carlo ground truth of the same scene, with the same output flags as `render`."""
-    from .camera import Camera, frame_meshes
     from .envmap import write_exr
     from .reference import render_reference
     from .shading.tonemap import ToneCurve, auto_exposure_ev, write_png
@@ -292,10 +298,7 @@ def cmd_reference(args) -> int:
     face = args.face_size or 256  # the reference reads the map itself: a fine cube by default
     env, meshes, materials = load_scene_inputs(args, face)
     w, h = args.size
-    if args.camera_eye is not None and args.camera_target is not None:
-        camera = Camera(args.camera_eye, args.camera_target, fov_y_deg=args.fov)
-    else:
-        camera = frame_meshes(meshes, w / h, args.fov)
+    camera = camera_from_args(args, meshes, w / h)
     t0 = time.perf_counter()
     ref = render_reference(meshes, materials, env.cube, camera, w, h, args.spp, seed=args.seed)
     wall = time.perf_counter() - t0
@@ -304,9 +307,7 @@ def cmd_reference(args) -> int:
         write_exr(args.exr, img)
     exposure = args.exposure if args.exposure is not None else auto_exposure_ev(img[..., :3], img[..., 3])
     if args.out:
-        png = img.copy()
-        png[..., 3] = 1.0
-        write_png(args.out, png, exposure, ToneCurve(args.tone))
+        write_png(args.out, png_image(img, True), exposure, ToneCurve(args.tone))
     report = {"spp": args.spp, "seed": args.seed, "wall_s": wall, "rays_cast": int(ref.rays_cast),
               "noise_floor_rel": float(ref.noise_floor_rel()), "environment": env.name, "face_size": face,
               "camera": {"eye": list(camera.eye), "target": list(camera.target), "fov_y_deg": camera.fov_y_deg}}

@@ -9,6 +9,9 @@ import numpy as np
 import pytest
 
 ASSETS = Path(__file__).resolve().parents[1].parent / "shared" / "assets"
+HDRI = ASSETS / "hdri"
+needs_assets = pytest.mark.skipif(not HDRI.is_dir(),
+                                  reason=f"shared HDRI assets not found at {HDRI} (they live outside the repository)")
 
 
 def asset(*parts: str) -> Path:

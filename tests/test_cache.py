@@ -1,5 +1,4 @@
 import numpy as np
-import pytest
 
 from renderer.cache import PEMCache, cache_key
 from renderer.lighting.filters import Filter

@@ -24,9 +24,7 @@ from renderer.envmap import (
 )
 from renderer.errors import EnvironmentMapError, InvalidInputError
 
-HDRI = Path(__file__).resolve().parents[1].parent / "shared" / "assets" / "hdri"
-needs_assets = pytest.mark.skipif(not HDRI.is_dir(),
-                                  reason=f"shared HDRI assets not found at {HDRI} (they live outside the repository)")
+from conftest import HDRI, needs_assets
 
 # (file, height, width, has negative texels) from shared/assets/MANIFEST.md
 ASSETS = [

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import time
 import tracemalloc
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,9 +29,7 @@ from renderer.envmap import (
 )
 from renderer.errors import EnvironmentMapError
 
-HDRI = Path(__file__).resolve().parents[1].parent / "shared" / "assets" / "hdri"
-needs_assets = pytest.mark.skipif(not HDRI.is_dir(),
-                                  reason=f"shared HDRI assets not found at {HDRI} (they live outside the repository)")
+from conftest import HDRI, needs_assets
 
 SIZES = {Layout.LATLONG: (64, 128), Layout.ANGULAR: (96, 96), Layout.HCROSS: (48, 64), Layout.VCROSS: (64, 48)}
 # Tiles of the crosses: (column, row) -> face direction, as pinned in the layouts module docstring.

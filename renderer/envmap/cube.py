@@ -60,7 +60,6 @@ def dir_to_face_uv(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     ax, ay, az = np.abs(x), np.abs(y), np.abs(z)
     use_x = (ax >= ay) & (ax >= az)
     use_y = ~use_x & (ay >= az)
-    use_z = ~use_x & ~use_y
     face = np.where(use_x, np.where(x >= 0, 0, 1), np.where(use_y, np.where(y >= 0, 2, 3), np.where(z >= 0, 4, 5)))
     ma = np.where(use_x, ax, np.where(use_y, ay, az))
     ma = np.where(ma > 0, ma, 1.0)

@@ -156,7 +156,7 @@ def _comparison(face_size: int, results: dict[str, dict], curve_s: list[float]) 
         f"s = 1 error is {diffuse[best]:.1f} % ({best}), "
         + ("close to" if diffuse[best] <= 2 * PAPER_BEST_DIFFUSE_ERROR_PCT else
            f"{diffuse[best] / PAPER_BEST_DIFFUSE_ERROR_PCT:.1f} times")
-        + f" the paper's figure; s = 1 errors: "
+        + " the paper's figure; s = 1 errors: "
         + ", ".join(f"{n} {e:.1f} %" for n, e in diffuse.items()) + ".",
         f"Largest error over s in [{curve_s[0]:g}, {curve_s[-1]:g}]: "
         + ", ".join(f"{n} {p:.1f} % (s = {s:.0f})" for n, (p, s) in peaks.items()) + ".",

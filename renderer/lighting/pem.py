@@ -61,6 +61,7 @@ class PEMSet:
             raise InvalidInputError("cube map has NaN, Inf or negative texels; load it with repair=True")
         self.gl = gl
         self.settings = settings
+        self._gloss_table: np.ndarray | None = None
         self.face_size = n
         full = mip_levels(n)
         self.levels = full if settings.levels is None else int(np.clip(settings.levels, 1, full))
@@ -106,9 +107,12 @@ class PEMSet:
     GLOSS_TABLE_SIZE = 257
 
     def gloss_table(self) -> np.ndarray:
-        """Fractional MIP level for g = k / 256, k = 0..256, clamped to the levels built: float32 (257,)."""
-        g = np.linspace(0.0, 1.0, self.GLOSS_TABLE_SIZE)
-        return np.array([self.level_for_glossiness(x) for x in g], np.float32)
+        """Fractional MIP level for g = k / 256, k = 0..256, clamped to the levels built: float32 (257,).
+        Computed once per set (it depends on the set only), not once per frame."""
+        if self._gloss_table is None:
+            g = np.linspace(0.0, 1.0, self.GLOSS_TABLE_SIZE)
+            self._gloss_table = np.array([self.level_for_glossiness(x) for x in g], np.float32)
+        return self._gloss_table
 
     # -- build ------------------------------------------------------------------------------
     def _build(self, cube: np.ndarray) -> None:

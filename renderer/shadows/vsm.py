@@ -49,8 +49,9 @@ class ShadowMaps:
 
     @property
     def nbytes(self) -> int:
-        n = 2 if self.target is self.moments else 3
-        return self.size * self.size * 8 * (2 * self.n_lights if n == 2 else 2 * self.n_lights + self.batch_layers)
+        # moments + blur scratch, plus the batch target when the lights need more than one draw
+        layers = 2 * self.n_lights + (0 if self.target is self.moments else self.batch_layers)
+        return self.size * self.size * 8 * layers
 
     def render(self, vaos: list[moderngl.VertexArray], lights_buffer: moderngl.Buffer,
                shadow_lights_buffer: moderngl.Buffer, timer: StageTimer | None = None, enabled: bool = True) -> None:
