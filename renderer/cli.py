@@ -11,14 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import RenderError
+from .presets import DEFAULT_PRESETS, presets
 
-# Quality presets used until a benchmark table is stored in the package (renderer/bench/measured.json,
-# written by `garment-render bench --store`); then the presets come from the measured table.
-DEFAULT_PRESETS = {
-    "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 0.1},
-    "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.1},
-    "accurate": {"lights": 96, "face_size": 256, "shadow_size": 512, "blur_scale": 0.1},
-}
 
 
 def _floats(n: int):
@@ -83,20 +77,6 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--exposure", type=float, help="exposure in EV (default: automatic)")
     o.add_argument("--tone", default="filmic", choices=["filmic", "reinhard", "linear"])
     o.add_argument("--background", default="env", choices=["env", "black"])
-
-
-def presets() -> tuple[dict, str]:
-    """The presets and where they come from (the measured table when there is one)."""
-    from .bench.budget import load_table
-    from .bench.budget import presets as measured_presets
-
-    table = load_table()
-    if table is None:
-        return DEFAULT_PRESETS, "default (no measured table stored)"
-    found = measured_presets(table)
-    merged = {name: {k: v for k, v in found.get(name, DEFAULT_PRESETS[name]).items() if k != "filter"}
-              for name in DEFAULT_PRESETS}
-    return merged, f"measured on {table['machine'].get('gl_renderer', '?')} ({table['machine'].get('date', '?')})"
 
 
 def resolve_quality(args) -> dict:

@@ -18,7 +18,7 @@ from contextlib import asynccontextmanager
 import anyio
 from fastapi import FastAPI
 
-from renderer.cli import presets as renderer_presets
+from renderer.presets import presets as renderer_presets
 
 from .errors import install_error_handlers
 from .limits import BodyLimitMiddleware

@@ -22,11 +22,11 @@ from ..gpu.context import GLContext
 from ..lighting.filters import Filter
 from ..lighting.pem import PEMSettings
 from ..reference import mean_flip, relative_rmse, render_reference
+from ..presets import DEFAULT_PRESETS
 from ..renderer import FrameSettings, Renderer, ShadingMode
 from .scenes import BenchScene, bundled_scene, shared_scenes
 
-BALANCED = {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.1, "filter": "sqrt-cosine",
-            "horizon": False}
+BALANCED = {**DEFAULT_PRESETS["balanced"], "filter": "sqrt-cosine", "horizon": False}
 
 SWEEPS = {
     "lights": [6, 12, 24, 48, 96, 192, 384],

@@ -1,0 +1,25 @@
+"""Quality presets: the defaults, or the settings chosen from the measured benchmark table when
+one is stored in the package (renderer/bench/measured.json, written by `garment-render bench --store`).
+Used by the command line, the service and the benchmark alike."""
+
+from __future__ import annotations
+
+DEFAULT_PRESETS = {
+    "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 0.1},
+    "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.1},
+    "accurate": {"lights": 96, "face_size": 256, "shadow_size": 512, "blur_scale": 0.1},
+}
+
+
+def presets() -> tuple[dict, str]:
+    """The presets and where they come from (the measured table when there is one)."""
+    from .bench.budget import load_table
+    from .bench.budget import presets as measured_presets
+
+    table = load_table()
+    if table is None:
+        return DEFAULT_PRESETS, "default (no measured table stored)"
+    found = measured_presets(table)
+    merged = {name: {k: v for k, v in found.get(name, DEFAULT_PRESETS[name]).items() if k != "filter"}
+              for name in DEFAULT_PRESETS}
+    return merged, f"measured on {table['machine'].get('gl_renderer', '?')} ({table['machine'].get('date', '?')})"
