@@ -212,7 +212,7 @@ class Renderer:
             shadow_list.bind_to_storage_buffer(2)
             self._gloss_buf.write(pems.gloss_table().tobytes())
             self._gloss_buf.bind_to_storage_buffer(1)
-            pems.bind(0, 5)
+            pems.bind(0, 5, 6)
             shadow_maps.moments.use(location=1)
             if settings.background is Background.ENVIRONMENT:
                 ctx.disable(moderngl.DEPTH_TEST)

@@ -110,14 +110,16 @@ class CubeMapArray:
         return out
 
     def write_level(self, level: int, data: np.ndarray) -> None:
-        """Upload one whole MIP level: float16 (layers, 6, s, s, 4), as `read_level` returns (in half)."""
+        """Upload one whole MIP level: (layers, 6, s, s, 4), as `read_level` returns it; sent as half
+        floats to an RGBA16F texture, as float32 to an RGBA32F one."""
         self._check()
         s = max(1, self.size >> level)
-        data = np.ascontiguousarray(data, np.float16)
+        half = self.internal_format == GL_RGBA16F
+        data = np.ascontiguousarray(data, np.float16 if half else np.float32)
         if data.shape != (self.layers, 6, s, s, 4):
             raise ValueError(f"level {level} must have shape {(self.layers, 6, s, s, 4)}, got {data.shape}")
-        self.gl.glTextureSubImage3D(self.glo, level, 0, 0, 0, s, s, 6 * self.layers, GL_RGBA, GL_HALF_FLOAT,
-                                    data.ctypes.data)
+        self.gl.glTextureSubImage3D(self.glo, level, 0, 0, 0, s, s, 6 * self.layers, GL_RGBA,
+                                    GL_HALF_FLOAT if half else GL_FLOAT, data.ctypes.data)
 
     def _check(self) -> None:
         if self.glo == 0:

@@ -4,7 +4,9 @@ the GPU with compute shaders (Knuth et al. 2014, sections 3.1, 3.2 and 4).
 Storage is one GL_TEXTURE_CUBE_MAP_ARRAY in RGBA16F (the paper's format, Fig. 8), layer i = region
 i. Each region is stored divided by its own scale (its brightest channel value at level 0), so every
 stored texel is <= 1 and a sun of 1e6 never overflows half floats (65504); the shading pass multiplies
-the scale back in float32. The build works on batches of regions so that its float32 scratch
+the scale back in float32. The chain is solid-angle weighted (pem_reference's module doc): the stored
+levels are A = chain(L * w), and a one-layer float32 texture holds B = chain(w), the same for every
+region, by which the shading pass divides once per lookup direction. The build works on batches of regions so that its float32 scratch
 buffers stay bounded whatever the region count.
 """
 
@@ -17,12 +19,12 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from ..gpu.context import GLContext, StageTimer
-from ..gpu.rawgl import GL_RGBA16F, CubeMapArray
+from ..gpu.rawgl import GL_RGBA16F, GL_RGBA32F, CubeMapArray
 from ..gpu.shaders import compute_shader
 from .filters import Filter, taps_1d
 from .glossiness import LobeTable, lobe_table
 from .median_cut import RegionSet, median_cut
-from .pem_reference import mip_levels
+from .pem_reference import mip_levels, texel_weights, weight_chain
 
 SCRATCH_BUDGET_BYTES = 64 << 20  # bound on the two float32 scratch buffers of one batch
 # GL_MAX_ARRAY_TEXTURE_LAYERS is 2048 on Mesa and NVIDIA: 341 cubes. 192 regions per texture keeps
@@ -86,15 +88,19 @@ class PEMSet:
             raise InvalidInputError(f"at most {REGIONS_PER_TEXTURE * MAX_TEXTURES} lights are supported, got {n_regions}")
         self.textures = [CubeMapArray(gl.gl, n, min(REGIONS_PER_TEXTURE, n_regions - first), self.levels, GL_RGBA16F)
                          for first in range(0, n_regions, REGIONS_PER_TEXTURE)]
+        self.norm_texture = CubeMapArray(gl.gl, n, 1, self.levels, GL_RGBA32F)
         t0 = time.perf_counter()
         try:
             with gl.stage(timer, "pem_build" if stored is None else "pem_upload"):
+                self._norm = weight_chain(n, settings.filter, self.levels)
+                for level, b in enumerate(self._norm):
+                    self.norm_texture.write_level(level, np.repeat(b[None], 4, axis=-1))
                 if stored is None:
                     self._build(cube)
                 else:
                     self._upload(stored)
         except Exception:
-            for t in self.textures:
+            for t in self.textures + [self.norm_texture]:
                 t.release()
             raise
         self.build_ms = (time.perf_counter() - t0) * 1e3
@@ -119,7 +125,7 @@ class PEMSet:
         ctx = self.gl.ctx
         n, n_regions = self.face_size, self.regions.n_regions
         env4 = np.zeros((6, n, n, 4), np.float32)
-        env4[..., :3] = cube[..., :3]
+        env4[..., :3] = cube[..., :3] * texel_weights(n)  # A = chain(L * w), see the module doc
         buffers = [ctx.buffer(env4.tobytes()),
                    ctx.buffer(np.ascontiguousarray(self.regions.labels, np.int32).tobytes()),
                    ctx.buffer((1.0 / self.scale).astype(np.float32).tobytes())]
@@ -205,15 +211,18 @@ class PEMSet:
         """Stored (scaled) texels of one level: float32 (N, 6, s, s, 4)."""
         return np.concatenate([t.read_level(level) for t in self.textures])
 
-    def bind(self, first_unit: int, second_unit: int) -> None:
-        """Bind the PEM textures for shading (regions 0..191 and 192..383)."""
+    def bind(self, first_unit: int, second_unit: int, norm_unit: int) -> None:
+        """Bind the PEM textures for shading (regions 0..191 and 192..383) and the normalizer B."""
         self.textures[0].bind_sampler(first_unit)
         self.textures[-1].bind_sampler(second_unit)
+        self.norm_texture.bind_sampler(norm_unit)
 
     def read_level(self, level: int) -> np.ndarray:
-        """All regions' texels of one level, unscaled to radiance: float32 (N, 6, s, s, 3)."""
+        """All regions' texels of one level as radiance (A * scale / B at the texel centres): float32
+        (N, 6, s, s, 3)."""
         data = self.read_level_raw(level)[..., :3]
-        return data * self.scale.astype(np.float32)[:, None, None, None, None]
+        inv_b = (1.0 / self._norm[level]).astype(np.float32)[None]
+        return data * self.scale.astype(np.float32)[:, None, None, None, None] * inv_b
 
     def summary(self) -> dict:
         return {"n_regions": self.n_regions, "face_size": self.face_size, "levels": self.levels,
@@ -224,4 +233,5 @@ class PEMSet:
     def release(self) -> None:
         for t in self.textures:
             t.release()
+        self.norm_texture.release()
         self.env_texture.release()

@@ -5,6 +5,16 @@ Level 0 is the (partial) map itself: the mirror lobe. Level L+1 = F5x5(M2x2(leve
 is the classic 2x2 mean of MIP mapping and F5x5 the separable normalized filter of `filters.py`,
 evaluated as the full 25-tap outer product so that taps beyond a face edge read the neighbouring
 face (cube.neighbour_texel): no seams, and the result does not depend on the pass order.
+
+Solid-angle weighting. A cube texel at a face corner covers about a fifth of the solid angle of one at
+the face centre, but M2x2 and F5x5 weight texels equally. Filtering radiance directly therefore does not
+conserve energy: at the diffuse level of a 128^2 chain a small sun at a face centre keeps 44 % of its
+energy and one near a corner gains about twice its energy (measured: the studio scene's key light sits
+near a cube corner and the image came out 1.27x too bright). So the chain filters the texels' energy
+weights instead: A = chain(L * w) and B = chain(w), w the texel solid angle relative to the face
+centre's, and a lookup returns A / B. B does not depend on the map (one small chain per face size and
+filter, shared by all regions), the result is still linear in L (so the PEMs of all regions still sum
+to the filtered full map) and a constant map stays exactly constant (the furnace test).
 """
 
 from __future__ import annotations
@@ -13,7 +23,7 @@ import functools
 
 import numpy as np
 
-from ..envmap.cube import neighbour_texel
+from ..envmap.cube import neighbour_texel, texel_solid_angles
 from .filters import Filter, taps_1d
 
 
@@ -50,10 +60,34 @@ def filter_5x5(cube: np.ndarray, kind: Filter | str) -> np.ndarray:
     return out
 
 
-def pem_chain(cube: np.ndarray, kind: Filter | str, levels: int | None = None) -> list[np.ndarray]:
-    """The MIP chain of one (partial) environment map: list of (6, n_l, n_l, C) float64 arrays."""
+def texel_weights(face_size: int) -> np.ndarray:
+    """w: texel solid angle relative to the face centre's, float64 (6, n, n, 1), in (0.19, 1]."""
+    omega = texel_solid_angles(face_size)
+    return np.broadcast_to((omega / omega.max())[None, :, :, None], (6, face_size, face_size, 1)).copy()
+
+
+def unweighted_chain(cube: np.ndarray, kind: Filter | str, levels: int | None = None) -> list[np.ndarray]:
+    """The plain MIP chain (2x2 mean + F5x5 per level) of any (6, n, n, C) array: float64 levels."""
     levels = mip_levels(cube.shape[1]) if levels is None else levels
     chain = [np.asarray(cube, np.float64)]
     for _ in range(1, levels):
         chain.append(filter_5x5(downsample_2x2(chain[-1]), kind))
     return chain
+
+
+@functools.lru_cache(maxsize=32)
+def weight_chain(face_size: int, kind: Filter | str, levels: int | None = None) -> tuple[np.ndarray, ...]:
+    """B = chain(w) (see the module doc): the normalizer of every level, float64 (6, n_l, n_l, 1)."""
+    chain = unweighted_chain(texel_weights(face_size), Filter.parse(kind), levels)
+    for level in chain:
+        level.setflags(write=False)
+    return tuple(chain)
+
+
+def pem_chain(cube: np.ndarray, kind: Filter | str, levels: int | None = None) -> list[np.ndarray]:
+    """The solid-angle weighted MIP chain of one (partial) environment map, A / B at the texel centres:
+    list of (6, n_l, n_l, C) float64 arrays."""
+    cube = np.asarray(cube, np.float64)
+    n = cube.shape[1]
+    norm = weight_chain(n, Filter.parse(kind), levels)
+    return [a / b for a, b in zip(unweighted_chain(cube * texel_weights(n), kind, levels), norm)]

@@ -1,4 +1,6 @@
 // Final lighting, Knuth et al. 2014 Eq. 5: c = sum_i VIS_i * PEM_i(dir, g).
+// The PEMs hold solid-angle weighted chains A_i (renderer/lighting/pem_reference.py): a lookup is
+// A_i(dir) / B(dir), and B, the same for every region, is read once per direction.
 // Diffuse: PEM_i looked up along the normal at the calibrated s = 1 level, times the albedo.
 // Glossy: PEM_i looked up along the reflection vector at the level calibrated for g, times the
 // specular weight. VIS_i is the variance-shadow-map visibility of light i.
@@ -16,6 +18,7 @@ layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
 layout(std430, binding = 1) readonly buffer GlossLevels { float level_of_g[]; };  // GLOSS_TABLE_SIZE
 layout(binding = 0) uniform samplerCubeArray u_pem0;         // layer i = region i < 192, scaled by 1/scale_i
 layout(binding = 5) uniform samplerCubeArray u_pem1;         // layer i - 192 = region i >= 192
+layout(binding = 6) uniform samplerCubeArray u_pem_norm;     // layer 0: B = chain(w), the normalizer
 layout(binding = 1) uniform sampler2DArray u_moments;        // layer i = light i (blurred moments)
 layout(binding = 3) uniform sampler2D u_albedo_map;          // multiplies the vertex albedo
 layout(binding = 4) uniform sampler2D u_gloss_map;           // (specular, glossiness), replaces the vertex values
@@ -125,11 +128,11 @@ void main() {
         }
     }
 #else
+    bool glossy = specular > 0.0;
     {
         // Two loops, one per PEM texture, so that the sampler choice is not a per-light branch
         // (a divergent branch around texture lookups costs a third of the pass on llvmpipe).
         int n0 = min(u_n_lights, REGIONS_PER_TEXTURE);
-        bool glossy = specular > 0.0;
         for (int i = 0; i < n0; ++i) {
             vec3 pem_d = textureLod(u_pem0, vec4(n, float(i)), u_diffuse_level).rgb;
             vec3 pem_g = glossy ? textureLod(u_pem0, vec4(r, float(i)), level_g).rgb : vec3(0.0);
@@ -142,6 +145,8 @@ void main() {
             add_light(i, pem_d, pem_g, n, shadow_pos);
         }
     }
+    g_diffuse /= textureLod(u_pem_norm, vec4(n, 0.0), u_diffuse_level).r;
+    if (glossy) g_glossy /= textureLod(u_pem_norm, vec4(r, 0.0), level_g).r;
 #endif
     if (MODE == 2 || MODE == 3) {
         vec3 ao = g_ao_rgb / max(g_ao_norm, vec3(1e-30));
