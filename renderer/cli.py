@@ -66,6 +66,10 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--shadow-size", type=int, help="shadow-map size per light")
     q.add_argument("--blur-scale", type=float, help="scale of the per-light shadow blur (0: hard shadows)")
     q.add_argument("--bleed-reduction", type=float, default=0.2)
+    q.add_argument("--calibration", default="l2", choices=["l2", "volume"],
+                   help="g -> MIP level: the closest normalized kernel (l2) or the paper's equal lobe volume")
+    q.add_argument("--diffuse", default="pem", choices=["pem", "lights"],
+                   help="diffuse term from the PEMs along the normal (the paper) or from each light's disc")
     q.add_argument("--mode", default="full", choices=["full", "none", "ao", "ao-color", "many-lights"],
                    help="full method, no occlusion, grey AO, AO with colour (paper Fig. 6), or the plain "
                         "many-light baseline (the N lights shade as well as shadow)")
@@ -158,6 +162,7 @@ def cmd_render(args) -> int:
     w, h = args.size
     settings = FrameSettings(width=w, height=h, shadow_size=q["shadow_size"], blur_scale=q["blur_scale"],
                              bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
+                             calibration=args.calibration, diffuse=args.diffuse,
                              background=Background(args.background))
     camera = camera_from_args(args, meshes, w / h)
     with Renderer() as r:
@@ -221,6 +226,7 @@ def cmd_sequence(args) -> int:
     camera = camera_from_args(args, [box] + extra_meshes, w / h)
     settings = FrameSettings(width=w, height=h, shadow_size=q["shadow_size"], blur_scale=q["blur_scale"],
                              bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
+                             calibration=args.calibration, diffuse=args.diffuse,
                              background=Background(args.background))
     args.out.mkdir(parents=True, exist_ok=True)
     timings, previews = [], []

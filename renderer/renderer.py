@@ -19,6 +19,7 @@ from .camera import Camera, bounds_sphere, default_camera
 from .errors import InvalidInputError
 from .gpu.context import GLContext, StageTimer
 from .gpu.shaders import program
+from .lighting.glossiness import Calibration
 from .lighting.pem import REGIONS_PER_TEXTURE, PEMSet, PEMSettings
 from .mesh import Mesh
 from .scene import Scene
@@ -42,6 +43,9 @@ _MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_
                ShadingMode.MANY_LIGHTS: 4}
 
 
+DIFFUSE_SOURCES = ("pem", "lights")
+
+
 class Background(str, Enum):
     ENVIRONMENT = "env"
     BLACK = "black"
@@ -60,6 +64,12 @@ class FrameSettings:
     normal_offset_texels: float = 1.5
     shadow_threshold: float = 0.0  # lights below this share of the energy get no shadow map
     horizon: bool = False          # VIS_i includes the tangent plane (see surface.frag); off: the paper
+    # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level) or
+    # "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups).
+    diffuse: str = "pem"
+    # g -> MIP level: "l2" (closest normalized kernel, the default: lower error in every target scene)
+    # or "volume" (the paper's section 5); lighting/glossiness.py.
+    calibration: Calibration = Calibration.L2
     mode: ShadingMode = ShadingMode.FULL
     background: Background = Background.ENVIRONMENT
 
@@ -70,12 +80,16 @@ class FrameSettings:
             raise InvalidInputError(f"bleed reduction must be in [0, 1), got {self.bleed_reduction}")
         if not (0.0 <= self.shadow_threshold <= 1.0):
             raise InvalidInputError(f"shadow threshold is a share of the energy in [0, 1], got {self.shadow_threshold}")
+        object.__setattr__(self, "calibration", Calibration.parse(self.calibration))
+        if self.diffuse not in DIFFUSE_SOURCES:
+            raise InvalidInputError(f"diffuse must be one of {', '.join(DIFFUSE_SOURCES)}, got {self.diffuse!r}")
         if not (0.0 <= self.blur_scale <= 100.0) or not np.isfinite(self.blur_scale):
             raise InvalidInputError(f"blur scale must be in [0, 100], got {self.blur_scale}")
 
     def as_dict(self) -> dict:
         d = asdict(self)
         d["mode"], d["background"] = self.mode.value, self.background.value
+        d["calibration"] = self.calibration.value
         return d
 
 
@@ -106,7 +120,7 @@ class Renderer:
         ctx = self.gl.ctx
         defines = {"GLOSS_TABLE_SIZE": PEMSet.GLOSS_TABLE_SIZE, "REGIONS_PER_TEXTURE": REGIONS_PER_TEXTURE}
         self._defines = defines
-        self._shade_progs: dict[ShadingMode, moderngl.Program] = {}
+        self._shade_progs: dict[tuple[ShadingMode, bool], moderngl.Program] = {}
         self.bg_prog = program(ctx, "shading/background.vert", "shading/background.frag")
         self.bg_vao = ctx.vertex_array(self.bg_prog, [])
         self._shadow_maps = None
@@ -118,12 +132,17 @@ class Renderer:
         self.depth_prog = program(ctx, "shading/depth.vert", "shading/depth.frag")
         self._programs = {"moments": self._shadow_prog, "depth": self.depth_prog}
 
-    def shade_program(self, mode: ShadingMode) -> moderngl.Program:
-        """The shading program of a mode, compiled on first use (one variant per mode)."""
-        if mode not in self._shade_progs:
-            self._shade_progs[mode] = program(self.gl.ctx, "shading/surface.vert", "shading/surface.frag",
-                                              {**self._defines, "MODE": _MODE_INDEX[mode]})
-        return self._shade_progs[mode]
+    def shade_program(self, mode: ShadingMode, diffuse: str = "pem") -> moderngl.Program:
+        """The shading program of a mode and diffuse source, compiled on first use (one variant each).
+        The diffuse source matters to the full and no-occlusion modes only."""
+        lights = diffuse == "lights" and mode in (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
+        key = (mode, lights)
+        if key not in self._shade_progs:
+            defines = {**self._defines, "MODE": _MODE_INDEX[mode]}
+            if lights:
+                defines["DIFFUSE_LIGHTS"] = 1
+            self._shade_progs[key] = program(self.gl.ctx, "shading/surface.vert", "shading/surface.frag", defines)
+        return self._shade_progs[key]
 
     # -- resources --------------------------------------------------------------------------
     def build_pems(self, cube: np.ndarray, settings: PEMSettings = PEMSettings(),
@@ -190,7 +209,7 @@ class Renderer:
         layers = shadow_layers(regions.energy_luminance, settings.shadow_threshold if shadowed else 2.0)
         n_shadowed = int((layers >= 0).sum())
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
-                             sigma, layers, regions.light_radius_rad())
+                             sigma, layers, regions.disc_radius_rad())
         lights_buf = self._buffer("lights", lights.tobytes())
         shadow_list = self._buffer("shadow_lights", np.nonzero(layers >= 0)[0].astype(np.int32).tobytes() or b"\0" * 4)
 
@@ -210,7 +229,7 @@ class Renderer:
             fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
             lights_buf.bind_to_storage_buffer(0)
             shadow_list.bind_to_storage_buffer(2)
-            self._gloss_buf.write(pems.gloss_table().tobytes())
+            self._gloss_buf.write(pems.gloss_table(settings.calibration).tobytes())
             self._gloss_buf.bind_to_storage_buffer(1)
             pems.bind(0, 5, 6)
             shadow_maps.moments.use(location=1)
@@ -229,11 +248,11 @@ class Renderer:
             fbo.color_mask = (True, True, True, True)
             fbo.depth_mask = False
             ctx.depth_func = "<="
-            p = self.shade_program(settings.mode)
+            p = self.shade_program(settings.mode, settings.diffuse)
             _set_uniform(p, "u_view_proj", vp_bytes)
             _set_uniform(p, "u_camera_pos", tuple(float(x) for x in camera.eye))
             _set_uniform(p, "u_n_lights", n)
-            _set_uniform(p, "u_diffuse_level", pems.diffuse_level())
+            _set_uniform(p, "u_diffuse_level", pems.diffuse_level(settings.calibration))
             _set_uniform(p, "u_min_variance", settings.min_variance)
             _set_uniform(p, "u_bleed_reduction", settings.bleed_reduction)
             _set_uniform(p, "u_horizon", settings.horizon)

@@ -16,7 +16,9 @@ MEASURED = Path(__file__).with_name("measured.json")
 
 # Error targets of the presets (relative RMSE against the Monte Carlo reference, worst scene).
 PRESET_ERROR = {"fast": 0.10, "balanced": 0.05}
-KNOBS = ("lights", "face_size", "shadow_size", "blur_scale", "filter", "horizon")
+KNOBS = ("lights", "face_size", "shadow_size", "blur_scale", "filter", "horizon", "calibration", "diffuse")
+# Knobs added after a table was stored take the value they had then (the only one there was).
+KNOB_DEFAULTS = {"horizon": False, "calibration": "volume", "diffuse": "pem"}
 
 
 def summarize(bench: dict) -> dict:
@@ -25,7 +27,7 @@ def summarize(bench: dict) -> dict:
     for row in bench["rows"]:
         if row["mode"] != "full":
             continue
-        key = tuple(row["settings"].get(k, False) for k in KNOBS)
+        key = tuple(row["settings"].get(k, KNOB_DEFAULTS.get(k)) for k in KNOBS)
         groups.setdefault(key, []).append(row)
     entries = []
     for key, rows in groups.items():

@@ -26,7 +26,8 @@ from ..presets import DEFAULT_PRESETS
 from ..renderer import FrameSettings, Renderer, ShadingMode
 from .scenes import BenchScene, bundled_scene, shared_scenes
 
-BALANCED = {**DEFAULT_PRESETS["balanced"], "filter": "sqrt-cosine", "horizon": False}
+BALANCED = {**DEFAULT_PRESETS["balanced"], "filter": "sqrt-cosine", "horizon": False, "calibration": "l2",
+            "diffuse": "pem"}
 
 SWEEPS = {
     "lights": [6, 12, 24, 48, 96, 192, 384],
@@ -35,6 +36,8 @@ SWEEPS = {
     "blur_scale": [0.0, 0.1, 0.25, 0.5, 1.0, 2.0],
     "filter": [f.value for f in Filter],
     "horizon": [False, True],
+    "calibration": ["l2", "volume"],
+    "diffuse": ["pem", "lights"],
 }
 QUICK_SWEEPS = {
     "lights": [6, 24, 48, 96],
@@ -43,6 +46,8 @@ QUICK_SWEEPS = {
     "blur_scale": [0.0, 0.1, 1.0],
     "filter": ["none", "sqrt-cosine"],
     "horizon": [False, True],
+    "calibration": ["l2", "volume"],
+    "diffuse": ["pem", "lights"],
 }
 BASELINE_MODES = [ShadingMode.NO_OCCLUSION, ShadingMode.MANY_LIGHTS, ShadingMode.AO_GREY, ShadingMode.AO_COLOUR]
 
@@ -147,7 +152,7 @@ def bench_scene(r: Renderer, bs: BenchScene, cfg: BenchConfig, log=print) -> lis
                 pem_cache[key] = r.build_pems(bs.cube(s["face_size"]), PEMSettings(s["lights"], Filter(s["filter"])))
             pems = pem_cache[key]
             fs = FrameSettings(size, size, shadow_size=s["shadow_size"], blur_scale=s["blur_scale"], mode=mode,
-                               horizon=s["horizon"])
+                               horizon=s["horizon"], calibration=s["calibration"], diffuse=s["diffuse"])
             frame, frame_ms, stages = _time_frames(r, scene, pems, fs, camera, cfg.frames)
             err = relative_rmse(frame.image, truth, mask)
             flip = mean_flip(frame.image, truth, mask)

@@ -35,6 +35,9 @@ class RegionSet:
         times the energy-weighted RMS angle between the region's texels and its light (exact for a
         uniform disc). A large region whose energy sits in a small sun has a small spread: the
         shadow's softness follows where the energy is, not the region's outline.
+    mean_cos: float64 (N,), energy-weighted mean cosine between the region's texels and its light
+        (the length of the region's mean direction vector): E_i * mean_cos_i * (n . l_i) is the exact
+        cosine-weighted integral over a region entirely above the horizon of n.
     """
 
     labels: np.ndarray
@@ -43,6 +46,7 @@ class RegionSet:
     energy_rgb: np.ndarray
     rects: np.ndarray
     spread_rad: np.ndarray
+    mean_cos: np.ndarray
 
     @property
     def n_regions(self) -> int:
@@ -55,6 +59,10 @@ class RegionSet:
     def angular_radius_rad(self) -> np.ndarray:
         """Radius of the cone with the region's solid angle: Omega = 2*pi*(1 - cos r)."""
         return np.arccos(np.clip(1.0 - self.solid_angle_sr / (2.0 * np.pi), -1.0, 1.0))
+
+    def disc_radius_rad(self) -> np.ndarray:
+        """Radius of the uniform disc with the region's mean cosine ((1 + cos r) / 2 = mean_cos)."""
+        return np.arccos(np.clip(2.0 * self.mean_cos - 1.0, -1.0, 1.0))
 
     def light_radius_rad(self) -> np.ndarray:
         """Angular radius that sets the shadow softness: the energy spread, at most the region's cone."""
@@ -138,6 +146,7 @@ def median_cut(cube: np.ndarray, n_lights: int) -> RegionSet:
     out_energy = np.empty((n_lights, 3))
     out_rects = np.empty((n_lights, 5), np.int32)
     out_spread = np.empty(n_lights)
+    out_mean_cos = np.empty(n_lights)
     for face in range(6):
         for j, (r0, r1, c0, c1) in enumerate(_cut_face(energy[face], cuts)):
             rid = face * per_face + j
@@ -151,9 +160,10 @@ def median_cut(cube: np.ndarray, n_lights: int) -> RegionSet:
             out_dirs[rid] = c / np.linalg.norm(c)
             cos_t = np.clip(d @ out_dirs[rid], -1.0, 1.0)
             out_spread[rid] = np.sqrt(2.0 * (weights * np.arccos(cos_t) ** 2).sum() / weights.sum())
+            out_mean_cos[rid] = (weights * cos_t).sum() / weights.sum()
             out_omega[rid] = w.sum()
             out_energy[rid] = (rgb[face, r0:r1, c0:c1] * w[..., None]).sum(axis=(0, 1))
             out_rects[rid] = (face, r0, r1, c0, c1)
-    for arr in (labels, out_dirs, out_omega, out_energy, out_rects, out_spread):
+    for arr in (labels, out_dirs, out_omega, out_energy, out_rects, out_spread, out_mean_cos):
         arr.setflags(write=False)
-    return RegionSet(labels, out_dirs, out_omega, out_energy, out_rects, out_spread)
+    return RegionSet(labels, out_dirs, out_omega, out_energy, out_rects, out_spread, out_mean_cos)

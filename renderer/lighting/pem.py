@@ -22,7 +22,7 @@ from ..gpu.context import GLContext, StageTimer
 from ..gpu.rawgl import GL_RGBA16F, GL_RGBA32F, CubeMapArray
 from ..gpu.shaders import compute_shader
 from .filters import Filter, taps_1d
-from .glossiness import LobeTable, lobe_table
+from .glossiness import Calibration, LobeTable, lobe_table
 from .median_cut import RegionSet, median_cut
 from .pem_reference import mip_levels, texel_weights, weight_chain
 
@@ -63,7 +63,7 @@ class PEMSet:
             raise InvalidInputError("cube map has NaN, Inf or negative texels; load it with repair=True")
         self.gl = gl
         self.settings = settings
-        self._gloss_table: np.ndarray | None = None
+        self._gloss_tables: dict[Calibration, np.ndarray] = {}
         self.face_size = n
         full = mip_levels(n)
         self.levels = full if settings.levels is None else int(np.clip(settings.levels, 1, full))
@@ -112,13 +112,15 @@ class PEMSet:
 
     GLOSS_TABLE_SIZE = 257
 
-    def gloss_table(self) -> np.ndarray:
+    def gloss_table(self, calibration: Calibration | str = Calibration.L2) -> np.ndarray:
         """Fractional MIP level for g = k / 256, k = 0..256, clamped to the levels built: float32 (257,).
-        Computed once per set (it depends on the set only), not once per frame."""
-        if self._gloss_table is None:
+        Computed once per set and calibration, not once per frame."""
+        calibration = Calibration.parse(calibration)
+        if calibration not in self._gloss_tables:
             g = np.linspace(0.0, 1.0, self.GLOSS_TABLE_SIZE)
-            self._gloss_table = np.array([self.level_for_glossiness(x) for x in g], np.float32)
-        return self._gloss_table
+            self._gloss_tables[calibration] = np.array([self.level_for_glossiness(x, calibration) for x in g],
+                                                       np.float32)
+        return self._gloss_tables[calibration]
 
     # -- build ------------------------------------------------------------------------------
     def _build(self, cube: np.ndarray) -> None:
@@ -201,11 +203,11 @@ class PEMSet:
     def nbytes(self) -> int:
         return sum(t.nbytes for t in self.textures)  # the PEMs; the float32 background cube is extra
 
-    def diffuse_level(self) -> float:
-        return min(self.lobes.level_for_glossiness(0.0), self.levels - 1)
+    def diffuse_level(self, calibration: Calibration | str = Calibration.L2) -> float:
+        return min(self.lobes.level_for_glossiness(0.0, calibration), self.levels - 1)
 
-    def level_for_glossiness(self, g: float) -> float:
-        return min(self.lobes.level_for_glossiness(g), self.levels - 1)
+    def level_for_glossiness(self, g: float, calibration: Calibration | str = Calibration.L2) -> float:
+        return min(self.lobes.level_for_glossiness(g, calibration), self.levels - 1)
 
     def read_level_raw(self, level: int) -> np.ndarray:
         """Stored (scaled) texels of one level: float32 (N, 6, s, s, 4)."""

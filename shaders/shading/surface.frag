@@ -72,9 +72,43 @@ vec3 g_diffuse = vec3(0.0), g_glossy = vec3(0.0), g_ao_rgb = vec3(0.0), g_ao_nor
 
 // Adds light i, given its PEM looked up along the normal (pem_d, diffuse level) and along the
 // reflection vector (pem_g, level of g), both still divided by the region's scale.
+#ifdef DIFFUSE_LIGHTS
+// The diffuse term from the light itself instead of its PEM: the region as a uniform disc of angular
+// radius a (its mean cosine (1 + cos a) / 2 is the region's, renderer/lighting/median_cut.py) carrying
+// the region's energy E. Radiance = E / (pi * Omega(a)) * integral over the disc of max(0, n.w) dw;
+// the integral is pi sin^2(a) mu when the disc is above the horizon (mu = n.l >= sin a), and otherwise
+// the closed form of a horizon-clipped uniform cap (Snyder 1996, "Area light sources for real-time
+// graphics"; the form used for sphere lights by Lagarde and de Rousiers 2014). Exact for a region
+// above the horizon whatever its shape; no texture lookup.
+vec3 diffuse_from_light(int i, vec3 n) {
+    float mu = dot(n, lights[i].dir_scale.xyz);
+    float sin_a = lights[i].params.w;
+    float sin2 = sin_a * sin_a;
+    float cos_a = sqrt(max(1.0 - sin2, 0.0));
+    float integral;
+    if (mu >= sin_a) {
+        integral = PI * sin2 * mu;
+    } else if (mu <= -sin_a) {
+        integral = 0.0;
+    } else {
+        float sin_t = sqrt(max(1.0 - mu * mu, 1e-12));
+        float cot_a = cos_a / sin_a;
+        float y = clamp(-cot_a * mu / sin_t, -1.0, 1.0);
+        float q = sin_t * sqrt(max(1.0 - y * y, 0.0));
+        integral = max((mu * acos(y) - cot_a * q) * sin2 + atan(q, cot_a), 0.0);
+    }
+    float omega = 2.0 * PI * sin2 / (1.0 + cos_a);   // 2 pi (1 - cos a), without cancellation
+    return lights[i].energy.rgb * (integral / (PI * max(omega, 1e-30)));
+}
+#endif
+
 void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 shadow_pos) {
     float scale = lights[i].dir_scale.w;
+#ifdef DIFFUSE_LIGHTS
+    pem_d = diffuse_from_light(i, n);
+#else
     pem_d *= scale;
+#endif
     pem_g *= scale;
 #if MODE == 1
     g_diffuse += pem_d;
@@ -134,18 +168,28 @@ void main() {
         // (a divergent branch around texture lookups costs a third of the pass on llvmpipe).
         int n0 = min(u_n_lights, REGIONS_PER_TEXTURE);
         for (int i = 0; i < n0; ++i) {
+#ifdef DIFFUSE_LIGHTS
+            vec3 pem_d = vec3(0.0);
+#else
             vec3 pem_d = textureLod(u_pem0, vec4(n, float(i)), u_diffuse_level).rgb;
+#endif
             vec3 pem_g = glossy ? textureLod(u_pem0, vec4(r, float(i)), level_g).rgb : vec3(0.0);
             add_light(i, pem_d, pem_g, n, shadow_pos);
         }
         for (int i = n0; i < u_n_lights; ++i) {
             float layer = float(i - REGIONS_PER_TEXTURE);
+#ifdef DIFFUSE_LIGHTS
+            vec3 pem_d = vec3(0.0);
+#else
             vec3 pem_d = textureLod(u_pem1, vec4(n, layer), u_diffuse_level).rgb;
+#endif
             vec3 pem_g = glossy ? textureLod(u_pem1, vec4(r, layer), level_g).rgb : vec3(0.0);
             add_light(i, pem_d, pem_g, n, shadow_pos);
         }
     }
+#ifndef DIFFUSE_LIGHTS
     g_diffuse /= textureLod(u_pem_norm, vec4(n, 0.0), u_diffuse_level).r;
+#endif
     if (glossy) g_glossy /= textureLod(u_pem_norm, vec4(r, 0.0), level_g).r;
 #endif
     if (MODE == 2 || MODE == 3) {
