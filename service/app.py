@@ -24,7 +24,7 @@ from .errors import install_error_handlers
 from .limits import BodyLimitMiddleware
 from .metrics import ServiceMetrics
 from .registry import EnvironmentStore, MeshStore, SceneStore
-from .routes import environments, frames, health, meshes, scenes
+from .routes import environments, frames, health, meshes, scenes, viewer
 from .operations import Services
 from .settings import ServiceSettings
 from .state import StateDir
@@ -96,4 +96,6 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     app.include_router(meshes.router)
     app.include_router(scenes.router)
     app.include_router(frames.router)
+    app.include_router(viewer.router)
+    app.include_router(viewer.page_router)
     return app

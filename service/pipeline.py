@@ -23,7 +23,7 @@ from renderer.renderer import Frame
 
 from .codecs import FrameArrays, encode_exr, encode_png
 from .errors import NotAcceptableError, NotFoundError
-from .registry import SceneRecord
+from .registry import LatestFrame, SceneRecord
 from .schemas import ImageFormat
 from .worker import GLResources
 
@@ -99,6 +99,12 @@ def frame_timings(frame: Frame, decode_ms: float, normals_ms: float, queue_ms: f
     t["encode"] = encode_ms
     t["total"] = (time.perf_counter() - t_start) * 1e3
     return {k: round(float(v), 3) for k, v in t.items()}
+
+
+def keep_latest(scene: SceneRecord, index: int, sequence: int, frame: Frame, enc: Encoded, timings: dict) -> None:
+    """Hand the frame to the viewer (no copy; a PNG answer's bytes are kept as they are)."""
+    png = enc.content if enc.media_type == "image/png" else None
+    scene.keep_latest(LatestFrame(index, sequence, frame.image, timings, enc.exposure_ev, png=png))
 
 
 def server_timing(timings: dict[str, float]) -> str:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import secrets
 import threading
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -202,6 +202,23 @@ class SceneMeshInfo:
 
 
 @dataclass
+class LatestFrame:
+    """The last frame of a scene, kept for the viewer (GET /scenes/{id}/latest.png, /view).
+
+    image: the linear render, float32 (H, W, 4), not copied (a frame's array is not written after
+    it is rendered); png: its PNG when the frame was asked for as PNG, else made on the first request
+    for it and kept, so a frame is encoded for the viewer at most once, and only when someone looks."""
+
+    frame_index: int
+    sequence: int
+    image: np.ndarray
+    timings_ms: dict
+    exposure_ev: float | None
+    received: float = field(default_factory=time.time)
+    png: bytes | None = None
+
+
+@dataclass
 class SceneRecord:
     """A registered scene. `gpu` is created, used and released on the GL thread only."""
 
@@ -221,12 +238,29 @@ class SceneRecord:
     released: bool = False
     frames_rendered: int = 0
     created: float = field(default_factory=time.time)
+    latest: LatestFrame | None = None
+    _arrivals: deque = field(default_factory=lambda: deque(maxlen=30), repr=False)  # time.monotonic() of frames
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     def count_frames(self, n: int = 1) -> int:
         with self._lock:
             self.frames_rendered += n
             return self.frames_rendered
+
+    def keep_latest(self, frame: LatestFrame) -> None:
+        """Keep `frame` unless a later one (by the service's sequence) is kept already: with several
+        clients, answers can finish out of order."""
+        with self._lock:
+            self._arrivals.append(time.monotonic())
+            if self.latest is None or frame.sequence > self.latest.sequence:
+                self.latest = frame
+
+    def frame_rate_hz(self) -> float | None:
+        """Frames per second over the last (up to) 30 frames; None before two frames."""
+        with self._lock:
+            if len(self._arrivals) < 2 or self._arrivals[-1] <= self._arrivals[0]:
+                return None
+            return (len(self._arrivals) - 1) / (self._arrivals[-1] - self._arrivals[0])
 
     def mesh(self, role: str) -> SceneMeshInfo | None:
         return next((m for m in self.meshes if m.role == role), None)

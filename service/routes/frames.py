@@ -35,6 +35,7 @@ from ..pipeline import (
     frame_payload,
     frame_response,
     frame_timings,
+    keep_latest,
     negotiate,
     render_job,
     server_timing,
@@ -89,6 +90,7 @@ async def post_frame(
                             enc.encode_ms, t_start)
     metrics.observe_frame("frames", fmt.value, timings)
     index = x_frame_index if x_frame_index is not None else sequence - 1
+    keep_latest(scene, index, sequence, frame, enc, timings)
     response = frame_response(fmt, scene.id, index, frame, enc, timings, source)
     response.headers["X-Frame-Sequence"] = str(sequence)
     return response
@@ -181,6 +183,7 @@ async def post_batch(
                 totals[key] = totals.get(key, 0.0) + v
             metrics.observe_frame("batch", format.value, timings)
             sequence = scene.count_frames()
+            keep_latest(scene, i, sequence, frame, enc, timings)
             if zf is not None:
                 ext = "exr" if enc.media_type == "image/x-exr" else "png"
                 zf.writestr(f"frame_{i:05d}.{ext}", enc.content)

@@ -1,0 +1,125 @@
+"""Drop a cloth onto a mannequin and have a running render service draw every frame.
+
+    python -m simulation.demo --server http://127.0.0.1:8000 --frames 120
+
+The simulation of frame k+1 runs while the service renders frame k (one frame in flight). Every
+`--drape-frames` frames the cloth is lifted and dropped again; `--frames 0` runs until interrupted.
+Each frame prints its simulation time, the service's render time and the round trip.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import httpx
+
+from service.client import RenderClient
+
+from .cloth import sheet
+from .feed import FRONT, THREE_QUARTER, DrapeFeed, upload_studio_environment
+from .proxy import mannequin
+from .solver import ClothSettings, ClothSim
+
+VIEWS = {"front": FRONT, "three-quarter": THREE_QUARTER}
+
+
+def _size(text: str) -> tuple[int, int]:
+    w, _, h = text.lower().partition("x")
+    return int(w), int(h or w)
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m simulation.demo", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--server", default="http://127.0.0.1:8000", help="the render service's base URL")
+    p.add_argument("--token", default=os.environ.get("GARMENT_RENDER_TOKEN"), help="bearer token, if the service has one")
+    p.add_argument("--frames", type=int, default=0, help="frames to render; 0: until interrupted")
+    p.add_argument("--drape-frames", type=int, default=90, help="frames per drop (then the cloth is dropped again)")
+    p.add_argument("--resolution", type=int, default=56, help="cloth grid vertices per side")
+    p.add_argument("--substeps", type=int, default=ClothSettings.substeps, help="simulation substeps per frame")
+    p.add_argument("--size", type=_size, default=(512, 512), help="image size WxH")
+    p.add_argument("--preset", default="fast", choices=("fast", "balanced", "accurate"))
+    p.add_argument("--views", default="front", help=f"comma-separated, one scene each: {', '.join(VIEWS)}")
+    p.add_argument("--format", default="png", choices=("png", "exr", "json"), help="image format asked for")
+    p.add_argument("--env", help="an .exr/.hdr environment map; default: the bundled procedural studio")
+    p.add_argument("--wait", type=float, default=120.0, help="seconds to wait for the service to be ready")
+    args = p.parse_args(argv)
+    unknown = [v for v in args.views.split(",") if v not in VIEWS]
+    if unknown:
+        p.error(f"unknown view(s) {unknown}; choose from {list(VIEWS)}")
+    return args
+
+
+def wait_ready(client: RenderClient, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            if client.ready():
+                return
+        except httpx.TransportError:
+            pass
+        if time.monotonic() > deadline:
+            raise SystemExit(f"demo: the service at {client.http.base_url} was not ready within {timeout_s:g} s")
+        time.sleep(0.25)
+
+
+def new_simulation(args: argparse.Namespace) -> ClothSim:
+    return ClothSim(sheet(args.resolution), mannequin(), ClothSettings(substeps=args.substeps))
+
+
+def run(args: argparse.Namespace) -> int:
+    with RenderClient(args.server, token=args.token) as client:
+        wait_ready(client, args.wait)
+        env = client.upload_environment(args.env) if args.env else upload_studio_environment(client)
+        sim = new_simulation(args)
+        views = tuple(VIEWS[v] for v in args.views.split(","))
+        feed = DrapeFeed(client, sim, env["id"], views=views, quality={"preset": args.preset},
+                         output={"width": args.size[0], "height": args.size[1]}, format=args.format)
+        print(f"demo: {sim.cloth.n_vertices} cloth vertices, {len(sim.cloth.faces)} triangles; scenes "
+              f"{', '.join(feed.scene_ids)} on {args.server}", flush=True)
+        with ThreadPoolExecutor(1, thread_name_prefix="post") as pool:
+            pending = (0, pool.submit(feed.post, 0), 0.0)  # (frame, its answer, its simulation ms)
+            k = 0
+            while args.frames <= 0 or k + 1 < args.frames:
+                k += 1
+                if k % args.drape_frames == 0:
+                    sim = feed.sim = new_simulation(args)
+                    sim_ms = 0.0
+                else:
+                    sim_ms = sim.step_frame().step_ms
+                positions = sim.positions
+                _report(pending[0], pending[1].result(), pending[2])
+                pending = (k, pool.submit(feed.post, k, positions), sim_ms)
+            _report(pending[0], pending[1].result(), pending[2])
+    return 0
+
+
+def _report(k: int, results, sim_ms: float) -> None:
+    render = max(r.timings.get("render", 0.0) for r in results)
+    total = max(r.timings.get("total", 0.0) for r in results)
+    print(f"frame {k:5d}: simulation {sim_ms:6.1f} ms, render {render:6.1f} ms, service total {total:6.1f} ms",
+          flush=True)
+
+
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    # SIGTERM (demo.sh stopping its children) ends like Ctrl-C: the with-blocks close the connection.
+    signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        return run(args)
+    except KeyboardInterrupt:
+        print("demo: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
