@@ -158,3 +158,28 @@ def test_volume_table_consistent_at_grid_nodes():
     table = lobe_table(32, Filter.SQRT_COSINE)
     for level, vol in zip(table.levels_grid[::4], table.volumes[::4]):
         assert lobe_volume(table, level) == pytest.approx(vol, rel=1e-9)
+
+
+@pytest.mark.parametrize("g", [0.0, 0.3, 0.6, 0.8, 0.9])
+def test_l2_level_is_closer_to_the_normalized_phong_lobe_than_the_volume_level(g):
+    # The l2 calibration minimizes ||K / |K| - T_s||^2 over the levels; the paper's volume level is one
+    # of the candidates, so the l2 level can never be farther (up to the level grid's interpolation).
+    table = lobe_table(32, Filter.SQRT_COSINE)
+    s = 1.0 / (1.0 - g)
+    target = (s + 1.0) / (2.0 * np.pi) * np.clip(table.eval_dirs @ table.impulse_dir, 0.0, 1.0) ** s
+
+    def distance(level):
+        lo = int(np.floor(level))
+        hi = min(lo + 1, table.n_levels - 1)
+        k = (1.0 - (level - lo)) * table.responses[lo] + (level - lo) * table.responses[hi]
+        k = k / (k * table.eval_omega).sum()
+        return float(((k - target) ** 2 * table.eval_omega).sum())
+
+    l2 = table.level_for_glossiness(g, "l2")
+    vol = table.level_for_glossiness(g, "volume")
+    assert distance(l2) <= distance(vol) * (1.0 + 1e-3) + 1e-12
+
+
+def test_unknown_calibration_is_a_clear_error():
+    with pytest.raises(InvalidInputError, match="calibration must be one of"):
+        lobe_table(32, Filter.SQRT_COSINE).level_for_glossiness(0.5, "peak")
