@@ -60,45 +60,48 @@ class BodyProxy:
             sd = np.minimum(sd, points[:, 1] - self.floor_y)
         return sd
 
-    def push_out(self, points: np.ndarray, margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def push_out(self, points: np.ndarray, margin: float, passes: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Move every point closer than `margin` to a shape (or inside it) to distance `margin` along the
-        outward normal of the shape it is deepest in; a second pass catches points pushed into an
-        overlapping shape. Returns (moved points (N, 3), contact mask (N,), outward normals (N, 3),
+        outward normal of the shape it is deepest in. In a crevice where shapes meet (arm and chest,
+        leg and floor) that can push it into a neighbour: the points moved are checked again, up to
+        `passes` times. Returns (moved points (N, 3), contact mask (N,), outward normals (N, 3),
         zero where there is no contact)."""
         p = np.array(points, np.float64)
         normal = np.zeros_like(p)
         contact = np.zeros(len(p), bool)
         candidates = np.arange(len(p))
-        for _ in range(2):
-            if not len(self.capsules) or not len(candidates):
+        for _ in range(passes):
+            moved = np.zeros(len(p), bool)
+            if len(self.capsules) and len(candidates):
+                c = p[candidates]
+                q = self.closest_axis_points(c)
+                d = c[:, None, :] - q
+                dist = np.sqrt(np.einsum("nck,nck->nc", d, d))
+                depth = dist - (self._r + margin)[None]
+                k = np.argmin(depth, axis=1)
+                rows = np.arange(len(c))
+                hit = depth[rows, k] < 0.0
+                rows, k = rows[hit], k[hit]
+                # A point exactly on the axis has no direction: push it along +Z (the figure's front).
+                dk, lk = d[rows, k], dist[rows, k][:, None]
+                n = np.where(lk > 1e-12, dk / np.maximum(lk, 1e-12), [0.0, 0.0, 1.0])
+                idx = candidates[hit]
+                p[idx] = q[rows, k] + n * (self._r[k] + margin)[:, None]
+                normal[idx] = n
+                moved[idx] = True
+            if self.floor_y is not None:
+                low = p[candidates, 1] < self.floor_y + margin
+                idx = candidates[low]
+                p[idx, 1] = self.floor_y + margin
+                normal[idx] = (0.0, 1.0, 0.0)
+                moved[idx] = True
+            contact |= moved
+            candidates = np.flatnonzero(moved)
+            if not len(candidates):
                 break
-            c = p[candidates]
-            q = self.closest_axis_points(c)
-            d = c[:, None, :] - q
-            dist = np.sqrt(np.einsum("nck,nck->nc", d, d))
-            depth = dist - (self._r + margin)[None]
-            k = np.argmin(depth, axis=1)
-            rows = np.arange(len(c))
-            hit = depth[rows, k] < 0.0
-            if not hit.any():
-                break
-            rows, k = rows[hit], k[hit]
-            # A point exactly on the axis has no direction: push it along +Z (the figure's front).
-            dk, lk = d[rows, k], dist[rows, k][:, None]
-            n = np.where(lk > 1e-12, dk / np.maximum(lk, 1e-12), [0.0, 0.0, 1.0])
-            idx = candidates[hit]
-            p[idx] = q[rows, k] + n * (self._r[k] + margin)[:, None]
-            normal[idx] = n
-            contact[idx] = True
-            candidates = idx
-        if self.floor_y is not None:
-            low = p[:, 1] < self.floor_y + margin
-            p[low, 1] = self.floor_y + margin
-            normal[low] = (0.0, 1.0, 0.0)
-            contact |= low
         return p, contact, normal
 
-    def mesh(self, n_lat: int = 16, n_lon: int = 24, floor_size: float = 10.0) -> tuple[np.ndarray, np.ndarray]:
+    def mesh(self, n_lat: int = 16, n_lon: int = 24, floor_size: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
         """Triangles of the shapes (each capsule a closed surface) and of a square floor of side
         `floor_size` centred under the figure. Returns positions (V, 3) float32, faces (F, 3) int32."""
         parts = [_capsule_mesh(np.asarray(c.a, float), np.asarray(c.b, float), c.radius, n_lat, n_lon)
@@ -125,9 +128,11 @@ def _capsule_mesh(a: np.ndarray, b: np.ndarray, radius: float, n_lat: int, n_lon
     v = np.cross(w, u)  # (u, v, w) right-handed
     half = n_lat // 2
     phi = 0.5 * np.pi * np.arange(1, half + 1) / half  # from the pole (0) to the equator (pi/2)
-    # Rings from the b pole down to the a pole: (radius of ring, position along the axis).
-    ring_r = radius * np.concatenate([np.sin(phi), np.sin(phi[::-1])])
-    ring_t = np.concatenate([length + radius * np.cos(phi), -radius * np.cos(phi[::-1])])
+    # Rings from the b pole down to the a pole: (radius of ring, position along the axis). A sphere
+    # (length 0) has one equator, not two coinciding ones (a band of zero-area triangles).
+    lower = phi[::-1][1:] if length == 0 else phi[::-1]
+    ring_r = radius * np.concatenate([np.sin(phi), np.sin(lower)])
+    ring_t = np.concatenate([length + radius * np.cos(phi), -radius * np.cos(lower)])
     theta = 2.0 * np.pi * np.arange(n_lon) / n_lon
     # Going around with theta from u towards v while w points up gives the ring's outward normal
     # cross(d_theta, d_down) = outward for the row/column rule below.
