@@ -9,8 +9,9 @@
 #                                    one-shot garment-render command (e.g. render --out /out/frame.png)
 #   anything else                    executed as given (bash, python, ...)
 #
-# GARMENT_RENDER_SKIP_GL_CHECK=1 skips the context check before serving; GARMENT_RENDER_PYTHON picks the
-# interpreter (default: python on PATH).
+# GARMENT_RENDER_REQUIRE_GPU=1 (set by the NVIDIA image) makes the check fail on a software renderer
+# (llvmpipe, softpipe) instead of serving from the CPU; GARMENT_RENDER_SKIP_GL_CHECK=1 skips the check
+# before serving; GARMENT_RENDER_PYTHON picks the interpreter (default: python on PATH).
 set -euo pipefail
 
 PYTHON="${GARMENT_RENDER_PYTHON:-python}"
@@ -40,6 +41,7 @@ check_gl() {
             "(now: ${NVIDIA_DRIVER_CAPABILITIES:-unset})"
     fi
     "$PYTHON" - <<'EOF'
+import os
 import sys
 
 from renderer.errors import GLContextError
@@ -51,7 +53,13 @@ except GLContextError as exc:
     sys.exit(f"entrypoint: no OpenGL 4.5 context: {exc}")
 print(f"entrypoint: OpenGL {gl.version} on {gl.renderer_name} (context in {gl.create_ms:.0f} ms)",
       file=sys.stderr, flush=True)
+name = gl.renderer_name
 gl.release()
+software = any(s in name.lower() for s in ("llvmpipe", "softpipe", "swrast"))
+if software and os.environ.get("GARMENT_RENDER_REQUIRE_GPU", "0") == "1":
+    sys.exit(f"entrypoint: GARMENT_RENDER_REQUIRE_GPU=1 but OpenGL runs on the CPU ({name}): start the "
+             "container with --gpus all and NVIDIA_DRIVER_CAPABILITIES including graphics, or set "
+             "GARMENT_RENDER_REQUIRE_GPU=0 to allow it")
 EOF
 }
 

@@ -33,6 +33,8 @@ GLVND_PACKAGES=(libegl1 libgl1 libglvnd0)
 CPU_PACKAGES=(libegl-mesa0 libgl1-mesa-dri)  # Mesa's EGL vendor (50_mesa.json) and llvmpipe
 # The NVIDIA image adds no vendor library: the container toolkit injects the driver's libEGL_nvidia.so.0
 # (NVIDIA_DRIVER_CAPABILITIES must include "graphics"); the image only ships the vendor file naming it.
+# Debian's libegl1 and libgl1 depend on Mesa all the same, so without a GPU that image would fall back to
+# llvmpipe: it sets GARMENT_RENDER_REQUIRE_GPU=1 and the entrypoint refuses a software renderer.
 NVIDIA_VENDOR_SRC="$HERE/nvidia/10_nvidia.json"
 NVIDIA_VENDOR_DST=/usr/share/glvnd/egl_vendor.d/10_nvidia.json
 

@@ -239,10 +239,14 @@ def test_nvidia_image_asks_for_graphics_and_ships_the_egl_vendor_file():
 
 
 def test_both_images_serve_the_same_settings_on_the_same_paths():
+    from service.settings import ServiceSettings
+
     cpu, nvidia = (dockerfile_env(p) for p in (DOCKERFILES["cpu"], DOCKERFILES["nvidia"]))
-    service_keys = {k for k in cpu if k.startswith("GARMENT_RENDER_")}
-    assert {k: cpu[k] for k in service_keys} == {k: nvidia[k] for k in service_keys}
+    service_keys = {f"GARMENT_RENDER_{name.upper()}" for name in ServiceSettings.model_fields}
+    assert {k: v for k, v in cpu.items() if k in service_keys} == {k: v for k, v in nvidia.items() if k in service_keys}
     assert cpu["GARMENT_RENDER_HOST"] == "0.0.0.0", "inside a container the service listens on all interfaces"
+    # Debian's libegl1 pulls in Mesa, so the NVIDIA image could fall back to llvmpipe: it forbids that.
+    assert nvidia["GARMENT_RENDER_REQUIRE_GPU"] == "1" and "GARMENT_RENDER_REQUIRE_GPU" not in cpu
 
 
 # -- .dockerignore ----------------------------------------------------------------------------------
@@ -524,3 +528,15 @@ def test_entrypoint_runs_other_commands(tmp_path):
     check = subprocess.run([str(DOCKER / "entrypoint.sh"), "check"], cwd=ROOT,
                            env=entrypoint_env(tmp_path, free_port()), capture_output=True, text=True, timeout=60)
     assert check.returncode == 0 and "entrypoint: OpenGL 4.5" in check.stderr, check.stderr
+
+
+def test_entrypoint_requiring_a_gpu_refuses_a_software_renderer(tmp_path):
+    env = {**entrypoint_env(tmp_path, free_port()), "GARMENT_RENDER_REQUIRE_GPU": "1"}
+    r = subprocess.run([str(DOCKER / "entrypoint.sh")], cwd=ROOT, env=env, capture_output=True, text=True,
+                       timeout=60)
+    software = any(s in r.stderr for s in ("llvmpipe", "softpipe", "swrast"))
+    if not software:
+        pytest.skip(f"this machine renders on a GPU: {r.stderr.strip()}")
+    assert r.returncode == 1, "the NVIDIA image must not serve from llvmpipe"
+    assert "--gpus all" in r.stderr and "GARMENT_RENDER_REQUIRE_GPU=0" in r.stderr
+    assert "serving on" not in r.stderr
