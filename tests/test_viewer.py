@@ -1,0 +1,196 @@
+"""The viewer: the latest-frame endpoints, the page in headless Chromium (Debian's `chromium`), and
+`scripts/demo.sh` end to end (service + simulation + page address, stopped by Ctrl-C)."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import time
+from html.parser import HTMLParser
+
+import httpx
+import numpy as np
+import pytest
+
+from service.client import RenderClient, ServiceError
+from simulation import ClothSettings, ClothSim, mannequin, sheet
+from simulation.feed import DrapeFeed, upload_studio_environment
+
+from service_server import FAST_QUALITY, ROOT, ServiceProcess, free_port
+
+TOKEN = "viewer-test-token"
+OUTPUT = {"width": 96, "height": 80}
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    srv = ServiceProcess(tmp_path_factory.mktemp("viewer"), token=TOKEN)
+    yield srv
+    srv.stop()
+
+
+@pytest.fixture(scope="module")
+def scenes(server):
+    """Two scenes fed by one simulation, 3 frames: one answered as PNG, one as EXR (its PNG for the
+    viewer is made on request)."""
+    with RenderClient(server.url, token=TOKEN) as c:
+        env = upload_studio_environment(c, 128)
+        sim = ClothSim(sheet(16), mannequin(), ClothSettings(frame_dt_s=1 / 10))
+        png = DrapeFeed(c, sim, env["id"], quality=dict(FAST_QUALITY), output=OUTPUT, format="png", name="png")
+        exr = DrapeFeed(c, sim, env["id"], quality=dict(FAST_QUALITY), output=OUTPUT, format="exr", name="exr")
+        empty = c.create_scene(env["id"], name="empty", positions=sim.positions, faces=sim.cloth.faces,
+                               quality=dict(FAST_QUALITY), output=OUTPUT)
+        answers = []
+        for k in range(3):
+            if k:
+                sim.step_frame()
+            answers.append((png.post(k)[0], exr.post(k)[0]))
+        yield {"png": png.scene_ids[0], "exr": exr.scene_ids[0], "empty": empty["id"], "answers": answers}
+
+
+def test_latest_frame_endpoints(server, scenes):
+    with RenderClient(server.url, token=TOKEN) as c:
+        listing = {s["scene_id"]: s for s in c._json("GET", "/frames/latest")}
+        assert {scenes["png"], scenes["exr"], scenes["empty"]} <= set(listing)
+        assert listing[scenes["empty"]]["frame"] is None
+        for key in ("png", "exr"):
+            frame = listing[scenes[key]]["frame"]
+            assert frame["frame_index"] == 2 and frame["sequence"] == 3
+            assert (frame["width"], frame["height"]) == (96, 80)
+            assert frame["timings_ms"]["render"] > 0 and frame["frame_rate_hz"] > 0
+            r = c.http.get(frame["image_url"])
+            assert r.status_code == 200 and r.headers["content-type"] == "image/png"
+            assert r.headers["x-frame-sequence"] == "3"
+            from PIL import Image
+            import io
+            img = np.asarray(Image.open(io.BytesIO(r.content)))
+            assert img.shape[:2] == (80, 96) and img.std() > 1
+        # The PNG kept for a PNG frame is the very answer the simulator got.
+        assert c.http.get(f"/scenes/{scenes['png']}/latest.png").content == scenes["answers"][-1][0].content
+        with pytest.raises(ServiceError) as e:
+            c._json("GET", f"/scenes/{scenes['empty']}/latest.png")
+        assert e.value.status == 404 and "no frame yet" in e.value.detail
+    # The page itself needs no token (it holds no data); the data does.
+    assert httpx.get(f"{server.url}/view").status_code == 200
+    assert httpx.get(f"{server.url}/frames/latest").status_code == 401
+    assert httpx.get(f"{server.url}/scenes/{scenes['png']}/latest.png").status_code == 401
+
+
+def chromium() -> str:
+    """The chromium binary; installed through apt (sudo when not root) when missing, as setup.sh does.
+    Skips only when it cannot be installed."""
+    path = shutil.which("chromium")
+    if path:
+        return path
+    sudo = [] if os.geteuid() == 0 else ["sudo", "-n"]
+    if not shutil.which("apt-get") or (sudo and not shutil.which("sudo")):
+        pytest.skip("chromium is missing and cannot be installed here (no apt-get, or not root and no sudo)")
+    env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+    out = subprocess.run(sudo + ["apt-get", "update", "-qq"], capture_output=True, text=True, env=env)
+    if out.returncode == 0:
+        out = subprocess.run(sudo + ["apt-get", "install", "-y", "-qq", "--no-install-recommends", "chromium"],
+                             capture_output=True, text=True, env=env)
+    path = shutil.which("chromium")
+    if not path:
+        pytest.skip(f"chromium is missing and `apt-get install chromium` failed: {out.stderr.strip()[-500:]}")
+    return path
+
+
+class _Dom(HTMLParser):
+    """Elements of the dumped DOM: (tag, attributes, text that follows directly)."""
+
+    def __init__(self):
+        super().__init__()
+        self.elements: list[tuple[str, dict, list[str]]] = []
+
+    def handle_starttag(self, tag, attrs):
+        self.elements.append((tag, dict(attrs), []))
+
+    def handle_data(self, data):
+        if self.elements and data.strip():
+            self.elements[-1][2].append(data.strip())
+
+
+def test_page_in_headless_chromium_shows_every_scene_with_its_latest_frame(server, scenes, tmp_path):
+    browser = chromium()
+    cmd = [browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+           "--disable-background-networking", "--disable-component-update", "--disable-sync",
+           f"--user-data-dir={tmp_path / 'profile'}", "--virtual-time-budget=5000", "--dump-dom",
+           f"{server.url}/view#token={TOKEN}"]
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    dom = _Dom()
+    dom.feed(out.stdout)
+    sections = {a["data-scene-id"]: a for t, a, _ in dom.elements if t == "section" and "data-scene-id" in a}
+    assert {scenes["png"], scenes["exr"], scenes["empty"]} <= set(sections), out.stdout[-3000:]
+    for key in ("png", "exr"):
+        sid = scenes[key]
+        assert sections[sid].get("data-shown-sequence") == "3"
+        # The section's elements, in order, up to the next section.
+        start = next(i for i, (t, a, _) in enumerate(dom.elements) if a.get("data-scene-id") == sid)
+        own = []
+        for t, a, text in dom.elements[start + 1:]:
+            if t == "section":
+                break
+            own.append((t, a, text))
+        img = next(a for t, a, _ in own if t == "img")
+        assert img["data-natural-width"] == "96" and img["data-natural-height"] == "80"
+        assert img["src"].startswith("blob:")
+        meta = " ".join(" ".join(text) for t, a, text in own if a.get("class") == "meta")
+        assert re.search(r"frame 2 \(#3 of 3\), 96x80", meta), meta
+        stages = {a["data-stage"] for t, a, _ in own if t == "tr"}
+        assert {"render", "shading", "total"} <= stages
+        cells = [" ".join(text) for t, a, text in own if t == "td" and a.get("class") == "ms"]
+        assert cells and all(re.fullmatch(r"\d+\.\d ms", c) for c in cells)
+    assert "no frame yet" in out.stdout
+    status = next((a, text) for t, a, text in dom.elements if a.get("id") == "status")
+    assert status[0].get("class") != "error" and "3 scene(s)" in " ".join(status[1]), status
+
+
+def test_demo_script_serves_the_page_and_stops_on_ctrl_c(tmp_path):
+    """`bash scripts/demo.sh` as a user runs it: it sets up, starts the service and the simulation,
+    prints the page's address; frames arrive; Ctrl-C (SIGINT to its process group, as a terminal
+    sends it) stops the service and the simulation."""
+    port = free_port()
+    proc = subprocess.Popen(["bash", "scripts/demo.sh", "--port", str(port), "--frames", "4", "--size", "64x64",
+                             "--resolution", "16"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, start_new_session=True)
+    lines: list[str] = []
+    try:
+        deadline = time.monotonic() + 240
+        url = None
+        while url is None and time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+            m = re.search(r"the viewer is at (http://\S+/view)", line)
+            url = m.group(1) if m else None
+        assert url == f"http://127.0.0.1:{port}/view", "".join(lines[-30:])
+        base = url.rsplit("/view", 1)[0]
+        while time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            lines.append(line)
+            if "the simulation is done" in line:
+                break
+        latest = httpx.get(f"{base}/frames/latest", timeout=10).json()
+        assert len(latest) == 1 and latest[0]["frame"]["sequence"] == 4, "".join(lines[-30:])
+        assert httpx.get(f"{base}{latest[0]['frame']['image_url']}", timeout=10).status_code == 200
+        assert "<title>garment-render" in httpx.get(url, timeout=10).text
+
+        os.killpg(proc.pid, signal.SIGINT)
+        rest, _ = proc.communicate(timeout=60)
+        lines.append(rest)
+        assert "demo: stopped" in rest
+        with pytest.raises(httpx.TransportError):
+            httpx.get(f"{base}/health/live", timeout=2)
+        # Nothing of the demo is left running.
+        left = subprocess.run(["pgrep", "-s", str(proc.pid)], capture_output=True, text=True).stdout.split()
+        assert left == [], "".join(lines[-30:])
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
