@@ -317,6 +317,14 @@ def test_compose_gpu_service_reserves_an_nvidia_gpu_with_graphics(compose):
 
 # -- docker/install.sh ------------------------------------------------------------------------------
 
+@pytest.mark.skipif(shutil.which("shellcheck") is None, reason="shellcheck is not installed (apt install shellcheck)")
+def test_shell_scripts_pass_shellcheck():
+    r = subprocess.run(["shellcheck", str(DOCKER / "install.sh"), str(DOCKER / "entrypoint.sh")],
+                       capture_output=True, text=True, timeout=30)
+    assert r.returncode == 0, r.stdout
+
+
+
 def install(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
     return subprocess.run([str(DOCKER / "install.sh"), "--python", sys.executable, *args], cwd=ROOT,
                           capture_output=True, text=True, timeout=60, env={**os.environ, **(env or {})})
