@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, SecretStr
+from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
@@ -44,6 +44,13 @@ class ServiceSettings(BaseSettings):
                           "can restore them by id; None: in the memory of the process that made them")
 
     token: SecretStr | None = Field(None, description="bearer token required on every endpoint but health")
+
+    @field_validator("token")
+    @classmethod
+    def _empty_token_is_no_token(cls, v: SecretStr | None) -> SecretStr | None:
+        # GARMENT_RENDER_TOKEN="" (compose passes an unset variable as empty) means no token, not a
+        # required empty one that no client sends.
+        return None if v is None or not v.get_secret_value() else v
 
     default_preset: Literal["fast", "balanced", "accurate"] = "balanced"
     png_compress_level: int = Field(1, ge=0, le=9, description="zlib level of served PNGs (1: ~3x faster than 6)")

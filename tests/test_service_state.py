@@ -63,3 +63,12 @@ def test_two_processes_share_scenes_through_the_state_dir(tmp_path):
     finally:
         a.stop()
         b.stop()
+
+
+def test_an_empty_token_setting_means_no_token(monkeypatch):
+    from service.settings import ServiceSettings
+
+    monkeypatch.setenv("GARMENT_RENDER_TOKEN", "")
+    assert ServiceSettings().token is None
+    monkeypatch.setenv("GARMENT_RENDER_TOKEN", "s3cret")
+    assert ServiceSettings().token.get_secret_value() == "s3cret"
