@@ -68,6 +68,8 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--bleed-reduction", type=float, default=0.2)
     q.add_argument("--calibration", default="l2", choices=["l2", "volume"],
                    help="g -> MIP level: the closest normalized kernel (l2) or the paper's equal lobe volume")
+    q.add_argument("--glossy-horizon", default="both", choices=["off", "lobe", "lights", "both"],
+                   help="drop the glossy lobe's part below the surface: by the lobe's share, per light, both, or not")
     q.add_argument("--diffuse", default="pem", choices=["pem", "lights"],
                    help="diffuse term from the PEMs along the normal (the paper) or from each light's disc")
     q.add_argument("--mode", default="full", choices=["full", "none", "ao", "ao-color", "many-lights"],
@@ -163,6 +165,7 @@ def cmd_render(args) -> int:
     settings = FrameSettings(width=w, height=h, shadow_size=q["shadow_size"], blur_scale=q["blur_scale"],
                              bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
                              calibration=args.calibration, diffuse=args.diffuse,
+                             glossy_horizon=args.glossy_horizon,
                              background=Background(args.background))
     camera = camera_from_args(args, meshes, w / h)
     with Renderer() as r:
@@ -227,6 +230,7 @@ def cmd_sequence(args) -> int:
     settings = FrameSettings(width=w, height=h, shadow_size=q["shadow_size"], blur_scale=q["blur_scale"],
                              bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
                              calibration=args.calibration, diffuse=args.diffuse,
+                             glossy_horizon=args.glossy_horizon,
                              background=Background(args.background))
     args.out.mkdir(parents=True, exist_ok=True)
     timings, previews = [], []

@@ -23,6 +23,7 @@ from .lighting.glossiness import Calibration
 from .lighting.pem import REGIONS_PER_TEXTURE, PEMSet, PEMSettings
 from .mesh import Mesh
 from .scene import Scene
+from .shading.horizon import N_G as HORIZON_N_G, N_MU as HORIZON_N_MU, horizon_table
 from .shading.material import Material
 from .shadows.lights import blur_sigma_texels, fit_light_view_proj, pack_lights, shadow_layers
 from .shadows.vsm import ShadowMaps
@@ -44,6 +45,7 @@ _MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_
 
 
 DIFFUSE_SOURCES = ("pem", "lights")
+GLOSSY_HORIZONS = ("off", "lobe", "lights", "both")
 
 
 class Background(str, Enum):
@@ -67,6 +69,11 @@ class FrameSettings:
     # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level) or
     # "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups).
     diffuse: str = "pem"
+    # The glossy lobe's part below the tangent plane (full mode only; shading/horizon.py): "off" (the
+    # paper), "lobe" (times the lobe's share above the plane), "lights" (each light times the share of
+    # its disc above the plane) or "both" (the default: lowest error in every target scene, although
+    # the two overlap on a uniform map, see docs/benchmarks.md).
+    glossy_horizon: str = "both"
     # g -> MIP level: "l2" (closest normalized kernel, the default: lower error in every target scene)
     # or "volume" (the paper's section 5); lighting/glossiness.py.
     calibration: Calibration = Calibration.L2
@@ -81,6 +88,9 @@ class FrameSettings:
         if not (0.0 <= self.shadow_threshold <= 1.0):
             raise InvalidInputError(f"shadow threshold is a share of the energy in [0, 1], got {self.shadow_threshold}")
         object.__setattr__(self, "calibration", Calibration.parse(self.calibration))
+        if self.glossy_horizon not in GLOSSY_HORIZONS:
+            raise InvalidInputError(f"glossy_horizon must be one of {', '.join(GLOSSY_HORIZONS)}, "
+                                    f"got {self.glossy_horizon!r}")
         if self.diffuse not in DIFFUSE_SOURCES:
             raise InvalidInputError(f"diffuse must be one of {', '.join(DIFFUSE_SOURCES)}, got {self.diffuse!r}")
         if not (0.0 <= self.blur_scale <= 100.0) or not np.isfinite(self.blur_scale):
@@ -118,7 +128,8 @@ class Renderer:
         self._owns_gl = gl is None
         self.gl = gl or GLContext()
         ctx = self.gl.ctx
-        defines = {"GLOSS_TABLE_SIZE": PEMSet.GLOSS_TABLE_SIZE, "REGIONS_PER_TEXTURE": REGIONS_PER_TEXTURE}
+        defines = {"GLOSS_TABLE_SIZE": PEMSet.GLOSS_TABLE_SIZE, "REGIONS_PER_TEXTURE": REGIONS_PER_TEXTURE,
+                   "HORIZON_N_MU": float(HORIZON_N_MU), "HORIZON_N_G": float(HORIZON_N_G)}
         self._defines = defines
         self._shade_progs: dict[tuple[ShadingMode, bool], moderngl.Program] = {}
         self.bg_prog = program(ctx, "shading/background.vert", "shading/background.frag")
@@ -127,6 +138,9 @@ class Renderer:
         self._target = None
         self._buffers: dict[str, moderngl.Buffer] = {}
         self._gloss_buf = ctx.buffer(reserve=4 * PEMSet.GLOSS_TABLE_SIZE)
+        table = horizon_table()
+        self._horizon_tex = ctx.texture((table.shape[1], table.shape[0]), 1, table.tobytes(), dtype="f4")
+        self._horizon_tex.repeat_x = self._horizon_tex.repeat_y = False
         # The moments program is needed to build vertex arrays before any shadow map exists.
         self._shadow_prog = program(ctx, "shadows/moments.vert", "shadows/moments.frag")
         self.depth_prog = program(ctx, "shading/depth.vert", "shading/depth.frag")
@@ -231,6 +245,7 @@ class Renderer:
             shadow_list.bind_to_storage_buffer(2)
             self._gloss_buf.write(pems.gloss_table(settings.calibration).tobytes())
             self._gloss_buf.bind_to_storage_buffer(1)
+            self._horizon_tex.use(location=7)
             pems.bind(0, 5, 6)
             shadow_maps.moments.use(location=1)
             if settings.background is Background.ENVIRONMENT:
@@ -256,6 +271,7 @@ class Renderer:
             _set_uniform(p, "u_min_variance", settings.min_variance)
             _set_uniform(p, "u_bleed_reduction", settings.bleed_reduction)
             _set_uniform(p, "u_horizon", settings.horizon)
+            _set_uniform(p, "u_glossy_horizon", GLOSSY_HORIZONS.index(settings.glossy_horizon))
             extent = 2.0 * float(np.linalg.norm(hi - lo))
             _set_uniform(p, "u_normal_offset", settings.normal_offset_texels * extent / settings.shadow_size)
             for sm in scene.meshes:
@@ -294,6 +310,7 @@ class Renderer:
         for buf in self._buffers.values():
             buf.release()
         self._gloss_buf.release()
+        self._horizon_tex.release()
         for obj in (self.bg_vao, self.bg_prog, *self._shade_progs.values(), self._shadow_prog, self.depth_prog):
             obj.release()
         if self._owns_gl:

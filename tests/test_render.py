@@ -201,11 +201,12 @@ def test_lights_below_the_energy_threshold_get_no_shadow_map(renderer):
     cube = sun_sky_cube(32, (0.4, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3)
     scene = renderer.create_scene([sphere(0.4, (0, 0.6, 0)), plane(4.0)], [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
     pems = renderer.build_pems(cube, PEMSettings(48))
+    # glossy_horizon off: with no shadow map the full mode must equal the unshadowed one exactly.
     try:
-        full = renderer.render(scene, pems, FrameSettings(64, 64, blur_scale=1.0), CAM)
-        some = renderer.render(scene, pems, FrameSettings(64, 64, blur_scale=1.0, shadow_threshold=0.01), CAM)
-        none_ = renderer.render(scene, pems, FrameSettings(64, 64, blur_scale=1.0, shadow_threshold=1.0), CAM)
-        unshadowed = renderer.render(scene, pems, FrameSettings(64, 64, blur_scale=1.0, mode=ShadingMode.NO_OCCLUSION), CAM)
+        full = renderer.render(scene, pems, FrameSettings(64, 64, glossy_horizon="off", blur_scale=1.0), CAM)
+        some = renderer.render(scene, pems, FrameSettings(64, 64, glossy_horizon="off", blur_scale=1.0, shadow_threshold=0.01), CAM)
+        none_ = renderer.render(scene, pems, FrameSettings(64, 64, glossy_horizon="off", blur_scale=1.0, shadow_threshold=1.0), CAM)
+        unshadowed = renderer.render(scene, pems, FrameSettings(64, 64, glossy_horizon="off", blur_scale=1.0, mode=ShadingMode.NO_OCCLUSION), CAM)
     finally:
         pems.release()
         scene.release()

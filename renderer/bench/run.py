@@ -27,7 +27,7 @@ from ..renderer import FrameSettings, Renderer, ShadingMode
 from .scenes import BenchScene, bundled_scene, shared_scenes
 
 BALANCED = {**DEFAULT_PRESETS["balanced"], "filter": "sqrt-cosine", "horizon": False, "calibration": "l2",
-            "diffuse": "pem"}
+            "diffuse": "pem", "glossy_horizon": "both"}
 
 SWEEPS = {
     "lights": [6, 12, 24, 48, 96, 192, 384],
@@ -38,6 +38,7 @@ SWEEPS = {
     "horizon": [False, True],
     "calibration": ["l2", "volume"],
     "diffuse": ["pem", "lights"],
+    "glossy_horizon": ["off", "lobe", "lights", "both"],
 }
 QUICK_SWEEPS = {
     "lights": [6, 24, 48, 96],
@@ -48,6 +49,7 @@ QUICK_SWEEPS = {
     "horizon": [False, True],
     "calibration": ["l2", "volume"],
     "diffuse": ["pem", "lights"],
+    "glossy_horizon": ["off", "lobe", "lights", "both"],
 }
 BASELINE_MODES = [ShadingMode.NO_OCCLUSION, ShadingMode.MANY_LIGHTS, ShadingMode.AO_GREY, ShadingMode.AO_COLOUR]
 
@@ -154,7 +156,8 @@ def bench_scene(r: Renderer, bs: BenchScene, cfg: BenchConfig, log=print) -> lis
                 pem_cache[key] = r.build_pems(bs.cube(s["face_size"]), PEMSettings(s["lights"], Filter(s["filter"])))
             pems = pem_cache[key]
             fs = FrameSettings(size, size, shadow_size=s["shadow_size"], blur_scale=s["blur_scale"], mode=mode,
-                               horizon=s["horizon"], calibration=s["calibration"], diffuse=s["diffuse"])
+                               horizon=s["horizon"], calibration=s["calibration"], diffuse=s["diffuse"],
+                               glossy_horizon=s["glossy_horizon"])
             frame, frame_ms, stages = _time_frames(r, scene, pems, fs, camera, cfg.frames)
             err = relative_rmse(frame.image, truth, mask)
             flip = mean_flip(frame.image, truth, mask)

@@ -22,6 +22,7 @@ layout(binding = 6) uniform samplerCubeArray u_pem_norm;     // layer 0: B = cha
 layout(binding = 1) uniform sampler2DArray u_moments;        // layer i = light i (blurred moments)
 layout(binding = 3) uniform sampler2D u_albedo_map;          // multiplies the vertex albedo
 layout(binding = 4) uniform sampler2D u_gloss_map;           // (specular, glossiness), replaces the vertex values
+layout(binding = 7) uniform sampler2D u_horizon_map;        // F(n.r, g): share of the glossy lobe above the surface
 uniform bool u_use_albedo_map;
 uniform bool u_use_gloss_map;
 
@@ -32,6 +33,8 @@ uniform float u_min_variance;
 uniform float u_bleed_reduction;   // Lauritzen's light-bleeding reduction: clip p_max below this
 uniform float u_normal_offset;     // world units, pushes the shadow lookup off the surface
 uniform bool u_horizon;            // include the tangent plane in VIS_i
+uniform int u_glossy_horizon;      // full mode: 0 off, 1 the lobe's share above the tangent plane,
+                                   // 2 each light's disc share above it, 3 both (FrameSettings.glossy_horizon)
 
 in vec3 v_ws_position;
 in vec3 v_ws_normal;
@@ -124,6 +127,12 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 shadow_pos) {
         vis *= clamp((dot(n, lights[i].dir_scale.xyz) + sin_r) / (2.0 * sin_r), 0.0, 1.0);
     }
     g_diffuse += vis * pem_d;
+    if (u_glossy_horizon >= 2 && !u_horizon) {
+        // The glossy lobe's part below the surface is blocked (renderer/shading/horizon.py): keep the
+        // share of this light's disc above the tangent plane, as the horizon term above does.
+        float sin_r = lights[i].params.w;
+        vis *= clamp((dot(n, lights[i].dir_scale.xyz) + sin_r) / (2.0 * sin_r), 0.0, 1.0);
+    }
     g_glossy += vis * pem_g;
 #else
     // Ambient-occlusion baselines (paper Fig. 6): unshadowed lighting times an occlusion factor
@@ -189,6 +198,15 @@ void main() {
     }
 #ifndef DIFFUSE_LIGHTS
     g_diffuse /= textureLod(u_pem_norm, vec4(n, 0.0), u_diffuse_level).r;
+#endif
+#if MODE == 0
+    if (glossy && (u_glossy_horizon == 1 || u_glossy_horizon == 3)) {
+        // renderer/shading/horizon.py: the reference's lobe loses its part below the surface to
+        // visibility; the PEM lookup along r does not.
+        const vec2 size = vec2(HORIZON_N_MU, HORIZON_N_G);
+        vec2 x = vec2(clamp(dot(n, r), 0.0, 1.0), clamp(material.y, 0.0, 1.0));
+        g_glossy *= texture(u_horizon_map, (x * (size - 1.0) + 0.5) / size).r;
+    }
 #endif
     if (glossy) g_glossy /= textureLod(u_pem_norm, vec4(r, 0.0), level_g).r;
 #endif
