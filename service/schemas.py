@@ -70,6 +70,12 @@ class QualitySpec(_Strict):
     bleed_reduction: float = Field(0.2, ge=0.0, lt=1.0)
     shadow_threshold: float = Field(0.0, ge=0.0, le=1.0)
     mode: ModeName = ModeName.FULL
+    calibration: Literal["l2", "volume"] = Field("l2", description="g -> MIP level: closest normalized kernel "
+                                                 "(l2) or the paper's equal lobe volume")
+    diffuse: Literal["pem", "lights"] = Field("pem", description="diffuse term from the PEMs (the paper) or "
+                                              "from each light's disc")
+    glossy_horizon: Literal["off", "lobe", "lights", "both"] = Field(
+        "both", description="drop the glossy lobe's part below the surface (off: the paper)")
 
 
 class OutputSpec(_Strict):

@@ -285,6 +285,7 @@ def test_bad_frames_are_4xx_naming_the_problem(http, scene, mesh):
     ("nan_albedo", ["albedo"]),
     ("short_specular", ["specular"]),
     ("bad_lights", ["6 * 2^k"]),
+    ("bad_calibration", ["calibration"]),
     ("huge_image", ["exceeds the limit"]),
     ("unknown_env", ["unknown environment"]),
     ("unknown_mesh", ["unknown mesh"]),
@@ -311,6 +312,8 @@ def test_bad_scenes_are_4xx_naming_the_problem(http, env_upload, mesh, case, wor
         g["material"]["specular"] = [0.5, 0.5]
     elif case == "bad_lights":
         body["quality"]["lights"] = 10
+    elif case == "bad_calibration":
+        body["quality"]["calibration"] = "peak"
     elif case == "huge_image":
         body["output"]["width"] = 5000
     elif case == "unknown_env":
@@ -546,3 +549,19 @@ def test_no_gl_context_is_not_ready_and_503(tmp_path):
         assert "garment_render_gl_ready 0.0" in httpx.get(srv.url + "/metrics").text
     finally:
         srv.stop()
+
+
+def test_accuracy_knobs_reach_the_renderer_and_are_reported(http, env_upload, mesh):
+    body = scene_body(env_upload[0]["id"], mesh)
+    images = {}
+    for knobs in ({}, {"calibration": "volume", "diffuse": "lights", "glossy_horizon": "off"}):
+        body["quality"] = {**body["quality"], **knobs}
+        r = http.post("/render", json=body, params={"format": "json"})
+        assert r.status_code == 200, r.text
+        j = r.json()
+        expect = {"calibration": "l2", "diffuse": "pem", "glossy_horizon": "both", **knobs}
+        reported = json.dumps(j)
+        for k, v in expect.items():
+            assert f'"{k}": "{v}"' in reported, (k, v)
+        images[bool(knobs)] = j["image"]["base64"]
+    assert images[True] != images[False]
