@@ -63,6 +63,8 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--face-size", type=int, help="PEM cube face size (power of two)")
     q.add_argument("--filter", default="sqrt-cosine", choices=["none", "box", "gauss", "cosine", "sqrt-cosine"])
     q.add_argument("--levels", type=int, help="MIP levels to build (default: the full chain)")
+    q.add_argument("--needed-levels", action="store_true",
+                   help="store only the PEM levels the materials' glossiness reads (less memory, same image)")
     q.add_argument("--shadow-size", type=int, help="shadow-map size per light")
     q.add_argument("--blur-scale", type=float, help="scale of the per-light shadow blur (0: hard shadows)")
     q.add_argument("--bleed-reduction", type=float, default=0.2)
@@ -107,6 +109,18 @@ def resolve_quality(args) -> dict:
         if getattr(args, key) is not None:
             q[key] = getattr(args, key)
     return q
+
+
+def pem_settings(args, q: dict, materials):
+    """The PEM set's settings; with --needed-levels only the levels the materials' glossiness reads."""
+    from .lighting.filters import Filter
+    from .lighting.pem import PEMSettings, finest_level_needed
+
+    base = 0
+    if args.needed_levels:
+        g_max = max(m.max_glossiness() for m in materials)
+        base = finest_level_needed(q["face_size"], args.filter, g_max, args.calibration, args.levels)
+    return PEMSettings(q["lights"], Filter.parse(args.filter), args.levels, base)
 
 
 def load_scene_inputs(args, face_size: int):
@@ -169,7 +183,7 @@ def cmd_render(args) -> int:
                              background=Background(args.background))
     camera = camera_from_args(args, meshes, w / h)
     with Renderer() as r:
-        pems = r.build_pems(env.cube, PEMSettings(q["lights"], Filter.parse(args.filter), args.levels))
+        pems = r.build_pems(env.cube, pem_settings(args, q, materials))
         scene = r.create_scene(meshes, materials)
         frame = r.render(scene, pems, settings, camera)
         scene.release()
@@ -236,7 +250,7 @@ def cmd_sequence(args) -> int:
     timings, previews = [], []
     exposure = args.exposure
     with Renderer() as r:
-        pems = r.build_pems(env.cube, PEMSettings(q["lights"], Filter.parse(args.filter), args.levels))
+        pems = r.build_pems(env.cube, pem_settings(args, q, materials))
         scene = r.create_scene(meshes, materials)
         try:
             for k in range(seq.n_frames):

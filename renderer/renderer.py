@@ -267,7 +267,7 @@ class Renderer:
             _set_uniform(p, "u_view_proj", vp_bytes)
             _set_uniform(p, "u_camera_pos", tuple(float(x) for x in camera.eye))
             _set_uniform(p, "u_n_lights", n)
-            _set_uniform(p, "u_diffuse_level", pems.diffuse_level(settings.calibration))
+            _set_uniform(p, "u_diffuse_level", pems.lookup_level(pems.diffuse_level(settings.calibration)))
             _set_uniform(p, "u_min_variance", settings.min_variance)
             _set_uniform(p, "u_bleed_reduction", settings.bleed_reduction)
             _set_uniform(p, "u_horizon", settings.horizon)

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from renderer.errors import InvalidInputError
 from renderer.lighting.filters import Filter, taps_1d
 from renderer.lighting.pem import PEMSettings
 from renderer.lighting.pem_reference import pem_chain
@@ -132,3 +133,59 @@ def test_weighted_chain_keeps_a_constant_map_constant():
     cube = np.full((6, 32, 32, 3), 2.5)
     for level in pem_chain(cube, Filter.SQRT_COSINE):
         np.testing.assert_allclose(level, 2.5, rtol=1e-12)
+
+
+def test_a_set_with_a_base_level_stores_only_the_needed_levels_and_renders_the_same(renderer):
+    from renderer.lighting.pem import finest_level_needed
+    from renderer.renderer import FrameSettings
+    from renderer.shading.material import Material
+    from test_render import CAM, sphere
+
+    cube = sun_sky_cube(64, (1, 1, 0.5), sun_radiance=300.0, sun_radius_deg=8)
+    mats = [Material((0.7, 0.5, 0.3), 0.6, 0.85)]
+    base = finest_level_needed(64, Filter.SQRT_COSINE, mats[0].max_glossiness())
+    assert base >= 1
+    scene = renderer.create_scene([sphere()], mats)
+    full = renderer.build_pems(cube, PEMSettings(24))
+    part = renderer.build_pems(cube, PEMSettings(24, base_level=base))
+    try:
+        assert part.nbytes < full.nbytes / 4 ** base * 1.4   # a 2^base smaller face, its chain below
+        for level in range(base, full.levels):
+            np.testing.assert_array_equal(part.read_level_raw(level), full.read_level_raw(level))
+        with pytest.raises(InvalidInputError, match="not stored"):
+            part.read_level_raw(base - 1)
+        a = renderer.render(scene, full, FrameSettings(64, 64), CAM).image
+        b = renderer.render(scene, part, FrameSettings(64, 64), CAM).image
+        np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-6)  # same lookups (measured: 6e-6 at most)
+        stored = part.export()
+        assert "level_0" not in stored and f"level_{base}" in stored
+        from renderer.lighting.pem import PEMSet
+        restored = PEMSet(renderer.gl, cube, PEMSettings(24, base_level=base), stored=stored)
+        try:
+            for level in range(base, full.levels):
+                np.testing.assert_array_equal(restored.read_level_raw(level), part.read_level_raw(level))
+        finally:
+            restored.release()
+    finally:
+        full.release()
+        part.release()
+        scene.release()
+
+
+@pytest.mark.parametrize("base", [-1, 99, 1.5, True])
+def test_base_level_out_of_range_is_a_clear_error(renderer, base):
+    cube = sun_sky_cube(16, (1, 1, 0.5))
+    with pytest.raises(InvalidInputError, match="base level"):
+        renderer.build_pems(cube, PEMSettings(6, base_level=base))
+
+
+def test_max_glossiness_of_materials():
+    from renderer.shading.material import Material
+
+    assert Material((1, 1, 1), 0.0, 0.9).max_glossiness() == 0.0        # no glossy lobe: no glossy lookup
+    assert Material((1, 1, 1), 0.5, 0.9).max_glossiness() == 0.9
+    assert Material((1, 1, 1), np.array([0.0, 0.5]), np.array([0.99, 0.3])).max_glossiness() == 0.3
+    gm = np.zeros((2, 2, 2))
+    gm[0, 0] = (1.0, 0.7)
+    gm[1, 1] = (0.0, 0.95)
+    assert Material(gloss_map=gm).max_glossiness() == 0.7

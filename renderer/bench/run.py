@@ -20,14 +20,14 @@ import numpy as np
 from ..camera import frame_meshes
 from ..gpu.context import GLContext
 from ..lighting.filters import Filter
-from ..lighting.pem import PEMSettings
+from ..lighting.pem import PEMSettings, finest_level_needed
 from ..reference import mean_flip, relative_rmse, render_reference
 from ..presets import DEFAULT_PRESETS
 from ..renderer import FrameSettings, Renderer, ShadingMode
 from .scenes import BenchScene, bundled_scene, shared_scenes
 
 BALANCED = {**DEFAULT_PRESETS["balanced"], "filter": "sqrt-cosine", "horizon": False, "calibration": "l2",
-            "diffuse": "pem", "glossy_horizon": "both"}
+            "diffuse": "pem", "glossy_horizon": "both", "needed_levels": False}
 
 SWEEPS = {
     "lights": [6, 12, 24, 48, 96, 192, 384],
@@ -39,6 +39,7 @@ SWEEPS = {
     "calibration": ["l2", "volume"],
     "diffuse": ["pem", "lights"],
     "glossy_horizon": ["off", "lobe", "lights", "both"],
+    "needed_levels": [False, True],
 }
 QUICK_SWEEPS = {
     "lights": [6, 24, 48, 96],
@@ -50,6 +51,7 @@ QUICK_SWEEPS = {
     "calibration": ["l2", "volume"],
     "diffuse": ["pem", "lights"],
     "glossy_horizon": ["off", "lobe", "lights", "both"],
+    "needed_levels": [False, True],
 }
 BASELINE_MODES = [ShadingMode.NO_OCCLUSION, ShadingMode.MANY_LIGHTS, ShadingMode.AO_GREY, ShadingMode.AO_COLOUR]
 
@@ -151,9 +153,14 @@ def bench_scene(r: Renderer, bs: BenchScene, cfg: BenchConfig, log=print) -> lis
         jobs = [(k, v, s, ShadingMode.FULL) for k, v, s in _settings_list(sweeps)]
         jobs += [("baseline", m.value, dict(BALANCED), m) for m in BASELINE_MODES]
         for knob, value, s, mode in jobs:
-            key = (s["face_size"], s["lights"], s["filter"])
+            base = 0
+            if s["needed_levels"]:
+                g_max = max(m.max_glossiness() for m in bs.materials)
+                base = finest_level_needed(s["face_size"], s["filter"], g_max, s["calibration"])
+            key = (s["face_size"], s["lights"], s["filter"], base)
             if key not in pem_cache:
-                pem_cache[key] = r.build_pems(bs.cube(s["face_size"]), PEMSettings(s["lights"], Filter(s["filter"])))
+                pem_cache[key] = r.build_pems(bs.cube(s["face_size"]),
+                                              PEMSettings(s["lights"], Filter(s["filter"]), base_level=base))
             pems = pem_cache[key]
             fs = FrameSettings(size, size, shadow_size=s["shadow_size"], blur_scale=s["blur_scale"], mode=mode,
                                horizon=s["horizon"], calibration=s["calibration"], diffuse=s["diffuse"],

@@ -24,6 +24,16 @@ from ..gpu.shaders import compute_shader
 from .filters import Filter, taps_1d
 from .glossiness import Calibration, LobeTable, lobe_table
 from .median_cut import RegionSet, median_cut
+
+
+def finest_level_needed(face_size: int, kind: Filter | str, max_glossiness: float,
+                        calibration: Calibration | str = Calibration.L2, levels: int | None = None) -> int:
+    """The base level a scene needs: the finest level any of its lookups reads (the trilinear lookup at
+    the level of its glossiest material reads floor(level)); the diffuse level is always deeper."""
+    table = lobe_table(face_size, Filter.parse(kind))
+    full = mip_levels(face_size) if levels is None else levels
+    level = min(table.level_for_glossiness(float(max_glossiness), calibration), full - 1)
+    return int(np.clip(np.floor(level), 0, full - 1))
 from .pem_reference import mip_levels, texel_weights, weight_chain
 
 SCRATCH_BUDGET_BYTES = 64 << 20  # bound on the two float32 scratch buffers of one batch
@@ -40,9 +50,12 @@ class PEMSettings:
     n_lights: int = 48
     filter: Filter = Filter.SQRT_COSINE
     levels: int | None = None  # None: the full chain down to 1x1 faces
+    # Finest level stored: the levels above it are computed on the way down but not kept, since no
+    # lookup of the scene needs them (`finest_level_needed`). 0: the whole chain, mirror included.
+    base_level: int = 0
 
     def key(self) -> tuple:
-        return (self.n_lights, self.filter.value, self.levels)
+        return (self.n_lights, self.filter.value, self.levels, self.base_level)
 
 
 class PEMSet:
@@ -67,6 +80,11 @@ class PEMSet:
         self.face_size = n
         full = mip_levels(n)
         self.levels = full if settings.levels is None else int(np.clip(settings.levels, 1, full))
+        base = settings.base_level
+        if isinstance(base, bool) or not isinstance(base, (int, np.integer)) or not 0 <= base < self.levels:
+            raise InvalidInputError(f"base level must be an integer in [0, {self.levels - 1}], got {base!r}")
+        self.base_level = int(base)
+        self.stored_size = n >> self.base_level
 
         t0 = time.perf_counter()
         if stored is None:
@@ -79,22 +97,25 @@ class PEMSet:
         else:
             self.regions = RegionSet(**{k: np.asarray(stored["regions_" + k]) for k in RegionSet.__dataclass_fields__})
             self.scale = np.asarray(stored["scale"], np.float64)
-            if self.regions.n_regions != settings.n_lights or int(stored["levels"]) != self.levels:
+            if (self.regions.n_regions != settings.n_lights or int(stored["levels"]) != self.levels
+                    or int(stored.get("base_level", 0)) != self.base_level):
                 raise InvalidInputError("stored PEM set does not match the requested settings")
         self.median_cut_ms = (time.perf_counter() - t0) * 1e3
         n_regions = self.regions.n_regions
 
         if n_regions > REGIONS_PER_TEXTURE * MAX_TEXTURES:
             raise InvalidInputError(f"at most {REGIONS_PER_TEXTURE * MAX_TEXTURES} lights are supported, got {n_regions}")
-        self.textures = [CubeMapArray(gl.gl, n, min(REGIONS_PER_TEXTURE, n_regions - first), self.levels, GL_RGBA16F)
+        stored_levels = self.levels - self.base_level
+        self.textures = [CubeMapArray(gl.gl, self.stored_size, min(REGIONS_PER_TEXTURE, n_regions - first),
+                                      stored_levels, GL_RGBA16F)
                          for first in range(0, n_regions, REGIONS_PER_TEXTURE)]
-        self.norm_texture = CubeMapArray(gl.gl, n, 1, self.levels, GL_RGBA32F)
+        self.norm_texture = CubeMapArray(gl.gl, self.stored_size, 1, stored_levels, GL_RGBA32F)
         t0 = time.perf_counter()
         try:
             with gl.stage(timer, "pem_build" if stored is None else "pem_upload"):
                 self._norm = weight_chain(n, settings.filter, self.levels)
-                for level, b in enumerate(self._norm):
-                    self.norm_texture.write_level(level, np.repeat(b[None], 4, axis=-1))
+                for level in range(self.base_level, self.levels):
+                    self.norm_texture.write_level(level - self.base_level, np.repeat(self._norm[level][None], 4, axis=-1))
                 if stored is None:
                     self._build(cube)
                 else:
@@ -113,13 +134,13 @@ class PEMSet:
     GLOSS_TABLE_SIZE = 257
 
     def gloss_table(self, calibration: Calibration | str = Calibration.L2) -> np.ndarray:
-        """Fractional MIP level for g = k / 256, k = 0..256, clamped to the levels built: float32 (257,).
-        Computed once per set and calibration, not once per frame."""
+        """Texture lookup level for g = k / 256, k = 0..256 (the chain level, clamped to the levels built,
+        counted from the base level): float32 (257,). Computed once per set and calibration."""
         calibration = Calibration.parse(calibration)
         if calibration not in self._gloss_tables:
             g = np.linspace(0.0, 1.0, self.GLOSS_TABLE_SIZE)
-            self._gloss_tables[calibration] = np.array([self.level_for_glossiness(x, calibration) for x in g],
-                                                       np.float32)
+            self._gloss_tables[calibration] = np.array(
+                [self.lookup_level(self.level_for_glossiness(x, calibration)) for x in g], np.float32)
         return self._gloss_tables[calibration]
 
     # -- build ------------------------------------------------------------------------------
@@ -155,9 +176,10 @@ class PEMSet:
                 for name in ("level0", "filter"):
                     progs[name]["u_texture_first_region"].value = texture_first
                 texture.bind_image(0, 0)
-                p = progs["level0"]
-                p["u_n"].value, p["u_first_region"].value = n, first
-                p.run(*groups(n))
+                if self.base_level == 0:
+                    p = progs["level0"]
+                    p["u_n"].value, p["u_first_region"].value = n, first
+                    p.run(*groups(n))
                 for level in range(1, self.levels):
                     size = n >> level
                     p = progs["down_env"] if level == 1 else progs["down"]
@@ -167,9 +189,12 @@ class PEMSet:
                     ctx.memory_barrier()
                     p.run(*groups(size))
                     ctx.memory_barrier()
-                    texture.bind_image(0, level)
+                    # Levels above the base are computed (the next reduction reads them) but not stored.
+                    store = level >= self.base_level
+                    texture.bind_image(0, level - self.base_level if store else 0)
                     p = progs["filter"]
                     p["u_n"].value, p["u_first_region"].value = size, first
+                    p["u_store"].value = store
                     p.run(*groups(size))
             ctx.memory_barrier()
         finally:
@@ -179,19 +204,21 @@ class PEMSet:
                 b.release()
 
     def _upload(self, stored: dict) -> None:
-        for level in range(self.levels):
+        for level in range(self.base_level, self.levels):
             data = np.asarray(stored[f"level_{level}"])
             for k, texture in enumerate(self.textures):
                 first = k * REGIONS_PER_TEXTURE
-                texture.write_level(level, data[first:first + texture.layers])
+                texture.write_level(level - self.base_level, data[first:first + texture.layers])
 
     def export(self) -> dict[str, np.ndarray]:
         """Everything needed to restore this set without rebuilding (the stored half floats, the
         scales, the partition): arrays for np.savez. Restore with PEMSet(gl, cube, settings, stored=...)."""
-        out = {f"level_{level}": self.read_level_raw(level).astype(np.float16) for level in range(self.levels)}
+        out = {f"level_{level}": self.read_level_raw(level).astype(np.float16)
+               for level in range(self.base_level, self.levels)}
         out.update({"regions_" + k: getattr(self.regions, k) for k in RegionSet.__dataclass_fields__})
         out["scale"] = self.scale
         out["levels"] = np.int64(self.levels)
+        out["base_level"] = np.int64(self.base_level)
         return out
 
     # -- queries ----------------------------------------------------------------------------
@@ -209,9 +236,16 @@ class PEMSet:
     def level_for_glossiness(self, g: float, calibration: Calibration | str = Calibration.L2) -> float:
         return min(self.lobes.level_for_glossiness(g, calibration), self.levels - 1)
 
+    def lookup_level(self, level: float) -> float:
+        """A chain level as the stored textures number it (their level 0 is the base level)."""
+        return max(float(level) - self.base_level, 0.0)
+
     def read_level_raw(self, level: int) -> np.ndarray:
-        """Stored (scaled) texels of one level: float32 (N, 6, s, s, 4)."""
-        return np.concatenate([t.read_level(level) for t in self.textures])
+        """Stored (scaled) texels of one chain level (>= the base level): float32 (N, 6, s, s, 4)."""
+        if not self.base_level <= level < self.levels:
+            raise InvalidInputError(f"level {level} is not stored: this set keeps levels {self.base_level}.."
+                                    f"{self.levels - 1}")
+        return np.concatenate([t.read_level(level - self.base_level) for t in self.textures])
 
     def bind(self, first_unit: int, second_unit: int, norm_unit: int) -> None:
         """Bind the PEM textures for shading (regions 0..191 and 192..383) and the normalizer B."""
@@ -228,6 +262,7 @@ class PEMSet:
 
     def summary(self) -> dict:
         return {"n_regions": self.n_regions, "face_size": self.face_size, "levels": self.levels,
+                "base_level": self.base_level,
                 "filter": self.settings.filter.value, "build_ms": round(self.build_ms, 2),
                 "median_cut_ms": round(self.median_cut_ms, 2), "bytes": self.nbytes,
                 "diffuse_level": round(self.diffuse_level(), 3)}

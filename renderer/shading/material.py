@@ -33,6 +33,17 @@ class Material:
     albedo_map: np.ndarray | None = None
     gloss_map: np.ndarray | None = None
 
+    def max_glossiness(self) -> float:
+        """The glossiest lookup this material can make (0 when it has no glossy lobe anywhere): what
+        decides the finest PEM level a scene needs."""
+        if self.gloss_map is not None:
+            gm = np.asarray(self.gloss_map, np.float64)
+            glossy = gm[..., 0] > 0
+            return float(gm[..., 1][glossy].max()) if glossy.any() else 0.0
+        spec = np.broadcast_to(np.asarray(self.specular, np.float64), np.shape(self.glossiness) or (1,))
+        g = np.broadcast_to(np.asarray(self.glossiness, np.float64), spec.shape)
+        return float(g[spec > 0].max()) if (spec > 0).any() else 0.0
+
     def vertex_arrays(self, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
         """(albedo (V, 3), material (V, 2) = (specular, glossiness)) float32, validated."""
         albedo = np.asarray(self.albedo, np.float32)

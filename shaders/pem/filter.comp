@@ -15,6 +15,7 @@ uniform int u_n;
 uniform int u_first_region;
 uniform int u_texture_first_region;  // first region stored in the bound cube-map array
 uniform float u_taps[5];
+uniform bool u_store;                // false above the PEM set's base level: computed, not kept
 
 void main() {
     ivec3 id = ivec3(gl_GlobalInvocationID);
@@ -31,6 +32,7 @@ void main() {
         }
     }
     dst[(id.z * u_n + id.y) * u_n + id.x] = acc;
+    if (!u_store) return;
     int region = u_first_region + id.z / 6;
     imageStore(o_pem, ivec3(id.x, id.y, 6 * (region - u_texture_first_region) + face), vec4(acc.rgb * inv_scale[region], 1.0));
 }
