@@ -307,3 +307,40 @@ def test_calibration_changes_the_glossy_level_only_through_the_table(renderer):
         assert np.all(np.diff(l2) <= 1e-6)        # glossier never looks up a blurrier level
     finally:
         pems.release()
+
+
+def test_shadow_blur_matches_a_numpy_box_cascade_and_leaves_unblurred_lights_alone(renderer, monkeypatch):
+    # Three clamp-to-edge box passes per axis of radius r(sigma) per light (shaders/shadows/blur.comp);
+    # lights whose radius rounds to 0 are skipped and must keep their raw moments.
+    import renderer.shadows.vsm as vsm
+    from renderer.shadows.lights import blur_sigma_texels
+
+    cube = sun_sky_cube(32, (1, 1, 0.5), sun_radiance=300.0, sun_radius_deg=8)
+    scene = renderer.create_scene([sphere(0.4, (0, 0.6, 0)), plane(4.0)], [Material(), Material()])
+    pems = renderer.build_pems(cube, PEMSettings(24))
+    settings = FrameSettings(32, 32, shadow_size=64, blur_scale=0.5)
+    try:
+        monkeypatch.setattr(vsm, "MAX_BLUR_RADIUS", 0)     # every radius clamps to 0: the raw moments
+        renderer.render(scene, pems, settings, CAM)
+        raw = renderer._shadow_maps.read().astype(np.float64)
+        monkeypatch.undo()
+        renderer.render(scene, pems, settings, CAM)
+        blurred = renderer._shadow_maps.read().astype(np.float64)
+        sigma = blur_sigma_texels(pems.regions.light_radius_rad(), 64, 0.5)
+    finally:
+        pems.release()
+        scene.release()
+    radius = np.minimum(np.round(0.5 * (np.sqrt(4 * sigma ** 2 + 1) - 1)).astype(int), vsm.MAX_BLUR_RADIUS)
+    assert (radius == 0).any() and (radius > 0).any()
+
+    def box(a, r, axis):
+        n = a.shape[axis]
+        idx = np.clip(np.arange(n)[:, None] + np.arange(-r, r + 1)[None, :], 0, n - 1)
+        return np.take(a, idx, axis=axis).mean(axis=axis + 1)
+
+    for layer, r in enumerate(radius):
+        expect = raw[layer]
+        for axis in (1, 0):
+            for _ in range(3):
+                expect = box(expect, r, axis) if r > 0 else expect
+        np.testing.assert_allclose(blurred[layer], expect, rtol=1e-5, atol=1e-6, err_msg=f"light {layer}, r {r}")

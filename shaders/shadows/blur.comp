@@ -30,13 +30,10 @@ void main() {
 
     float sigma = lights[shadow_lights[u_first_light + layer]].params.x;
     int r = min(int(round(0.5 * (sqrt(4.0 * sigma * sigma + 1.0) - 1.0))), u_max_radius);
-    if (r <= 0) {
-        for (int i = 0; i < length; ++i) {
-            ivec3 p = ivec3(origin + i * u_axis, layer);
-            imageStore(o_dst, p, imageLoad(u_src, p));
-        }
-        return;
-    }
+    // No blur for this light: leave its layer alone in every pass. The six passes ping-pong between
+    // the two arrays and end where they started, so an untouched layer keeps its moments (copying
+    // them six times cost most of the blur stage: at blur scale 0.1 about 3 of 4 lights have r = 0).
+    if (r <= 0) return;
     // Clamp-to-edge running sum of width 2r + 1 (light-space borders hold empty, unoccluded texels).
     vec2 sum = vec2(0.0);
     for (int k = -r; k <= r; ++k) sum += imageLoad(u_src, ivec3(origin + clamp(k, 0, length - 1) * u_axis, layer)).xy;
