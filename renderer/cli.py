@@ -70,6 +70,10 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--bleed-reduction", type=float, default=0.2)
     q.add_argument("--calibration", default="l2", choices=["l2", "volume"],
                    help="g -> MIP level: the closest normalized kernel (l2) or the paper's equal lobe volume")
+    q.add_argument("--shadow-threshold", type=float, default=0.0,
+                   help="lights below this share of the energy get no shadow map (their PEMs are added unshadowed)")
+    q.add_argument("--sh-unshadowed", action="store_true",
+                   help="the diffuse term of the unshadowed lights from SH9 irradiance (one lookup less per light)")
     q.add_argument("--glossy-horizon", default="both", choices=["off", "lobe", "lights", "both"],
                    help="drop the glossy lobe's part below the surface: by the lobe's share, per light, both, or not")
     q.add_argument("--diffuse", default="pem", choices=["pem", "lights"],
@@ -179,7 +183,8 @@ def cmd_render(args) -> int:
     settings = FrameSettings(width=w, height=h, shadow_size=q["shadow_size"], blur_scale=q["blur_scale"],
                              bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
                              calibration=args.calibration, diffuse=args.diffuse,
-                             glossy_horizon=args.glossy_horizon,
+                             glossy_horizon=args.glossy_horizon, shadow_threshold=args.shadow_threshold,
+                             sh_unshadowed=args.sh_unshadowed,
                              background=Background(args.background))
     camera = camera_from_args(args, meshes, w / h)
     with Renderer() as r:
@@ -244,7 +249,8 @@ def cmd_sequence(args) -> int:
     settings = FrameSettings(width=w, height=h, shadow_size=q["shadow_size"], blur_scale=q["blur_scale"],
                              bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
                              calibration=args.calibration, diffuse=args.diffuse,
-                             glossy_horizon=args.glossy_horizon,
+                             glossy_horizon=args.glossy_horizon, shadow_threshold=args.shadow_threshold,
+                             sh_unshadowed=args.sh_unshadowed,
                              background=Background(args.background))
     args.out.mkdir(parents=True, exist_ok=True)
     timings, previews = [], []

@@ -20,6 +20,7 @@ from .errors import InvalidInputError
 from .gpu.context import GLContext, StageTimer
 from .gpu.shaders import program
 from .lighting.glossiness import Calibration
+from .lighting.sh import irradiance_coefficients
 from .lighting.pem import REGIONS_PER_TEXTURE, PEMSet, PEMSettings
 from .mesh import Mesh
 from .scene import Scene
@@ -74,6 +75,9 @@ class FrameSettings:
     # its disc above the plane) or "both" (the default: lowest error in every target scene, although
     # the two overlap on a uniform map, see docs/benchmarks.md).
     glossy_horizon: str = "both"
+    # Full mode: the diffuse term of the lights that get no shadow map (below shadow_threshold) from
+    # their summed SH9 irradiance (lighting/sh.py) instead of one PEM lookup each.
+    sh_unshadowed: bool = False
     # g -> MIP level: "l2" (closest normalized kernel, the default: lower error in every target scene)
     # or "volume" (the paper's section 5); lighting/glossiness.py.
     calibration: Calibration = Calibration.L2
@@ -271,6 +275,11 @@ class Renderer:
             _set_uniform(p, "u_min_variance", settings.min_variance)
             _set_uniform(p, "u_bleed_reduction", settings.bleed_reduction)
             _set_uniform(p, "u_horizon", settings.horizon)
+            sh_on = settings.sh_unshadowed and settings.diffuse == "pem" and bool((layers < 0).any())
+            _set_uniform(p, "u_sh_unshadowed", sh_on)
+            if sh_on:
+                coeffs = irradiance_coefficients(pems.region_sh[layers < 0].sum(axis=0))
+                _set_uniform(p, "u_sh", coeffs.astype(np.float32).tobytes())
             _set_uniform(p, "u_glossy_horizon", GLOSSY_HORIZONS.index(settings.glossy_horizon))
             extent = 2.0 * float(np.linalg.norm(hi - lo))
             _set_uniform(p, "u_normal_offset", settings.normal_offset_texels * extent / settings.shadow_size)

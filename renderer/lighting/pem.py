@@ -24,6 +24,7 @@ from ..gpu.shaders import compute_shader
 from .filters import Filter, taps_1d
 from .glossiness import Calibration, LobeTable, lobe_table
 from .median_cut import RegionSet, median_cut
+from .sh import region_sh
 
 
 def finest_level_needed(face_size: int, kind: Filter | str, max_glossiness: float,
@@ -101,6 +102,8 @@ class PEMSet:
                     or int(stored.get("base_level", 0)) != self.base_level):
                 raise InvalidInputError("stored PEM set does not match the requested settings")
         self.median_cut_ms = (time.perf_counter() - t0) * 1e3
+        # Radiance SH9 of every region (lighting/sh.py), for the dim lights' diffuse term.
+        self.region_sh = region_sh(cube[..., :3], self.regions.labels, self.regions.n_regions)
         n_regions = self.regions.n_regions
 
         if n_regions > REGIONS_PER_TEXTURE * MAX_TEXTURES:

@@ -33,6 +33,8 @@ uniform float u_min_variance;
 uniform float u_bleed_reduction;   // Lauritzen's light-bleeding reduction: clip p_max below this
 uniform float u_normal_offset;     // world units, pushes the shadow lookup off the surface
 uniform bool u_horizon;            // include the tangent plane in VIS_i
+uniform bool u_sh_unshadowed;      // full mode: lights without a shadow map light the diffuse term by SH9
+uniform vec3 u_sh[9];              // their irradiance coefficients (renderer/lighting/sh.py)
 uniform int u_glossy_horizon;      // full mode: 0 off, 1 the lobe's share above the tangent plane,
                                    // 2 each light's disc share above it, 3 both (FrameSettings.glossy_horizon)
 
@@ -62,6 +64,16 @@ float visibility(int i, vec3 ws_pos) {
     float d = t - m.x;
     float p_max = variance / (variance + d * d);
     return linstep(u_bleed_reduction, 1.0, p_max);
+}
+
+// E(n) from the SH9 irradiance coefficients (the basis of renderer/lighting/sh.py).
+vec3 sh_irradiance(vec3 n) {
+    vec3 e = u_sh[0] * 0.282095
+           + (u_sh[1] * n.y + u_sh[2] * n.z + u_sh[3] * n.x) * 0.488603
+           + (u_sh[4] * (n.x * n.y) + u_sh[5] * (n.y * n.z) + u_sh[7] * (n.x * n.z)) * 1.092548
+           + u_sh[6] * (0.315392 * (3.0 * n.z * n.z - 1.0))
+           + u_sh[8] * (0.546274 * (n.x * n.x - n.y * n.y));
+    return max(e, vec3(0.0));
 }
 
 float gloss_level(float g) {
@@ -177,20 +189,21 @@ void main() {
         // (a divergent branch around texture lookups costs a third of the pass on llvmpipe).
         int n0 = min(u_n_lights, REGIONS_PER_TEXTURE);
         for (int i = 0; i < n0; ++i) {
-#ifdef DIFFUSE_LIGHTS
             vec3 pem_d = vec3(0.0);
-#else
-            vec3 pem_d = textureLod(u_pem0, vec4(n, float(i)), u_diffuse_level).rgb;
+#ifndef DIFFUSE_LIGHTS
+            // Uniform across pixels (it depends on i only): no divergence.
+            if (!(MODE == 0 && u_sh_unshadowed && lights[i].params.y < 0.0))
+                pem_d = textureLod(u_pem0, vec4(n, float(i)), u_diffuse_level).rgb;
 #endif
             vec3 pem_g = glossy ? textureLod(u_pem0, vec4(r, float(i)), level_g).rgb : vec3(0.0);
             add_light(i, pem_d, pem_g, n, shadow_pos);
         }
         for (int i = n0; i < u_n_lights; ++i) {
             float layer = float(i - REGIONS_PER_TEXTURE);
-#ifdef DIFFUSE_LIGHTS
             vec3 pem_d = vec3(0.0);
-#else
-            vec3 pem_d = textureLod(u_pem1, vec4(n, layer), u_diffuse_level).rgb;
+#ifndef DIFFUSE_LIGHTS
+            if (!(MODE == 0 && u_sh_unshadowed && lights[i].params.y < 0.0))
+                pem_d = textureLod(u_pem1, vec4(n, layer), u_diffuse_level).rgb;
 #endif
             vec3 pem_g = glossy ? textureLod(u_pem1, vec4(r, layer), level_g).rgb : vec3(0.0);
             add_light(i, pem_d, pem_g, n, shadow_pos);
@@ -198,6 +211,9 @@ void main() {
     }
 #ifndef DIFFUSE_LIGHTS
     g_diffuse /= textureLod(u_pem_norm, vec4(n, 0.0), u_diffuse_level).r;
+#if MODE == 0
+    if (u_sh_unshadowed) g_diffuse += sh_irradiance(n) / PI;
+#endif
 #endif
 #if MODE == 0
     if (glossy && (u_glossy_horizon == 1 || u_glossy_horizon == 3)) {

@@ -1,0 +1,72 @@
+"""SH9 irradiance (renderer/lighting/sh.py) and its use for the lights without a shadow map."""
+
+import numpy as np
+import pytest
+
+from renderer.envmap.cube import cube_solid_angles, texel_directions
+from renderer.lighting.pem import PEMSettings
+from renderer.lighting.sh import irradiance, irradiance_coefficients, region_sh
+from renderer.renderer import FrameSettings
+from renderer.shading.material import Material
+
+from conftest import sun_sky_cube
+from test_render import CAM, plane, sphere
+
+
+def _normals(k=40, seed=0):
+    n = np.random.default_rng(seed).normal(size=(k, 3))
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def test_constant_map_gives_pi_times_radiance():
+    cube = np.full((6, 16, 16, 3), 2.0)
+    c = irradiance_coefficients(region_sh(cube, np.zeros((6, 16, 16), int), 1)[0])
+    np.testing.assert_allclose(irradiance(c, _normals()), 2.0 * np.pi, rtol=1e-5)
+
+
+def test_band_limited_map_is_exact():
+    # A map of SH order <= 2 is represented exactly, so its SH9 irradiance is the cosine convolution
+    # itself (here by brute force over the texels; the rest is the cube's discretization).
+    n = 48
+    d = texel_directions(n)
+    cube = np.repeat((1.0 + 0.5 * d[..., 1] + 0.3 * d[..., 0] ** 2 - 0.2 * d[..., 0] * d[..., 2])[..., None], 3, -1)
+    labels = np.arange(6)[:, None, None] * np.ones((6, n, n), int)  # six regions, summed
+    c = irradiance_coefficients(region_sh(cube, labels, 6).sum(axis=0))
+    normals = _normals()
+    w, dirs, rad = cube_solid_angles(n).reshape(-1), d.reshape(-1, 3), cube.reshape(-1, 3)
+    exact = np.array([(np.maximum(dirs @ m, 0.0)[:, None] * w[:, None] * rad).sum(axis=0) for m in normals])
+    np.testing.assert_allclose(irradiance(c, normals), exact, rtol=2e-3)
+
+
+def test_renderer_furnace_with_every_light_unshadowed_and_sh(renderer):
+    scene = renderer.create_scene([sphere()], [Material((1.0, 1.0, 1.0), 0.0, 0.0)])
+    pems = renderer.build_pems(np.full((6, 32, 32, 3), 2.5, np.float32), PEMSettings(48))
+    try:
+        frame = renderer.render(scene, pems, FrameSettings(64, 64, shadow_threshold=1.0, sh_unshadowed=True), CAM)
+    finally:
+        pems.release()
+        scene.release()
+    assert frame.timings["shadowed_lights"] == 0
+    px = frame.image[frame.image[..., 3] > 0.5][:, :3]
+    assert px.size > 1000
+    np.testing.assert_allclose(px, 2.5, rtol=1e-4)
+
+
+def test_sh_for_dim_lights_changes_the_image_a_little(renderer):
+    cube = sun_sky_cube(32, (1, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3)
+    scene = renderer.create_scene([sphere(0.4, (0, 0.6, 0)), plane(4.0)],
+                                  [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
+    pems = renderer.build_pems(cube, PEMSettings(48))
+    try:
+        a = renderer.render(scene, pems, FrameSettings(64, 64, shadow_threshold=0.01), CAM)
+        b = renderer.render(scene, pems, FrameSettings(64, 64, shadow_threshold=0.01, sh_unshadowed=True), CAM)
+        full = renderer.render(scene, pems, FrameSettings(64, 64), CAM)
+        ignored = renderer.render(scene, pems, FrameSettings(64, 64, sh_unshadowed=True), CAM)
+    finally:
+        pems.release()
+        scene.release()
+    assert 0 < b.timings["shadowed_lights"] < 48
+    m = a.image[..., 3] > 0.5
+    change = np.abs(a.image - b.image)[m][:, :3].mean() / a.image[m][:, :3].mean()
+    assert 0.0 < change < 0.01, change                # measured 0.2 %
+    np.testing.assert_array_equal(ignored.image, full.image)  # no unshadowed light: nothing to replace
