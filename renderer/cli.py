@@ -63,8 +63,9 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--face-size", type=int, help="PEM cube face size (power of two)")
     q.add_argument("--filter", default="sqrt-cosine", choices=["none", "box", "gauss", "cosine", "sqrt-cosine"])
     q.add_argument("--levels", type=int, help="MIP levels to build (default: the full chain)")
-    q.add_argument("--needed-levels", action="store_true",
-                   help="store only the PEM levels the materials' glossiness reads (less memory, same image)")
+    q.add_argument("--needed-levels", action=argparse.BooleanOptionalAction, default=True,
+                   help="store only the PEM levels the materials' glossiness reads (the same image, less memory "
+                        "and faster lookups; default on)")
     q.add_argument("--shadow-size", type=int, help="shadow-map size per light")
     q.add_argument("--blur-scale", type=float, help="scale of the per-light shadow blur (0: hard shadows)")
     q.add_argument("--bleed-reduction", type=float, default=0.2)

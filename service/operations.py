@@ -7,14 +7,14 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import anyio
 import numpy as np
 
 from renderer.cache import cache_key
 from renderer.envmap import environment_from_array
-from renderer.lighting.pem import PEMSettings
+from renderer.lighting.pem import PEMSettings, finest_level_needed
 
 from .codecs import decode_hdr, sniff_hdr_kind
 from .errors import ConflictError, NotFoundError, PayloadTooLargeError, QueueFullError
@@ -132,23 +132,37 @@ def _to_scene_up(positions: np.ndarray, up: str) -> list:
     return p.tolist()
 
 
+def scene_pem_settings(body: SceneCreate, prepared) -> PEMSettings:
+    """The PEM settings of a prepared scene: with quality.needed_levels (the default), only the levels
+    its materials' glossiness reads (the same image, a fraction of the memory). Noted in the quality info."""
+    q = prepared.quality
+    pem = q.pem
+    if body.quality.needed_levels:
+        g_max = max(m.max_glossiness() for m in prepared.materials)
+        pem = replace(pem, base_level=finest_level_needed(q.face_size, pem.filter, g_max, q.frame.calibration,
+                                                          pem.levels))
+    q.info["base_level"] = pem.base_level
+    return pem
+
+
 async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = None) -> SceneRecord:
     svc.scenes.check_room()
     env = await find_environment(svc, body.environment_id)
     prepared = await anyio.to_thread.run_sync(prepare_scene, body, svc.presets, svc.meshes, svc.settings)
     q = prepared.quality
+    pem = scene_pem_settings(body, prepared)
     cube = await anyio.to_thread.run_sync(env.cube, q.face_size)
-    key = cache_key(env.content_hash, q.face_size, q.pem)
+    key = cache_key(env.content_hash, q.face_size, pem)
     record = SceneRecord(
         id=scene_id or svc.scenes.new_id(), name=body.name, environment=env, face_size=q.face_size,
-        pem_settings=q.pem, frame_settings=q.frame, camera=prepared.camera, up=body.up,
+        pem_settings=pem, frame_settings=q.frame, camera=prepared.camera, up=body.up,
         meshes=[SceneMeshInfo(role, m.name, m.n_vertices, m.n_faces, m.uvs is not None, m.faces)
                 for role, m in zip(prepared.roles, prepared.meshes)],
         quality=q.info, output=body.output.model_dump(), pem_key=key)
 
     def job(gl: GLResources) -> None:
-        pems, source = gl.pem_set(env.content_hash, cube, q.pem)
-        env.note_pem_set(key, q.face_size, q.pem, pems, source)
+        pems, source = gl.pem_set(env.content_hash, cube, pem)
+        env.note_pem_set(key, q.face_size, pem, pems, source)
         record.gpu = gl.renderer.create_scene(prepared.meshes, prepared.materials)
         svc.scenes.add(record)  # here, so a scene made just before a request timeout is still listed (and freed)
 

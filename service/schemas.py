@@ -76,6 +76,8 @@ class QualitySpec(_Strict):
                                               "from each light's disc")
     glossy_horizon: Literal["off", "lobe", "lights", "both"] = Field(
         "both", description="drop the glossy lobe's part below the surface (off: the paper)")
+    needed_levels: bool = Field(True, description="store only the PEM levels the scene's glossiness reads "
+                                "(the same image, less memory)")
     sh_unshadowed: bool = Field(False, description="the diffuse term of the lights below shadow_threshold "
                                 "from SH9 irradiance")
 

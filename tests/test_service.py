@@ -224,7 +224,9 @@ def test_mesh_file_upload_keeps_vertex_order(http, env_upload, mesh, tmp_path):
 def test_environment_details_and_preview(http, env_upload):
     env = env_upload[0]
     d = http.get(f"/environments/{env['id']}").json()
-    (pem,) = d["pem_sets"]
+    # The upload's set, and (from scenes made earlier on this server) sets that keep only the levels
+    # their materials read.
+    pem = d["pem_sets"][0]
     assert pem["n_lights"] == 12 and pem["face_size"] == 32 and pem["build_ms"] > 0
     dirs = np.array([light["direction"] for light in pem["lights"]])
     assert dirs.shape == (12, 3) and np.allclose(np.linalg.norm(dirs, axis=1), 1.0, atol=1e-6)
@@ -554,7 +556,7 @@ def test_no_gl_context_is_not_ready_and_503(tmp_path):
 def test_accuracy_knobs_reach_the_renderer_and_are_reported(http, env_upload, mesh):
     body = scene_body(env_upload[0]["id"], mesh)
     images = {}
-    for knobs in ({}, {"calibration": "volume", "diffuse": "lights", "glossy_horizon": "off"}):
+    for knobs in ({}, {"calibration": "volume", "diffuse": "lights", "glossy_horizon": "off", "needed_levels": False}):
         body["quality"] = {**body["quality"], **knobs}
         r = http.post("/render", json=body, params={"format": "json"})
         assert r.status_code == 200, r.text
@@ -562,6 +564,8 @@ def test_accuracy_knobs_reach_the_renderer_and_are_reported(http, env_upload, me
         expect = {"calibration": "l2", "diffuse": "pem", "glossy_horizon": "both", **knobs}
         reported = json.dumps(j)
         for k, v in expect.items():
-            assert f'"{k}": "{v}"' in reported, (k, v)
+            if k != "needed_levels":
+                assert f'"{k}": "{v}"' in reported, (k, v)
+        assert (j["render"]["pem_set"]["base_level"] == 0) == ("needed_levels" in knobs)
         images[bool(knobs)] = j["image"]["base64"]
     assert images[True] != images[False]

@@ -40,7 +40,7 @@ from ..pipeline import (
     render_job,
     server_timing,
 )
-from ..operations import find_environment, find_scene
+from ..operations import find_environment, find_scene, scene_pem_settings
 from ..schemas import BatchFormat, ImageFormat, SceneCreate
 from ..specs import prepare_scene
 from ..worker import GLResources
@@ -221,11 +221,12 @@ async def render_once(
     decode_ms = (time.perf_counter() - t0) * 1e3
     q = prepared.quality
     cube = await anyio.to_thread.run_sync(env.cube, q.face_size)
-    key = cache_key(env.content_hash, q.face_size, q.pem)
+    pem = scene_pem_settings(body, prepared)
+    key = cache_key(env.content_hash, q.face_size, pem)
 
     def job(gl: GLResources):
-        pems, source = gl.pem_set(env.content_hash, cube, q.pem)
-        env.note_pem_set(key, q.face_size, q.pem, pems, source)
+        pems, source = gl.pem_set(env.content_hash, cube, pem)
+        env.note_pem_set(key, q.face_size, pem, pems, source)
         scene = gl.renderer.create_scene(prepared.meshes, prepared.materials)
         try:
             return gl.renderer.render(scene, pems, q.frame, prepared.camera), source
