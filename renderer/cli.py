@@ -75,8 +75,11 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
                    help="lights below this share of the energy get no shadow map (their PEMs are added unshadowed)")
     q.add_argument("--sh-unshadowed", action="store_true",
                    help="the diffuse term of the unshadowed lights from SH9 irradiance (one lookup less per light)")
-    q.add_argument("--glossy-horizon", default="both", choices=["off", "lobe", "lights", "both"],
-                   help="drop the glossy lobe's part below the surface: by the lobe's share, per light, both, or not")
+    q.add_argument("--glossy-horizon", default="lights", choices=["off", "lobe", "lights", "both"],
+                   help="drop the glossy lobe's part below the surface: per light (default), by the lobe's share, "
+                        "both, or not (the paper)")
+    q.add_argument("--terminator", action=argparse.BooleanOptionalAction, default=True,
+                   help="small lights below the triangle's own plane light neither term (default on)")
     q.add_argument("--diffuse", default="pem", choices=["pem", "lights"],
                    help="diffuse term from the PEMs along the normal (the paper) or from each light's disc")
     q.add_argument("--mode", default="full", choices=["full", "none", "ao", "ao-color", "many-lights"],
@@ -185,7 +188,7 @@ def cmd_render(args) -> int:
                              bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
                              calibration=args.calibration, diffuse=args.diffuse,
                              glossy_horizon=args.glossy_horizon, shadow_threshold=args.shadow_threshold,
-                             sh_unshadowed=args.sh_unshadowed,
+                             sh_unshadowed=args.sh_unshadowed, terminator=args.terminator,
                              background=Background(args.background))
     camera = camera_from_args(args, meshes, w / h)
     with Renderer() as r:
@@ -251,7 +254,7 @@ def cmd_sequence(args) -> int:
                              bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
                              calibration=args.calibration, diffuse=args.diffuse,
                              glossy_horizon=args.glossy_horizon, shadow_threshold=args.shadow_threshold,
-                             sh_unshadowed=args.sh_unshadowed,
+                             sh_unshadowed=args.sh_unshadowed, terminator=args.terminator,
                              background=Background(args.background))
     args.out.mkdir(parents=True, exist_ok=True)
     timings, previews = [], []

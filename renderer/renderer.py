@@ -70,11 +70,13 @@ class FrameSettings:
     # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level) or
     # "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups).
     diffuse: str = "pem"
-    # The glossy lobe's part below the tangent plane (full mode only; shading/horizon.py): "off" (the
-    # paper), "lobe" (times the lobe's share above the plane), "lights" (each light times the share of
-    # its disc above the plane) or "both" (the default: lowest error in every target scene, although
-    # the two overlap on a uniform map, see docs/benchmarks.md).
-    glossy_horizon: str = "both"
+    # The glossy lobe's part below the surface (full mode only; shading/horizon.py): "off" (the paper),
+    # "lobe" (times the lobe's share above the shading normal's plane), "lights" (each light times the
+    # share of its disc above the triangle's own plane; the default) or "both" (they overlap).
+    glossy_horizon: str = "lights"
+    # Full mode: small lights (angular radius <= ~6 degrees) below the triangle's own plane are removed
+    # from the diffuse term too: the terminator a shadow map cannot resolve (surface.frag).
+    terminator: bool = True
     # Full mode: the diffuse term of the lights that get no shadow map (below shadow_threshold) from
     # their summed SH9 irradiance (lighting/sh.py) instead of one PEM lookup each.
     sh_unshadowed: bool = False
@@ -275,6 +277,7 @@ class Renderer:
             _set_uniform(p, "u_min_variance", settings.min_variance)
             _set_uniform(p, "u_bleed_reduction", settings.bleed_reduction)
             _set_uniform(p, "u_horizon", settings.horizon)
+            _set_uniform(p, "u_terminator", settings.terminator)
             sh_on = settings.sh_unshadowed and settings.diffuse == "pem" and bool((layers < 0).any())
             _set_uniform(p, "u_sh_unshadowed", sh_on)
             if sh_on:

@@ -75,7 +75,8 @@ class QualitySpec(_Strict):
     diffuse: Literal["pem", "lights"] = Field("pem", description="diffuse term from the PEMs (the paper) or "
                                               "from each light's disc")
     glossy_horizon: Literal["off", "lobe", "lights", "both"] = Field(
-        "both", description="drop the glossy lobe's part below the surface (off: the paper)")
+        "lights", description="drop the glossy lobe's part below the surface (off: the paper)")
+    terminator: bool = Field(True, description="small lights below the triangle's own plane light neither term")
     needed_levels: bool = Field(True, description="store only the PEM levels the scene's glossiness reads "
                                 "(the same image, less memory)")
     sh_unshadowed: bool = Field(False, description="the diffuse term of the lights below shadow_threshold "

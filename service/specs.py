@@ -50,14 +50,15 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
                           blur_scale=float(knobs["blur_scale"]), bleed_reduction=q.bleed_reduction,
                           shadow_threshold=q.shadow_threshold, mode=ShadingMode(q.mode.value),
                           calibration=q.calibration, diffuse=q.diffuse, glossy_horizon=q.glossy_horizon,
-                          sh_unshadowed=q.sh_unshadowed,
+                          sh_unshadowed=q.sh_unshadowed, terminator=q.terminator,
                           background=Background(out.background))
     pem = PEMSettings(int(knobs["lights"]), Filter(q.filter.value), q.levels)
     info = {"preset": name, "lights": pem.n_lights, "face_size": fs, "filter": pem.filter.value,
             "levels": q.levels, "shadow_size": frame.shadow_size, "blur_scale": frame.blur_scale,
             "bleed_reduction": frame.bleed_reduction, "shadow_threshold": frame.shadow_threshold,
             "mode": frame.mode.value, "calibration": frame.calibration.value, "diffuse": frame.diffuse,
-            "glossy_horizon": frame.glossy_horizon, "sh_unshadowed": frame.sh_unshadowed}
+            "glossy_horizon": frame.glossy_horizon, "sh_unshadowed": frame.sh_unshadowed,
+            "terminator": frame.terminator}
     return Quality(fs, pem, frame, info)
 
 

@@ -201,12 +201,12 @@ def test_lights_below_the_energy_threshold_get_no_shadow_map(renderer):
     cube = sun_sky_cube(32, (0.4, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3)
     scene = renderer.create_scene([sphere(0.4, (0, 0.6, 0)), plane(4.0)], [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
     pems = renderer.build_pems(cube, PEMSettings(48))
-    # glossy_horizon off: with no shadow map the full mode must equal the unshadowed one exactly.
+    # Horizon corrections off: with no shadow map the full mode must equal the unshadowed one exactly.
     try:
-        full = renderer.render(scene, pems, FrameSettings(64, 64, glossy_horizon="off", blur_scale=1.0), CAM)
-        some = renderer.render(scene, pems, FrameSettings(64, 64, glossy_horizon="off", blur_scale=1.0, shadow_threshold=0.01), CAM)
-        none_ = renderer.render(scene, pems, FrameSettings(64, 64, glossy_horizon="off", blur_scale=1.0, shadow_threshold=1.0), CAM)
-        unshadowed = renderer.render(scene, pems, FrameSettings(64, 64, glossy_horizon="off", blur_scale=1.0, mode=ShadingMode.NO_OCCLUSION), CAM)
+        full = renderer.render(scene, pems, FrameSettings(64, 64, glossy_horizon="off", terminator=False, blur_scale=1.0), CAM)
+        some = renderer.render(scene, pems, FrameSettings(64, 64, glossy_horizon="off", terminator=False, blur_scale=1.0, shadow_threshold=0.01), CAM)
+        none_ = renderer.render(scene, pems, FrameSettings(64, 64, glossy_horizon="off", terminator=False, blur_scale=1.0, shadow_threshold=1.0), CAM)
+        unshadowed = renderer.render(scene, pems, FrameSettings(64, 64, glossy_horizon="off", terminator=False, blur_scale=1.0, mode=ShadingMode.NO_OCCLUSION), CAM)
     finally:
         pems.release()
         scene.release()
@@ -256,20 +256,24 @@ def test_many_light_baseline_matches_the_furnace_for_diffuse(renderer, sphere_sc
 
 def test_horizon_term_stops_light_from_below_an_open_sheet(renderer):
     # A sun below a single-sided sheet: the shadow map cannot block it (the sheet is the first surface
-    # the sun sees) and the PEM's diffuse lobe reaches past 90 degrees. The horizon term removes it.
+    # the sun sees) and the PEM's diffuse lobe reaches past 90 degrees. The horizon term removes it, and
+    # so does the default terminator term (the sun is below the sheet's own plane).
     cube = sun_sky_cube(32, (1.0, -0.25, 0.0), sun_radiance=1e3, sun_radius_deg=4, sky=(0, 0, 0), ground=(0, 0, 0))
     cam = Camera((0.0, 3.0, 0.5), (0.0, 0.0, 0.0), fov_y_deg=40.0)
     scene = renderer.create_scene([plane(2.0)], [Material((0.8, 0.8, 0.8))])
     pems = renderer.build_pems(cube, PEMSettings(24))
     try:
-        leak = renderer.render(scene, pems, FrameSettings(32, 32, background=Background.BLACK), cam).image
-        clipped = renderer.render(scene, pems, FrameSettings(32, 32, horizon=True, background=Background.BLACK), cam).image
+        paper = dict(terminator=False, glossy_horizon="off", background=Background.BLACK)
+        leak = renderer.render(scene, pems, FrameSettings(32, 32, **paper), cam).image
+        clipped = renderer.render(scene, pems, FrameSettings(32, 32, **{**paper, "horizon": True}), cam).image
+        default = renderer.render(scene, pems, FrameSettings(32, 32, background=Background.BLACK), cam).image
     finally:
         pems.release()
         scene.release()
     top = leak[..., 3] > 0.5
     assert leak[top][:, :3].mean() > 0.01                    # the paper's method leaks the sun through
     assert clipped[top][:, :3].mean() < 0.01 * leak[top][:, :3].mean()
+    assert default[top][:, :3].mean() < 0.01 * leak[top][:, :3].mean()  # the terminator term (a small sun)
 
 
 @pytest.mark.parametrize("n_lights", [6, 48, 384])

@@ -561,7 +561,7 @@ def test_accuracy_knobs_reach_the_renderer_and_are_reported(http, env_upload, me
         r = http.post("/render", json=body, params={"format": "json"})
         assert r.status_code == 200, r.text
         j = r.json()
-        expect = {"calibration": "l2", "diffuse": "pem", "glossy_horizon": "both", **knobs}
+        expect = {"calibration": "l2", "diffuse": "pem", "glossy_horizon": "lights", **knobs}
         reported = json.dumps(j)
         for k, v in expect.items():
             if k != "needed_levels":

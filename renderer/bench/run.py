@@ -27,7 +27,7 @@ from ..renderer import FrameSettings, Renderer, ShadingMode
 from .scenes import BenchScene, bundled_scene, shared_scenes
 
 BALANCED = {**DEFAULT_PRESETS["balanced"], "filter": "sqrt-cosine", "horizon": False, "calibration": "l2",
-            "diffuse": "pem", "glossy_horizon": "both", "needed_levels": True, "shadow_threshold": 0.0,
+            "diffuse": "pem", "glossy_horizon": "lights", "terminator": True, "needed_levels": True, "shadow_threshold": 0.0,
             "sh_unshadowed": False}
 # Section 5 of the speed/accuracy issue: dim lights without shadow maps, their diffuse term by SH9.
 # A dict value changes several knobs at once (SH9 only matters once some lights are unshadowed).
@@ -43,6 +43,7 @@ SWEEPS = {
     "calibration": ["l2", "volume"],
     "diffuse": ["pem", "lights"],
     "glossy_horizon": ["off", "lobe", "lights", "both"],
+    "terminator": [False],
     "needed_levels": [False],
     "shadow_threshold": [0.002, 0.01, 0.03],
     "sh_unshadowed": DIM_LIGHTS,
@@ -57,6 +58,7 @@ QUICK_SWEEPS = {
     "calibration": ["l2", "volume"],
     "diffuse": ["pem", "lights"],
     "glossy_horizon": ["off", "lobe", "lights", "both"],
+    "terminator": [False],
     "needed_levels": [False],
     "shadow_threshold": [0.01],
     "sh_unshadowed": DIM_LIGHTS,
@@ -173,7 +175,8 @@ def bench_scene(r: Renderer, bs: BenchScene, cfg: BenchConfig, log=print) -> lis
             pems = pem_cache[key]
             fs = FrameSettings(size, size, shadow_size=s["shadow_size"], blur_scale=s["blur_scale"], mode=mode,
                                horizon=s["horizon"], calibration=s["calibration"], diffuse=s["diffuse"],
-                               glossy_horizon=s["glossy_horizon"], shadow_threshold=s["shadow_threshold"],
+                               glossy_horizon=s["glossy_horizon"], terminator=s["terminator"],
+                               shadow_threshold=s["shadow_threshold"],
                                sh_unshadowed=s["sh_unshadowed"])
             frame, frame_ms, stages = _time_frames(r, scene, pems, fs, camera, cfg.frames)
             err = relative_rmse(frame.image, truth, mask)

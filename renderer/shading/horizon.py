@@ -7,13 +7,12 @@ shadow map cannot see it either (the surface is its own first occluder only for 
 At grazing view angles r skims the tangent plane and up to half of the lobe is below it: measured on
 the hard-sun scene, the silhouettes were the brightest errors (docs/benchmarks.md).
 
-Two corrections, `FrameSettings.glossy_horizon`: "lobe" multiplies the glossy term by F below (right
-for an environment that is uniform across the horizon), "lights" multiplies each light's glossy
-term by the share of its disc above the tangent plane (right at region granularity, and the one that
-removes a sun below the horizon), "both" applies the two. On the five benchmark scenes (128^2,
-against 2 x 512 spp references) the mean rel. RMSE was 0.362 with neither, 0.320 with "lights", 0.288
-with "lobe" and 0.261 with both, which is the default; on a uniform map "both" removes the lobe's
-lower part twice at grazing angles (tests/test_render.py states by how much).
+Two corrections, `FrameSettings.glossy_horizon`: "lights" (the default) multiplies each light's glossy
+term by the share of its disc above the triangle's own plane (right at region granularity; it removes
+a sun below the surface, which a shadow map misses at the terminator); "lobe" multiplies the glossy
+term by F below, the share of the lobe above the shading normal's plane (right for an environment that
+is uniform across the horizon); "both" applies the two, which overlap. Measured on the five benchmark
+scenes (docs/benchmarks.md, the glossy_horizon rows).
 
 F(mu, g) = integral over {w : n.w > 0} of T_s(r.w) dw / integral of T_s, with mu = n.r (>= 0: the
 renderer flips n to face the camera, and r is the mirror of the view about n), T_s the normalized

@@ -36,7 +36,8 @@ uniform bool u_horizon;            // include the tangent plane in VIS_i
 uniform bool u_sh_unshadowed;      // full mode: lights without a shadow map light the diffuse term by SH9
 uniform vec3 u_sh[9];              // their irradiance coefficients (renderer/lighting/sh.py)
 uniform int u_glossy_horizon;      // full mode: 0 off, 1 the lobe's share above the tangent plane,
-                                   // 2 each light's disc share above it, 3 both (FrameSettings.glossy_horizon)
+                                   // 2 each light's disc share above the triangle's plane, 3 both
+                                   // (FrameSettings.glossy_horizon)
 
 in vec3 v_ws_position;
 in vec3 v_ws_normal;
@@ -82,7 +83,11 @@ float gloss_level(float g) {
     return mix(level_of_g[k], level_of_g[k + 1], x - float(k));
 }
 
+const float TERMINATOR_MAX_SIN = 0.1;   // lights of angular radius up to ~5.7 degrees count as small
+uniform bool u_terminator;             // FrameSettings.terminator
+
 // Accumulators of main(), shared with add_light() (GLSL has no closures).
+vec3 g_geometric_normal = vec3(0.0, 0.0, 1.0);  // the triangle's plane, facing the camera
 vec3 g_diffuse = vec3(0.0), g_glossy = vec3(0.0), g_ao_rgb = vec3(0.0), g_ao_norm = vec3(0.0);
 
 // Adds light i, given its PEM looked up along the normal (pem_d, diffuse level) and along the
@@ -138,13 +143,19 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 shadow_pos) {
         float sin_r = lights[i].params.w;
         vis *= clamp((dot(n, lights[i].dir_scale.xyz) + sin_r) / (2.0 * sin_r), 0.0, 1.0);
     }
+    // Light from below the surface's own plane (the triangle's, not the interpolated normal's) is
+    // blocked by the surface for a closed body and by the body under a garment; a shadow map cannot
+    // resolve it at the terminator, where the surface is its own occluder at grazing angles. Share of
+    // the light's disc above that plane:
+    float sin_r = lights[i].params.w;
+    float above = clamp((dot(g_geometric_normal, lights[i].dir_scale.xyz) + sin_r) / (2.0 * sin_r), 0.0, 1.0);
+    // Small lights (a sun): both terms (their terminator is sharp; a large region's share is soft
+    // and its PEM's diffuse kernel spreads it anyway).
+    bool small = u_terminator && sin_r <= TERMINATOR_MAX_SIN;
+    if (small) vis *= above;
     g_diffuse += vis * pem_d;
-    if (u_glossy_horizon >= 2 && !u_horizon) {
-        // The glossy lobe's part below the surface is blocked (renderer/shading/horizon.py): keep the
-        // share of this light's disc above the tangent plane, as the horizon term above does.
-        float sin_r = lights[i].params.w;
-        vis *= clamp((dot(n, lights[i].dir_scale.xyz) + sin_r) / (2.0 * sin_r), 0.0, 1.0);
-    }
+    // The glossy lobe's part below the surface (renderer/shading/horizon.py), per light.
+    if (u_glossy_horizon >= 2 && !small) vis *= above;
     g_glossy += vis * pem_g;
 #else
     // Ambient-occlusion baselines (paper Fig. 6): unshadowed lighting times an occlusion factor
@@ -164,6 +175,8 @@ void main() {
     vec3 to_eye = normalize(u_camera_pos - v_ws_position);
     if (dot(n, to_eye) < 0.0) n = -n;   // cloth is two-sided: shade the side the camera sees
     vec3 r = reflect(-to_eye, n);
+    g_geometric_normal = normalize(cross(dFdx(v_ws_position), dFdy(v_ws_position)));
+    if (dot(g_geometric_normal, to_eye) < 0.0) g_geometric_normal = -g_geometric_normal;
     vec3 albedo = u_use_albedo_map ? v_albedo * texture(u_albedo_map, v_uv).rgb : v_albedo;
     vec2 material = u_use_gloss_map ? texture(u_gloss_map, v_uv).rg : v_material;
     float specular = material.x;
