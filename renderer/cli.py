@@ -63,24 +63,26 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--face-size", type=int, help="PEM cube face size (power of two)")
     q.add_argument("--filter", default="sqrt-cosine", choices=["none", "box", "gauss", "cosine", "sqrt-cosine"])
     q.add_argument("--levels", type=int, help="MIP levels to build (default: the full chain)")
-    q.add_argument("--needed-levels", action=argparse.BooleanOptionalAction, default=True,
+    q.add_argument("--needed-levels", action=argparse.BooleanOptionalAction,
                    help="store only the PEM levels the materials' glossiness reads (the same image, less memory "
                         "and faster lookups; default on)")
     q.add_argument("--shadow-size", type=int, help="shadow-map size per light")
     q.add_argument("--blur-scale", type=float, help="scale of the per-light shadow blur (0: hard shadows)")
     q.add_argument("--bleed-reduction", type=float, default=0.2)
-    q.add_argument("--calibration", default="l2", choices=["l2", "volume"],
+    q.add_argument("--calibration", choices=["l2", "volume"],
                    help="g -> MIP level: the closest normalized kernel (l2) or the paper's equal lobe volume")
-    q.add_argument("--shadow-threshold", type=float, default=0.0,
+    q.add_argument("--shadow-threshold", type=float,
                    help="lights below this share of the energy get no shadow map (their PEMs are added unshadowed)")
-    q.add_argument("--sh-unshadowed", action="store_true",
+    q.add_argument("--sh-unshadowed", action=argparse.BooleanOptionalAction,
                    help="the diffuse term of the unshadowed lights from SH9 irradiance (one lookup less per light)")
-    q.add_argument("--glossy-horizon", default="lights", choices=["off", "lobe", "lights", "both"],
+    q.add_argument("--glossy-horizon", choices=["off", "lobe", "lights", "both"],
                    help="drop the glossy lobe's part below the surface: per light (default), by the lobe's share, "
                         "both, or not (the paper)")
-    q.add_argument("--terminator", action=argparse.BooleanOptionalAction, default=True,
+    q.add_argument("--terminator", action=argparse.BooleanOptionalAction,
                    help="small lights below the triangle's own plane light neither term (default on)")
-    q.add_argument("--diffuse", default="pem", choices=["pem", "lights"],
+    q.add_argument("--horizon", action=argparse.BooleanOptionalAction,
+                   help="the tangent plane of the shading normal blocks every light, both terms (default off)")
+    q.add_argument("--diffuse", choices=["pem", "lights"],
                    help="diffuse term from the PEMs along the normal (the paper) or from each light's disc")
     q.add_argument("--mode", default="full", choices=["full", "none", "ao", "ao-color", "many-lights"],
                    help="full method, no occlusion, grey AO, AO with colour (paper Fig. 6), or the plain "
@@ -116,7 +118,23 @@ def resolve_quality(args) -> dict:
     for key in ("lights", "face_size", "shadow_size", "blur_scale"):
         if getattr(args, key) is not None:
             q[key] = getattr(args, key)
+    # The other knobs: an explicit flag, else the preset's or budget's measured value, else the default.
+    for key, default in _knob_defaults().items():
+        value = getattr(args, key)
+        if value is None:
+            value = q.get(key, default)
+        setattr(args, key, value)
+        q[key] = value
     return q
+
+
+def _knob_defaults() -> dict:
+    from .renderer import FrameSettings
+
+    f = FrameSettings()
+    return {"calibration": f.calibration.value, "diffuse": f.diffuse, "glossy_horizon": f.glossy_horizon,
+            "terminator": f.terminator, "horizon": f.horizon, "shadow_threshold": f.shadow_threshold,
+            "sh_unshadowed": f.sh_unshadowed, "needed_levels": True}
 
 
 def pem_settings(args, q: dict, materials):
@@ -188,7 +206,7 @@ def cmd_render(args) -> int:
                              bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
                              calibration=args.calibration, diffuse=args.diffuse,
                              glossy_horizon=args.glossy_horizon, shadow_threshold=args.shadow_threshold,
-                             sh_unshadowed=args.sh_unshadowed, terminator=args.terminator,
+                             sh_unshadowed=args.sh_unshadowed, terminator=args.terminator, horizon=args.horizon,
                              background=Background(args.background))
     camera = camera_from_args(args, meshes, w / h)
     with Renderer() as r:
@@ -254,7 +272,7 @@ def cmd_sequence(args) -> int:
                              bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
                              calibration=args.calibration, diffuse=args.diffuse,
                              glossy_horizon=args.glossy_horizon, shadow_threshold=args.shadow_threshold,
-                             sh_unshadowed=args.sh_unshadowed, terminator=args.terminator,
+                             sh_unshadowed=args.sh_unshadowed, terminator=args.terminator, horizon=args.horizon,
                              background=Background(args.background))
     args.out.mkdir(parents=True, exist_ok=True)
     timings, previews = [], []

@@ -137,7 +137,7 @@ def scene_pem_settings(body: SceneCreate, prepared) -> PEMSettings:
     its materials' glossiness reads (the same image, a fraction of the memory). Noted in the quality info."""
     q = prepared.quality
     pem = q.pem
-    if body.quality.needed_levels:
+    if q.info["needed_levels"]:
         g_max = max(m.max_glossiness() for m in prepared.materials)
         pem = replace(pem, base_level=finest_level_needed(q.face_size, pem.filter, g_max, q.frame.calibration,
                                                           pem.levels))

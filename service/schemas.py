@@ -77,6 +77,7 @@ class QualitySpec(_Strict):
     glossy_horizon: Literal["off", "lobe", "lights", "both"] = Field(
         "lights", description="drop the glossy lobe's part below the surface (off: the paper)")
     terminator: bool = Field(True, description="small lights below the triangle's own plane light neither term")
+    horizon: bool = Field(False, description="the shading normal's tangent plane blocks every light, both terms")
     needed_levels: bool = Field(True, description="store only the PEM levels the scene's glossiness reads "
                                 "(the same image, less memory)")
     sh_unshadowed: bool = Field(False, description="the diffuse term of the lights below shadow_threshold "

@@ -38,7 +38,14 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
         value = getattr(q, key)
         if value is not None:
             knobs[key] = value
+    # The other knobs: the request's when it names them, else the preset's measured value (a table
+    # stored by `garment-render bench --store`), else the schema default.
+    for key in ("calibration", "diffuse", "glossy_horizon", "terminator", "horizon", "shadow_threshold",
+                "sh_unshadowed", "needed_levels"):
+        if key in q.model_fields_set or key not in knobs:
+            knobs[key] = getattr(q, key, None)
     regions_per_face(int(knobs["lights"]))  # InvalidInputError naming the valid counts
+
     fs = int(knobs["face_size"])
     if fs & (fs - 1):
         raise InvalidRequestError(f"quality.face_size must be a power of two (4..2048), got {fs}")
@@ -48,9 +55,10 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
                                       "(GARMENT_RENDER_MAX_IMAGE_SIDE)")
     frame = FrameSettings(width=out.width, height=out.height, shadow_size=int(knobs["shadow_size"]),
                           blur_scale=float(knobs["blur_scale"]), bleed_reduction=q.bleed_reduction,
-                          shadow_threshold=q.shadow_threshold, mode=ShadingMode(q.mode.value),
-                          calibration=q.calibration, diffuse=q.diffuse, glossy_horizon=q.glossy_horizon,
-                          sh_unshadowed=q.sh_unshadowed, terminator=q.terminator,
+                          shadow_threshold=float(knobs["shadow_threshold"]), mode=ShadingMode(q.mode.value),
+                          calibration=knobs["calibration"], diffuse=knobs["diffuse"],
+                          glossy_horizon=knobs["glossy_horizon"], sh_unshadowed=bool(knobs["sh_unshadowed"]),
+                          terminator=bool(knobs["terminator"]), horizon=bool(knobs["horizon"]),
                           background=Background(out.background))
     pem = PEMSettings(int(knobs["lights"]), Filter(q.filter.value), q.levels)
     info = {"preset": name, "lights": pem.n_lights, "face_size": fs, "filter": pem.filter.value,
@@ -58,7 +66,7 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
             "bleed_reduction": frame.bleed_reduction, "shadow_threshold": frame.shadow_threshold,
             "mode": frame.mode.value, "calibration": frame.calibration.value, "diffuse": frame.diffuse,
             "glossy_horizon": frame.glossy_horizon, "sh_unshadowed": frame.sh_unshadowed,
-            "terminator": frame.terminator}
+            "terminator": frame.terminator, "horizon": frame.horizon, "needed_levels": bool(knobs["needed_levels"])}
     return Quality(fs, pem, frame, info)
 
 

@@ -38,3 +38,32 @@ def test_budgets_choose_from_the_measured_table():
 def test_presets_follow_the_error_targets():
     p = presets(summarize(BENCH))
     assert (p["fast"]["lights"], p["balanced"]["lights"], p["accurate"]["lights"]) == (24, 48, 96)
+
+
+def test_a_budget_sets_every_measured_knob_unless_a_flag_says_otherwise(monkeypatch):
+    import renderer.bench.budget as budget
+    from renderer.cli import build_parser, resolve_quality
+
+    rows = [dict(_row("a", 24, 30, 0.08)), dict(_row("a", 48, 60, 0.04))]
+    rows[1]["settings"] = {**rows[1]["settings"], "glossy_horizon": "off", "calibration": "volume",
+                           "terminator": False, "needed_levels": True}
+    table = summarize({**BENCH, "rows": rows})
+    monkeypatch.setattr(budget, "load_table", lambda path=None: table)
+
+    args = build_parser().parse_args(["render", "--error-budget", "0.05"])
+    q = resolve_quality(args)
+    assert (q["lights"], args.glossy_horizon, args.calibration, args.terminator) == (48, "off", "volume", False)
+    assert "budget" in q["source"]
+
+    args = build_parser().parse_args(["render", "--error-budget", "0.05", "--glossy-horizon", "lobe", "--terminator"])
+    resolve_quality(args)
+    assert (args.glossy_horizon, args.terminator, args.calibration) == ("lobe", True, "volume")
+
+    args = build_parser().parse_args(["render"])              # the balanced preset is now that entry
+    resolve_quality(args)
+    assert (args.glossy_horizon, args.calibration) == ("off", "volume")
+
+    monkeypatch.setattr(budget, "load_table", lambda path=None: None)
+    args = build_parser().parse_args(["render"])              # no table: the defaults
+    resolve_quality(args)
+    assert (args.glossy_horizon, args.terminator, args.calibration, args.needed_levels) == ("lights", True, "l2", True)
