@@ -54,26 +54,32 @@ def blur_sigma_texels(angular_radius_rad: np.ndarray, shadow_size: int, blur_sca
 
 
 def fit_light_view_proj(direction: np.ndarray, lo: np.ndarray, hi: np.ndarray, sigma_texels: float,
-                        shadow_size: int) -> np.ndarray:
-    """World -> light clip matrix (4, 4) float64: x, y in [-1, 1] over the casters' box, depth z in
-    [0, 1] from the nearest to the farthest corner (GL clip space with w = 1)."""
+                        shadow_size: int, points: np.ndarray | None = None, square: bool = True) -> np.ndarray:
+    """World -> light clip matrix (4, 4) float64: x, y in [-1, 1] over the casters, depth z in [0, 1]
+    from the nearest to the farthest of them (GL clip space with w = 1). The casters are the corners
+    of their box (lo, hi), or `points` (e.g. their convex hull) when given; `square=False` fits x and
+    y separately (texels need not be square), which a tall garment lit from the side uses better."""
     basis = light_basis(direction)
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    ls = corners @ basis.T
+    if points is None:
+        points = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    ls = np.asarray(points, np.float64) @ basis.T
     cmin, cmax = ls.min(axis=0), ls.max(axis=0)
     centre = 0.5 * (cmin + cmax)
-    half = 0.5 * max(cmax[0] - cmin[0], cmax[1] - cmin[1])
-    half = max(half, 1e-12 * max(1.0, float(np.abs(centre).max())), 1e-30)
+    tiny = max(1e-12 * max(1.0, float(np.abs(centre).max())), 1e-30)
+    half_xy = 0.5 * (cmax[:2] - cmin[:2])
+    if square:
+        half_xy[:] = half_xy.max()
+    half_xy = np.maximum(half_xy, max(tiny, 1e-6 * float(half_xy.max())))
     # Widen by the blur's reach (3 sigma texels) plus one texel for rasterization at the border.
-    half *= 1.0 + 2.0 * (3.0 * sigma_texels + 1.0) / shadow_size
+    half_xy = half_xy * (1.0 + 2.0 * (3.0 * sigma_texels + 1.0) / shadow_size)
     depth = max(cmax[2] - cmin[2], 1e-30)
     z0 = cmin[2] - 0.01 * depth
     z_range = 1.02 * depth
     m = np.zeros((4, 4))
-    m[0, :3] = basis[0] / half
-    m[0, 3] = -centre[0] / half
-    m[1, :3] = basis[1] / half
-    m[1, 3] = -centre[1] / half
+    m[0, :3] = basis[0] / half_xy[0]
+    m[0, 3] = -centre[0] / half_xy[0]
+    m[1, :3] = basis[1] / half_xy[1]
+    m[1, 3] = -centre[1] / half_xy[1]
     m[2, :3] = basis[2] / z_range
     m[2, 3] = -z0 / z_range
     m[3, 3] = 1.0
