@@ -45,7 +45,7 @@ _MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_
                ShadingMode.MANY_LIGHTS: 4}
 
 
-DIFFUSE_SOURCES = ("pem", "lights")
+DIFFUSE_SOURCES = ("pem", "lights", "mixed")
 GLOSSY_HORIZONS = ("off", "lobe", "lights", "both")
 
 
@@ -67,8 +67,9 @@ class FrameSettings:
     normal_offset_texels: float = 1.5
     shadow_threshold: float = 0.0  # lights below this share of the energy get no shadow map
     horizon: bool = False          # VIS_i includes the tangent plane (see surface.frag); off: the paper
-    # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level) or
-    # "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups).
+    # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level),
+    # "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups) or
+    # "mixed" (small lights, angular radius <= ~6 degrees, from their disc; the rest from the PEMs).
     diffuse: str = "pem"
     # The glossy lobe's part below the surface (full mode only; shading/horizon.py): "off" (the paper),
     # "lobe" (times the lobe's share above the shading normal's plane), "lights" (each light times the
@@ -280,6 +281,7 @@ class Renderer:
             _set_uniform(p, "u_bleed_reduction", settings.bleed_reduction)
             _set_uniform(p, "u_horizon", settings.horizon)
             _set_uniform(p, "u_terminator", settings.terminator)
+            _set_uniform(p, "u_small_exact", settings.diffuse == "mixed")
             sh_on = settings.sh_unshadowed and settings.diffuse == "pem" and bool((layers < 0).any())
             _set_uniform(p, "u_sh_unshadowed", sh_on)
             if sh_on:

@@ -59,7 +59,9 @@ float visibility(int i, vec3 ws_pos) {
     vec2 uv = p.xy * 0.5 + 0.5;
     if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
     vec2 m = texture(u_moments, vec3(uv, layer)).xy;
-    float t = p.z;
+    // A receiver behind every caster (beyond the far plane, e.g. a floor that casts nothing) is compared
+    // at the far plane: lit where no caster is, shadowed where one is.
+    float t = min(p.z, 1.0);
     if (t <= m.x) return 1.0;
     float variance = max(m.y - m.x * m.x, u_min_variance);
     float d = t - m.x;
@@ -85,6 +87,7 @@ float gloss_level(float g) {
 
 const float TERMINATOR_MAX_SIN = 0.1;   // lights of angular radius up to ~5.7 degrees count as small
 uniform bool u_terminator;             // FrameSettings.terminator
+uniform bool u_small_exact;            // FrameSettings.diffuse == "mixed" (full and no-occlusion modes)
 
 // Accumulators of main(), shared with add_light() (GLSL has no closures).
 vec3 g_geometric_normal = vec3(0.0, 0.0, 1.0);  // the triangle's plane, facing the camera
@@ -92,7 +95,6 @@ vec3 g_diffuse = vec3(0.0), g_glossy = vec3(0.0), g_ao_rgb = vec3(0.0), g_ao_nor
 
 // Adds light i, given its PEM looked up along the normal (pem_d, diffuse level) and along the
 // reflection vector (pem_g, level of g), both still divided by the region's scale.
-#ifdef DIFFUSE_LIGHTS
 // The diffuse term from the light itself instead of its PEM: the region as a uniform disc of angular
 // radius a (its mean cosine (1 + cos a) / 2 is the region's, renderer/lighting/median_cut.py) carrying
 // the region's energy E. Radiance = E / (pi * Omega(a)) * integral over the disc of max(0, n.w) dw;
@@ -120,7 +122,13 @@ vec3 diffuse_from_light(int i, vec3 n) {
     float omega = 2.0 * PI * sin2 / (1.0 + cos_a);   // 2 pi (1 - cos a), without cancellation
     return lights[i].energy.rgb * (integral / (PI * max(omega, 1e-30)));
 }
-#endif
+
+// Per-light choices; each depends on the light only, so branches on them do not diverge.
+bool sh_skip(int i) { return MODE == 0 && u_sh_unshadowed && lights[i].params.y < 0.0; }
+bool exact_diffuse(int i) {   // diffuse "mixed": a small light's diffuse term in closed form
+    return u_small_exact && lights[i].params.w <= TERMINATOR_MAX_SIN && !sh_skip(i);
+}
+vec3 g_diffuse_exact = vec3(0.0);   // added after the PEM terms' normalization
 
 void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 shadow_pos) {
     float scale = lights[i].dir_scale.w;
@@ -131,7 +139,8 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 shadow_pos) {
 #endif
     pem_g *= scale;
 #if MODE == 1
-    g_diffuse += pem_d;
+    if (exact_diffuse(i)) g_diffuse_exact += diffuse_from_light(i, n);
+    else g_diffuse += pem_d;
     g_glossy += pem_g;
 #elif MODE == 0
     float vis = visibility(i, shadow_pos);
@@ -153,7 +162,8 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 shadow_pos) {
     // and its PEM's diffuse kernel spreads it anyway).
     bool small = u_terminator && sin_r <= TERMINATOR_MAX_SIN;
     if (small) vis *= above;
-    g_diffuse += vis * pem_d;
+    if (exact_diffuse(i)) g_diffuse_exact += vis * diffuse_from_light(i, n);
+    else g_diffuse += vis * pem_d;
     // The glossy lobe's part below the surface (renderer/shading/horizon.py), per light.
     if (u_glossy_horizon >= 2 && !small) vis *= above;
     g_glossy += vis * pem_g;
@@ -205,7 +215,7 @@ void main() {
             vec3 pem_d = vec3(0.0);
 #ifndef DIFFUSE_LIGHTS
             // Uniform across pixels (it depends on i only): no divergence.
-            if (!(MODE == 0 && u_sh_unshadowed && lights[i].params.y < 0.0))
+            if (!sh_skip(i) && !exact_diffuse(i))
                 pem_d = textureLod(u_pem0, vec4(n, float(i)), u_diffuse_level).rgb;
 #endif
             vec3 pem_g = glossy ? textureLod(u_pem0, vec4(r, float(i)), level_g).rgb : vec3(0.0);
@@ -215,7 +225,7 @@ void main() {
             float layer = float(i - REGIONS_PER_TEXTURE);
             vec3 pem_d = vec3(0.0);
 #ifndef DIFFUSE_LIGHTS
-            if (!(MODE == 0 && u_sh_unshadowed && lights[i].params.y < 0.0))
+            if (!sh_skip(i) && !exact_diffuse(i))
                 pem_d = textureLod(u_pem1, vec4(n, layer), u_diffuse_level).rgb;
 #endif
             vec3 pem_g = glossy ? textureLod(u_pem1, vec4(r, layer), level_g).rgb : vec3(0.0);
@@ -224,6 +234,7 @@ void main() {
     }
 #ifndef DIFFUSE_LIGHTS
     g_diffuse /= textureLod(u_pem_norm, vec4(n, 0.0), u_diffuse_level).r;
+    g_diffuse += g_diffuse_exact;
 #if MODE == 0
     if (u_sh_unshadowed) g_diffuse += sh_irradiance(n) / PI;
 #endif
