@@ -25,7 +25,7 @@ from .lighting.pem import PEMSet, PEMSettings
 log = logging.getLogger(__name__)
 
 # Bump when the stored arrays or the build's numerical output change.
-FORMAT_VERSION = 2  # 2: solid-angle weighted chains (A = chain(L * w))
+FORMAT_VERSION = 3  # 2: solid-angle weighted chains (A = chain(L * w)); 3: regions carry mean_cos
 
 
 @dataclass

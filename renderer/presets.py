@@ -22,4 +22,10 @@ def presets() -> tuple[dict, str]:
     found = measured_presets(table)
     merged = {name: {k: v for k, v in found.get(name, DEFAULT_PRESETS[name]).items() if k != "filter"}
               for name in DEFAULT_PRESETS}
-    return merged, f"measured on {table['machine'].get('gl_renderer', '?')} ({table['machine'].get('date', '?')})"
+    where = f"{table['machine'].get('gl_renderer', '?')} ({table['machine'].get('date', '?')})"
+    measured = [n for n in DEFAULT_PRESETS if n in found]
+    fallback = [n for n in DEFAULT_PRESETS if n not in found]
+    source = f"measured on {where}: {', '.join(measured) or 'none'}"
+    if fallback:
+        source += f"; default (no measured setting within its error target): {', '.join(fallback)}"
+    return merged, source

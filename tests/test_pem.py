@@ -71,7 +71,10 @@ def test_memory_matches_the_paper_figure_8(renderer):
     # Paper Fig. 8: 48 PEMs of 128^2 faces, RGBA16F with MIP maps, take 48 MB.
     pems = renderer.build_pems(np.ones((6, 128, 128, 3), np.float32), PEMSettings(48))
     try:
-        assert pems.nbytes / 2**20 == pytest.approx(48.0, rel=0.01)
+        pem_only = sum(t.nbytes for t in pems.textures)
+        assert pem_only / 2**20 == pytest.approx(48.0, rel=0.01)
+        # nbytes adds the normalizer B: one RGBA32F cube with its chain.
+        assert pems.nbytes - pem_only == pems.norm_texture.nbytes == pytest.approx(2**21, rel=0.01)
     finally:
         pems.release()
 
@@ -135,6 +138,24 @@ def test_weighted_chain_keeps_a_constant_map_constant():
         np.testing.assert_allclose(level, 2.5, rtol=1e-12)
 
 
+@pytest.mark.parametrize("face, g", [(128, 0.9985), (256, 0.99975), (64, 0.956)])
+def test_the_base_level_is_never_finer_than_a_lookup_the_shader_makes(face, g):
+    # The shader interpolates the 257-entry gloss table: any g up to g_max reads at least the level of
+    # the entry at or above g_max, which in the table's last step is far finer than level(g_max).
+    from renderer.lighting.glossiness import lobe_table
+    from renderer.lighting.pem import PEMSet, finest_level_needed
+
+    table = lobe_table(face, Filter.SQRT_COSINE)
+    base = finest_level_needed(face, Filter.SQRT_COSINE, g)
+    steps = PEMSet.GLOSS_TABLE_SIZE - 1
+    entries = np.array([table.level_for_glossiness(k / steps, "l2") for k in range(steps + 1)])
+    for x in np.linspace(0.0, g, 400):
+        t = x * steps
+        k = min(int(t), steps - 1)
+        looked_up = entries[k] + (entries[k + 1] - entries[k]) * (t - k)
+        assert looked_up >= base - 1e-9, (x, looked_up, base)
+
+
 def test_a_set_with_a_base_level_stores_only_the_needed_levels_and_renders_the_same(renderer):
     from renderer.lighting.pem import finest_level_needed
     from renderer.renderer import FrameSettings
@@ -184,8 +205,10 @@ def test_max_glossiness_of_materials():
 
     assert Material((1, 1, 1), 0.0, 0.9).max_glossiness() == 0.0        # no glossy lobe: no glossy lookup
     assert Material((1, 1, 1), 0.5, 0.9).max_glossiness() == 0.9
-    assert Material((1, 1, 1), np.array([0.0, 0.5]), np.array([0.99, 0.3])).max_glossiness() == 0.3
+    # Interpolation pairs a vertex's g = 0.99 with its neighbour's specular 0.5 between them.
+    assert Material((1, 1, 1), np.array([0.0, 0.5]), np.array([0.99, 0.3])).max_glossiness() == 0.99
     gm = np.zeros((2, 2, 2))
     gm[0, 0] = (1.0, 0.7)
     gm[1, 1] = (0.0, 0.95)
-    assert Material(gloss_map=gm).max_glossiness() == 0.7
+    assert Material(gloss_map=gm).max_glossiness() == 0.95     # texels are filtered: any g can meet specular
+    assert Material(gloss_map=np.zeros((2, 2, 2))).max_glossiness() == 0.0

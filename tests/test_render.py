@@ -313,7 +313,8 @@ def test_calibration_changes_the_glossy_level_only_through_the_table(renderer):
         pems.release()
 
 
-def test_shadow_blur_matches_a_numpy_box_cascade_and_leaves_unblurred_lights_alone(renderer, monkeypatch):
+@pytest.mark.parametrize("n_lights", [24, 96])   # 96: more than one batch of layers, then a copy
+def test_shadow_blur_matches_a_numpy_box_cascade_and_leaves_unblurred_lights_alone(renderer, monkeypatch, n_lights):
     # Three clamp-to-edge box passes per axis of radius r(sigma) per light (shaders/shadows/blur.comp);
     # lights whose radius rounds to 0 are skipped and must keep their raw moments.
     import renderer.shadows.vsm as vsm
@@ -321,7 +322,7 @@ def test_shadow_blur_matches_a_numpy_box_cascade_and_leaves_unblurred_lights_alo
 
     cube = sun_sky_cube(32, (1, 1, 0.5), sun_radiance=300.0, sun_radius_deg=8)
     scene = renderer.create_scene([sphere(0.4, (0, 0.6, 0)), plane(4.0)], [Material(), Material()])
-    pems = renderer.build_pems(cube, PEMSettings(24))
+    pems = renderer.build_pems(cube, PEMSettings(n_lights))
     settings = FrameSettings(32, 32, shadow_size=64, blur_scale=0.5)
     try:
         monkeypatch.setattr(vsm, "MAX_BLUR_RADIUS", 0)     # every radius clamps to 0: the raw moments

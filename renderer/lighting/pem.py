@@ -33,7 +33,12 @@ def finest_level_needed(face_size: int, kind: Filter | str, max_glossiness: floa
     the level of its glossiest material reads floor(level)); the diffuse level is always deeper."""
     table = lobe_table(face_size, Filter.parse(kind))
     full = mip_levels(face_size) if levels is None else levels
-    level = min(table.level_for_glossiness(float(max_glossiness), calibration), full - 1)
+    # The shader interpolates the gloss table (GLOSS_TABLE_SIZE entries, non-increasing in g): a g below
+    # g_max reads no finer a level than the entry at or above g_max, which can be far finer than the
+    # level of g_max itself in the table's last step (its last entry is the mirror, level 0).
+    steps = PEMSet.GLOSS_TABLE_SIZE - 1
+    g_entry = min(np.ceil(float(max_glossiness) * steps) / steps, 1.0)
+    level = min(table.level_for_glossiness(g_entry, calibration), full - 1)
     return int(np.clip(np.floor(level), 0, full - 1))
 from .pem_reference import mip_levels, texel_weights, weight_chain
 
@@ -231,7 +236,8 @@ class PEMSet:
 
     @property
     def nbytes(self) -> int:
-        return sum(t.nbytes for t in self.textures)  # the PEMs; the float32 background cube is extra
+        # The PEMs and their normalizer B; the float32 background cube is extra.
+        return sum(t.nbytes for t in self.textures) + self.norm_texture.nbytes
 
     def diffuse_level(self, calibration: Calibration | str = Calibration.L2) -> float:
         return min(self.lobes.level_for_glossiness(0.0, calibration), self.levels - 1)

@@ -35,14 +35,15 @@ class Material:
 
     def max_glossiness(self) -> float:
         """The glossiest lookup this material can make (0 when it has no glossy lobe anywhere): what
-        decides the finest PEM level a scene needs."""
+        decides the finest PEM level a scene needs. Specular and glossiness are interpolated (between
+        vertices, between texels), so a fragment can pair any g with a nonzero specular weight: the
+        maximum is over all of g as soon as any specular weight is positive."""
         if self.gloss_map is not None:
             gm = np.asarray(self.gloss_map, np.float64)
-            glossy = gm[..., 0] > 0
-            return float(gm[..., 1][glossy].max()) if glossy.any() else 0.0
-        spec = np.broadcast_to(np.asarray(self.specular, np.float64), np.shape(self.glossiness) or (1,))
-        g = np.broadcast_to(np.asarray(self.glossiness, np.float64), spec.shape)
-        return float(g[spec > 0].max()) if (spec > 0).any() else 0.0
+            return float(gm[..., 1].max()) if (gm[..., 0] > 0).any() else 0.0
+        if not (np.asarray(self.specular, np.float64) > 0).any():
+            return 0.0
+        return float(np.max(np.asarray(self.glossiness, np.float64)))
 
     def vertex_arrays(self, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
         """(albedo (V, 3), material (V, 2) = (specular, glossiness)) float32, validated."""

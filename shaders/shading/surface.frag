@@ -112,6 +112,11 @@ vec3 diffuse_from_light(int i, vec3 n) {
         integral = PI * sin2 * mu;
     } else if (mu <= -sin_a) {
         integral = 0.0;
+    } else if (sin_a < 0.01) {
+        // A tiny disc straddling the horizon: the closed form cancels in float32 here; the share of
+        // the disc above the plane times its mean cosine there, (mu + sin a)^2 / (4 sin a), is within
+        // a fraction of a percent of the peak.
+        integral = PI * sin2 * (mu + sin_a) * (mu + sin_a) / (4.0 * sin_a);
     } else {
         float sin_t = sqrt(max(1.0 - mu * mu, 1e-12));
         float cot_a = cos_a / sin_a;
@@ -126,7 +131,7 @@ vec3 diffuse_from_light(int i, vec3 n) {
 // Per-light choices; each depends on the light only, so branches on them do not diverge.
 bool sh_skip(int i) { return MODE == 0 && u_sh_unshadowed && lights[i].params.y < 0.0; }
 bool exact_diffuse(int i) {   // diffuse "mixed": a small light's diffuse term in closed form
-    return u_small_exact && lights[i].params.w <= TERMINATOR_MAX_SIN && !sh_skip(i);
+    return MODE <= 1 && u_small_exact && lights[i].params.w <= TERMINATOR_MAX_SIN && !sh_skip(i);
 }
 vec3 g_diffuse_exact = vec3(0.0);   // added after the PEM terms' normalization
 
@@ -185,7 +190,10 @@ void main() {
     vec3 to_eye = normalize(u_camera_pos - v_ws_position);
     if (dot(n, to_eye) < 0.0) n = -n;   // cloth is two-sided: shade the side the camera sees
     vec3 r = reflect(-to_eye, n);
-    g_geometric_normal = normalize(cross(dFdx(v_ws_position), dFdy(v_ws_position)));
+    // Degenerate derivatives (a triangle seen edge-on, underflow): fall back to the shading normal.
+    vec3 c = cross(dFdx(v_ws_position), dFdy(v_ws_position));
+    float c2 = dot(c, c);
+    g_geometric_normal = c2 > 1e-30 ? c * inversesqrt(c2) : n;
     if (dot(g_geometric_normal, to_eye) < 0.0) g_geometric_normal = -g_geometric_normal;
     vec3 albedo = u_use_albedo_map ? v_albedo * texture(u_albedo_map, v_uv).rgb : v_albedo;
     vec2 material = u_use_gloss_map ? texture(u_gloss_map, v_uv).rg : v_material;
