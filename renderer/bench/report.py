@@ -66,6 +66,7 @@ def write_pareto(path: Path, rows) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     scenes = list(dict.fromkeys(r.scene for r in rows))
     fig, axes = plt.subplots(1, len(scenes), figsize=(5 * len(scenes), 4.2), squeeze=False)
@@ -77,13 +78,18 @@ def write_pareto(path: Path, rows) -> None:
         ax.scatter(t[method], e[method], s=18, label="PEM + VSM settings")
         ax.scatter(t[~method], e[~method], s=30, marker="s", label="baselines")
         for r, ti, ei in zip(rs, t, e):
-            ax.annotate(f"{r.knob}={r.value}" if r.knob != "baseline" else r.value, (ti, ei), fontsize=6,
-                        xytext=(3, 2), textcoords="offset points")
+            label = r.value if r.knob == "baseline" else (r.value if "=" in str(r.value) else f"{r.knob}={r.value}")
+            ax.annotate(label, (ti, ei), fontsize=6, xytext=(3, 2), textcoords="offset points")
         front = pareto_front(t, e)
         ax.plot(t[front], e[front], "k--", lw=1, label="Pareto front")
         ax.axhline(rs[0].ref_noise_rel_rmse, color="grey", lw=0.8, ls=":", label="reference noise floor")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        # Plain numbers on the axes; minor ticks unlabelled (log-scale minor labels overlap).
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
+            axis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+            axis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_xlabel("median frame time (ms)")
         ax.set_ylabel("relative RMSE vs Monte Carlo reference")
         ax.set_title(scene, fontsize=9)
