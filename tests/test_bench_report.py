@@ -1,0 +1,37 @@
+"""The benchmark's outputs: the Pareto front, the plot and the settings sweep."""
+
+import numpy as np
+from PIL import Image
+
+from renderer.bench.report import pareto_front, write_pareto
+from renderer.bench.run import BALANCED, QUICK_SWEEPS, SWEEPS, Row, _settings_list
+
+
+def _row(knob, value, ms, err, mode="full", scene="s"):
+    return Row(scene, "env", knob, value, mode, dict(BALANCED), ms, {}, 1.0, 1, 1, err, 0.1, 0.03, 0.02)
+
+
+def test_pareto_front_keeps_only_undominated_settings():
+    t = np.array([10.0, 20.0, 15.0, 30.0, 12.0])
+    e = np.array([0.5, 0.1, 0.3, 0.05, 0.6])
+    assert pareto_front(t, e).tolist() == [0, 2, 1, 3]   # 12 ms / 0.6 is beaten by 10 ms / 0.5
+
+
+def test_plot_is_written_per_scene(tmp_path):
+    rows = [_row("lights", 6, 30, 0.2), _row("balanced", "balanced", 120, 0.12),
+            _row("sh_unshadowed", "shadow_threshold=0.01, sh_unshadowed=True", 100, 0.13),
+            _row("baseline", "none", 25, 0.19, mode="none"), _row("lights", 6, 40, 0.4, scene="t")]
+    path = tmp_path / "pareto.png"
+    write_pareto(path, rows)
+    w, h = Image.open(path).size
+    assert w > 1.8 * h                                   # two scenes side by side
+
+
+def test_every_sweep_value_is_one_setting_that_differs_from_balanced():
+    for sweeps in (QUICK_SWEEPS, SWEEPS):
+        settings = _settings_list(sweeps)
+        assert settings[0][0] == "balanced"
+        for knob, value, s in settings[1:]:
+            assert s != BALANCED and set(s) == set(BALANCED), (knob, value)
+        keys = [tuple(sorted(s.items())) for _, _, s in settings]
+        assert len(keys) == len(set(keys))               # no setting measured twice
