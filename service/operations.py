@@ -163,7 +163,7 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
     def job(gl: GLResources) -> None:
         pems, source = gl.pem_set(env.content_hash, cube, pem)
         env.note_pem_set(key, q.face_size, pem, pems, source)
-        record.gpu = gl.renderer.create_scene(prepared.meshes, prepared.materials)
+        record.gpu = gl.renderer.create_scene(prepared.meshes, prepared.materials, casters=prepared.casters)
         svc.scenes.add(record)  # here, so a scene made just before a request timeout is still listed (and freed)
 
     await svc.worker.call(job)

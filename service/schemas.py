@@ -122,6 +122,8 @@ class MeshSpec(_Strict):
     faces: list[list[int]] | None = Field(None, description="(F, 3) 0-based vertex indices, counter-clockwise")
     uvs: list[list[float]] | None = Field(None, description="(V, 2) per-vertex texture coordinates")
     material: MaterialSpec = Field(default_factory=MaterialSpec)
+    cast_shadows: bool = Field(True, description="false: the mesh receives shadows but casts none (a floor): "
+                               "the shadow maps then fit the other meshes, so their texels are finer")
 
     @model_validator(mode="after")
     def _one_source(self) -> MeshSpec:

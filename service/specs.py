@@ -152,6 +152,7 @@ class PreparedScene:
     materials: list[Material]
     camera: Camera
     quality: Quality
+    casters: list[bool]
 
 
 def prepare_scene(body: SceneCreate, presets: dict, meshes: MeshStore, settings: ServiceSettings) -> PreparedScene:
@@ -160,4 +161,7 @@ def prepare_scene(body: SceneCreate, presets: dict, meshes: MeshStore, settings:
     built = [build_mesh(spec, role, body.up, meshes, settings) for role, spec in specs]
     materials = [build_material(spec.material, mesh, role) for (role, spec), mesh in zip(specs, built)]
     camera = build_camera(body.camera, body.up, built, body.output.width / body.output.height)
-    return PreparedScene(built, [r for r, _ in specs], materials, camera, quality)
+    casters = [spec.cast_shadows for _, spec in specs]
+    if not any(casters):
+        raise InvalidRequestError("at least one mesh must cast shadows (cast_shadows is false on every mesh)")
+    return PreparedScene(built, [r for r, _ in specs], materials, camera, quality, casters)

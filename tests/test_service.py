@@ -568,3 +568,30 @@ def test_accuracy_knobs_reach_the_renderer_and_are_reported(http, env_upload, me
         assert (j["render"]["pem_set"]["base_level"] == 0) == ("needed_levels" in knobs)
         images[bool(knobs)] = j["image"]["base64"]
     assert images[True] != images[False]
+
+
+def test_a_floor_that_casts_no_shadow(http, env_upload, mesh, tmp_path):
+    import OpenEXR
+
+    lo, hi = np.asarray(mesh.positions, np.float64).min(axis=0), np.asarray(mesh.positions, np.float64).max(axis=0)
+    span = 3.0 * float((hi - lo).max())
+    c = [float(x) for x in 0.5 * (lo + hi)]
+    y = float(lo[1]) - 0.01 * span
+    floor = {"positions": [[c[0] - span, y, c[2] - span], [c[0] + span, y, c[2] - span],
+                           [c[0] + span, y, c[2] + span], [c[0] - span, y, c[2] + span]],
+             "faces": [[0, 2, 1], [0, 3, 2]], "material": {"albedo": [0.5, 0.5, 0.5]}}
+    images = {}
+    for casts in (True, False):
+        body = scene_body(env_upload[0]["id"], mesh, body={**floor, "cast_shadows": casts})
+        r = http.post("/render", json=body, params={"format": "exr"})
+        assert r.status_code == 200, r.text
+        path = tmp_path / f"floor_{casts}.exr"
+        path.write_bytes(r.content)
+        images[casts] = np.asarray(OpenEXR.File(str(path)).channels()["RGBA"].pixels, np.float32)
+        assert np.isfinite(images[casts]).all()
+    # The shadow maps fit the garment alone when the floor casts nothing: a different, finer picture.
+    assert not np.array_equal(images[True], images[False])
+    body = scene_body(env_upload[0]["id"], mesh, body=floor)
+    body["garment"]["cast_shadows"] = False
+    body["body"] = {**floor, "cast_shadows": False}
+    assert_error(http.post("/render", json=body), 422, "cast_shadows")
