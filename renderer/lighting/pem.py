@@ -107,8 +107,8 @@ class PEMSet:
                     or int(stored.get("base_level", 0)) != self.base_level):
                 raise InvalidInputError("stored PEM set does not match the requested settings")
         self.median_cut_ms = (time.perf_counter() - t0) * 1e3
-        # Radiance SH9 of every region (lighting/sh.py), for the dim lights' diffuse term.
-        self.region_sh = region_sh(cube[..., :3], self.regions.labels, self.regions.n_regions)
+        self._cube = cube  # float32, kept for the SH9 coefficients, computed on first use
+        self._region_sh: np.ndarray | None = None
         n_regions = self.regions.n_regions
 
         if n_regions > REGIONS_PER_TEXTURE * MAX_TEXTURES:
@@ -230,6 +230,14 @@ class PEMSet:
         return out
 
     # -- queries ----------------------------------------------------------------------------
+    @property
+    def region_sh(self) -> np.ndarray:
+        """Radiance SH9 of every region (lighting/sh.py), for the dim lights' diffuse term: float64
+        (N, 9, 3), computed once, when a frame first asks for it (not part of every build)."""
+        if self._region_sh is None:
+            self._region_sh = region_sh(self._cube[..., :3], self.regions.labels, self.regions.n_regions)
+        return self._region_sh
+
     @property
     def n_regions(self) -> int:
         return self.regions.n_regions

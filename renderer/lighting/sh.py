@@ -35,10 +35,13 @@ def sh_basis(d: np.ndarray) -> np.ndarray:
 def region_sh(cube: np.ndarray, labels: np.ndarray, n_regions: int) -> np.ndarray:
     """Radiance SH coefficients of every region: float64 (N, 9, 3). cube (6, F, F, 3), labels (6, F, F)."""
     n = cube.shape[1]
-    weights = sh_basis(texel_directions(n)) * cube_solid_angles(n)[..., None]          # (6, F, F, 9)
-    contrib = weights[..., :, None] * np.asarray(cube[..., :3], np.float64)[..., None, :]  # (6, F, F, 9, 3)
-    out = np.zeros((n_regions, 9, 3))
-    np.add.at(out, labels.reshape(-1), contrib.reshape(-1, 9, 3))
+    weights = (sh_basis(texel_directions(n)) * cube_solid_angles(n)[..., None]).reshape(-1, 9)  # (T, 9)
+    rgb = np.asarray(cube[..., :3], np.float64).reshape(-1, 3)
+    flat = labels.reshape(-1)
+    out = np.empty((n_regions, 9, 3))
+    for k in range(9):
+        for c in range(3):
+            out[:, k, c] = np.bincount(flat, weights=weights[:, k] * rgb[:, c], minlength=n_regions)
     return out
 
 
