@@ -137,16 +137,25 @@ def _knob_defaults() -> dict:
             "sh_unshadowed": f.sh_unshadowed, "needed_levels": True}
 
 
+def frame_settings(args, q: dict):
+    """The frame's settings from the resolved quality (`resolve_quality`) and the output flags."""
+    from .renderer import Background, FrameSettings, ShadingMode
+
+    w, h = args.size
+    return FrameSettings(width=w, height=h, shadow_size=q["shadow_size"], blur_scale=q["blur_scale"],
+                         bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
+                         calibration=args.calibration, diffuse=args.diffuse, glossy_horizon=args.glossy_horizon,
+                         shadow_threshold=args.shadow_threshold, sh_unshadowed=args.sh_unshadowed,
+                         terminator=args.terminator, horizon=args.horizon, background=Background(args.background))
+
+
 def pem_settings(args, q: dict, materials):
     """The PEM set's settings; with --needed-levels only the levels the materials' glossiness reads."""
     from .lighting.filters import Filter
-    from .lighting.pem import PEMSettings, finest_level_needed
+    from .lighting.pem import PEMSettings
 
-    base = 0
-    if args.needed_levels:
-        g_max = max(m.max_glossiness() for m in materials)
-        base = finest_level_needed(q["face_size"], args.filter, g_max, args.calibration, args.levels)
-    return PEMSettings(q["lights"], Filter.parse(args.filter), args.levels, base)
+    pem = PEMSettings(q["lights"], Filter.parse(args.filter), args.levels)
+    return pem.for_materials(q["face_size"], materials, args.calibration) if args.needed_levels else pem
 
 
 def load_scene_inputs(args, face_size: int):
@@ -192,9 +201,7 @@ def png_image(img: np.ndarray, opaque: bool) -> np.ndarray:
 
 def cmd_render(args) -> int:
     from .envmap import write_exr
-    from .lighting.filters import Filter
-    from .lighting.pem import PEMSettings
-    from .renderer import Background, FrameSettings, Renderer, ShadingMode
+    from .renderer import Renderer
     from .shading.tonemap import ToneCurve, auto_exposure_ev, write_png
 
     t_start = time.perf_counter()
@@ -202,12 +209,7 @@ def cmd_render(args) -> int:
     env, meshes, materials = load_scene_inputs(args, q["face_size"])
     t_loaded = time.perf_counter()
     w, h = args.size
-    settings = FrameSettings(width=w, height=h, shadow_size=q["shadow_size"], blur_scale=q["blur_scale"],
-                             bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
-                             calibration=args.calibration, diffuse=args.diffuse,
-                             glossy_horizon=args.glossy_horizon, shadow_threshold=args.shadow_threshold,
-                             sh_unshadowed=args.sh_unshadowed, terminator=args.terminator, horizon=args.horizon,
-                             background=Background(args.background))
+    settings = frame_settings(args, q)
     camera = camera_from_args(args, meshes, w / h)
     with Renderer() as r:
         pems = r.build_pems(env.cube, pem_settings(args, q, materials))
@@ -241,10 +243,8 @@ def cmd_render(args) -> int:
 def cmd_sequence(args) -> int:
     """Render every frame of a mesh sequence with one PEM set and one scene (only positions change)."""
     from .envmap import write_exr
-    from .lighting.filters import Filter
-    from .lighting.pem import PEMSettings
     from .mesh import load_mesh
-    from .renderer import Background, FrameSettings, Renderer, ShadingMode
+    from .renderer import Renderer
     from .sequence import load_sequence, to_meshes
     from .shading.material import Material
     from .shading.tonemap import ToneCurve, auto_exposure_ev, to_png_bytes
@@ -268,12 +268,7 @@ def cmd_sequence(args) -> int:
     hi = positions.reshape(-1, 3).max(axis=0)
     box = type(garment).from_arrays(np.array([lo, hi, hi]), np.array([[0, 1, 2]]))
     camera = camera_from_args(args, [box] + extra_meshes, w / h)
-    settings = FrameSettings(width=w, height=h, shadow_size=q["shadow_size"], blur_scale=q["blur_scale"],
-                             bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
-                             calibration=args.calibration, diffuse=args.diffuse,
-                             glossy_horizon=args.glossy_horizon, shadow_threshold=args.shadow_threshold,
-                             sh_unshadowed=args.sh_unshadowed, terminator=args.terminator, horizon=args.horizon,
-                             background=Background(args.background))
+    settings = frame_settings(args, q)
     args.out.mkdir(parents=True, exist_ok=True)
     timings, previews = [], []
     exposure = args.exposure

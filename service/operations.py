@@ -7,14 +7,14 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import anyio
 import numpy as np
 
 from renderer.cache import cache_key
 from renderer.envmap import environment_from_array
-from renderer.lighting.pem import PEMSettings, finest_level_needed
+from renderer.lighting.pem import PEMSettings
 
 from .codecs import decode_hdr, sniff_hdr_kind
 from .errors import ConflictError, NotFoundError, PayloadTooLargeError, QueueFullError
@@ -138,9 +138,7 @@ def scene_pem_settings(body: SceneCreate, prepared) -> PEMSettings:
     q = prepared.quality
     pem = q.pem
     if q.info["needed_levels"]:
-        g_max = max(m.max_glossiness() for m in prepared.materials)
-        pem = replace(pem, base_level=finest_level_needed(q.face_size, pem.filter, g_max, q.frame.calibration,
-                                                          pem.levels))
+        pem = pem.for_materials(q.face_size, prepared.materials, q.frame.calibration)
     q.info["base_level"] = pem.base_level
     return pem
 

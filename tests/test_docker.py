@@ -31,7 +31,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from service_server import FAST_QUALITY, environment_bytes, free_port, garment, scene_body
+from service_server import environment_bytes, free_port, garment, scene_body
 
 yaml = pytest.importorskip("yaml", reason="PyYAML parses docker/compose.yaml (pip install -e '.[test]')")
 

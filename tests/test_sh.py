@@ -1,7 +1,6 @@
 """SH9 irradiance (renderer/lighting/sh.py) and its use for the lights without a shadow map."""
 
 import numpy as np
-import pytest
 
 from renderer.envmap.cube import cube_solid_angles, texel_directions
 from renderer.lighting.pem import PEMSettings

@@ -20,7 +20,7 @@ import numpy as np
 from ..camera import frame_meshes
 from ..gpu.context import GLContext
 from ..lighting.filters import Filter
-from ..lighting.pem import PEMSettings, finest_level_needed
+from ..lighting.pem import PEMSettings
 from ..reference import mean_flip, relative_rmse, render_reference
 from ..presets import DEFAULT_PRESETS
 from ..renderer import FrameSettings, Renderer, ShadingMode
@@ -164,14 +164,12 @@ def bench_scene(r: Renderer, bs: BenchScene, cfg: BenchConfig, log=print) -> lis
         jobs = [(k, v, s, ShadingMode.FULL) for k, v, s in _settings_list(sweeps)]
         jobs += [("baseline", m.value, dict(BALANCED), m) for m in BASELINE_MODES]
         for knob, value, s, mode in jobs:
-            base = 0
+            pem = PEMSettings(s["lights"], Filter(s["filter"]))
             if s["needed_levels"]:
-                g_max = max(m.max_glossiness() for m in bs.materials)
-                base = finest_level_needed(s["face_size"], s["filter"], g_max, s["calibration"])
-            key = (s["face_size"], s["lights"], s["filter"], base)
+                pem = pem.for_materials(s["face_size"], bs.materials, s["calibration"])
+            key = (s["face_size"], pem.key())
             if key not in pem_cache:
-                pem_cache[key] = r.build_pems(bs.cube(s["face_size"]),
-                                              PEMSettings(s["lights"], Filter(s["filter"]), base_level=base))
+                pem_cache[key] = r.build_pems(bs.cube(s["face_size"]), pem)
             pems = pem_cache[key]
             fs = FrameSettings(size, size, shadow_size=s["shadow_size"], blur_scale=s["blur_scale"], mode=mode,
                                horizon=s["horizon"], calibration=s["calibration"], diffuse=s["diffuse"],

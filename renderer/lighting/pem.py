@@ -13,7 +13,7 @@ buffers stay bounded whatever the region count.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -62,6 +62,12 @@ class PEMSettings:
 
     def key(self) -> tuple:
         return (self.n_lights, self.filter.value, self.levels, self.base_level)
+
+    def for_materials(self, face_size: int, materials, calibration: Calibration | str = Calibration.L2) -> "PEMSettings":
+        """These settings storing only the levels the materials' glossiest lookup reads
+        (`finest_level_needed`): the same image, a fraction of the memory."""
+        g_max = max((m.max_glossiness() for m in materials), default=0.0)
+        return replace(self, base_level=finest_level_needed(face_size, self.filter, g_max, calibration, self.levels))
 
 
 class PEMSet:
