@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import RenderError
-from .presets import DEFAULT_PRESETS, presets
+from .presets import DEFAULT_PRESETS, knob_defaults, presets
 
 
 
@@ -119,22 +119,13 @@ def resolve_quality(args) -> dict:
         if getattr(args, key) is not None:
             q[key] = getattr(args, key)
     # The other knobs: an explicit flag, else the preset's or budget's measured value, else the default.
-    for key, default in _knob_defaults().items():
+    for key, default in knob_defaults().items():
         value = getattr(args, key)
         if value is None:
             value = q.get(key, default)
         setattr(args, key, value)
         q[key] = value
     return q
-
-
-def _knob_defaults() -> dict:
-    from .renderer import FrameSettings
-
-    f = FrameSettings()
-    return {"calibration": f.calibration.value, "diffuse": f.diffuse, "glossy_horizon": f.glossy_horizon,
-            "terminator": f.terminator, "horizon": f.horizon, "shadow_threshold": f.shadow_threshold,
-            "sh_unshadowed": f.sh_unshadowed, "needed_levels": True}
 
 
 def frame_settings(args, q: dict):

@@ -4,6 +4,18 @@ Used by the command line, the service and the benchmark alike."""
 
 from __future__ import annotations
 
+def knob_defaults() -> dict:
+    """The quality knobs besides a preset's four (lights, PEM face, shadow map, blur) and their
+    defaults: what a preset or budget from the measured table may also set, and what the benchmark's
+    balanced setting uses."""
+    from .renderer import FrameSettings
+
+    f = FrameSettings()
+    return {"calibration": f.calibration.value, "diffuse": f.diffuse, "glossy_horizon": f.glossy_horizon,
+            "terminator": f.terminator, "horizon": f.horizon, "shadow_threshold": f.shadow_threshold,
+            "sh_unshadowed": f.sh_unshadowed, "needed_levels": True}
+
+
 DEFAULT_PRESETS = {
     "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 0.1},
     "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.1},

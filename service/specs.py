@@ -14,6 +14,7 @@ from renderer.lighting.median_cut import regions_per_face
 from renderer.lighting.pem import PEMSettings
 from renderer.errors import MeshError
 from renderer.mesh import Mesh, z_up_to_y_up
+from renderer.presets import knob_defaults
 from renderer.renderer import Background, FrameSettings, ShadingMode
 from renderer.shading.material import Material
 
@@ -40,8 +41,7 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
             knobs[key] = value
     # The other knobs: the request's when it names them, else the preset's measured value (a table
     # stored by `garment-render bench --store`), else the schema default.
-    for key in ("calibration", "diffuse", "glossy_horizon", "terminator", "horizon", "shadow_threshold",
-                "sh_unshadowed", "needed_levels"):
+    for key in knob_defaults():
         if key in q.model_fields_set or key not in knobs:
             knobs[key] = getattr(q, key, None)
     regions_per_face(int(knobs["lights"]))  # InvalidInputError naming the valid counts

@@ -22,13 +22,11 @@ from ..gpu.context import GLContext
 from ..lighting.filters import Filter
 from ..lighting.pem import PEMSettings
 from ..reference import mean_flip, relative_rmse, render_reference
-from ..presets import DEFAULT_PRESETS
+from ..presets import DEFAULT_PRESETS, knob_defaults
 from ..renderer import FrameSettings, Renderer, ShadingMode
 from .scenes import BenchScene, bundled_scene, shared_scenes
 
-BALANCED = {**DEFAULT_PRESETS["balanced"], "filter": "sqrt-cosine", "horizon": False, "calibration": "l2",
-            "diffuse": "pem", "glossy_horizon": "lights", "terminator": True, "needed_levels": True, "shadow_threshold": 0.0,
-            "sh_unshadowed": False}
+BALANCED = {**DEFAULT_PRESETS["balanced"], "filter": "sqrt-cosine", **knob_defaults()}
 # Section 5 of the speed/accuracy issue: dim lights without shadow maps, their diffuse term by SH9.
 # A dict value changes several knobs at once (SH9 only matters once some lights are unshadowed).
 DIM_LIGHTS = [{"shadow_threshold": 0.01, "sh_unshadowed": True}]
@@ -48,21 +46,8 @@ SWEEPS = {
     "shadow_threshold": [0.002, 0.01, 0.03],
     "sh_unshadowed": DIM_LIGHTS,
 }
-QUICK_SWEEPS = {
-    "lights": [6, 24, 48, 96],
-    "face_size": [64, 128],
-    "shadow_size": [128, 256],
-    "blur_scale": [0.0, 0.1, 1.0],
-    "filter": ["none", "sqrt-cosine"],
-    "horizon": [False, True],
-    "calibration": ["l2", "volume"],
-    "diffuse": ["pem", "lights", "mixed"],
-    "glossy_horizon": ["off", "lobe", "lights", "both"],
-    "terminator": [False],
-    "needed_levels": [False],
-    "shadow_threshold": [0.01],
-    "sh_unshadowed": DIM_LIGHTS,
-}
+QUICK_SWEEPS = {**SWEEPS, "lights": [6, 24, 48, 96], "face_size": [64, 128], "shadow_size": [128, 256],
+                "blur_scale": [0.0, 0.1, 1.0], "filter": ["none", "sqrt-cosine"], "shadow_threshold": [0.01]}
 BASELINE_MODES = [ShadingMode.NO_OCCLUSION, ShadingMode.MANY_LIGHTS, ShadingMode.AO_GREY, ShadingMode.AO_COLOUR]
 
 

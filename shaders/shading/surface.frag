@@ -135,6 +135,13 @@ bool exact_diffuse(int i) {   // diffuse "mixed": a small light's diffuse term i
 }
 vec3 g_diffuse_exact = vec3(0.0);   // added after the PEM terms' normalization
 
+// Share of light i's energy, a disc of angular radius r (sin r = params.w) around its direction,
+// above the plane of `normal` (linear in the cosine across the disc).
+float disc_share_above(int i, vec3 normal) {
+    float sin_r = lights[i].params.w;
+    return clamp((dot(normal, lights[i].dir_scale.xyz) + sin_r) / (2.0 * sin_r), 0.0, 1.0);
+}
+
 void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 shadow_pos) {
     float scale = lights[i].dir_scale.w;
 #ifdef DIFFUSE_LIGHTS
@@ -154,15 +161,14 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 shadow_pos) {
         // open cloth (the sheet itself is the first surface from a light behind it) and the PEM's
         // diffuse lobe reaches past 90 degrees: keep the share of the light's energy (a disc of
         // angular radius r around its direction) that lies above the plane.
-        float sin_r = lights[i].params.w;
-        vis *= clamp((dot(n, lights[i].dir_scale.xyz) + sin_r) / (2.0 * sin_r), 0.0, 1.0);
+        vis *= disc_share_above(i, n);
     }
     // Light from below the surface's own plane (the triangle's, not the interpolated normal's) is
     // blocked by the surface for a closed body and by the body under a garment; a shadow map cannot
     // resolve it at the terminator, where the surface is its own occluder at grazing angles. Share of
     // the light's disc above that plane:
     float sin_r = lights[i].params.w;
-    float above = clamp((dot(g_geometric_normal, lights[i].dir_scale.xyz) + sin_r) / (2.0 * sin_r), 0.0, 1.0);
+    float above = disc_share_above(i, g_geometric_normal);
     // Small lights (a sun): both terms (their terminator is sharp; a large region's share is soft
     // and its PEM's diffuse kernel spreads it anyway).
     bool small = u_terminator && sin_r <= TERMINATOR_MAX_SIN;
