@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import logging
-import os
-import tempfile
 import time
 from collections import OrderedDict
 from dataclasses import asdict, dataclass
@@ -19,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .atomic import atomic_file
 from .gpu.context import GLContext
 from .lighting.pem import PEMSet, PEMSettings
 
@@ -110,15 +109,12 @@ class PEMCache:
         path = self._path(key)
         if path is None:
             return
-        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
         try:
-            with os.fdopen(fd, "wb") as f:
+            with atomic_file(path) as f:
                 np.savez(f, **pems.export())
-            os.replace(tmp, path)
         except OSError as exc:
             log.warning("could not write PEM cache entry %s: %s", path, exc)
             self.stats.disk_errors += 1
-            Path(tmp).unlink(missing_ok=True)
 
     def _evict(self, keep: str) -> None:
         while self._resident_bytes() > self.max_bytes and len(self._entries) > 1:

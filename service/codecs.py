@@ -14,6 +14,7 @@ Positions and normals are in the scene's up axis (rotated to the renderer's Y-up
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import struct
@@ -236,6 +237,20 @@ def hdr_dimensions(data: bytes, kind: str) -> tuple[int, int] | None:
         return None
 
 
+@contextlib.contextmanager
+def uploaded_file(data: bytes, extension: str, prefix: str):
+    """The bytes of an upload as a temporary file with the given extension (the readers pick their
+    format from it), removed afterwards: yields its Path."""
+    fd, tmp = tempfile.mkstemp(suffix="." + extension, prefix=prefix)
+    path = Path(tmp)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        yield path
+    finally:
+        path.unlink(missing_ok=True)
+
+
 def decode_hdr(data: bytes, kind: str, name: str, max_pixels: int) -> np.ndarray:
     """Decode an uploaded .exr/.hdr file into float32 (H, W, 3) with the renderer's readers."""
     dims = hdr_dimensions(data, kind)
@@ -243,16 +258,10 @@ def decode_hdr(data: bytes, kind: str, name: str, max_pixels: int) -> np.ndarray
         raise PayloadTooLargeError(
             f"environment map {name!r} is {dims[0]}x{dims[1]} = {dims[0] * dims[1]} pixels, more than the limit "
             f"{max_pixels} (GARMENT_RENDER_MAX_ENV_PIXELS); downscale it (a 2k lat-long map is plenty for lighting)")
-    fd, tmp = tempfile.mkstemp(suffix="." + kind, prefix="upload-")
-    path = Path(tmp)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
+    with uploaded_file(data, kind, "upload-") as path:
         try:
             return read_hdr_image(path)
         except EnvironmentMapError as e:
             raise EnvironmentMapError(str(e).replace(str(path), f"uploaded file {name!r}")) from None
         except (ValueError, RuntimeError, OSError) as e:  # a reader failure that slipped past the typed ones
             raise EnvironmentMapError(f"uploaded file {name!r}: cannot decode ({type(e).__name__}: {e})") from None
-    finally:
-        path.unlink(missing_ok=True)

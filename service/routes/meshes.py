@@ -4,9 +4,6 @@ then referenced by `mesh_id` when a scene is registered. Same bytes + options gi
 from __future__ import annotations
 
 import hashlib
-import os
-import tempfile
-from pathlib import Path
 from typing import Annotated, Literal
 
 import anyio
@@ -16,6 +13,7 @@ from renderer.errors import MeshError
 from renderer.mesh import load_mesh
 
 from ..deps import OCTET_STREAM, MeshesDep, SettingsDep, media_type, raw_body, require_token
+from ..codecs import uploaded_file
 from ..errors import InvalidRequestError
 from ..registry import MeshRecord
 from ..schemas import MeshInfo
@@ -39,17 +37,11 @@ def mesh_info(rec: MeshRecord) -> MeshInfo:
 
 
 def _load(data: bytes, fmt: str, up: str, scale: float, name: str):
-    fd, tmp = tempfile.mkstemp(suffix="." + fmt, prefix="mesh-")
-    path = Path(tmp)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
+    with uploaded_file(data, fmt, "mesh-") as path:
         try:
             mesh = load_mesh(path, up=up, scale=scale)
         except MeshError as e:
             raise MeshError(str(e).replace(str(path), f"uploaded {fmt.upper()} {name!r}")) from None
-    finally:
-        path.unlink(missing_ok=True)
     from renderer.mesh import Mesh
 
     return Mesh.from_arrays(mesh.positions, mesh.faces, mesh.uvs, name=name)
