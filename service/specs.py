@@ -163,5 +163,6 @@ def prepare_scene(body: SceneCreate, presets: dict, meshes: MeshStore, settings:
     camera = build_camera(body.camera, body.up, built, body.output.width / body.output.height)
     casters = [spec.cast_shadows for _, spec in specs]
     if not any(casters):
-        raise InvalidRequestError("at least one mesh must cast shadows (cast_shadows is false on every mesh)")
+        raise InvalidRequestError("cast_shadows is false on every mesh, so nothing would cast a shadow: set "
+                                  "cast_shadows: true on the garment (a floor alone may be false)")
     return PreparedScene(built, [r for r, _ in specs], materials, camera, quality, casters)

@@ -109,9 +109,11 @@ class PEMSet:
         else:
             self.regions = RegionSet(**{k: np.asarray(stored["regions_" + k]) for k in RegionSet.__dataclass_fields__})
             self.scale = np.asarray(stored["scale"], np.float64)
-            if (self.regions.n_regions != settings.n_lights or int(stored["levels"]) != self.levels
-                    or int(stored.get("base_level", 0)) != self.base_level):
-                raise InvalidInputError("stored PEM set does not match the requested settings")
+            have = (self.regions.n_regions, int(stored["levels"]), int(stored.get("base_level", 0)))
+            want = (settings.n_lights, self.levels, self.base_level)
+            if have != want:
+                raise InvalidInputError(f"stored PEM set has (lights, levels, base level) {have}, the request {want}: "
+                                        "build it anew (omit `stored`) or pass the settings it was built with")
         self.median_cut_ms = (time.perf_counter() - t0) * 1e3
         self._cube = cube  # float32, kept for the SH9 coefficients, computed on first use
         self._region_sh: np.ndarray | None = None
