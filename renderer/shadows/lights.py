@@ -54,15 +54,14 @@ def blur_sigma_texels(angular_radius_rad: np.ndarray, shadow_size: int, blur_sca
 
 
 def fit_light_view_proj(direction: np.ndarray, lo: np.ndarray, hi: np.ndarray, sigma_texels: float,
-                        shadow_size: int, points: np.ndarray | None = None, square: bool = True) -> np.ndarray:
-    """World -> light clip matrix (4, 4) float64: x, y in [-1, 1] over the casters, depth z in [0, 1]
-    from the nearest to the farthest of them (GL clip space with w = 1). The casters are the corners
-    of their box (lo, hi), or `points` (e.g. their convex hull) when given; `square=False` fits x and
-    y separately (texels need not be square), which a tall garment lit from the side uses better."""
+                        shadow_size: int, square: bool = True) -> np.ndarray:
+    """World -> light clip matrix (4, 4) float64: x, y in [-1, 1] over the casters' box (lo, hi), depth
+    z in [0, 1] from its nearest to its farthest corner (GL clip space with w = 1). `square=False` fits
+    x and y separately (rectangular texels; the renderer keeps them square so that the blur, in texels,
+    stays isotropic)."""
     basis = light_basis(direction)
-    if points is None:
-        points = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    ls = np.asarray(points, np.float64) @ basis.T
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    ls = corners @ basis.T
     cmin, cmax = ls.min(axis=0), ls.max(axis=0)
     centre = 0.5 * (cmin + cmax)
     tiny = max(1e-12 * max(1.0, float(np.abs(centre).max())), 1e-30)

@@ -130,8 +130,12 @@ vec3 diffuse_from_light(int i, vec3 n) {
 
 // Per-light choices; each depends on the light only, so branches on them do not diverge.
 bool sh_skip(int i) { return MODE == 0 && u_sh_unshadowed && lights[i].params.y < 0.0; }
-bool exact_diffuse(int i) {   // diffuse "mixed": a small light's diffuse term in closed form
+bool exact_diffuse(int i) {   // the light's diffuse term in closed form: every light for "lights", small ones for "mixed"
+#ifdef DIFFUSE_LIGHTS
+    return true;
+#else
     return MODE <= 1 && u_small_exact && lights[i].params.w <= TERMINATOR_MAX_SIN && !sh_skip(i);
+#endif
 }
 vec3 g_diffuse_exact = vec3(0.0);   // added after the PEM terms' normalization
 
@@ -144,11 +148,7 @@ float disc_share_above(int i, vec3 normal) {
 
 void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 shadow_pos) {
     float scale = lights[i].dir_scale.w;
-#ifdef DIFFUSE_LIGHTS
-    pem_d = diffuse_from_light(i, n);
-#else
     pem_d *= scale;
-#endif
     pem_g *= scale;
 #if MODE == 1
     if (exact_diffuse(i)) g_diffuse_exact += diffuse_from_light(i, n);
@@ -227,32 +227,28 @@ void main() {
         int n0 = min(u_n_lights, REGIONS_PER_TEXTURE);
         for (int i = 0; i < n0; ++i) {
             vec3 pem_d = vec3(0.0);
-#ifndef DIFFUSE_LIGHTS
-            // Uniform across pixels (it depends on i only): no divergence.
+            // Uniform across pixels (it depends on i only): no divergence; compiled out for "lights".
             if (!sh_skip(i) && !exact_diffuse(i))
                 pem_d = textureLod(u_pem0, vec4(n, float(i)), u_diffuse_level).rgb;
-#endif
             vec3 pem_g = glossy ? textureLod(u_pem0, vec4(r, float(i)), level_g).rgb : vec3(0.0);
             add_light(i, pem_d, pem_g, n, shadow_pos);
         }
         for (int i = n0; i < u_n_lights; ++i) {
             float layer = float(i - REGIONS_PER_TEXTURE);
             vec3 pem_d = vec3(0.0);
-#ifndef DIFFUSE_LIGHTS
             if (!sh_skip(i) && !exact_diffuse(i))
                 pem_d = textureLod(u_pem1, vec4(n, layer), u_diffuse_level).rgb;
-#endif
             vec3 pem_g = glossy ? textureLod(u_pem1, vec4(r, layer), level_g).rgb : vec3(0.0);
             add_light(i, pem_d, pem_g, n, shadow_pos);
         }
     }
 #ifndef DIFFUSE_LIGHTS
     g_diffuse /= textureLod(u_pem_norm, vec4(n, 0.0), u_diffuse_level).r;
-    g_diffuse += g_diffuse_exact;
 #if MODE == 0
     if (u_sh_unshadowed) g_diffuse += sh_irradiance(n) / PI;
 #endif
 #endif
+    g_diffuse += g_diffuse_exact;
 #if MODE == 0
     if (glossy && (u_glossy_horizon == 1 || u_glossy_horizon == 3)) {
         // renderer/shading/horizon.py: the reference's lobe loses its part below the surface to
