@@ -7,6 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
+
+from renderer.camera import Camera
+from renderer.mesh import Mesh
 
 ASSETS = Path(__file__).resolve().parents[1].parent / "shared" / "assets"
 HDRI = ASSETS / "hdri"
@@ -50,3 +54,25 @@ def sun_sky_cube(face_size: int, sun_dir, sun_radiance: float = 2000.0, sun_radi
     cube = np.where(d[..., 1:2] > 0, np.asarray(sky), np.asarray(ground)).astype(np.float32)
     cube[(d @ s) > np.cos(np.radians(sun_radius_deg))] = sun_radiance
     return cube
+
+
+# -- shared test scenes --------------------------------------------------------------------------
+
+# A camera on +Z looking at the origin, slightly from above.
+CAM = Camera((0.0, 0.3, 3.0), (0.0, 0.0, 0.0), fov_y_deg=30.0)
+
+
+def sphere(radius=0.5, centre=(0, 0, 0), subdivisions=4) -> Mesh:
+    s = trimesh.creation.icosphere(subdivisions, radius)
+    return Mesh.from_arrays(np.asarray(s.vertices) + centre, np.asarray(s.faces), name="sphere")
+
+
+def plane(size=4.0, y=0.0) -> Mesh:
+    h = size / 2
+    v = np.array([[-h, y, -h], [h, y, -h], [h, y, h], [-h, y, h]])
+    return Mesh.from_arrays(v, np.array([[0, 2, 1], [0, 3, 2]]), name="plane")
+
+
+def covered(frame) -> np.ndarray:
+    """Pixels a mesh covers (alpha > 0.5) of a rendered or reference frame."""
+    return frame.image[..., 3] > 0.5

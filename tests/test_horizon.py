@@ -11,7 +11,7 @@ from renderer.shading.horizon import N_G, N_MU, horizon_table
 from renderer.shading.material import Material
 
 from conftest import sun_sky_cube
-from test_render import CAM, sphere
+from conftest import CAM, sphere
 
 
 def test_table_end_points_and_monotone():

@@ -165,7 +165,7 @@ def test_a_set_with_a_base_level_stores_only_the_needed_levels_and_renders_the_s
     from renderer.lighting.pem import finest_level_needed
     from renderer.renderer import FrameSettings
     from renderer.shading.material import Material
-    from test_render import CAM, sphere
+    from conftest import CAM, sphere
 
     cube = sun_sky_cube(64, (1, 1, 0.5), sun_radiance=300.0, sun_radius_deg=8)
     mats = [Material((0.7, 0.5, 0.3), 0.6, 0.85)]

@@ -4,7 +4,6 @@ enough (a smooth map, no occlusion)."""
 
 import numpy as np
 import pytest
-import trimesh
 
 from renderer.camera import Camera
 from renderer.envmap.cube import cube_solid_angles, texel_directions
@@ -16,25 +15,9 @@ from renderer.reference import (EnvironmentSampler, ReferenceFrame, mean_flip, n
 from renderer.renderer import FrameSettings, ShadingMode
 from renderer.shading.material import Material
 
-from conftest import sun_sky_cube
+from conftest import CAM, covered, plane, sphere, sun_sky_cube
 
-CAM = Camera((0.0, 0.3, 3.0), (0.0, 0.0, 0.0), fov_y_deg=30.0)
 WHITE_DIFFUSE = Material((1.0, 1.0, 1.0), 0.0, 0.5)
-
-
-def sphere(radius=0.5, subdivisions=4) -> Mesh:
-    s = trimesh.creation.icosphere(subdivisions, radius)
-    return Mesh.from_arrays(np.asarray(s.vertices), np.asarray(s.faces), name="sphere")
-
-
-def plane(size=4.0) -> Mesh:
-    h = size / 2
-    v = np.array([[-h, 0.0, -h], [h, 0.0, -h], [h, 0.0, h], [-h, 0.0, h]])
-    return Mesh.from_arrays(v, np.array([[0, 2, 1], [0, 3, 2]]), name="plane")
-
-
-def covered(frame) -> np.ndarray:
-    return frame.image[..., 3] > 0.5
 
 
 def mean_and_error(frame: ReferenceFrame, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -158,7 +141,7 @@ def test_furnace_glossy_sphere_loses_the_lobe_below_the_surface():
     # itself (the renderer without occlusion returns L exactly). The expected pixel is L * F(view
     # angle) (see glossy_visible_fraction): 1 facing the camera, 1/2 at grazing view.
     L, g = 1.5, 0.8
-    frame = render_reference([sphere(0.5, 5)], [Material((0.0, 0.0, 0.0), 1.0, g)], np.full((6, 8, 8, 3), L),
+    frame = render_reference([sphere(0.5, subdivisions=5)], [Material((0.0, 0.0, 0.0), 1.0, g)], np.full((6, 8, 8, 3), L),
                              CAM, 32, 32, 32, seed=2)
     normal, view = analytic_sphere(CAM, 32, 32, 0.5)
     cos_view = -np.einsum("hwc,hwc->hw", normal, view)

@@ -4,7 +4,6 @@ import threading
 
 import numpy as np
 import pytest
-import trimesh
 
 from renderer.camera import Camera
 from renderer.errors import GLContextError, InvalidInputError
@@ -13,25 +12,7 @@ from renderer.mesh import Mesh
 from renderer.renderer import Background, FrameSettings, ShadingMode
 from renderer.shading.material import Material
 
-from conftest import sun_sky_cube
-
-
-def sphere(radius=0.5, centre=(0, 0, 0), subdivisions=4) -> Mesh:
-    s = trimesh.creation.icosphere(subdivisions, radius)
-    return Mesh.from_arrays(np.asarray(s.vertices) + centre, np.asarray(s.faces), name="sphere")
-
-
-def plane(size=4.0, y=0.0) -> Mesh:
-    h = size / 2
-    v = np.array([[-h, y, -h], [h, y, -h], [h, y, h], [-h, y, h]])
-    return Mesh.from_arrays(v, np.array([[0, 2, 1], [0, 3, 2]]), name="plane")
-
-
-CAM = Camera((0.0, 0.3, 3.0), (0.0, 0.0, 0.0), fov_y_deg=30.0)
-
-
-def covered(frame):
-    return frame.image[..., 3] > 0.5
+from conftest import CAM, covered, plane, sphere, sun_sky_cube
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ from renderer.renderer import FrameSettings
 from renderer.shading.material import Material
 
 from conftest import sun_sky_cube
-from test_render import CAM, plane, sphere
+from conftest import CAM, plane, sphere
 
 
 def _normals(k=40, seed=0):
