@@ -1,8 +1,8 @@
 """The renderer a service holds for hours: PEM sets built once per environment map, scenes uploaded
 once, then frame after frame with new vertex positions and no new GL objects.
 
-A frame's path: positions -> normals -> shadow maps (moments, one per light) -> blur -> shading
-(paper Eq. 5) -> readback. Every stage is timed (wall clock after a finish; GPU timer queries where
+A frame's path: positions -> normals -> shadow maps (moments, one per light) -> blur -> geometry
+(position, normals, material per pixel) -> shading (paper Eq. 5, once per covered pixel) -> readback. Every stage is timed (wall clock after a finish; GPU timer queries where
 the driver's are meaningful).
 """
 
@@ -138,7 +138,7 @@ class Renderer:
         defines = {"GLOSS_TABLE_SIZE": PEMSet.GLOSS_TABLE_SIZE, "REGIONS_PER_TEXTURE": REGIONS_PER_TEXTURE,
                    "HORIZON_N_MU": float(HORIZON_N_MU), "HORIZON_N_G": float(HORIZON_N_G)}
         self._defines = defines
-        self._shade_progs: dict[tuple[ShadingMode, bool], moderngl.Program] = {}
+        self._shade_progs: dict[tuple[ShadingMode, bool], tuple[moderngl.Program, moderngl.VertexArray]] = {}
         self.bg_prog = program(ctx, "shading/background.vert", "shading/background.frag")
         self.bg_vao = ctx.vertex_array(self.bg_prog, [])
         self._shadow_maps = None
@@ -150,19 +150,24 @@ class Renderer:
         self._horizon_tex.repeat_x = self._horizon_tex.repeat_y = False
         # The moments program is needed to build vertex arrays before any shadow map exists.
         self._shadow_prog = program(ctx, "shadows/moments.vert", "shadows/moments.frag")
-        self.depth_prog = program(ctx, "shading/depth.vert", "shading/depth.frag")
-        self._programs = {"moments": self._shadow_prog, "depth": self.depth_prog}
+        self.gbuffer_prog = program(ctx, "shading/surface.vert", "shading/gbuffer.frag")
+        self._programs = {"moments": self._shadow_prog, "gbuffer": self.gbuffer_prog}
 
     def shade_program(self, mode: ShadingMode, diffuse: str = "pem") -> moderngl.Program:
-        """The shading program of a mode and diffuse source, compiled on first use (one variant each).
-        The diffuse source matters to the full and no-occlusion modes only."""
+        """The lighting program of a mode and diffuse source (a full-screen pass over the geometry
+        pass's targets), compiled on first use (one variant each). The diffuse source matters to the
+        full and no-occlusion modes only."""
+        return self._shade_variant(mode, diffuse)[0]
+
+    def _shade_variant(self, mode: ShadingMode, diffuse: str) -> tuple[moderngl.Program, moderngl.VertexArray]:
         lights = diffuse == "lights" and mode in (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
         key = (mode, lights)
         if key not in self._shade_progs:
             defines = {**self._defines, "MODE": _MODE_INDEX[mode]}
             if lights:
                 defines["DIFFUSE_LIGHTS"] = 1
-            self._shade_progs[key] = program(self.gl.ctx, "shading/surface.vert", "shading/surface.frag", defines)
+            prog = program(self.gl.ctx, "shading/background.vert", "shading/lighting.frag", defines)
+            self._shade_progs[key] = (prog, self.gl.ctx.vertex_array(prog, []))
         return self._shade_progs[key]
 
     # -- resources --------------------------------------------------------------------------
@@ -184,16 +189,26 @@ class Renderer:
             self._shadow_maps = ShadowMaps(self.gl, size, n_lights, self._shadow_prog)
         return self._shadow_maps
 
-    def _target_for(self, w: int, h: int):
+    def _target_for(self, w: int, h: int) -> tuple[moderngl.Framebuffer, moderngl.Framebuffer, list[moderngl.Texture]]:
+        """(image framebuffer, geometry-pass framebuffer, geometry-pass textures) of an image size;
+        the two framebuffers share one depth buffer."""
         if self._target is None or self._target[0] != (w, h):
             if self._target is not None:
-                for obj in self._target[1:]:
+                for obj in self._target[1]:
                     obj.release()
             ctx = self.gl.ctx
             color = ctx.renderbuffer((w, h), 4, dtype="f4")
             depth = ctx.depth_renderbuffer((w, h))
-            self._target = ((w, h), ctx.framebuffer([color], depth), color, depth)
-        return self._target[1]
+            # position + specular, normal + glossiness, geometric normal, albedo: 32-bit floats, so
+            # that g = 1 - 1e-7 and positions far from the origin keep their precision.
+            gbuf = [ctx.texture((w, h), 4, dtype="f4") for _ in range(4)]
+            for t in gbuf:
+                t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            image_fbo = ctx.framebuffer([color], depth)
+            gbuf_fbo = ctx.framebuffer(gbuf, depth)
+            self._target = ((w, h), (image_fbo, gbuf_fbo, color, depth, *gbuf))
+        objs = self._target[1]
+        return objs[0], objs[1], list(objs[4:])
 
     def _buffer(self, name: str, data: bytes) -> moderngl.Buffer:
         """A per-frame storage buffer, re-created only when its size changes."""
@@ -245,16 +260,37 @@ class Renderer:
         centre, radius = bounds_sphere(*scene.bounds())
         camera = camera or default_camera(centre, radius, w / h)
         view_proj = camera.view_proj(w / h, centre, radius)
-        fbo = self._target_for(w, h)
+        fbo, gbuf_fbo, gbuf = self._target_for(w, h)
+        vp_bytes = view_proj.T.astype(np.float32).tobytes()
+        with gl.stage(timer, "geometry"):
+            # Geometry pass: nearest surface's position, normals and material per pixel.
+            gbuf_fbo.use()
+            ctx.viewport = (0, 0, w, h)
+            gbuf_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+            ctx.enable(moderngl.DEPTH_TEST)
+            ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+            ctx.depth_func = "<"
+            g = self.gbuffer_prog
+            g["u_view_proj"].write(vp_bytes)
+            _set_uniform(g, "u_camera_pos", tuple(float(x) for x in camera.eye))
+            for sm in scene.meshes:
+                sm.albedo_tex.use(location=3)
+                sm.gloss_tex.use(location=4)
+                _set_uniform(g, "u_use_albedo_map", sm.use_maps[0])
+                _set_uniform(g, "u_use_gloss_map", sm.use_maps[1])
+                sm.vao_gbuffer.render(moderngl.TRIANGLES)
         with gl.stage(timer, "shading"):
             fbo.use()
             ctx.viewport = (0, 0, w, h)
-            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+            fbo.depth_mask = False   # the depth buffer is the geometry pass's: clear the colour only
+            fbo.clear(0.0, 0.0, 0.0, 0.0)
             lights_buf.bind_to_storage_buffer(0)
             shadow_list.bind_to_storage_buffer(2)
             self._gloss_buf.write(pems.gloss_table(settings.calibration).tobytes())
             self._gloss_buf.bind_to_storage_buffer(1)
             self._horizon_tex.use(location=7)
+            for k, t in enumerate(gbuf):
+                t.use(location=8 + k)
             pems.bind(0, 5, 6)
             shadow_maps.moments.use(location=1)
             if settings.background is Background.ENVIRONMENT:
@@ -262,18 +298,11 @@ class Renderer:
                 pems.env_texture.use(location=2)
                 self.bg_prog["u_inv_view_proj"].write(np.linalg.inv(view_proj).T.astype(np.float32).tobytes())
                 self.bg_vao.render(moderngl.TRIANGLES, vertices=3)
+            # Lighting pass: a full-screen triangle at the far plane, drawn where the geometry pass's
+            # depth is nearer (covered pixels only; the depth buffer is not written).
             ctx.enable(moderngl.DEPTH_TEST)
-            ctx.disable(moderngl.CULL_FACE)
-            vp_bytes = view_proj.T.astype(np.float32).tobytes()
-            self.depth_prog["u_view_proj"].write(vp_bytes)
-            fbo.color_mask = (False, False, False, False)
-            for sm in scene.meshes:
-                sm.vao_depth.render(moderngl.TRIANGLES)
-            fbo.color_mask = (True, True, True, True)
-            fbo.depth_mask = False
-            ctx.depth_func = "<="
-            p = self.shade_program(settings.mode, settings.diffuse)
-            _set_uniform(p, "u_view_proj", vp_bytes)
+            ctx.depth_func = ">"
+            p, vao = self._shade_variant(settings.mode, settings.diffuse)
             _set_uniform(p, "u_camera_pos", tuple(float(x) for x in camera.eye))
             _set_uniform(p, "u_n_lights", n)
             _set_uniform(p, "u_diffuse_level", pems.lookup_level(pems.diffuse_level(settings.calibration)))
@@ -290,12 +319,7 @@ class Renderer:
             _set_uniform(p, "u_glossy_horizon", GLOSSY_HORIZONS.index(settings.glossy_horizon))
             extent = 2.0 * float(np.linalg.norm(hi - lo))
             _set_uniform(p, "u_normal_offset", settings.normal_offset_texels * extent / settings.shadow_size)
-            for sm in scene.meshes:
-                sm.albedo_tex.use(location=3)
-                sm.gloss_tex.use(location=4)
-                _set_uniform(p, "u_use_albedo_map", sm.use_maps[0])
-                _set_uniform(p, "u_use_gloss_map", sm.use_maps[1])
-                sm.vao_shade(p).render(moderngl.TRIANGLES)
+            vao.render(moderngl.TRIANGLES, vertices=3)
             fbo.depth_mask = True
             ctx.depth_func = "<"
             ctx.disable(moderngl.DEPTH_TEST)
@@ -321,13 +345,14 @@ class Renderer:
         if self._shadow_maps is not None:
             self._shadow_maps.release()
         if self._target is not None:
-            for obj in self._target[1:]:
+            for obj in self._target[1]:
                 obj.release()
         for buf in self._buffers.values():
             buf.release()
         self._gloss_buf.release()
         self._horizon_tex.release()
-        for obj in (self.bg_vao, self.bg_prog, *self._shade_progs.values(), self._shadow_prog, self.depth_prog):
+        variants = [obj for pair in self._shade_progs.values() for obj in pair[::-1]]
+        for obj in (self.bg_vao, self.bg_prog, *variants, self._shadow_prog, self.gbuffer_prog):
             obj.release()
         if self._owns_gl:
             self.gl.release()

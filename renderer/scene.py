@@ -37,22 +37,12 @@ class SceneMesh:
         self.albedo_tex = self._texture(ctx, albedo_map, 3, (1.0, 1.0, 1.0))
         self.gloss_tex = self._texture(ctx, gloss_map, 2, (0.0, 0.0))
         self.use_maps = (albedo_map is not None, gloss_map is not None)
-        self._ctx = ctx
-        self._vaos_shade: dict[int, moderngl.VertexArray] = {}
         self.vao_shadow = ctx.vertex_array(programs["moments"], [(self.vbo_pos, "3f", "in_position")],
                                            index_buffer=self.ibo, index_element_size=4)
-        self.vao_depth = ctx.vertex_array(programs["depth"], [(self.vbo_pos, "3f", "in_position")],
-                                          index_buffer=self.ibo, index_element_size=4)
-
-    def vao_shade(self, prog: moderngl.Program) -> moderngl.VertexArray:
-        """The vertex array of this mesh for one shading program (one per shading-mode variant)."""
-        vao = self._vaos_shade.get(prog.glo)
-        if vao is None:
-            vao = self._vaos_shade[prog.glo] = self._ctx.vertex_array(prog, [
-                (self.vbo_pos, "3f", "in_position"), (self.vbo_nrm, "3f", "in_normal"),
-                (self.vbo_albedo, "3f", "in_albedo"), (self.vbo_mat, "2f", "in_material"),
-                (self.vbo_uv, "2f", "in_uv")], index_buffer=self.ibo, index_element_size=4, skip_errors=True)
-        return vao
+        self.vao_gbuffer = ctx.vertex_array(programs["gbuffer"], [
+            (self.vbo_pos, "3f", "in_position"), (self.vbo_nrm, "3f", "in_normal"),
+            (self.vbo_albedo, "3f", "in_albedo"), (self.vbo_mat, "2f", "in_material"),
+            (self.vbo_uv, "2f", "in_uv")], index_buffer=self.ibo, index_element_size=4, skip_errors=True)
 
     def _texture(self, ctx, data, comps, default):
         if data is None:
@@ -74,7 +64,7 @@ class SceneMesh:
         self.vbo_nrm.write(np.ascontiguousarray(normals, np.float32).tobytes())
 
     def release(self) -> None:
-        for obj in (*self._vaos_shade.values(), self.vao_shadow, self.vao_depth, self.vbo_pos, self.vbo_nrm, self.vbo_albedo, self.vbo_mat,
+        for obj in (self.vao_shadow, self.vao_gbuffer, self.vbo_pos, self.vbo_nrm, self.vbo_albedo, self.vbo_mat,
                     self.vbo_uv, self.ibo, *self.textures):
             obj.release()
 
@@ -84,7 +74,7 @@ class Scene:
 
     def __init__(self, gl: GLContext, meshes: list[Mesh], materials: list[Material], programs: dict,
                  casters: list[bool] | None = None):
-        """`programs`: the renderer's "moments" and "depth" programs (owned by the renderer)."""
+        """`programs`: the renderer's "moments" and "gbuffer" programs (owned by the renderer)."""
         gl.check_thread()
         if not meshes:
             raise MeshError("a scene needs at least one mesh")

@@ -1,10 +1,10 @@
 """The path of a frame through the service, shared by the frame, batch and one-shot endpoints:
 
     body bytes -> decode + validate + normals (thread) -> queue -> GL thread: PEM set (cache), upload,
-    shadow maps, blur, shading, readback -> tone map + PNG / EXR (thread) -> response + Server-Timing
+    shadow maps, blur, geometry, shading, readback -> tone map + PNG / EXR (thread) -> response + Server-Timing
 
 Stage names in timings, Server-Timing and the Prometheus histogram: decode, normals, queue, the
-renderer's own stages (upload, shadow_maps, blur, shading, readback), render (the renderer's frame
+renderer's own stages (upload, shadow_maps, blur, geometry, shading, readback), render (the renderer's frame
 wall time), gl_job (the whole job on the GL thread), encode, and total (handler start to answer).
 """
 

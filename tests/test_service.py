@@ -110,7 +110,7 @@ def test_png_frame_has_size_and_server_timing(http, scene, mesh):
     assert img.shape[:2] == (64, 64)
     assert img.std() > 1.0  # a picture, not a flat colour
     t = server_timing(r.headers["server-timing"])
-    for stage in ("decode", "queue", "shadow_maps", "shading", "render", "encode", "total"):
+    for stage in ("decode", "queue", "shadow_maps", "geometry", "shading", "render", "encode", "total"):
         assert stage in t and t[stage] >= 0.0
     assert t["total"] >= t["render"]
     assert r.headers["x-frame-index"] == "41"

@@ -42,16 +42,16 @@ def write_markdown(path: Path, rows, machine: dict, cfg) -> None:
         rs = [r for r in rows if r.scene == scene]
         lines += [f"## {scene} ({rs[0].env})", "",
                   f"Reference noise floor: rel. RMSE {rs[0].ref_noise_rel_rmse:.4f}, mean HDR-FLIP {rs[0].ref_noise_flip:.4f}.", "",
-                  "| knob | value | mode | frame ms | shadow | blur | shading | PEM build ms | PEM MB (paper) | VSM MB (paper) "
+                  "| knob | value | mode | frame ms | shadow | blur | geometry | shading | PEM build ms | PEM MB (paper) | VSM MB (paper) "
                   "| rel. RMSE | FLIP | reference at equal error |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in rs:
             s = r.settings
             eq = (f"{r.ref_equal_error_spp} spp, {r.ref_equal_error_ms:.0f} ms ({r.speedup_vs_reference:.1f}x)"
                   if r.ref_equal_error_spp else "not reached by the ladder")
             lines.append(
                 f"| {r.knob} | {r.value} | {r.mode} | {r.frame_ms:.1f} | {r.stages_ms.get('shadow_maps', 0):.1f} | "
-                f"{r.stages_ms.get('blur', 0):.1f} | {r.stages_ms.get('shading', 0):.1f} | {r.pem_build_ms:.0f} | "
+                f"{r.stages_ms.get('blur', 0):.1f} | {r.stages_ms.get('geometry', 0):.1f} | {r.stages_ms.get('shading', 0):.1f} | {r.pem_build_ms:.0f} | "
                 f"{r.pem_bytes / MB:.1f} ({paper_pem_mb(s['lights'], s['face_size']):.1f}) | "
                 f"{r.shadow_bytes / MB:.1f} ({paper_vsm_mb(s['lights'], s['shadow_size']):.1f}) | "
                 f"{r.rel_rmse:.4f} | {r.flip:.4f} | {eq} |")

@@ -1,5 +1,4 @@
-// Shading pass: world-space position, normal and material per vertex.
-invariant gl_Position;   // bit-identical depth to depth.vert (the pre-pass)
+// Geometry pass: world-space position, normal and material per vertex (to gbuffer.frag).
 in vec3 in_position;     // world space
 in vec3 in_normal;       // world space, unit length
 in vec3 in_albedo;       // diffuse reflectance, linear RGB

@@ -1,4 +1,6 @@
-// Final lighting, Knuth et al. 2014 Eq. 5: c = sum_i VIS_i * PEM_i(dir, g).
+// Lighting pass of the deferred shading (one full-screen triangle; the geometry pass,
+// gbuffer.frag, has written position, normals and material per pixel), Knuth et al. 2014 Eq. 5:
+// c = sum_i VIS_i * PEM_i(dir, g).
 // The PEMs hold solid-angle weighted chains A_i (renderer/lighting/pem_reference.py): a lookup is
 // A_i(dir) / B(dir), and B, the same for every region, is read once per direction.
 // Diffuse: PEM_i looked up along the normal at the calibrated s = 1 level, times the albedo.
@@ -10,8 +12,8 @@
 // 4 the many-light baseline.
 #include "common/lights.glsl"
 
-// The depth pre-pass has laid down the nearest surface: test depth before shading, so that only
-// visible fragments pay for the lights.
+// The full-screen triangle lies at the far plane and the depth test is GREATER against the geometry
+// pass's depth: only covered pixels pass, and blocks with none are skipped before shading.
 layout(early_fragment_tests) in;
 
 layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
@@ -20,11 +22,11 @@ layout(binding = 0) uniform samplerCubeArray u_pem0;         // layer i = region
 layout(binding = 5) uniform samplerCubeArray u_pem1;         // layer i - 192 = region i >= 192
 layout(binding = 6) uniform samplerCubeArray u_pem_norm;     // layer 0: B = chain(w), the normalizer
 layout(binding = 1) uniform sampler2DArray u_moments;        // layer i = light i (blurred moments)
-layout(binding = 3) uniform sampler2D u_albedo_map;          // multiplies the vertex albedo
-layout(binding = 4) uniform sampler2D u_gloss_map;           // (specular, glossiness), replaces the vertex values
 layout(binding = 7) uniform sampler2D u_horizon_map;        // F(n.r, g): share of the glossy lobe above the surface
-uniform bool u_use_albedo_map;
-uniform bool u_use_gloss_map;
+layout(binding = 8) uniform sampler2D u_g_position;         // the geometry pass's targets (gbuffer.frag)
+layout(binding = 9) uniform sampler2D u_g_normal;
+layout(binding = 10) uniform sampler2D u_g_geometric;
+layout(binding = 11) uniform sampler2D u_g_albedo;
 
 uniform vec3 u_camera_pos;
 uniform int u_n_lights;
@@ -38,12 +40,6 @@ uniform vec3 u_sh[9];              // their irradiance coefficients (renderer/li
 uniform int u_glossy_horizon;      // full mode: 0 off, 1 the lobe's share above the tangent plane,
                                    // 2 each light's disc share above the triangle's plane, 3 both
                                    // (FrameSettings.glossy_horizon)
-
-in vec3 v_ws_position;
-in vec3 v_ws_normal;
-in vec3 v_albedo;
-in vec2 v_material;
-in vec2 v_uv;
 
 out vec4 o_color;
 
@@ -192,20 +188,19 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 shadow_pos) {
 }
 
 void main() {
-    vec3 n = normalize(v_ws_normal);
-    vec3 to_eye = normalize(u_camera_pos - v_ws_position);
-    if (dot(n, to_eye) < 0.0) n = -n;   // cloth is two-sided: shade the side the camera sees
+    ivec2 px = ivec2(gl_FragCoord.xy);
+    vec4 g_pos = texelFetch(u_g_position, px, 0);
+    vec4 g_nrm = texelFetch(u_g_normal, px, 0);
+    vec3 ws_position = g_pos.xyz;
+    vec3 n = g_nrm.xyz;
+    g_geometric_normal = texelFetch(u_g_geometric, px, 0).xyz;
+    vec3 albedo = texelFetch(u_g_albedo, px, 0).rgb;
+    vec2 material = vec2(g_pos.w, g_nrm.w);
+    vec3 to_eye = normalize(u_camera_pos - ws_position);
     vec3 r = reflect(-to_eye, n);
-    // Degenerate derivatives (a triangle seen edge-on, underflow): fall back to the shading normal.
-    vec3 c = cross(dFdx(v_ws_position), dFdy(v_ws_position));
-    float c2 = dot(c, c);
-    g_geometric_normal = c2 > 1e-30 ? c * inversesqrt(c2) : n;
-    if (dot(g_geometric_normal, to_eye) < 0.0) g_geometric_normal = -g_geometric_normal;
-    vec3 albedo = u_use_albedo_map ? v_albedo * texture(u_albedo_map, v_uv).rgb : v_albedo;
-    vec2 material = u_use_gloss_map ? texture(u_gloss_map, v_uv).rg : v_material;
     float specular = material.x;
     float level_g = gloss_level(material.y);
-    vec3 shadow_pos = v_ws_position + u_normal_offset * n;
+    vec3 shadow_pos = ws_position + u_normal_offset * n;
 
 #if MODE == 4
     {

@@ -1,0 +1,37 @@
+// Geometry pass of the deferred shading: what the lighting pass (lighting.frag) needs per pixel.
+// Lighting runs once per covered pixel afterwards, however small the triangles: shading in the
+// geometry pass itself ran the whole light loop for every 2x2 quad (every 4x4 block on llvmpipe) a
+// triangle touches, several times per pixel on a garment whose triangles cover a pixel or two.
+in vec3 v_ws_position;
+in vec3 v_ws_normal;
+in vec3 v_albedo;
+in vec2 v_material;
+in vec2 v_uv;
+
+layout(binding = 3) uniform sampler2D u_albedo_map;   // multiplies the vertex albedo
+layout(binding = 4) uniform sampler2D u_gloss_map;    // (specular, glossiness), replaces the vertex values
+uniform bool u_use_albedo_map;
+uniform bool u_use_gloss_map;
+uniform vec3 u_camera_pos;
+
+layout(location = 0) out vec4 o_position;   // xyz: world position; w: specular weight
+layout(location = 1) out vec4 o_normal;     // xyz: shading normal, facing the camera; w: glossiness g
+layout(location = 2) out vec4 o_geometric;  // xyz: the triangle's own plane normal, facing the camera; w: 1 (covered)
+layout(location = 3) out vec4 o_albedo;     // rgb: diffuse reflectance; a: 1 (covered)
+
+void main() {
+    vec3 n = normalize(v_ws_normal);
+    vec3 to_eye = normalize(u_camera_pos - v_ws_position);
+    if (dot(n, to_eye) < 0.0) n = -n;   // cloth is two-sided: shade the side the camera sees
+    // Degenerate derivatives (a triangle seen edge-on, underflow): fall back to the shading normal.
+    vec3 c = cross(dFdx(v_ws_position), dFdy(v_ws_position));
+    float c2 = dot(c, c);
+    vec3 geometric = c2 > 1e-30 ? c * inversesqrt(c2) : n;
+    if (dot(geometric, to_eye) < 0.0) geometric = -geometric;
+    vec3 albedo = u_use_albedo_map ? v_albedo * texture(u_albedo_map, v_uv).rgb : v_albedo;
+    vec2 material = u_use_gloss_map ? texture(u_gloss_map, v_uv).rg : v_material;
+    o_position = vec4(v_ws_position, material.x);
+    o_normal = vec4(n, material.y);
+    o_geometric = vec4(geometric, 1.0);
+    o_albedo = vec4(albedo, 1.0);
+}
