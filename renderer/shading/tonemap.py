@@ -129,7 +129,10 @@ def tonemap(
     if curve is ToneCurve.FILMIC:
         display = aces_filmic(x)
     elif curve is ToneCurve.REINHARD:
-        display = x / (1.0 + x)  # Reinhard et al. 2002's global operator, applied per channel
+        # Reinhard et al. 2002's global operator x / (1 + x), per channel, as 1 - 1 / (1 + x) in float64:
+        # every step rounds monotonically, so brighter never maps darker (x / (1 + x) in float32 did,
+        # near 1e6, where 1 + x rounds).
+        display = (1.0 - 1.0 / (1.0 + x.astype(np.float64))).astype(np.float32)
     else:
         display = np.clip(x, 0.0, 1.0)
     return srgb_oetf(display)
