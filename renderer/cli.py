@@ -73,6 +73,9 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
                    help="g -> MIP level: the closest normalized kernel (l2) or the paper's equal lobe volume")
     q.add_argument("--shadow-threshold", type=float,
                    help="lights below this share of the energy get no shadow map (their PEMs are added unshadowed)")
+    q.add_argument("--caster-detail", type=float,
+                   help="share of the casters' triangles the shadow maps draw, in (0, 1] (a proxy with the same "
+                        "vertices; 1: the meshes themselves)")
     q.add_argument("--sh-unshadowed", action=argparse.BooleanOptionalAction,
                    help="the diffuse term of the unshadowed lights from SH9 irradiance (one lookup less per light)")
     q.add_argument("--glossy-horizon", choices=["off", "lobe", "lights", "both"],
@@ -137,6 +140,7 @@ def frame_settings(args, q: dict):
                          bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
                          calibration=args.calibration, diffuse=args.diffuse, glossy_horizon=args.glossy_horizon,
                          shadow_threshold=args.shadow_threshold, sh_unshadowed=args.sh_unshadowed,
+                         caster_detail=args.caster_detail,
                          terminator=args.terminator, horizon=args.horizon, background=Background(args.background))
 
 

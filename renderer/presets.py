@@ -13,7 +13,8 @@ def knob_defaults() -> dict:
     f = FrameSettings()
     return {"calibration": f.calibration.value, "diffuse": f.diffuse, "glossy_horizon": f.glossy_horizon,
             "terminator": f.terminator, "horizon": f.horizon, "shadow_threshold": f.shadow_threshold,
-            "sh_unshadowed": f.sh_unshadowed, "needed_levels": True}
+            "sh_unshadowed": f.sh_unshadowed, "needed_levels": True,
+            "caster_detail": f.caster_detail}
 
 
 DEFAULT_PRESETS = {

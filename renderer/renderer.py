@@ -66,6 +66,9 @@ class FrameSettings:
     min_variance: float = 1e-6
     normal_offset_texels: float = 1.5
     shadow_threshold: float = 0.0  # lights below this share of the energy get no shadow map
+    # Share of the casters' triangles the shadow pass draws (shadows/proxy.py; 1: the meshes
+    # themselves): the pass costs per triangle on a CPU rasterizer.
+    caster_detail: float = 1.0
     horizon: bool = False          # VIS_i includes the tangent plane (see surface.frag); off: the paper
     # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level),
     # "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups) or
@@ -92,6 +95,8 @@ class FrameSettings:
             raise InvalidInputError(f"image size must be within 1..8192 per side, got {self.width}x{self.height}")
         if not (0.0 <= self.bleed_reduction < 1.0):
             raise InvalidInputError(f"bleed reduction must be in [0, 1), got {self.bleed_reduction}")
+        if not (0.0 < self.caster_detail <= 1.0):
+            raise InvalidInputError(f"caster detail is the share of triangles kept, in (0, 1], got {self.caster_detail}")
         if not (0.0 <= self.shadow_threshold <= 1.0):
             raise InvalidInputError(f"shadow threshold is a share of the energy in [0, 1], got {self.shadow_threshold}")
         object.__setattr__(self, "calibration", Calibration.parse(self.calibration))
@@ -253,7 +258,8 @@ class Renderer:
 
         shadow_maps = self._shadow_maps_for(settings.shadow_size, max(n_shadowed, 1))
         if n_shadowed:
-            shadow_maps.render([sm.vao_shadow for sm in scene.meshes if sm.caster], lights_buf, shadow_list, timer)
+            shadow_maps.render([sm.shadow_vao(settings.caster_detail) for sm in scene.meshes if sm.caster],
+                               lights_buf, shadow_list, timer)
 
         # Shading.
         w, h = settings.width, settings.height
@@ -334,6 +340,8 @@ class Renderer:
         timings["n_lights"] = n
         timings["shadowed_lights"] = n_shadowed
         timings["n_triangles"] = scene.n_triangles
+        timings["shadow_triangles"] = (sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster)
+                                       if n_shadowed else 0)
         timings["device"] = gl.renderer_name
         info = {"frame": settings.as_dict(), "pems": pems.summary(),
                 "camera": {"eye": list(camera.eye), "target": list(camera.target), "fov_y_deg": camera.fov_y_deg},

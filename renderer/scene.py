@@ -11,6 +11,7 @@ from .errors import MeshError
 from .gpu.context import GLContext
 from .mesh import Mesh, vertex_normals
 from .shading.material import Material
+from .shadows.proxy import caster_proxy
 
 
 class SceneMesh:
@@ -37,12 +38,35 @@ class SceneMesh:
         self.albedo_tex = self._texture(ctx, albedo_map, 3, (1.0, 1.0, 1.0))
         self.gloss_tex = self._texture(ctx, gloss_map, 2, (0.0, 0.0))
         self.use_maps = (albedo_map is not None, gloss_map is not None)
+        self._ctx, self._moments_prog = ctx, programs["moments"]
         self.vao_shadow = ctx.vertex_array(programs["moments"], [(self.vbo_pos, "3f", "in_position")],
                                            index_buffer=self.ibo, index_element_size=4)
+        # Coarser casters for the shadow pass (shadows/proxy.py), made on first use per detail.
+        self._proxies: dict[float, tuple[moderngl.Buffer, moderngl.VertexArray, int]] = {}
         self.vao_gbuffer = ctx.vertex_array(programs["gbuffer"], [
             (self.vbo_pos, "3f", "in_position"), (self.vbo_nrm, "3f", "in_normal"),
             (self.vbo_albedo, "3f", "in_albedo"), (self.vbo_mat, "2f", "in_material"),
             (self.vbo_uv, "2f", "in_uv")], index_buffer=self.ibo, index_element_size=4, skip_errors=True)
+
+    def shadow_vao(self, detail: float = 1.0) -> moderngl.VertexArray:
+        """The casters' vertex array for the shadow pass at a share `detail` of the triangles (the
+        same vertex buffer; the proxy's triangles are made once, from the mesh as registered)."""
+        if detail >= 1.0:
+            return self.vao_shadow
+        if detail not in self._proxies:
+            faces = caster_proxy(self.mesh.positions, self.mesh.faces, detail)
+            ibo = self._ctx.buffer(faces.tobytes())
+            vao = self._ctx.vertex_array(self._moments_prog, [(self.vbo_pos, "3f", "in_position")],
+                                         index_buffer=ibo, index_element_size=4)
+            self._proxies[detail] = (ibo, vao, len(faces))
+        return self._proxies[detail][1]
+
+    def shadow_triangles(self, detail: float = 1.0) -> int:
+        """Triangles the shadow pass draws per light at this detail."""
+        if detail >= 1.0:
+            return int(self.mesh.faces.shape[0])
+        self.shadow_vao(detail)
+        return self._proxies[detail][2]
 
     def _texture(self, ctx, data, comps, default):
         if data is None:
@@ -64,6 +88,10 @@ class SceneMesh:
         self.vbo_nrm.write(np.ascontiguousarray(normals, np.float32).tobytes())
 
     def release(self) -> None:
+        for ibo, vao, _ in self._proxies.values():
+            vao.release()
+            ibo.release()
+        self._proxies = {}
         for obj in (self.vao_shadow, self.vao_gbuffer, self.vbo_pos, self.vbo_nrm, self.vbo_albedo, self.vbo_mat,
                     self.vbo_uv, self.ibo, *self.textures):
             obj.release()

@@ -81,6 +81,8 @@ class QualitySpec(_Strict):
     horizon: bool = Field(False, description="the shading normal's tangent plane blocks every light, both terms")
     needed_levels: bool = Field(True, description="store only the PEM levels the scene's glossiness reads "
                                 "(the same image, less memory)")
+    caster_detail: float = Field(1.0, gt=0.0, le=1.0, description="share of the casters' triangles the shadow "
+                                 "maps draw (a proxy over the same vertices; 1: the meshes themselves)")
     sh_unshadowed: bool = Field(False, description="the diffuse term of the lights below shadow_threshold "
                                 "from SH9 irradiance")
 

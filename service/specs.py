@@ -59,14 +59,15 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
                           calibration=knobs["calibration"], diffuse=knobs["diffuse"],
                           glossy_horizon=knobs["glossy_horizon"], sh_unshadowed=bool(knobs["sh_unshadowed"]),
                           terminator=bool(knobs["terminator"]), horizon=bool(knobs["horizon"]),
-                          background=Background(out.background))
+                          caster_detail=float(knobs["caster_detail"]), background=Background(out.background))
     pem = PEMSettings(int(knobs["lights"]), Filter(q.filter.value), q.levels)
     info = {"preset": name, "lights": pem.n_lights, "face_size": fs, "filter": pem.filter.value,
             "levels": q.levels, "shadow_size": frame.shadow_size, "blur_scale": frame.blur_scale,
             "bleed_reduction": frame.bleed_reduction, "shadow_threshold": frame.shadow_threshold,
             "mode": frame.mode.value, "calibration": frame.calibration.value, "diffuse": frame.diffuse,
             "glossy_horizon": frame.glossy_horizon, "sh_unshadowed": frame.sh_unshadowed,
-            "terminator": frame.terminator, "horizon": frame.horizon, "needed_levels": bool(knobs["needed_levels"])}
+            "terminator": frame.terminator, "horizon": frame.horizon, "needed_levels": bool(knobs["needed_levels"]),
+            "caster_detail": frame.caster_detail}
     return Quality(fs, pem, frame, info)
 
 

@@ -556,7 +556,8 @@ def test_no_gl_context_is_not_ready_and_503(tmp_path):
 def test_accuracy_knobs_reach_the_renderer_and_are_reported(http, env_upload, mesh):
     body = scene_body(env_upload[0]["id"], mesh)
     images = {}
-    for knobs in ({}, {"calibration": "volume", "diffuse": "lights", "glossy_horizon": "off", "needed_levels": False}):
+    for knobs in ({}, {"calibration": "volume", "diffuse": "lights", "glossy_horizon": "off", "needed_levels": False,
+                       "caster_detail": 0.5}):
         body["quality"] = {**body["quality"], **knobs}
         r = http.post("/render", json=body, params={"format": "json"})
         assert r.status_code == 200, r.text
@@ -568,6 +569,8 @@ def test_accuracy_knobs_reach_the_renderer_and_are_reported(http, env_upload, me
         assert (j["render"]["pem_set"]["base_level"] == 0) == ("needed_levels" in knobs)
         images[bool(knobs)] = j["image"]["base64"]
     assert images[True] != images[False]
+    body["quality"] = {**body["quality"], "caster_detail": 0.0}
+    assert_error(http.post("/render", json=body), 422, "caster_detail")
 
 
 def test_a_floor_that_casts_no_shadow(http, env_upload, mesh, tmp_path):

@@ -1,0 +1,76 @@
+"""Coarser shadow casters (renderer/shadows/proxy.py): the same vertices, fewer triangles; the
+shadow they cast stays where the full mesh's is, and follows the mesh when it moves."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from conftest import sphere, plane, sun_sky_cube
+from renderer.camera import Camera
+from renderer.errors import InvalidInputError
+from renderer.lighting.pem import PEMSettings
+from renderer.renderer import Background, FrameSettings
+from renderer.shading.material import Material
+from renderer.shadows.proxy import caster_proxy
+
+
+@pytest.mark.parametrize("keep", [0.5, 0.25, 0.1])
+def test_proxy_keeps_the_share_of_triangles_over_the_original_vertices(keep):
+    m = sphere(1.0, subdivisions=4)   # 5120 triangles
+    f = caster_proxy(m.positions, m.faces, keep)
+    assert f.dtype == np.int32 and f.shape[1] == 3
+    assert abs(len(f) / len(m.faces) - keep) < 0.05, len(f)
+    assert f.min() >= 0 and f.max() < len(m.positions)
+    assert np.all((f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2]))
+    assert len(np.unique(np.sort(f, axis=1), axis=0)) == len(f)
+    # The proxy is a closed surface near the sphere: every vertex of the original lies close to it.
+    proxy = trimesh.Trimesh(m.positions, f, process=False)
+    _, dist, _ = trimesh.proximity.closest_point(proxy, m.positions)
+    edge = np.linalg.norm(m.positions[m.faces[:, 0]] - m.positions[m.faces[:, 1]], axis=1).mean()
+    assert dist.max() < 2.0 * edge / keep ** 0.5 * 0.5, (dist.max(), edge)
+    assert proxy.is_watertight
+
+
+def test_full_detail_is_the_mesh_itself_and_bad_shares_are_refused():
+    m = sphere(1.0, subdivisions=2)
+    assert np.array_equal(caster_proxy(m.positions, m.faces, 1.0), m.faces)
+    for bad in (0.0, -0.5, 1.5, float("nan")):
+        with pytest.raises(InvalidInputError, match="caster detail"):
+            caster_proxy(m.positions, m.faces, bad)
+        with pytest.raises(InvalidInputError, match="caster detail"):
+            FrameSettings(caster_detail=bad)
+
+
+def test_a_proxy_casts_the_full_meshs_shadow_and_follows_it(renderer):
+    sun = np.array([0.5, 1.0, 0.2])
+    sun /= np.linalg.norm(sun)
+    cube = sun_sky_cube(64, sun, sun_radiance=5e3, sun_radius_deg=2, sky=(0.05, 0.05, 0.05), ground=(0, 0, 0))
+    ball = sphere(0.4, (0.0, 0.8, 0.0), subdivisions=4)
+    scene = renderer.create_scene([ball, plane(6.0)], [Material((0.5, 0.5, 0.5)), Material((0.8, 0.8, 0.8))])
+    cam = Camera((0.0, 4.0, 3.0), (0.0, 0.0, 0.0), fov_y_deg=50.0)
+    pems = renderer.build_pems(cube, PEMSettings(24))
+    try:
+        def frame(detail, positions=None):
+            fs = FrameSettings(96, 96, caster_detail=detail, background=Background.BLACK)
+            return renderer.render(scene, pems, fs, cam, positions=positions)
+
+        full, coarse = frame(1.0), frame(0.25)
+        moved = frame(0.25, [ball.positions + np.float32([0.8, 0.0, 0.0]), None])
+        moved_full = frame(1.0)
+    finally:
+        pems.release()
+        scene.release()
+    assert coarse.timings["shadow_triangles"] < 0.3 * full.timings["shadow_triangles"]
+    lum = lambda f: f.image[..., :3].mean(axis=-1)  # noqa: E731
+    # The same shadow: dark where the full mesh's shadow is, lit where it is lit.
+    shadow = lum(full) < 0.3 * np.percentile(lum(full), 90)
+    assert shadow.sum() > 50
+    agree = (lum(coarse) < 0.3 * np.percentile(lum(coarse), 90)) == shadow
+    assert agree.mean() > 0.98, agree.mean()
+    rel = np.abs(lum(coarse) - lum(full)).sum() / lum(full).sum()
+    assert rel < 0.03, rel
+    # The proxy indexes the same vertex buffer: moving the mesh moves its shadow, as with full detail.
+    assert np.abs(lum(moved) - lum(moved_full)).sum() / lum(moved_full).sum() < 0.03
+    assert np.abs(lum(moved) - lum(coarse)).sum() / lum(coarse).sum() > 0.05
