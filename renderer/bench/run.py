@@ -26,7 +26,7 @@ from ..presets import DEFAULT_PRESETS, knob_defaults
 from ..renderer import FrameSettings, Renderer, ShadingMode
 from .scenes import BenchScene, bundled_scene, shared_scenes
 
-BALANCED = {**DEFAULT_PRESETS["balanced"], "filter": "sqrt-cosine", **knob_defaults()}
+BALANCED = {**knob_defaults(), **DEFAULT_PRESETS["balanced"], "filter": "sqrt-cosine"}
 # Section 5 of the speed/accuracy issue: dim lights without shadow maps, their diffuse term by SH9.
 # A dict value changes several knobs at once (SH9 only matters once some lights are unshadowed).
 DIM_LIGHTS = [{"shadow_threshold": 0.01, "sh_unshadowed": True}]
@@ -45,11 +45,11 @@ SWEEPS = {
     "needed_levels": [False],
     "shadow_threshold": [0.002, 0.01, 0.03],
     "sh_unshadowed": DIM_LIGHTS,
-    "caster_detail": [0.5, 0.25, 0.1],
+    "caster_detail": [1.0, 0.5, 0.25, 0.1],
 }
 QUICK_SWEEPS = {**SWEEPS, "lights": [6, 24, 48, 96], "face_size": [64, 128], "shadow_size": [128, 256],
                 "blur_scale": [0.0, 0.1, 1.0], "filter": ["none", "sqrt-cosine"], "shadow_threshold": [0.01],
-                "caster_detail": [0.25]}
+                "caster_detail": [1.0]}
 BASELINE_MODES = [ShadingMode.NO_OCCLUSION, ShadingMode.MANY_LIGHTS, ShadingMode.AO_GREY, ShadingMode.AO_COLOUR]
 
 
