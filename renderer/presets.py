@@ -14,7 +14,7 @@ def knob_defaults() -> dict:
     return {"calibration": f.calibration.value, "diffuse": f.diffuse, "glossy_horizon": f.glossy_horizon,
             "terminator": f.terminator, "horizon": f.horizon, "shadow_threshold": f.shadow_threshold,
             "sh_unshadowed": f.sh_unshadowed, "needed_levels": True,
-            "caster_detail": f.caster_detail}
+            "caster_detail": f.caster_detail, "small_light_tiles": f.small_light_tiles}
 
 
 # A preset may also set any knob of knob_defaults() (its value wins over the default).

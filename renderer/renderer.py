@@ -26,7 +26,8 @@ from .mesh import Mesh
 from .scene import Scene
 from .shading.horizon import N_G as HORIZON_N_G, N_MU as HORIZON_N_MU, horizon_table
 from .shading.material import Material
-from .shadows.lights import blur_sigma_texels, fit_light_view_proj, pack_lights, shadow_layers
+from .shadows.lights import (SMALL_LIGHT_MAX_SIN, blur_sigma_texels, fit_light_view_proj, pack_lights, plan_layers,
+                             shadow_layers, tile_margin_scale)
 from .shadows.vsm import ShadowMaps
 
 
@@ -69,6 +70,10 @@ class FrameSettings:
     # Share of the casters' triangles the shadow pass draws (shadows/proxy.py; 1: the meshes
     # themselves): the pass costs per triangle on a CPU rasterizer.
     caster_detail: float = 1.0
+    # Small lights (a sun; angular radius <= ~6 degrees) get k x k shadow-map layers, each a k-th of
+    # the footprint per axis (k times the texels per axis), drawn at full caster detail: their shadows
+    # are sharp. 1: one layer like every other light.
+    small_light_tiles: int = 1
     horizon: bool = False          # VIS_i includes the tangent plane (see surface.frag); off: the paper
     # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level),
     # "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups) or
@@ -95,6 +100,9 @@ class FrameSettings:
             raise InvalidInputError(f"image size must be within 1..8192 per side, got {self.width}x{self.height}")
         if not (0.0 <= self.bleed_reduction < 1.0):
             raise InvalidInputError(f"bleed reduction must be in [0, 1), got {self.bleed_reduction}")
+        if not (isinstance(self.small_light_tiles, (int, np.integer)) and 1 <= self.small_light_tiles <= 8):
+            raise InvalidInputError(f"small_light_tiles is a whole number of tiles per side in 1..8, "
+                                    f"got {self.small_light_tiles!r}")
         if not (0.0 < self.caster_detail <= 1.0):
             raise InvalidInputError(f"caster detail is the share of triangles kept, in (0, 1], got {self.caster_detail}")
         if not (0.0 <= self.shadow_threshold <= 1.0):
@@ -243,23 +251,28 @@ class Renderer:
         regions = pems.regions
         n = regions.n_regions
         lo, hi = scene.bounds(casters_only=True)
-        sigma = blur_sigma_texels(regions.light_radius_rad(), settings.shadow_size, settings.blur_scale)
+        shadowed = settings.mode is not ShadingMode.NO_OCCLUSION
+        layers = shadow_layers(regions.energy_luminance, settings.shadow_threshold if shadowed else 2.0)
+        small = np.sin(regions.disc_radius_rad()) <= SMALL_LIGHT_MAX_SIN
+        plan = plan_layers(layers, small, settings.small_light_tiles)
+        # A tiled light's blur width is in its own, k times smaller, texels.
+        sigma = blur_sigma_texels(regions.light_radius_rad(), settings.shadow_size * plan.tiles, settings.blur_scale)
         # Square texels: the blur's sigma is in texels, the same on both axes, so rectangular texels
         # would make penumbrae anisotropic (a side run fitting x and y separately gained 0-2.5 %).
         vp = np.stack([fit_light_view_proj(regions.directions[i], lo, hi, sigma[i], settings.shadow_size)
                        for i in range(n)])
-        shadowed = settings.mode is not ShadingMode.NO_OCCLUSION
-        layers = shadow_layers(regions.energy_luminance, settings.shadow_threshold if shadowed else 2.0)
         n_shadowed = int((layers >= 0).sum())
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
-                             sigma, layers, regions.disc_radius_rad())
+                             sigma, plan.first_layer, regions.disc_radius_rad(), plan.tiles,
+                             tile_margin_scale(sigma, plan.tiles, settings.shadow_size))
         lights_buf = self._buffer("lights", lights.tobytes())
-        shadow_list = self._buffer("shadow_lights", np.nonzero(layers >= 0)[0].astype(np.int32).tobytes() or b"\0" * 4)
+        shadow_list = self._buffer("shadow_lights", plan.layer_light.tobytes() or b"\0" * 4)
 
-        shadow_maps = self._shadow_maps_for(settings.shadow_size, max(n_shadowed, 1))
+        shadow_maps = self._shadow_maps_for(settings.shadow_size, max(plan.n_layers, 1))
         if n_shadowed:
-            shadow_maps.render([sm.shadow_vao(settings.caster_detail) for sm in scene.meshes if sm.caster],
-                               lights_buf, shadow_list, timer)
+            casters = [sm for sm in scene.meshes if sm.caster]
+            shadow_maps.render([sm.shadow_vao(settings.caster_detail) for sm in casters], lights_buf, shadow_list,
+                               timer, sharp_vaos=[sm.vao_shadow for sm in casters], n_sharp_layers=plan.n_sharp_layers)
 
         # Shading.
         w, h = settings.width, settings.height
@@ -339,6 +352,7 @@ class Renderer:
         timings["frame_wall_ms"] = (time.perf_counter() - t_frame) * 1e3
         timings["n_lights"] = n
         timings["shadowed_lights"] = n_shadowed
+        timings["shadow_layers"] = plan.n_layers if n_shadowed else 0
         timings["n_triangles"] = scene.n_triangles
         timings["shadow_triangles"] = (sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster)
                                        if n_shadowed else 0)

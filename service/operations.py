@@ -175,7 +175,9 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
                                         faces=mesh.faces.tolist(),
                                         uvs=None if mesh.uvs is None else mesh.uvs.tolist(), material=spec.material)
         stored = body.model_copy(update=inline)
-        await anyio.to_thread.run_sync(svc.state.save_scene, record.id, stored.model_dump_json())
+        # Only what the request named: a restored scene resolves its preset again, and a knob it
+        # left to the preset must stay the preset's (a full dump would pin every schema default).
+        await anyio.to_thread.run_sync(svc.state.save_scene, record.id, stored.model_dump_json(exclude_unset=True))
     return record
 
 

@@ -15,16 +15,16 @@ def test_light_struct_mirror_matches_glsl_std430(gl):
     n = 5
     vp = rng.random((n, 4, 4))
     arr = pack_lights(rng.random((n, 3)), rng.random(n), rng.random(n), rng.random((n, 3)), vp,
-                      rng.random(n), np.arange(n) - 1)
-    assert LIGHT_DTYPE.itemsize == 112
+                      rng.random(n), np.arange(n) - 1, rng.random(n), rng.integers(1, 4, n), 1 + rng.random(n))
+    assert LIGHT_DTYPE.itemsize == 128
     ctx = gl.ctx
     src = ctx.buffer(arr.tobytes())
-    out = ctx.buffer(reserve=n * 7 * 16)
+    out = ctx.buffer(reserve=n * 8 * 16)
     src.bind_to_storage_buffer(0)
     out.bind_to_storage_buffer(1)
     cs = compute_shader(ctx, "common/light_layout_probe.comp")
     cs.run(n)
-    got = np.frombuffer(out.read(), np.float32).reshape(n, 7, 4)
+    got = np.frombuffer(out.read(), np.float32).reshape(n, 8, 4)
     for obj in (cs, src, out):
         obj.release()
     # GLSL mat4 columns are the rows of the numpy (row-major) matrix transposed.
@@ -32,6 +32,7 @@ def test_light_struct_mirror_matches_glsl_std430(gl):
     np.testing.assert_allclose(got[:, 4], arr["dir_scale"])
     np.testing.assert_allclose(got[:, 5], arr["params"])
     np.testing.assert_allclose(got[:, 6], arr["energy"])
+    np.testing.assert_allclose(got[:, 7], arr["shadow"])
 
 
 def test_light_projection_maps_the_casters_box_into_clip_space():
@@ -57,13 +58,24 @@ def test_composed_shader_carries_line_directives_per_file():
     src, files = compose("pem/filter.comp", {"X": 1})
     assert src.startswith("#version 450 core\n#define X 1\n#line 1 0")
     assert files == ["pem/filter.comp", "common/cube.glsl"]
-    assert "#line 1 1" in src
+    assert "#line 100001 1" in src
 
 
 def test_compile_errors_name_the_file_and_line():
-    log = "0:12(3): error: `foo' undeclared\n1:7(1): error: syntax error"
+    log = "0:12(3): error: `foo' undeclared\n1:7(1): error: syntax error\n0:100009(2): error: x"
     text = _rewrite_log(log, ["pem/filter.comp", "common/cube.glsl"])
-    assert "pem/filter.comp:12" in text and "common/cube.glsl:7" in text
+    assert "pem/filter.comp:12" in text and "common/cube.glsl:7" in text and "common/cube.glsl:9" in text
+
+
+def test_a_fragment_stage_error_names_the_fragment_file(gl, monkeypatch):
+    from renderer.gpu import shaders
+
+    sources = {"t/ok.vert": "void main() { gl_Position = vec4(0.0); }",
+               "t/bad.frag": "out vec4 o;\nvoid main() {\n    o = vec4(undeclared_name);\n}"}
+    monkeypatch.setattr(shaders, "_read", lambda name: sources[name])
+    with pytest.raises(ShaderError) as info:
+        shaders.program(gl.ctx, "t/ok.vert", "t/bad.frag")
+    assert "t/bad.frag:3" in str(info.value) and "t/ok.vert:" not in str(info.value), str(info.value)
 
 
 def test_missing_include_is_a_shader_error():

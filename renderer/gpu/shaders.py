@@ -17,6 +17,9 @@ from ..errors import ShaderError
 
 SHADER_DIR = Path(__file__).resolve().parents[2] / "shaders"
 _INCLUDE = re.compile(r'^\s*#include\s+"([^"]+)"\s*$')
+# Each file's lines are numbered from a base of its own (file id x LINE_BASE): compile logs name the
+# file and line even where the driver ignores #line's source-string number.
+LINE_BASE = 100000
 
 
 @functools.lru_cache(maxsize=None)
@@ -27,22 +30,24 @@ def _read(name: str) -> str:
     return path.read_text()
 
 
-def compose(name: str, defines: dict[str, object] | None = None) -> tuple[str, list[str]]:
-    """Return (source, files): the composed source and the file name of each source-string number."""
+def compose(name: str, defines: dict[str, object] | None = None, first_id: int = 0) -> tuple[str, list[str]]:
+    """Return (source, files): the composed source and the file name of each source-string number
+    (numbers start at `first_id`: a program's fragment stage continues after its vertex stage's)."""
     files: list[str] = []
     lines_out: list[str] = []
 
     def emit(fname: str, stack: tuple[str, ...]) -> None:
         if fname in stack:
             raise ShaderError(f"circular #include of {fname!r} via {' -> '.join(stack)}")
-        fid = len(files)
+        fid = first_id + len(files)
         files.append(fname)
-        lines_out.append(f"#line 1 {fid}")
+        base = fid * LINE_BASE
+        lines_out.append(f"#line {base + 1} {fid}")
         for lineno, line in enumerate(_read(fname).splitlines(), start=1):
             m = _INCLUDE.match(line)
             if m:
                 emit(m.group(1), stack + (fname,))
-                lines_out.append(f"#line {lineno + 1} {fid}")
+                lines_out.append(f"#line {base + lineno + 1} {fid}")
             else:
                 lines_out.append(line)
 
@@ -59,11 +64,14 @@ def compose(name: str, defines: dict[str, object] | None = None) -> tuple[str, l
 
 
 def _rewrite_log(log: str, files: list[str]) -> str:
-    # Mesa: "0:12(3): error: ..."; NVIDIA: "0(12) : error ..." -- the first number is our file id.
+    # Mesa: "0:12(3): error: ..."; NVIDIA: "0(12) : error ..." -- the first number is the source-string
+    # number, which Mesa leaves at 0 whatever #line says, so the file is also in the line number.
     def sub(m: re.Match) -> str:
-        fid = int(m.group(1))
+        fid, line = int(m.group(1)), int(m.group(2))
+        if line > LINE_BASE:
+            fid, line = divmod(line, LINE_BASE)
         fname = files[fid] if fid < len(files) else f"<string {fid}>"
-        return f"{fname}:{m.group(2)}"
+        return f"{fname}:{line}"
 
     log = re.sub(r"\b(\d+):(\d+)\(\d+\)", sub, log)
     return re.sub(r"\b(\d+)\((\d+)\)", sub, log)
@@ -83,6 +91,6 @@ def compute_shader(ctx: moderngl.Context, name: str, defines: dict | None = None
 
 def program(ctx: moderngl.Context, vertex: str, fragment: str, defines: dict | None = None) -> moderngl.Program:
     vs, vfiles = compose(vertex, defines)
-    fs, ffiles = compose(fragment, defines)
+    fs, ffiles = compose(fragment, defines, first_id=len(vfiles))
     return _build(lambda: ctx.program(vertex_shader=vs, fragment_shader=fs), vfiles + ffiles,
                   f"{vertex} + {fragment}")

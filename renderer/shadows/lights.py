@@ -8,6 +8,8 @@ the map's edge.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 # Mirror of `struct Light` in shaders/common/lights.glsl (std430; mat4 is column-major).
@@ -16,7 +18,12 @@ LIGHT_DTYPE = np.dtype([
     ("dir_scale", np.float32, (4,)),
     ("params", np.float32, (4,)),
     ("energy", np.float32, (4,)),
+    ("shadow", np.float32, (4,)),
 ])
+
+# Lights of angular radius up to asin(0.1) ~ 5.7 degrees count as small (a sun): their shadows are
+# sharp. Mirrors TERMINATOR_MAX_SIN in shaders/shading/lighting.frag.
+SMALL_LIGHT_MAX_SIN = 0.1
 
 # Assumed occluder-to-receiver distance as a fraction of the shadow map's footprint; it turns a
 # region's angular radius into a blur width (penumbra ~ distance * tan(angular radius)).
@@ -34,6 +41,49 @@ def shadow_layers(energy_luminance: np.ndarray, threshold: float) -> np.ndarray:
     layers = np.full(len(energy_luminance), -1, np.int32)
     layers[shadowed] = np.arange(int(shadowed.sum()), dtype=np.int32)
     return layers
+
+
+@dataclass
+class LayerPlan:
+    """Where each light's shadow map lives in the layer array.
+
+    first_layer: (N,) int32, the light's first layer, -1 without a shadow map; tiles: (N,) int32,
+    tiles per side (a light with k > 1 has k * k layers, each a k-th of its footprint per axis: k
+    times the texels per axis); layer_light: (L,) int32, the light of each layer; n_sharp_layers:
+    the first layers, those of the tiled (small) lights, which the shadow pass draws at full caster
+    detail."""
+
+    first_layer: np.ndarray
+    tiles: np.ndarray
+    layer_light: np.ndarray
+    n_sharp_layers: int
+
+    @property
+    def n_layers(self) -> int:
+        return int(len(self.layer_light))
+
+
+def plan_layers(layers: np.ndarray, small: np.ndarray, small_tiles: int) -> LayerPlan:
+    """Layer plan from `shadow_layers` (-1: no shadow map) and which lights are small: small lights
+    get `small_tiles` x `small_tiles` layers and come first (full caster detail), then the others."""
+    shadowed = layers >= 0
+    sharp = shadowed & small & (small_tiles > 1)
+    tiles = np.where(sharp, small_tiles, 1).astype(np.int32)
+    first = np.full(len(layers), -1, np.int32)
+    order = np.concatenate([np.nonzero(sharp)[0], np.nonzero(shadowed & ~sharp)[0]])
+    counts = tiles[order] ** 2
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int32)
+    first[order] = starts
+    layer_light = np.repeat(order, counts).astype(np.int32)
+    return LayerPlan(first, tiles, layer_light, int(counts[:int(sharp.sum())].sum()))
+
+
+def tile_margin_scale(sigma_texels: np.ndarray, tiles: np.ndarray, shadow_size: int) -> np.ndarray:
+    """Per light, how much each tile's footprint is widened around its k-th of the map, so that the
+    blur and the bilinear lookup never need texels of the neighbouring tile: (1 + 2 m / size) with a
+    margin of m = ceil(3 sigma) + 2 texels; 1 for untiled lights."""
+    m = np.ceil(3.0 * np.asarray(sigma_texels)) + 2.0
+    return np.where(np.asarray(tiles) > 1, 1.0 + 2.0 * m / shadow_size, 1.0)
 
 
 def light_basis(direction: np.ndarray) -> np.ndarray:
@@ -86,9 +136,10 @@ def fit_light_view_proj(direction: np.ndarray, lo: np.ndarray, hi: np.ndarray, s
 
 
 def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma, shadow_layer,
-                radius_rad=None) -> np.ndarray:
-    """Build the std430 array of `struct Light` for n lights; shadow_layer[i] = -1: no shadow map;
-    radius_rad: angular radius of each light's energy (for the horizon term), default 0."""
+                radius_rad=None, tiles=None, tile_scale=None) -> np.ndarray:
+    """Build the std430 array of `struct Light` for n lights; shadow_layer[i] = -1: no shadow map
+    (else its first layer); radius_rad: angular radius of each light's energy (for the horizon term),
+    default 0; tiles / tile_scale: tiles per side and their footprint widening (default 1, 1)."""
     n = len(directions)
     arr = np.zeros(n, LIGHT_DTYPE)
     arr["view_proj"] = np.transpose(view_proj, (0, 2, 1)).reshape(n, 16)  # column-major for GLSL
@@ -100,4 +151,7 @@ def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma
     arr["params"][:, 3] = np.sin(np.clip(np.asarray(radius_rad if radius_rad is not None else np.zeros(n)), 1e-3, np.pi / 2))
     arr["energy"][:, :3] = energy_rgb
     arr["energy"][:, 3] = np.asarray(energy_rgb) @ np.array([0.2126, 0.7152, 0.0722])
+    arr["shadow"][:, 0] = shadow_layer
+    arr["shadow"][:, 1] = tiles if tiles is not None else 1.0
+    arr["shadow"][:, 2] = tile_scale if tile_scale is not None else 1.0
     return arr

@@ -54,9 +54,11 @@ class ShadowMaps:
         return self.size * self.size * 8 * layers
 
     def render(self, vaos: list[moderngl.VertexArray], lights_buffer: moderngl.Buffer,
-               shadow_lights_buffer: moderngl.Buffer, timer: StageTimer | None = None, enabled: bool = True) -> None:
+               shadow_lights_buffer: moderngl.Buffer, timer: StageTimer | None = None, enabled: bool = True,
+               sharp_vaos: list[moderngl.VertexArray] | None = None, n_sharp_layers: int = 0) -> None:
         """Render and blur the moments of every shadowed light (layer k: light shadow_lights[k]).
-        `vaos` draw the casters with `self.prog`."""
+        `vaos` draw the casters with `self.prog`; the first `n_sharp_layers` layers are drawn with
+        `sharp_vaos` instead (the casters at full detail, for the small lights' sharp shadows)."""
         gl, ctx = self.gl, self.gl.ctx
         gl.check_thread()
         lights_buffer.bind_to_storage_buffer(0)
@@ -73,8 +75,12 @@ class ShadowMaps:
                     ctx.enable(moderngl.BLEND)
                     ctx.blend_equation = moderngl.MIN
                     self.prog["u_first_light"].value = first
-                    for vao in vaos:
-                        vao.render(moderngl.TRIANGLES, instances=count)
+                    sharp = min(max(n_sharp_layers - first, 0), count)
+                    for offset, n, draw in ((0, sharp, sharp_vaos or vaos), (sharp, count - sharp, vaos)):
+                        if n > 0:
+                            self.prog["u_layer_offset"].value = offset
+                            for vao in draw:
+                                vao.render(moderngl.TRIANGLES, instances=n)
                     ctx.blend_equation = moderngl.FUNC_ADD
                     ctx.disable(moderngl.BLEND)
             with gl.stage(timer, "blur"):

@@ -3,13 +3,14 @@
 layout(local_size_x = 1) in;
 #include "common/lights.glsl"
 layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
-layout(std430, binding = 1) writeonly buffer Out { vec4 o[]; };   // 7 vec4 per light
+layout(std430, binding = 1) writeonly buffer Out { vec4 o[]; };   // 8 vec4 per light
 
 void main() {
     int i = int(gl_GlobalInvocationID.x);
     Light l = lights[i];
-    for (int c = 0; c < 4; ++c) o[7 * i + c] = l.view_proj[c];
-    o[7 * i + 4] = l.dir_scale;
-    o[7 * i + 5] = l.params;
-    o[7 * i + 6] = l.energy;
+    for (int c = 0; c < 4; ++c) o[8 * i + c] = l.view_proj[c];
+    o[8 * i + 4] = l.dir_scale;
+    o[8 * i + 5] = l.params;
+    o[8 * i + 6] = l.energy;
+    o[8 * i + 7] = l.shadow;
 }

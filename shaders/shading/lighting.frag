@@ -48,13 +48,16 @@ const float PI = 3.14159265358979;
 float linstep(float lo, float hi, float x) { return clamp((x - lo) / (hi - lo), 0.0, 1.0); }
 
 // Chebyshev's one-tailed inequality on the blurred depth moments (Donnelly & Lauritzen 2006).
-float visibility(int i, vec3 ws_pos) {
-    float layer = lights[i].params.y;
+float visibility(int i, vec3 ws_pos, vec3 n) {
+    float layer = lights[i].shadow.x;
     if (layer < 0.0) return 1.0;   // no shadow map: the PEM is added unshadowed
-    vec4 p = lights[i].view_proj * vec4(ws_pos, 1.0);
-    vec2 uv = p.xy * 0.5 + 0.5;
-    if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
-    vec2 m = texture(u_moments, vec3(uv, layer)).xy;
+    float k = lights[i].shadow.y;
+    // The normal offset is in the light's own texels (a tiled light's are k times smaller).
+    vec4 p = lights[i].view_proj * vec4(ws_pos + (u_normal_offset / k) * n, 1.0);
+    if (any(greaterThan(abs(p.xy), vec2(1.0)))) return 1.0;
+    vec2 tile;
+    vec2 uv = tile_of(p.xy, k, tile) / lights[i].shadow.z * 0.5 + 0.5;
+    vec2 m = texture(u_moments, vec3(uv, layer + tile.y * k + tile.x)).xy;
     // A receiver behind every caster (beyond the far plane, e.g. a floor that casts nothing) is compared
     // at the far plane: lit where no caster is, shadowed where one is.
     float t = min(p.z, 1.0);
@@ -142,7 +145,7 @@ float disc_share_above(int i, vec3 normal) {
     return clamp((dot(normal, lights[i].dir_scale.xyz) + sin_r) / (2.0 * sin_r), 0.0, 1.0);
 }
 
-void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 shadow_pos) {
+void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos) {
     float scale = lights[i].dir_scale.w;
     pem_d *= scale;
     pem_g *= scale;
@@ -151,7 +154,7 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 shadow_pos) {
     else g_diffuse += pem_d;
     g_glossy += pem_g;
 #elif MODE == 0
-    float vis = visibility(i, shadow_pos);
+    float vis = visibility(i, ws_pos, n);
     if (u_horizon) {
         // The tangent plane blocks light from below the surface. A shadow map cannot see this on
         // open cloth (the sheet itself is the first surface from a light behind it) and the PEM's
@@ -177,7 +180,7 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 shadow_pos) {
 #else
     // Ambient-occlusion baselines (paper Fig. 6): unshadowed lighting times an occlusion factor
     // that averages VIS_i with cosine weights, by solid angle (grey) or by energy (colour).
-    float vis = visibility(i, shadow_pos);
+    float vis = visibility(i, ws_pos, n);
     float cosine = max(dot(n, lights[i].dir_scale.xyz), 0.0);
     vec3 w = MODE == 2 ? vec3(lights[i].params.z) : lights[i].energy.rgb;
     g_ao_rgb += vis * cosine * w;
@@ -200,7 +203,6 @@ void main() {
     vec3 r = reflect(-to_eye, n);
     float specular = material.x;
     float level_g = gloss_level(material.y);
-    vec3 shadow_pos = ws_position + u_normal_offset * n;
 
 #if MODE == 4
     {
@@ -209,7 +211,7 @@ void main() {
         float s_phong = 1.0 / max(1.0 - material.y, 1e-4);   // Eq. 3, capped so g = 1 stays finite
         for (int i = 0; i < u_n_lights; ++i) {
             vec3 l = lights[i].dir_scale.xyz;
-            vec3 e = visibility(i, shadow_pos) * lights[i].energy.rgb;
+            vec3 e = visibility(i, ws_position, n) * lights[i].energy.rgb;
             g_diffuse += e * max(dot(n, l), 0.0) / PI;
             g_glossy += e * (s_phong + 1.0) / (2.0 * PI) * pow(max(dot(r, l), 0.0), s_phong);
         }
@@ -226,7 +228,7 @@ void main() {
             if (!sh_skip(i) && !exact_diffuse(i))
                 pem_d = textureLod(u_pem0, vec4(n, float(i)), u_diffuse_level).rgb;
             vec3 pem_g = glossy ? textureLod(u_pem0, vec4(r, float(i)), level_g).rgb : vec3(0.0);
-            add_light(i, pem_d, pem_g, n, shadow_pos);
+            add_light(i, pem_d, pem_g, n, ws_position);
         }
         for (int i = n0; i < u_n_lights; ++i) {
             float layer = float(i - REGIONS_PER_TEXTURE);
@@ -234,7 +236,7 @@ void main() {
             if (!sh_skip(i) && !exact_diffuse(i))
                 pem_d = textureLod(u_pem1, vec4(n, layer), u_diffuse_level).rgb;
             vec3 pem_g = glossy ? textureLod(u_pem1, vec4(r, layer), level_g).rgb : vec3(0.0);
-            add_light(i, pem_d, pem_g, n, shadow_pos);
+            add_light(i, pem_d, pem_g, n, ws_position);
         }
     }
 #ifndef DIFFUSE_LIGHTS
