@@ -62,7 +62,7 @@ class FrameSettings:
     width: int = 512
     height: int = 512
     shadow_size: int = 256
-    blur_scale: float = 0.1  # the quick benchmark: narrower blur is more accurate (docs/benchmarks.md)
+    blur_scale: float = 0.1  # the paper's per-light blur, narrowed; the presets use 0 (docs/benchmarks.md)
     bleed_reduction: float = 0.2
     min_variance: float = 1e-6
     normal_offset_texels: float = 1.5

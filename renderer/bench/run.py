@@ -47,10 +47,13 @@ SWEEPS = {
     "sh_unshadowed": DIM_LIGHTS,
     "caster_detail": [1.0, 0.5, 0.25, 0.1],
     "small_light_tiles": [1, 2, 4],
+    # The other default presets, measured as a whole beside balanced.
+    "preset": [DEFAULT_PRESETS["fast"], DEFAULT_PRESETS["accurate"]],
 }
 QUICK_SWEEPS = {**SWEEPS, "lights": [6, 24, 48, 96], "face_size": [64, 128], "shadow_size": [128, 256],
                 "blur_scale": [0.0, 0.1, 1.0], "filter": ["none", "sqrt-cosine"], "shadow_threshold": [0.01],
                 "caster_detail": [1.0], "small_light_tiles": [1, 2]}
+QUICK_SWEEPS["preset"] = SWEEPS["preset"]
 BASELINE_MODES = [ShadingMode.NO_OCCLUSION, ShadingMode.MANY_LIGHTS, ShadingMode.AO_GREY, ShadingMode.AO_COLOUR]
 
 
@@ -102,6 +105,7 @@ def _settings_list(sweeps: dict) -> list[tuple[str, object, dict]]:
             if s == BALANCED:
                 continue
             label = ", ".join(f"{k}={x}" for k, x in v.items()) if isinstance(v, dict) else v
+            label = next((name for name, p in DEFAULT_PRESETS.items() if knob == "preset" and p == v), label)
             out.append((knob, label, s))
     return out
 
