@@ -74,7 +74,7 @@ class FrameSettings:
     # the footprint per axis (k times the texels per axis), drawn at full caster detail: their shadows
     # are sharp. 1: one layer like every other light.
     small_light_tiles: int = 1
-    horizon: bool = False          # VIS_i includes the tangent plane (see surface.frag); off: the paper
+    horizon: bool = False          # VIS_i includes the tangent plane (see lighting.frag); off: the paper
     # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level),
     # "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups) or
     # "mixed" (small lights, angular radius <= ~6 degrees, from their disc; the rest from the PEMs).
@@ -84,7 +84,7 @@ class FrameSettings:
     # share of its disc above the triangle's own plane; the default) or "both" (they overlap).
     glossy_horizon: str = "lights"
     # Full mode: small lights (angular radius <= ~6 degrees) below the triangle's own plane are removed
-    # from the diffuse term too: the terminator a shadow map cannot resolve (surface.frag).
+    # from the diffuse term too: the terminator a shadow map cannot resolve (lighting.frag).
     terminator: bool = True
     # Full mode: the diffuse term of the lights that get no shadow map (below shadow_threshold) from
     # their summed SH9 irradiance (lighting/sh.py) instead of one PEM lookup each.
@@ -190,9 +190,12 @@ class Renderer:
         return PEMSet(self.gl, cube, settings, timer)
 
     def create_scene(self, meshes: list[Mesh], materials: list[Material] | None = None,
-                     casters: list[bool] | None = None) -> Scene:
+                     casters: list[bool] | None = None,
+                     proxies: dict[float, list[np.ndarray | None]] | None = None) -> Scene:
+        """`proxies`: caster proxies (shadows/proxy.py) made in advance off the GL thread, per detail
+        one face array per mesh (None: made on first use); a 4M-triangle mesh takes seconds."""
         materials = materials or [Material() for _ in meshes]
-        return Scene(self.gl, meshes, materials, self._programs, casters)
+        return Scene(self.gl, meshes, materials, self._programs, casters, proxies)
 
     def _shadow_maps_for(self, size: int, n_lights: int):
         sm = self._shadow_maps
@@ -259,7 +262,8 @@ class Renderer:
         sigma = blur_sigma_texels(regions.light_radius_rad(), settings.shadow_size * plan.tiles, settings.blur_scale)
         # Square texels: the blur's sigma is in texels, the same on both axes, so rectangular texels
         # would make penumbrae anisotropic (a side run fitting x and y separately gained 0-2.5 %).
-        vp = np.stack([fit_light_view_proj(regions.directions[i], lo, hi, sigma[i], settings.shadow_size)
+        # (the border for the blur's reach is in the whole map's texels: a tiled light's sigma / k)
+        vp = np.stack([fit_light_view_proj(regions.directions[i], lo, hi, sigma[i] / plan.tiles[i], settings.shadow_size)
                        for i in range(n)])
         n_shadowed = int((layers >= 0).sum())
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
@@ -354,7 +358,10 @@ class Renderer:
         timings["shadowed_lights"] = n_shadowed
         timings["shadow_layers"] = plan.n_layers if n_shadowed else 0
         timings["n_triangles"] = scene.n_triangles
-        timings["shadow_triangles"] = (sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster)
+        # Triangles the shadow pass drew: the small lights' layers at full detail, the others' at caster_detail.
+        full = sum(sm.shadow_triangles(1.0) for sm in scene.meshes if sm.caster)
+        coarse = sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster)
+        timings["shadow_triangles"] = (plan.n_sharp_layers * full + (plan.n_layers - plan.n_sharp_layers) * coarse
                                        if n_shadowed else 0)
         timings["device"] = gl.renderer_name
         info = {"frame": settings.as_dict(), "pems": pems.summary(),

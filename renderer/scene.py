@@ -17,7 +17,8 @@ from .shadows.proxy import caster_proxy
 class SceneMesh:
     """One mesh's buffers, vertex arrays and material textures; owned by its `Scene`."""
 
-    def __init__(self, gl: GLContext, mesh: Mesh, material: Material, programs: dict, caster: bool):
+    def __init__(self, gl: GLContext, mesh: Mesh, material: Material, programs: dict, caster: bool,
+                 proxy_faces: dict[float, np.ndarray] | None = None):
         ctx = gl.ctx
         self.mesh, self.material, self.caster = mesh, material, caster
         self.n_vertices = mesh.positions.shape[0]
@@ -26,6 +27,13 @@ class SceneMesh:
         if (albedo_map is not None or gloss_map is not None) and mesh.uvs is None:
             raise MeshError(f"mesh {mesh.name!r} has material maps but no UVs")
         uvs = mesh.uvs if mesh.uvs is not None else np.zeros((self.n_vertices, 2), np.float32)
+        # Checked before any GL object exists, so that a refused proxy leaks nothing.
+        self._proxy_faces = {}
+        for detail, faces in (proxy_faces or {}).items():
+            faces = np.asarray(faces)
+            if faces.ndim != 2 or faces.shape[1] != 3 or (len(faces) and (faces.min() < 0 or faces.max() >= self.n_vertices)):
+                raise MeshError(f"mesh {mesh.name!r}: a caster proxy must be (M, 3) indices of its {self.n_vertices} vertices")
+            self._proxy_faces[float(detail)] = np.ascontiguousarray(faces, np.int32)
         self.positions = mesh.positions
         normals = vertex_normals(mesh.positions, mesh.faces)
         self.vbo_pos = ctx.buffer(np.ascontiguousarray(mesh.positions, np.float32).tobytes(), dynamic=True)
@@ -41,7 +49,8 @@ class SceneMesh:
         self._ctx, self._moments_prog = ctx, programs["moments"]
         self.vao_shadow = ctx.vertex_array(programs["moments"], [(self.vbo_pos, "3f", "in_position")],
                                            index_buffer=self.ibo, index_element_size=4)
-        # Coarser casters for the shadow pass (shadows/proxy.py), made on first use per detail.
+        # Coarser casters for the shadow pass (shadows/proxy.py): given (made off the GL thread by a
+        # caller that knows the detail it will use), else made on first use per detail.
         self._proxies: dict[float, tuple[moderngl.Buffer, moderngl.VertexArray, int]] = {}
         self.vao_gbuffer = ctx.vertex_array(programs["gbuffer"], [
             (self.vbo_pos, "3f", "in_position"), (self.vbo_nrm, "3f", "in_normal"),
@@ -54,7 +63,9 @@ class SceneMesh:
         if detail >= 1.0:
             return self.vao_shadow
         if detail not in self._proxies:
-            faces = caster_proxy(self.mesh.positions, self.mesh.faces, detail)
+            faces = self._proxy_faces.pop(detail, None)
+            if faces is None:
+                faces = caster_proxy(self.mesh.positions, self.mesh.faces, detail)
             ibo = self._ctx.buffer(faces.tobytes())
             vao = self._ctx.vertex_array(self._moments_prog, [(self.vbo_pos, "3f", "in_position")],
                                          index_buffer=ibo, index_element_size=4)
@@ -101,8 +112,9 @@ class Scene:
     """Meshes of one scene (garment plus body, ...) with their materials, resident on the GPU."""
 
     def __init__(self, gl: GLContext, meshes: list[Mesh], materials: list[Material], programs: dict,
-                 casters: list[bool] | None = None):
-        """`programs`: the renderer's "moments" and "gbuffer" programs (owned by the renderer)."""
+                 casters: list[bool] | None = None, proxies: dict[float, list[np.ndarray | None]] | None = None):
+        """`programs`: the renderer's "moments" and "gbuffer" programs (owned by the renderer);
+        `proxies`: caster proxies made in advance, {detail: faces per mesh (None: make on use)}."""
         gl.check_thread()
         if not meshes:
             raise MeshError("a scene needs at least one mesh")
@@ -112,8 +124,13 @@ class Scene:
         self.gl = gl
         self.meshes: list[SceneMesh] = []
         try:
-            for m, mat, c in zip(meshes, materials, casters):
-                self.meshes.append(SceneMesh(gl, m, mat, programs, c))
+            for detail, faces in (proxies or {}).items():
+                if len(faces) != len(meshes):
+                    raise MeshError(f"caster proxies at detail {detail}: got {len(faces)} face arrays for "
+                                    f"{len(meshes)} meshes")
+            for k, (m, mat, c) in enumerate(zip(meshes, materials, casters)):
+                given = {d: faces[k] for d, faces in (proxies or {}).items() if faces[k] is not None}
+                self.meshes.append(SceneMesh(gl, m, mat, programs, c, given))
         except Exception:
             self.release()
             raise

@@ -161,7 +161,8 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
     def job(gl: GLResources) -> None:
         pems, source = gl.pem_set(env.content_hash, cube, pem)
         env.note_pem_set(key, q.face_size, pem, pems, source)
-        record.gpu = gl.renderer.create_scene(prepared.meshes, prepared.materials, casters=prepared.casters)
+        record.gpu = gl.renderer.create_scene(prepared.meshes, prepared.materials, casters=prepared.casters,
+                                              proxies=prepared.proxies)
         svc.scenes.add(record)  # here, so a scene made just before a request timeout is still listed (and freed)
 
     await svc.worker.call(job)
@@ -173,7 +174,8 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
             if spec.mesh_id is not None:
                 inline[role] = MeshSpec(name=mesh.name, positions=_to_scene_up(mesh.positions, body.up),
                                         faces=mesh.faces.tolist(),
-                                        uvs=None if mesh.uvs is None else mesh.uvs.tolist(), material=spec.material)
+                                        uvs=None if mesh.uvs is None else mesh.uvs.tolist(), material=spec.material,
+                                        cast_shadows=spec.cast_shadows)
         stored = body.model_copy(update=inline)
         # Only what the request named: a restored scene resolves its preset again, and a knob it
         # left to the preset must stay the preset's (a full dump would pin every schema default).

@@ -17,6 +17,7 @@ from renderer.mesh import Mesh, z_up_to_y_up
 from renderer.presets import knob_defaults
 from renderer.renderer import Background, FrameSettings, ShadingMode
 from renderer.shading.material import Material
+from renderer.shadows.proxy import caster_proxy
 
 from .errors import InvalidRequestError, PayloadTooLargeError
 from .registry import MeshStore
@@ -155,6 +156,7 @@ class PreparedScene:
     camera: Camera
     quality: Quality
     casters: list[bool]
+    proxies: dict | None = None   # the casters' shadow proxies at the quality's detail, made here (off the GL thread)
 
 
 def prepare_scene(body: SceneCreate, presets: dict, meshes: MeshStore, settings: ServiceSettings) -> PreparedScene:
@@ -167,4 +169,7 @@ def prepare_scene(body: SceneCreate, presets: dict, meshes: MeshStore, settings:
     if not any(casters):
         raise InvalidRequestError("cast_shadows is false on every mesh, so nothing would cast a shadow: set "
                                   "cast_shadows: true on the garment (a floor alone may be false)")
-    return PreparedScene(built, [r for r, _ in specs], materials, camera, quality, casters)
+    detail = quality.frame.caster_detail
+    proxies = ({detail: [caster_proxy(m.positions, m.faces, detail) if c else None for m, c in zip(built, casters)]}
+               if detail < 1.0 else None)
+    return PreparedScene(built, [r for r, _ in specs], materials, camera, quality, casters, proxies)

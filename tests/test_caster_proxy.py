@@ -74,3 +74,20 @@ def test_a_proxy_casts_the_full_meshs_shadow_and_follows_it(renderer):
     # The proxy indexes the same vertex buffer: moving the mesh moves its shadow, as with full detail.
     assert np.abs(lum(moved) - lum(moved_full)).sum() / lum(moved_full).sum() < 0.03
     assert np.abs(lum(moved) - lum(coarse)).sum() / lum(coarse).sum() > 0.05
+
+
+def test_proxies_made_in_advance_are_used_and_checked(renderer):
+    from renderer.errors import MeshError
+
+    ball = sphere(0.4, subdivisions=3)
+    faces = caster_proxy(ball.positions, ball.faces, 0.5)
+    pems = renderer.build_pems(sun_sky_cube(16, (0, 1, 0)), PEMSettings(6))
+    with pytest.raises(MeshError, match="caster proxy"):
+        renderer.create_scene([ball], [Material()], proxies={0.5: [faces + len(ball.positions)]})
+    scene = renderer.create_scene([ball], [Material()], proxies={0.5: [faces]})
+    try:
+        f = renderer.render(scene, pems, FrameSettings(16, 16, caster_detail=0.5), Camera((0, 0, 3), (0, 0, 0)))
+        assert f.timings["shadow_triangles"] == f.timings["shadow_layers"] * len(faces) > 0
+    finally:
+        scene.release()
+        pems.release()

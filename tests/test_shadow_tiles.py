@@ -25,7 +25,8 @@ def test_small_lights_come_first_with_k_squared_layers():
     assert list(plan.layer_light) == [1] * 9 + [4] * 9 + [0, 3]
     flat = plan_layers(layers, small, 1)
     assert list(flat.first_layer) == [0, 1, -1, 2, 3] and flat.n_sharp_layers == 0 and flat.n_layers == 4
-    assert list(tile_margin_scale(np.array([0.0, 1.0]), np.array([1, 2]), 100)) == [1.0, 1.0 + 2 * 5 / 100]
+    # size 100, margin ceil(3) + 2 = 5 texels a side: the tile itself has 90 texels.
+    assert list(tile_margin_scale(np.array([0.0, 1.0]), np.array([1, 2]), 100)) == [1.0, 100 / 90]
 
 
 def test_tiles_must_be_a_small_whole_number():

@@ -22,7 +22,7 @@ A_BAND = np.array([np.pi, 2.0 * np.pi / 3.0, 2.0 * np.pi / 3.0, 2.0 * np.pi / 3.
 
 def sh_basis(d: np.ndarray) -> np.ndarray:
     """Real SH basis Y_lm of unit directions d (..., 3) -> (..., 9), order (0,0), (1,-1), (1,0), (1,1),
-    (2,-2), (2,-1), (2,0), (2,1), (2,2); shaders/shading/surface.frag evaluates the same."""
+    (2,-2), (2,-1), (2,0), (2,1), (2,2); shaders/shading/lighting.frag evaluates the same."""
     x, y, z = d[..., 0], d[..., 1], d[..., 2]
     return np.stack([
         np.full_like(x, 0.282095),

@@ -1,4 +1,4 @@
-"""Monte Carlo ground truth: the renderer's lighting model (shaders/shading/surface.frag, paper Eq. 5)
+"""Monte Carlo ground truth: the renderer's lighting model (shaders/shading/lighting.frag, paper Eq. 5)
 without its approximations (no median cut, no PEM prefiltering, no lobe calibration, no variance
 shadow maps), by ray casting with embree. Every accuracy number of the project is measured against it.
 
@@ -237,7 +237,7 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
     x = bary[:, 0:1] * p0 + bary[:, 1:2] * p1 + bary[:, 2:3] * p2
     n_geom = _normalize(np.cross(e1, e2), fallback=None)
     n = _normalize(mix(scene.normals), fallback=n_geom)
-    n = np.where(_dot(n, -dirs)[:, None] < 0.0, -n, n)  # two-sided, as in surface.frag
+    n = np.where(_dot(n, -dirs)[:, None] < 0.0, -n, n)  # two-sided, as in gbuffer.frag
     r = dirs - 2.0 * _dot(dirs, n)[:, None] * n
 
     albedo = mix(scene.albedo)

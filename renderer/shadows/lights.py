@@ -80,10 +80,11 @@ def plan_layers(layers: np.ndarray, small: np.ndarray, small_tiles: int) -> Laye
 
 def tile_margin_scale(sigma_texels: np.ndarray, tiles: np.ndarray, shadow_size: int) -> np.ndarray:
     """Per light, how much each tile's footprint is widened around its k-th of the map, so that the
-    blur and the bilinear lookup never need texels of the neighbouring tile: (1 + 2 m / size) with a
-    margin of m = ceil(3 sigma) + 2 texels; 1 for untiled lights."""
-    m = np.ceil(3.0 * np.asarray(sigma_texels)) + 2.0
-    return np.where(np.asarray(tiles) > 1, 1.0 + 2.0 * m / shadow_size, 1.0)
+    blur and the bilinear lookup never need texels of the neighbouring tile: a margin of
+    m = ceil(3 sigma) + 2 texels on each side of the size - 2m texels that hold the tile itself, so
+    the scale is size / (size - 2m) (m at most a quarter of the size); 1 for untiled lights."""
+    m = np.minimum(np.ceil(3.0 * np.asarray(sigma_texels, np.float64)) + 2.0, shadow_size / 4.0)
+    return np.where(np.asarray(tiles) > 1, shadow_size / (shadow_size - 2.0 * m), 1.0)
 
 
 def light_basis(direction: np.ndarray) -> np.ndarray:

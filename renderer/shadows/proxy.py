@@ -10,9 +10,15 @@ buffer is new. What it costs in accuracy is measured by the benchmark (`caster_d
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from ..errors import InvalidInputError
+
+# fast_simplification keeps the mesh being simplified in global state across its load / simplify /
+# read-back calls: one simplification at a time per process.
+_LOCK = threading.Lock()
 
 
 def caster_proxy(positions: np.ndarray, faces: np.ndarray, keep: float) -> np.ndarray:
@@ -28,18 +34,21 @@ def caster_proxy(positions: np.ndarray, faces: np.ndarray, keep: float) -> np.nd
     import fast_simplification
 
     # Fresh writable copies: the extension rejects read-only arrays (a Mesh's are).
-    _, _, collapses = fast_simplification.simplify(np.array(positions, np.float64), np.array(faces, np.int32),
-                                                   target_count=max(target, 4), return_collapses=True)
+    with _LOCK:
+        _, _, collapses = fast_simplification.simplify(np.array(positions, np.float64), np.array(faces, np.int32),
+                                                       target_count=max(target, 4), return_collapses=True)
     survivor = np.arange(len(positions), dtype=np.int64)
     # collapses[k] = (a, b): vertex b merged into a. Later collapses can merge a survivor again, so
     # follow the chains to their end (pointer jumping: log2 of the longest chain rounds).
     if len(collapses):
         survivor[collapses[:, 1]] = collapses[:, 0]
-        while True:
+        for _ in range(64):   # 2^64 collapses deep: more than any mesh has
             nxt = survivor[survivor]
             if np.array_equal(nxt, survivor):
                 break
             survivor = nxt
+        else:
+            raise InvalidInputError("caster proxy: the simplification's collapse history has a cycle")
     f = survivor[faces]
     ok = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
     f = f[ok]

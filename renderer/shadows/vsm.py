@@ -1,10 +1,11 @@
 """Variance shadow maps, one per light, re-rendered every frame (Knuth et al. 2014, sec. 4).
 
-Moments (z, z^2) are 32-bit floats in a 2D texture array (layer = light). All lights are drawn in
-batches of instanced draws (instance = light, gl_Layer from the vertex shader); the nearest surface
-is kept by MIN blending. A separable Gaussian blur whose width follows each region's angular size
-then softens them. The arrays are allocated once per (size, light count) and reused frame after
-frame.
+Moments (z, z^2) are 32-bit floats in a 2D texture array: one layer per light, or k x k for a small
+light drawn in tiles (shadows/lights.py, plan_layers; shadow_lights[layer] is the layer's light). All
+layers are drawn in batches of instanced draws (instance = layer, gl_Layer from the vertex shader);
+the nearest surface is kept by MIN blending. A separable Gaussian blur whose width follows each
+region's angular size then softens them. The arrays are allocated once per (size, layer count) and
+reused frame after frame.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from ..gpu.context import GLContext, StageTimer
 from ..gpu.shaders import compute_shader
 from .lights import MAX_BLUR_RADIUS
 
-# Lights per instanced draw: bounds the layered framebuffer (GL_MAX_FRAMEBUFFER_LAYERS >= 2048).
+# Layers per instanced draw: bounds the layered framebuffer (GL_MAX_FRAMEBUFFER_LAYERS >= 2048).
 LAYERS_PER_BATCH = 64
 
 
