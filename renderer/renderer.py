@@ -26,7 +26,7 @@ from .mesh import Mesh
 from .scene import Scene
 from .shading.horizon import N_G as HORIZON_N_G, N_MU as HORIZON_N_MU, horizon_table
 from .shading.material import Material
-from .shadows.lights import (SMALL_LIGHT_MAX_SIN, blur_sigma_texels, fit_light_view_proj, pack_lights, plan_layers,
+from .shadows.lights import (SMALL_LIGHT_MAX_SIN, blur_sigma_texels, fit_light_view_projs, pack_lights, plan_layers,
                              shadow_layers, tile_margin_scale)
 from .shadows.vsm import ShadowMaps
 
@@ -263,8 +263,7 @@ class Renderer:
         # Square texels: the blur's sigma is in texels, the same on both axes, so rectangular texels
         # would make penumbrae anisotropic (a side run fitting x and y separately gained 0-2.5 %).
         # (the border for the blur's reach is in the whole map's texels: a tiled light's sigma / k)
-        vp = np.stack([fit_light_view_proj(regions.directions[i], lo, hi, sigma[i] / plan.tiles[i], settings.shadow_size)
-                       for i in range(n)])
+        vp = fit_light_view_projs(regions.directions, lo, hi, sigma / plan.tiles, settings.shadow_size)
         n_shadowed = int((layers >= 0).sum())
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
                              sigma, plan.first_layer, regions.disc_radius_rad(), plan.tiles,

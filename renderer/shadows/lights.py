@@ -88,14 +88,15 @@ def tile_margin_scale(sigma_texels: np.ndarray, tiles: np.ndarray, shadow_size: 
 
 
 def light_basis(direction: np.ndarray) -> np.ndarray:
-    """Rows: right, up, forward (= -direction) of a light looking at the scene. (3, 3) float64."""
+    """Rows: right, up, forward (= -direction) of a light looking at the scene. (3, 3) float64, or
+    (N, 3, 3) for directions (N, 3)."""
     f = -np.asarray(direction, np.float64)
-    f /= np.linalg.norm(f)
-    hint = np.array([0.0, 1.0, 0.0]) if abs(f[1]) < 0.99 else np.array([1.0, 0.0, 0.0])
+    f = f / np.linalg.norm(f, axis=-1, keepdims=True)
+    hint = np.where((np.abs(f[..., 1]) < 0.99)[..., None], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0])
     right = np.cross(f, hint)
-    right /= np.linalg.norm(right)
+    right /= np.linalg.norm(right, axis=-1, keepdims=True)
     up = np.cross(right, f)
-    return np.stack([right, up, f])
+    return np.stack([right, up, f], axis=-2)
 
 
 def blur_sigma_texels(angular_radius_rad: np.ndarray, shadow_size: int, blur_scale: float) -> np.ndarray:
@@ -110,29 +111,36 @@ def fit_light_view_proj(direction: np.ndarray, lo: np.ndarray, hi: np.ndarray, s
     z in [0, 1] from its nearest to its farthest corner (GL clip space with w = 1). `square=False` fits
     x and y separately (rectangular texels; the renderer keeps them square so that the blur, in texels,
     stays isotropic)."""
-    basis = light_basis(direction)
+    return fit_light_view_projs(np.asarray(direction, np.float64)[None], lo, hi, np.array([sigma_texels]),
+                                shadow_size, square)[0]
+
+
+def fit_light_view_projs(directions: np.ndarray, lo: np.ndarray, hi: np.ndarray, sigma_texels: np.ndarray,
+                         shadow_size: int, square: bool = True) -> np.ndarray:
+    """`fit_light_view_proj` for N lights at once: (N, 4, 4) (the per-frame fit of every light)."""
+    basis = light_basis(directions)                                        # (N, 3, 3)
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    ls = corners @ basis.T
-    cmin, cmax = ls.min(axis=0), ls.max(axis=0)
+    ls = np.einsum("cj,nij->nci", corners, basis)                          # (N, 8, 3)
+    cmin, cmax = ls.min(axis=1), ls.max(axis=1)
     centre = 0.5 * (cmin + cmax)
-    tiny = max(1e-12 * max(1.0, float(np.abs(centre).max())), 1e-30)
-    half_xy = 0.5 * (cmax[:2] - cmin[:2])
+    tiny = np.maximum(1e-12 * np.maximum(1.0, np.abs(centre).max(axis=1)), 1e-30)
+    half_xy = 0.5 * (cmax[:, :2] - cmin[:, :2])
     if square:
-        half_xy[:] = half_xy.max()
-    half_xy = np.maximum(half_xy, max(tiny, 1e-6 * float(half_xy.max())))
+        half_xy = np.repeat(half_xy.max(axis=1, keepdims=True), 2, axis=1)
+    half_xy = np.maximum(half_xy, np.maximum(tiny, 1e-6 * half_xy.max(axis=1))[:, None])
     # Widen by the blur's reach (3 sigma texels) plus one texel for rasterization at the border.
-    half_xy = half_xy * (1.0 + 2.0 * (3.0 * sigma_texels + 1.0) / shadow_size)
-    depth = max(cmax[2] - cmin[2], 1e-30)
-    z0 = cmin[2] - 0.01 * depth
+    half_xy = half_xy * (1.0 + 2.0 * (3.0 * np.asarray(sigma_texels, np.float64)[:, None] + 1.0) / shadow_size)
+    depth = np.maximum(cmax[:, 2] - cmin[:, 2], 1e-30)
+    z0 = cmin[:, 2] - 0.01 * depth
     z_range = 1.02 * depth
-    m = np.zeros((4, 4))
-    m[0, :3] = basis[0] / half_xy[0]
-    m[0, 3] = -centre[0] / half_xy[0]
-    m[1, :3] = basis[1] / half_xy[1]
-    m[1, 3] = -centre[1] / half_xy[1]
-    m[2, :3] = basis[2] / z_range
-    m[2, 3] = -z0 / z_range
-    m[3, 3] = 1.0
+    m = np.zeros((len(basis), 4, 4))
+    m[:, 0, :3] = basis[:, 0] / half_xy[:, :1]
+    m[:, 0, 3] = -centre[:, 0] / half_xy[:, 0]
+    m[:, 1, :3] = basis[:, 1] / half_xy[:, 1:]
+    m[:, 1, 3] = -centre[:, 1] / half_xy[:, 1]
+    m[:, 2, :3] = basis[:, 2] / z_range[:, None]
+    m[:, 2, 3] = -z0 / z_range
+    m[:, 3, 3] = 1.0
     return m
 
 
