@@ -17,7 +17,7 @@ from renderer.mesh import Mesh, z_up_to_y_up
 from renderer.presets import knob_defaults
 from renderer.renderer import Background, FrameSettings, ShadingMode
 from renderer.shading.material import Material
-from renderer.shadows.proxy import caster_proxy
+from renderer.shadows.proxy import caster_proxy_isolated
 
 from .errors import InvalidRequestError, PayloadTooLargeError
 from .registry import MeshStore
@@ -170,6 +170,7 @@ def prepare_scene(body: SceneCreate, presets: dict, meshes: MeshStore, settings:
         raise InvalidRequestError("cast_shadows is false on every mesh, so nothing would cast a shadow: set "
                                   "cast_shadows: true on the garment (a floor alone may be false)")
     detail = quality.frame.caster_detail
-    proxies = ({detail: [caster_proxy(m.positions, m.faces, detail) if c else None for m, c in zip(built, casters)]}
+    proxies = ({detail: [caster_proxy_isolated(m.positions, m.faces, detail) if c else None
+                         for m, c in zip(built, casters)]}
                if detail < 1.0 else None)
     return PreparedScene(built, [r for r, _ in specs], materials, camera, quality, casters, proxies)

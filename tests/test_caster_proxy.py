@@ -91,3 +91,14 @@ def test_proxies_made_in_advance_are_used_and_checked(renderer):
     finally:
         scene.release()
         pems.release()
+
+
+def test_a_large_proxy_is_made_in_a_child_process_with_the_same_result(monkeypatch):
+    from renderer.shadows import proxy
+
+    m = sphere(1.0, subdivisions=3)
+    here = caster_proxy(m.positions, m.faces, 0.25)
+    monkeypatch.setattr(proxy, "ISOLATE_ABOVE", 100)   # this mesh counts as large
+    monkeypatch.setattr(proxy, "caster_proxy", lambda *a: pytest.fail("ran in this process"))
+    # The child process imports the module afresh: it runs the real caster_proxy.
+    assert np.array_equal(proxy.caster_proxy_isolated(m.positions, m.faces, 0.25), here)
