@@ -72,3 +72,42 @@ def test_an_empty_token_setting_means_no_token(monkeypatch):
     assert ServiceSettings().token is None
     monkeypatch.setenv("GARMENT_RENDER_TOKEN", "s3cret")
     assert ServiceSettings().token.get_secret_value() == "s3cret"
+
+
+def test_a_restored_scene_keeps_an_uploaded_floor_that_casts_nothing(tmp_path):
+    import trimesh
+
+    data, name = environment_bytes(tmp_path)
+    mesh = garment(16)
+    lo, hi = np.asarray(mesh.positions).min(axis=0), np.asarray(mesh.positions).max(axis=0)
+    span, c, y = 3.0 * float((hi - lo).max()), 0.5 * (lo + hi), float(lo[1]) - 0.05
+    floor = np.array([[c[0] - span, y, c[2] - span], [c[0] + span, y, c[2] - span],
+                      [c[0] + span, y, c[2] + span], [c[0] - span, y, c[2] + span]])
+    path = tmp_path / "floor.ply"
+    trimesh.Trimesh(floor, [[0, 2, 1], [0, 3, 2]], process=False).export(path)
+    settings = {"state_dir": tmp_path / "state", "pem_cache_dir": tmp_path / "cache"}
+    frame = np.asarray(mesh.positions).astype("<f4").tobytes()
+    first = ServiceProcess(tmp_path, **settings)
+    try:
+        env = httpx.post(first.url + "/environments", content=data, headers=OCTET,
+                         params={"name": name, "lights": 12, "face_size": 32}, timeout=60).json()
+        floor_id = httpx.post(first.url + "/meshes", content=path.read_bytes(), headers=OCTET,
+                              params={"format": "ply"}, timeout=60).json()["id"]
+        body = scene_body(env["id"], mesh, body={"mesh_id": floor_id, "cast_shadows": False})
+        scene = httpx.post(first.url + "/scenes", json=body, timeout=60)
+        assert scene.status_code == 201, scene.text
+        sid = scene.json()["id"]
+        before = httpx.post(f"{first.url}/scenes/{sid}/frames", content=frame, headers=OCTET,
+                            params={"format": "exr"}, timeout=60)
+        assert before.status_code == 200, before.text
+    finally:
+        first.stop()
+    second = ServiceProcess(tmp_path, **settings)   # the uploaded floor is not in this process's memory
+    try:
+        after = httpx.post(f"{second.url}/scenes/{sid}/frames", content=frame, headers=OCTET,
+                           params={"format": "exr"}, timeout=60)
+        assert after.status_code == 200, after.text
+        # A floor that cast shadows would change the shadow maps' fit, and the picture.
+        assert after.content == before.content
+    finally:
+        second.stop()
