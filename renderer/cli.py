@@ -76,9 +76,9 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--caster-detail", type=float,
                    help="share of the casters' triangles the shadow maps draw, in (0, 1] (a proxy with the same "
                         "vertices; 1: the meshes themselves)")
-    q.add_argument("--small-light-tiles", type=int,
-                   help="small lights (a sun, under ~6 degrees) get K x K shadow-map layers: K times the texels "
-                        "per axis, at full caster detail (default 1)")
+    q.add_argument("--small-light-scale", type=int,
+                   help="small lights (a sun, under ~6 degrees) get shadow maps K times --shadow-size per side, "
+                        "at full caster detail (default 1)")
     q.add_argument("--sh-unshadowed", action=argparse.BooleanOptionalAction,
                    help="the diffuse term of the unshadowed lights from SH9 irradiance (one lookup less per light)")
     q.add_argument("--glossy-horizon", choices=["off", "lobe", "lights", "both"],
@@ -143,7 +143,7 @@ def frame_settings(args, q: dict):
                          bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
                          calibration=args.calibration, diffuse=args.diffuse, glossy_horizon=args.glossy_horizon,
                          shadow_threshold=args.shadow_threshold, sh_unshadowed=args.sh_unshadowed,
-                         caster_detail=args.caster_detail, small_light_tiles=args.small_light_tiles,
+                         caster_detail=args.caster_detail, small_light_scale=args.small_light_scale,
                          terminator=args.terminator, horizon=args.horizon, background=Background(args.background))
 
 

@@ -14,19 +14,21 @@ def knob_defaults() -> dict:
     return {"calibration": f.calibration.value, "diffuse": f.diffuse, "glossy_horizon": f.glossy_horizon,
             "terminator": f.terminator, "horizon": f.horizon, "shadow_threshold": f.shadow_threshold,
             "sh_unshadowed": f.sh_unshadowed, "needed_levels": True,
-            "caster_detail": f.caster_detail, "small_light_tiles": f.small_light_tiles}
+            "caster_detail": f.caster_detail, "small_light_scale": f.small_light_scale}
 
 
-# A preset may also set any knob of knob_defaults() (its value wins over the default). Blur 0: in the
-# benchmark run of docs/benchmarks.md the paper's blur made no scene more accurate at 48 lights (the
-# lights' many hard shadows already add up to soft ones) and cost 6-26 ms a frame. Caster detail: the
-# proxies cost 0-4 % of error at 0.25 and save half the frame. Lights, PEM faces beyond 48 and 128:
-# under 6 % less error for twice the time; the accurate preset spends it on shadow maps instead.
+# A preset may also set any knob of knob_defaults() (its value wins over the default), chosen from the
+# benchmark (docs/benchmarks.md). Blur 0: the paper's blur made no scene more accurate at 48 lights
+# (the lights' many hard shadows already add up to soft ones) and cost 6-26 ms a frame. Caster detail
+# 0.25: 0-4 % more error for half the shadow pass. Small lights' maps at twice the size: the sun's
+# shadow edges are the largest error left in sunlit scenes. Lights and PEM faces beyond 48 and 128:
+# under 4 % less error for twice the time; the accurate preset spends it on shadow maps instead.
 DEFAULT_PRESETS = {
     "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 0.0, "caster_detail": 0.1},
-    "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.0, "caster_detail": 0.25},
+    "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.0, "caster_detail": 0.25,
+                 "small_light_scale": 2},
     "accurate": {"lights": 48, "face_size": 128, "shadow_size": 512, "blur_scale": 0.0, "caster_detail": 1.0,
-                 "small_light_tiles": 2},
+                 "small_light_scale": 2},
 }
 
 

@@ -27,7 +27,7 @@ from .scene import Scene
 from .shading.horizon import N_G as HORIZON_N_G, N_MU as HORIZON_N_MU, horizon_table
 from .shading.material import Material
 from .shadows.lights import (SMALL_LIGHT_MAX_SIN, blur_sigma_texels, fit_light_view_projs, pack_lights, plan_layers,
-                             shadow_layers, tile_margin_scale)
+                             shadow_layers)
 from .shadows.vsm import ShadowMaps
 
 
@@ -70,10 +70,10 @@ class FrameSettings:
     # Share of the casters' triangles the shadow pass draws (shadows/proxy.py; 1: the meshes
     # themselves): the pass costs per triangle on a CPU rasterizer.
     caster_detail: float = 1.0
-    # Small lights (a sun; angular radius <= ~6 degrees) get k x k shadow-map layers, each a k-th of
-    # the footprint per axis (k times the texels per axis), drawn at full caster detail: their shadows
-    # are sharp. 1: one layer like every other light.
-    small_light_tiles: int = 1
+    # Small lights (a sun; angular radius <= ~6 degrees) get shadow maps k times shadow_size per side,
+    # in an array of their own, drawn at full caster detail: their shadows are sharp. 1: the same maps
+    # as every other light.
+    small_light_scale: int = 1
     horizon: bool = False          # VIS_i includes the tangent plane (see lighting.frag); off: the paper
     # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level),
     # "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups) or
@@ -100,9 +100,12 @@ class FrameSettings:
             raise InvalidInputError(f"image size must be within 1..8192 per side, got {self.width}x{self.height}")
         if not (0.0 <= self.bleed_reduction < 1.0):
             raise InvalidInputError(f"bleed reduction must be in [0, 1), got {self.bleed_reduction}")
-        if not (isinstance(self.small_light_tiles, (int, np.integer)) and 1 <= self.small_light_tiles <= 8):
-            raise InvalidInputError(f"small_light_tiles is a whole number of tiles per side in 1..8, "
-                                    f"got {self.small_light_tiles!r}")
+        if not (isinstance(self.small_light_scale, (int, np.integer)) and 1 <= self.small_light_scale <= 8):
+            raise InvalidInputError(f"small_light_scale is a whole number in 1..8 (times the shadow-map size), "
+                                    f"got {self.small_light_scale!r}")
+        if self.shadow_size * self.small_light_scale > 8192:
+            raise InvalidInputError(f"shadow_size x small_light_scale must be at most 8192, got "
+                                    f"{self.shadow_size} x {self.small_light_scale}")
         if not (0.0 < self.caster_detail <= 1.0):
             raise InvalidInputError(f"caster detail is the share of triangles kept, in (0, 1], got {self.caster_detail}")
         if not (0.0 <= self.shadow_threshold <= 1.0):
@@ -154,7 +157,7 @@ class Renderer:
         self._shade_progs: dict[tuple[ShadingMode, bool], tuple[moderngl.Program, moderngl.VertexArray]] = {}
         self.bg_prog = program(ctx, "shading/background.vert", "shading/background.frag")
         self.bg_vao = ctx.vertex_array(self.bg_prog, [])
-        self._shadow_maps = None
+        self._shadow_maps: dict[str, ShadowMaps] = {}
         self._target = None
         self._buffers: dict[str, moderngl.Buffer] = {}
         self._gloss_buf = ctx.buffer(reserve=4 * PEMSet.GLOSS_TABLE_SIZE)
@@ -197,13 +200,15 @@ class Renderer:
         materials = materials or [Material() for _ in meshes]
         return Scene(self.gl, meshes, materials, self._programs, casters, proxies)
 
-    def _shadow_maps_for(self, size: int, n_lights: int):
-        sm = self._shadow_maps
+    def _shadow_maps_for(self, which: str, size: int, n_lights: int) -> ShadowMaps:
+        """The main ("main") or small lights' ("sharp") shadow-map array, re-made only when its size
+        or layer count changes."""
+        sm = self._shadow_maps.get(which)
         if sm is None or sm.size != size or sm.n_lights != n_lights:
             if sm is not None:
                 sm.release()
-            self._shadow_maps = ShadowMaps(self.gl, size, n_lights, self._shadow_prog)
-        return self._shadow_maps
+            sm = self._shadow_maps[which] = ShadowMaps(self.gl, size, n_lights, self._shadow_prog)
+        return sm
 
     def _target_for(self, w: int, h: int) -> tuple[moderngl.Framebuffer, moderngl.Framebuffer, list[moderngl.Texture]]:
         """(image framebuffer, geometry-pass framebuffer, geometry-pass textures) of an image size;
@@ -257,25 +262,34 @@ class Renderer:
         shadowed = settings.mode is not ShadingMode.NO_OCCLUSION
         layers = shadow_layers(regions.energy_luminance, settings.shadow_threshold if shadowed else 2.0)
         small = np.sin(regions.disc_radius_rad()) <= SMALL_LIGHT_MAX_SIN
-        plan = plan_layers(layers, small, settings.small_light_tiles)
-        # A tiled light's blur width is in its own, k times smaller, texels.
-        sigma = blur_sigma_texels(regions.light_radius_rad(), settings.shadow_size * plan.tiles, settings.blur_scale)
+        k = settings.small_light_scale
+        plan = plan_layers(layers, small, k)
+        # Each light's map size; blur widths are in the light's own texels.
+        sizes = np.where(plan.sharp, settings.shadow_size * k, settings.shadow_size)
+        sigma = blur_sigma_texels(regions.light_radius_rad(), sizes, settings.blur_scale)
         # Square texels: the blur's sigma is in texels, the same on both axes, so rectangular texels
         # would make penumbrae anisotropic (a side run fitting x and y separately gained 0-2.5 %).
-        # (the border for the blur's reach is in the whole map's texels: a tiled light's sigma / k)
-        vp = fit_light_view_projs(regions.directions, lo, hi, sigma / plan.tiles, settings.shadow_size)
+        vp = fit_light_view_projs(regions.directions, lo, hi, sigma, sizes)
         n_shadowed = int((layers >= 0).sum())
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
-                             sigma, plan.first_layer, regions.disc_radius_rad(), plan.tiles,
-                             tile_margin_scale(sigma, plan.tiles, settings.shadow_size))
+                             sigma, plan.layer, regions.disc_radius_rad(), plan.sharp,
+                             settings.shadow_size / sizes)
         lights_buf = self._buffer("lights", lights.tobytes())
-        shadow_list = self._buffer("shadow_lights", plan.layer_light.tobytes() or b"\0" * 4)
-
-        shadow_maps = self._shadow_maps_for(settings.shadow_size, max(plan.n_layers, 1))
-        if n_shadowed:
-            casters = [sm for sm in scene.meshes if sm.caster]
-            shadow_maps.render([sm.shadow_vao(settings.caster_detail) for sm in casters], lights_buf, shadow_list,
-                               timer, sharp_vaos=[sm.vao_shadow for sm in casters], n_sharp_layers=plan.n_sharp_layers)
+        # Main-array lights, then the small lights' array (drawn at full caster detail).
+        casters = [sm for sm in scene.meshes if sm.caster]
+        passes = [("main", settings.shadow_size, plan.main_lights, [sm.shadow_vao(settings.caster_detail) for sm in casters]),
+                  ("sharp", settings.shadow_size * k, plan.sharp_lights, [sm.vao_shadow for sm in casters])]
+        arrays = {}
+        for which, size, layer_lights, vaos in passes:
+            if which == "sharp" and not len(layer_lights):
+                if "sharp" in self._shadow_maps:   # no small light now: give its memory back
+                    self._shadow_maps.pop("sharp").release()
+                continue
+            arrays[which] = self._shadow_maps_for(which, size, max(len(layer_lights), 1))
+            if len(layer_lights):
+                shadow_list = self._buffer(f"shadow_lights_{which}", layer_lights.tobytes())
+                arrays[which].render(vaos, lights_buf, shadow_list, timer)
+        shadow_maps = arrays["main"]
 
         # Shading.
         w, h = settings.width, settings.height
@@ -307,7 +321,6 @@ class Renderer:
             fbo.depth_mask = False   # the depth buffer is the geometry pass's: clear the colour only
             fbo.clear(0.0, 0.0, 0.0, 0.0)
             lights_buf.bind_to_storage_buffer(0)
-            shadow_list.bind_to_storage_buffer(2)
             self._gloss_buf.write(pems.gloss_table(settings.calibration).tobytes())
             self._gloss_buf.bind_to_storage_buffer(1)
             self._horizon_tex.use(location=7)
@@ -315,6 +328,7 @@ class Renderer:
                 t.use(location=8 + k)
             pems.bind(0, 5, 6)
             shadow_maps.moments.use(location=1)
+            arrays.get("sharp", shadow_maps).moments.use(location=12)
             if settings.background is Background.ENVIRONMENT:
                 ctx.disable(moderngl.DEPTH_TEST)
                 pems.env_texture.use(location=2)
@@ -357,21 +371,22 @@ class Renderer:
         timings["shadowed_lights"] = n_shadowed
         timings["shadow_layers"] = plan.n_layers if n_shadowed else 0
         timings["n_triangles"] = scene.n_triangles
-        # Triangles the shadow pass drew: the small lights' layers at full detail, the others' at caster_detail.
+        # Triangles the shadow pass drew: the small lights' maps at full detail, the others' at caster_detail.
         full = sum(sm.shadow_triangles(1.0) for sm in scene.meshes if sm.caster)
         coarse = sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster)
-        timings["shadow_triangles"] = (plan.n_sharp_layers * full + (plan.n_layers - plan.n_sharp_layers) * coarse
-                                       if n_shadowed else 0)
+        timings["shadow_triangles"] = len(plan.sharp_lights) * full + len(plan.main_lights) * coarse
         timings["device"] = gl.renderer_name
         info = {"frame": settings.as_dict(), "pems": pems.summary(),
                 "camera": {"eye": list(camera.eye), "target": list(camera.target), "fov_y_deg": camera.fov_y_deg},
-                "shadow_bytes": shadow_maps.nbytes if n_shadowed else 0, "shadowed_lights": n_shadowed}
+                "shadow_bytes": sum(a.nbytes for a in arrays.values()) if n_shadowed else 0,
+                "shadowed_lights": n_shadowed}
         return Frame(image, timings, info)
 
     def release(self) -> None:
         self.gl.check_thread()
-        if self._shadow_maps is not None:
-            self._shadow_maps.release()
+        for sm in self._shadow_maps.values():
+            sm.release()
+        self._shadow_maps = {}
         if self._target is not None:
             for obj in self._target[1]:
                 obj.release()

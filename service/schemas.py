@@ -83,8 +83,8 @@ class QualitySpec(_Strict):
                                 "(the same image, less memory)")
     caster_detail: float = Field(1.0, gt=0.0, le=1.0, description="share of the casters' triangles the shadow "
                                  "maps draw (a proxy over the same vertices; 1: the meshes themselves)")
-    small_light_tiles: int = Field(1, ge=1, le=8, description="small lights (a sun, under ~6 degrees) get K x K "
-                                   "shadow-map layers: K times the texels per axis, at full caster detail")
+    small_light_scale: int = Field(1, ge=1, le=8, description="small lights (a sun, under ~6 degrees) get shadow "
+                                   "maps K times shadow_size per side, at full caster detail")
     sh_unshadowed: bool = Field(False, description="the diffuse term of the lights below shadow_threshold "
                                 "from SH9 irradiance")
 

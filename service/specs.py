@@ -61,7 +61,7 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
                           glossy_horizon=knobs["glossy_horizon"], sh_unshadowed=bool(knobs["sh_unshadowed"]),
                           terminator=bool(knobs["terminator"]), horizon=bool(knobs["horizon"]),
                           caster_detail=float(knobs["caster_detail"]),
-                          small_light_tiles=int(knobs["small_light_tiles"]), background=Background(out.background))
+                          small_light_scale=int(knobs["small_light_scale"]), background=Background(out.background))
     pem = PEMSettings(int(knobs["lights"]), Filter(q.filter.value), q.levels)
     info = {"preset": name, "lights": pem.n_lights, "face_size": fs, "filter": pem.filter.value,
             "levels": q.levels, "shadow_size": frame.shadow_size, "blur_scale": frame.blur_scale,
@@ -69,7 +69,7 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
             "mode": frame.mode.value, "calibration": frame.calibration.value, "diffuse": frame.diffuse,
             "glossy_horizon": frame.glossy_horizon, "sh_unshadowed": frame.sh_unshadowed,
             "terminator": frame.terminator, "horizon": frame.horizon, "needed_levels": bool(knobs["needed_levels"]),
-            "caster_detail": frame.caster_detail, "small_light_tiles": frame.small_light_tiles}
+            "caster_detail": frame.caster_detail, "small_light_scale": frame.small_light_scale}
     return Quality(fs, pem, frame, info)
 
 

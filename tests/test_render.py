@@ -308,10 +308,10 @@ def test_shadow_blur_matches_a_numpy_box_cascade_and_leaves_unblurred_lights_alo
     try:
         monkeypatch.setattr(vsm, "MAX_BLUR_RADIUS", 0)     # every radius clamps to 0: the raw moments
         renderer.render(scene, pems, settings, CAM)
-        raw = renderer._shadow_maps.read().astype(np.float64)
+        raw = renderer._shadow_maps["main"].read().astype(np.float64)
         monkeypatch.undo()
         renderer.render(scene, pems, settings, CAM)
-        blurred = renderer._shadow_maps.read().astype(np.float64)
+        blurred = renderer._shadow_maps["main"].read().astype(np.float64)
         sigma = blur_sigma_texels(pems.regions.light_radius_rad(), 64, 0.5)
     finally:
         pems.release()

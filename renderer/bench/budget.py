@@ -18,11 +18,11 @@ MEASURED = Path(__file__).with_name("measured.json")
 PRESET_ERROR = {"fast": 0.10, "balanced": 0.05}
 KNOBS = ("lights", "face_size", "shadow_size", "blur_scale", "filter", "horizon", "calibration", "diffuse",
          "glossy_horizon", "terminator", "needed_levels", "shadow_threshold", "sh_unshadowed", "caster_detail",
-         "small_light_tiles")
+         "small_light_scale")
 # Knobs added after a table was stored take the value they had then (the only one there was).
 KNOB_DEFAULTS = {"horizon": False, "calibration": "volume", "diffuse": "pem", "glossy_horizon": "off",
                 "terminator": False, "needed_levels": False, "shadow_threshold": 0.0, "sh_unshadowed": False,
-                "caster_detail": 1.0, "small_light_tiles": 1}
+                "caster_detail": 1.0, "small_light_scale": 1}
 
 
 def summarize(bench: dict) -> dict:

@@ -46,13 +46,13 @@ SWEEPS = {
     "shadow_threshold": [0.002, 0.01, 0.03],
     "sh_unshadowed": DIM_LIGHTS,
     "caster_detail": [1.0, 0.5, 0.25, 0.1],
-    "small_light_tiles": [1, 2, 4],
+    "small_light_scale": [1, 2, 4],
     # The other default presets, measured as a whole beside balanced.
     "preset": [DEFAULT_PRESETS["fast"], DEFAULT_PRESETS["accurate"]],
 }
 QUICK_SWEEPS = {**SWEEPS, "lights": [6, 24, 48, 96], "face_size": [64, 128], "shadow_size": [128, 256],
                 "blur_scale": [0.0, 0.1, 1.0], "filter": ["none", "sqrt-cosine"], "shadow_threshold": [0.01],
-                "caster_detail": [1.0], "small_light_tiles": [1, 2]}
+                "caster_detail": [1.0], "small_light_scale": [1, 2]}
 QUICK_SWEEPS["preset"] = SWEEPS["preset"]
 BASELINE_MODES = [ShadingMode.NO_OCCLUSION, ShadingMode.MANY_LIGHTS, ShadingMode.AO_GREY, ShadingMode.AO_COLOUR]
 
@@ -168,7 +168,7 @@ def bench_scene(r: Renderer, bs: BenchScene, cfg: BenchConfig, log=print) -> lis
                                glossy_horizon=s["glossy_horizon"], terminator=s["terminator"],
                                shadow_threshold=s["shadow_threshold"],
                                sh_unshadowed=s["sh_unshadowed"], caster_detail=s["caster_detail"],
-                               small_light_tiles=s["small_light_tiles"])
+                               small_light_scale=s["small_light_scale"])
             frame, frame_ms, stages = _time_frames(r, scene, pems, fs, camera, cfg.frames)
             err = relative_rmse(frame.image, truth, mask)
             flip = mean_flip(frame.image, truth, mask)

@@ -45,46 +45,34 @@ def shadow_layers(energy_luminance: np.ndarray, threshold: float) -> np.ndarray:
 
 @dataclass
 class LayerPlan:
-    """Where each light's shadow map lives in the layer array.
+    """Where each light's shadow map lives: the main layer array (shadow_size^2) or, for small lights
+    when small_light_scale k > 1, the sharp array (k shadow_size per side, drawn at full caster
+    detail).
 
-    first_layer: (N,) int32, the light's first layer, -1 without a shadow map; tiles: (N,) int32,
-    tiles per side (a light with k > 1 has k * k layers, each a k-th of its footprint per axis: k
-    times the texels per axis); layer_light: (L,) int32, the light of each layer; n_sharp_layers:
-    the first layers, those of the tiled (small) lights, which the shadow pass draws at full caster
-    detail."""
+    layer: (N,) int32, the light's layer in its array, -1 without a shadow map; sharp: (N,) bool, the
+    light's map is in the sharp array; main_lights / sharp_lights: the light of each layer of the two
+    arrays."""
 
-    first_layer: np.ndarray
-    tiles: np.ndarray
-    layer_light: np.ndarray
-    n_sharp_layers: int
+    layer: np.ndarray
+    sharp: np.ndarray
+    main_lights: np.ndarray
+    sharp_lights: np.ndarray
 
     @property
     def n_layers(self) -> int:
-        return int(len(self.layer_light))
+        return int(len(self.main_lights) + len(self.sharp_lights))
 
 
-def plan_layers(layers: np.ndarray, small: np.ndarray, small_tiles: int) -> LayerPlan:
-    """Layer plan from `shadow_layers` (-1: no shadow map) and which lights are small: small lights
-    get `small_tiles` x `small_tiles` layers and come first (full caster detail), then the others."""
+def plan_layers(layers: np.ndarray, small: np.ndarray, small_light_scale: int) -> LayerPlan:
+    """Layer plan from `shadow_layers` (-1: no shadow map) and which lights are small: with a scale
+    k > 1 the small lights' maps go to the sharp array, the others stay in the main one."""
     shadowed = layers >= 0
-    sharp = shadowed & small & (small_tiles > 1)
-    tiles = np.where(sharp, small_tiles, 1).astype(np.int32)
-    first = np.full(len(layers), -1, np.int32)
-    order = np.concatenate([np.nonzero(sharp)[0], np.nonzero(shadowed & ~sharp)[0]])
-    counts = tiles[order] ** 2
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int32)
-    first[order] = starts
-    layer_light = np.repeat(order, counts).astype(np.int32)
-    return LayerPlan(first, tiles, layer_light, int(counts[:int(sharp.sum())].sum()))
-
-
-def tile_margin_scale(sigma_texels: np.ndarray, tiles: np.ndarray, shadow_size: int) -> np.ndarray:
-    """Per light, how much each tile's footprint is widened around its k-th of the map, so that the
-    blur and the bilinear lookup never need texels of the neighbouring tile: a margin of
-    m = ceil(3 sigma) + 2 texels on each side of the size - 2m texels that hold the tile itself, so
-    the scale is size / (size - 2m) (m at most a quarter of the size); 1 for untiled lights."""
-    m = np.minimum(np.ceil(3.0 * np.asarray(sigma_texels, np.float64)) + 2.0, shadow_size / 4.0)
-    return np.where(np.asarray(tiles) > 1, shadow_size / (shadow_size - 2.0 * m), 1.0)
+    sharp = shadowed & small & (small_light_scale > 1)
+    main = shadowed & ~sharp
+    layer = np.full(len(layers), -1, np.int32)
+    layer[main] = np.arange(int(main.sum()), dtype=np.int32)
+    layer[sharp] = np.arange(int(sharp.sum()), dtype=np.int32)
+    return LayerPlan(layer, sharp, np.nonzero(main)[0].astype(np.int32), np.nonzero(sharp)[0].astype(np.int32))
 
 
 def light_basis(direction: np.ndarray) -> np.ndarray:
@@ -116,8 +104,9 @@ def fit_light_view_proj(direction: np.ndarray, lo: np.ndarray, hi: np.ndarray, s
 
 
 def fit_light_view_projs(directions: np.ndarray, lo: np.ndarray, hi: np.ndarray, sigma_texels: np.ndarray,
-                         shadow_size: int, square: bool = True) -> np.ndarray:
-    """`fit_light_view_proj` for N lights at once: (N, 4, 4) (the per-frame fit of every light)."""
+                         shadow_size, square: bool = True) -> np.ndarray:
+    """`fit_light_view_proj` for N lights at once: (N, 4, 4) (the per-frame fit of every light);
+    shadow_size is one size or each light's."""
     basis = light_basis(directions)                                        # (N, 3, 3)
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     ls = np.einsum("cj,nij->nci", corners, basis)                          # (N, 8, 3)
@@ -129,7 +118,8 @@ def fit_light_view_projs(directions: np.ndarray, lo: np.ndarray, hi: np.ndarray,
         half_xy = np.repeat(half_xy.max(axis=1, keepdims=True), 2, axis=1)
     half_xy = np.maximum(half_xy, np.maximum(tiny, 1e-6 * half_xy.max(axis=1))[:, None])
     # Widen by the blur's reach (3 sigma texels) plus one texel for rasterization at the border.
-    half_xy = half_xy * (1.0 + 2.0 * (3.0 * np.asarray(sigma_texels, np.float64)[:, None] + 1.0) / shadow_size)
+    size = np.broadcast_to(np.asarray(shadow_size, np.float64), (len(basis),))[:, None]   # per light, or one for all
+    half_xy = half_xy * (1.0 + 2.0 * (3.0 * np.asarray(sigma_texels, np.float64)[:, None] + 1.0) / size)
     depth = np.maximum(cmax[:, 2] - cmin[:, 2], 1e-30)
     z0 = cmin[:, 2] - 0.01 * depth
     z_range = 1.02 * depth
@@ -145,10 +135,11 @@ def fit_light_view_projs(directions: np.ndarray, lo: np.ndarray, hi: np.ndarray,
 
 
 def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma, shadow_layer,
-                radius_rad=None, tiles=None, tile_scale=None) -> np.ndarray:
+                radius_rad=None, sharp=None, texel_scale=None) -> np.ndarray:
     """Build the std430 array of `struct Light` for n lights; shadow_layer[i] = -1: no shadow map
-    (else its first layer); radius_rad: angular radius of each light's energy (for the horizon term),
-    default 0; tiles / tile_scale: tiles per side and their footprint widening (default 1, 1)."""
+    (else its layer); radius_rad: angular radius of each light's energy (for the horizon term),
+    default 0; sharp: the light's map is in the sharp array (default none); texel_scale: its texel
+    size in main-array texels (1 / small_light_scale for sharp maps; default 1)."""
     n = len(directions)
     arr = np.zeros(n, LIGHT_DTYPE)
     arr["view_proj"] = np.transpose(view_proj, (0, 2, 1)).reshape(n, 16)  # column-major for GLSL
@@ -161,6 +152,6 @@ def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma
     arr["energy"][:, :3] = energy_rgb
     arr["energy"][:, 3] = np.asarray(energy_rgb) @ np.array([0.2126, 0.7152, 0.0722])
     arr["shadow"][:, 0] = shadow_layer
-    arr["shadow"][:, 1] = tiles if tiles is not None else 1.0
-    arr["shadow"][:, 2] = tile_scale if tile_scale is not None else 1.0
+    arr["shadow"][:, 1] = np.asarray(sharp, np.float32) if sharp is not None else 0.0
+    arr["shadow"][:, 2] = texel_scale if texel_scale is not None else 1.0
     return arr

@@ -1,11 +1,11 @@
 """Variance shadow maps, one per light, re-rendered every frame (Knuth et al. 2014, sec. 4).
 
-Moments (z, z^2) are 32-bit floats in a 2D texture array: one layer per light, or k x k for a small
-light drawn in tiles (shadows/lights.py, plan_layers; shadow_lights[layer] is the layer's light). All
-layers are drawn in batches of instanced draws (instance = layer, gl_Layer from the vertex shader);
-the nearest surface is kept by MIN blending. A separable Gaussian blur whose width follows each
-region's angular size then softens them. The arrays are allocated once per (size, layer count) and
-reused frame after frame.
+Moments (z, z^2) are 32-bit floats in a 2D texture array, one layer per light (shadow_lights[layer]
+is the layer's light; the renderer keeps a second, larger array for small lights, shadows/lights.py
+plan_layers). All layers are drawn in batches of instanced draws (instance = layer, gl_Layer from the
+vertex shader); the nearest surface is kept by MIN blending. A separable Gaussian blur whose width
+follows each region's angular size then softens them. The arrays are allocated once per (size,
+layer count) and reused frame after frame.
 """
 
 from __future__ import annotations
@@ -55,11 +55,9 @@ class ShadowMaps:
         return self.size * self.size * 8 * layers
 
     def render(self, vaos: list[moderngl.VertexArray], lights_buffer: moderngl.Buffer,
-               shadow_lights_buffer: moderngl.Buffer, timer: StageTimer | None = None, enabled: bool = True,
-               sharp_vaos: list[moderngl.VertexArray] | None = None, n_sharp_layers: int = 0) -> None:
+               shadow_lights_buffer: moderngl.Buffer, timer: StageTimer | None = None, enabled: bool = True) -> None:
         """Render and blur the moments of every shadowed light (layer k: light shadow_lights[k]).
-        `vaos` draw the casters with `self.prog`; the first `n_sharp_layers` layers are drawn with
-        `sharp_vaos` instead (the casters at full detail, for the small lights' sharp shadows)."""
+        `vaos` draw the casters with `self.prog`."""
         gl, ctx = self.gl, self.gl.ctx
         gl.check_thread()
         lights_buffer.bind_to_storage_buffer(0)
@@ -76,12 +74,8 @@ class ShadowMaps:
                     ctx.enable(moderngl.BLEND)
                     ctx.blend_equation = moderngl.MIN
                     self.prog["u_first_light"].value = first
-                    sharp = min(max(n_sharp_layers - first, 0), count)
-                    for offset, n, draw in ((0, sharp, sharp_vaos or vaos), (sharp, count - sharp, vaos)):
-                        if n > 0:
-                            self.prog["u_layer_offset"].value = offset
-                            for vao in draw:
-                                vao.render(moderngl.TRIANGLES, instances=n)
+                    for vao in vaos:
+                        vao.render(moderngl.TRIANGLES, instances=count)
                     ctx.blend_equation = moderngl.FUNC_ADD
                     ctx.disable(moderngl.BLEND)
             with gl.stage(timer, "blur"):

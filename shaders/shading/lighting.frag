@@ -21,7 +21,8 @@ layout(std430, binding = 1) readonly buffer GlossLevels { float level_of_g[]; };
 layout(binding = 0) uniform samplerCubeArray u_pem0;         // layer i = region i < 192, scaled by 1/scale_i
 layout(binding = 5) uniform samplerCubeArray u_pem1;         // layer i - 192 = region i >= 192
 layout(binding = 6) uniform samplerCubeArray u_pem_norm;     // layer 0: B = chain(w), the normalizer
-layout(binding = 1) uniform sampler2DArray u_moments;        // layer i = light i (blurred moments)
+layout(binding = 1) uniform sampler2DArray u_moments;        // blurred moments, layer shadow.x of light i
+layout(binding = 12) uniform sampler2DArray u_moments_sharp; // the small lights' (shadow.y = 1), larger maps
 layout(binding = 7) uniform sampler2D u_horizon_map;        // F(n.r, g): share of the glossy lobe above the surface
 layout(binding = 8) uniform sampler2D u_g_position;         // the geometry pass's targets (gbuffer.frag)
 layout(binding = 9) uniform sampler2D u_g_normal;
@@ -51,13 +52,12 @@ float linstep(float lo, float hi, float x) { return clamp((x - lo) / (hi - lo), 
 float visibility(int i, vec3 ws_pos, vec3 n) {
     float layer = lights[i].shadow.x;
     if (layer < 0.0) return 1.0;   // no shadow map: the PEM is added unshadowed
-    float k = lights[i].shadow.y;
-    // The normal offset is in the light's own texels (a tiled light's are k times smaller).
-    vec4 p = lights[i].view_proj * vec4(ws_pos + (u_normal_offset / k) * n, 1.0);
-    if (any(greaterThan(abs(p.xy), vec2(1.0)))) return 1.0;
-    vec2 tile;
-    vec2 uv = tile_of(p.xy, k, tile) / lights[i].shadow.z * 0.5 + 0.5;
-    vec2 m = texture(u_moments, vec3(uv, layer + tile.y * k + tile.x)).xy;
+    // The normal offset is in the light's own texels (a sharp map's are smaller).
+    vec4 p = lights[i].view_proj * vec4(ws_pos + (u_normal_offset * lights[i].shadow.z) * n, 1.0);
+    vec2 uv = p.xy * 0.5 + 0.5;
+    if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
+    vec2 m = lights[i].shadow.y > 0.5 ? texture(u_moments_sharp, vec3(uv, layer)).xy
+                                      : texture(u_moments, vec3(uv, layer)).xy;
     // A receiver behind every caster (beyond the far plane, e.g. a floor that casts nothing) is compared
     // at the far plane: lit where no caster is, shadowed where one is.
     float t = min(p.z, 1.0);

@@ -1,5 +1,5 @@
-"""Small lights' tiled shadow maps (FrameSettings.small_light_tiles): a k x k grid of layers, each a
-k-th of the light's footprint per axis, so a sun's shadow gets k times the texels per axis."""
+"""Small lights' larger shadow maps (FrameSettings.small_light_scale): a sun's map k times the shadow-map
+size per side, in an array of its own, drawn at full caster detail."""
 
 from __future__ import annotations
 
@@ -12,27 +12,26 @@ from renderer.errors import InvalidInputError
 from renderer.lighting.pem import PEMSettings
 from renderer.renderer import Background, FrameSettings
 from renderer.shading.material import Material
-from renderer.shadows.lights import plan_layers, tile_margin_scale
+from renderer.shadows.lights import plan_layers
 
 
-def test_small_lights_come_first_with_k_squared_layers():
+def test_small_lights_get_layers_of_the_sharp_array():
     layers = np.array([0, 1, -1, 2, 3], np.int32)      # light 2 has no shadow map
     small = np.array([False, True, True, False, True])
     plan = plan_layers(layers, small, 3)
-    assert list(plan.tiles) == [1, 3, 1, 1, 3]
-    assert plan.n_sharp_layers == 18 and plan.n_layers == 20
-    assert list(plan.first_layer) == [18, 0, -1, 19, 9]
-    assert list(plan.layer_light) == [1] * 9 + [4] * 9 + [0, 3]
+    assert list(plan.sharp) == [False, True, False, False, True]
+    assert list(plan.layer) == [0, 0, -1, 1, 1]
+    assert list(plan.main_lights) == [0, 3] and list(plan.sharp_lights) == [1, 4] and plan.n_layers == 4
     flat = plan_layers(layers, small, 1)
-    assert list(flat.first_layer) == [0, 1, -1, 2, 3] and flat.n_sharp_layers == 0 and flat.n_layers == 4
-    # size 100, margin ceil(3) + 2 = 5 texels a side: the tile itself has 90 texels.
-    assert list(tile_margin_scale(np.array([0.0, 1.0]), np.array([1, 2]), 100)) == [1.0, 100 / 90]
+    assert list(flat.layer) == [0, 1, -1, 2, 3] and not flat.sharp.any() and len(flat.sharp_lights) == 0
 
 
-def test_tiles_must_be_a_small_whole_number():
+def test_the_scale_must_be_a_small_whole_number():
     for bad in (0, 9, 1.5, "2"):
-        with pytest.raises(InvalidInputError, match="small_light_tiles"):
-            FrameSettings(small_light_tiles=bad)
+        with pytest.raises(InvalidInputError, match="small_light_scale"):
+            FrameSettings(small_light_scale=bad)
+    with pytest.raises(InvalidInputError, match="8192"):
+        FrameSettings(shadow_size=4096, small_light_scale=4)
 
 
 @pytest.fixture(scope="module")
@@ -48,12 +47,12 @@ def sun_scene(renderer):
     scene.release()
 
 
-def test_a_tiled_map_matches_an_untiled_map_of_k_times_the_size(renderer, sun_scene):
+def test_a_small_lights_map_at_k_times_the_size_matches_a_map_of_that_size(renderer, sun_scene):
     scene, pems = sun_scene
     cam = Camera((0.0, 3.0, 2.5), (0.0, 0.2, 0.0), fov_y_deg=50.0)
 
     def lum(size, k):
-        fs = FrameSettings(160, 160, shadow_size=size, small_light_tiles=k, blur_scale=0.0,
+        fs = FrameSettings(160, 160, shadow_size=size, small_light_scale=k, blur_scale=0.0,
                            background=Background.BLACK)
         f = renderer.render(scene, pems, fs, cam)
         assert np.isfinite(f.image).all()
@@ -62,12 +61,14 @@ def test_a_tiled_map_matches_an_untiled_map_of_k_times_the_size(renderer, sun_sc
     coarse_f, coarse = lum(32, 1)
     tiled_f, tiled = lum(32, 4)
     _, fine = lum(128, 1)
-    assert tiled_f.timings["shadow_layers"] > coarse_f.timings["shadow_layers"]
+    # The same layers, but the small lights' in a 128^2 array: more memory.
+    assert tiled_f.timings["shadow_layers"] == coarse_f.timings["shadow_layers"]
+    assert tiled_f.settings["shadow_bytes"] > coarse_f.settings["shadow_bytes"]
     # The sun's shadow of the sphere is there in every version...
     dark = fine < 0.3 * np.percentile(fine, 95)
     assert dark.sum() > 100
-    # ... and the tiled 32^2 map draws it as the untiled 128^2 map does, not as the 32^2 one: no
-    # seams where the tiles meet (the shadow crosses the footprint's middle), and sharper edges.
+    # ... and with the sun's map at 4 x 32^2 it is drawn as with 128^2 maps, not as with 32^2 ones
+    # (the sky's lights keep 32^2 maps: the sky is dim here).
     err_tiled = np.abs(tiled - fine).sum() / fine.sum()
     err_coarse = np.abs(coarse - fine).sum() / fine.sum()
     assert err_tiled < 0.02 and err_tiled < 0.5 * err_coarse, (err_tiled, err_coarse)
