@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import RenderError
+from .errors import InvalidInputError, RenderError
 from .presets import DEFAULT_PRESETS, knob_defaults, presets
 
 
@@ -109,7 +109,6 @@ def resolve_quality(args) -> dict:
     table_presets, source = presets()
     if args.frame_budget_ms is not None or args.error_budget is not None:
         from .bench.budget import choose, load_table
-        from .errors import InvalidInputError
 
         table = load_table()
         if table is None:
@@ -343,6 +342,18 @@ def cmd_reference(args) -> int:
     return 0
 
 
+def cmd_speed(args) -> int:
+    from .bench.speed import markdown, run_speed
+
+    if args.rounds < 1 or args.size < 1:
+        raise InvalidInputError("--rounds and --size must be positive")
+    result = run_speed(args.out, args.rounds, args.size, shared=not args.no_shared)
+    print(f"{result['device']}, {args.size}x{args.size}, median of {args.rounds} frames per setting, "
+          "settings taking turns (10th-90th percentile in brackets):")
+    print(markdown(result))
+    return 0
+
+
 def cmd_bench(args) -> int:
     from .bench.run import BenchConfig, run_bench
 
@@ -402,6 +413,12 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--store", action="store_true",
                    help="store the measured table in the package: presets and budgets are then chosen from it")
     b.set_defaults(func=cmd_bench)
+    sp = sub.add_parser("speed", help="frame times of the presets side by side (settings take turns, frame by frame)")
+    sp.add_argument("--rounds", type=int, default=15, help="frames per setting and scene")
+    sp.add_argument("--size", type=int, default=256)
+    sp.add_argument("--no-shared", action="store_true", help="bundled scene only (skip ../shared/assets)")
+    sp.add_argument("--out", type=Path, help="write the medians and ratios as JSON")
+    sp.set_defaults(func=cmd_speed)
     sv = sub.add_parser("serve", help="run the HTTP render service (uvicorn); settings: GARMENT_RENDER_* variables")
     sv.add_argument("--host", help="default: GARMENT_RENDER_HOST, else 127.0.0.1")
     sv.add_argument("--port", type=int, help="default: GARMENT_RENDER_PORT, else 8000")

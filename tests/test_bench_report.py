@@ -35,3 +35,16 @@ def test_every_sweep_value_is_one_setting_that_differs_from_balanced():
             assert s != BALANCED and set(s) == set(BALANCED), (knob, value)
         keys = [tuple(sorted(s.items())) for _, _, s in settings]
         assert len(keys) == len(set(keys))               # no setting measured twice
+
+
+def test_speed_times_every_variant_side_by_side(tmp_path):
+    import json
+
+    from renderer.bench.speed import VARIANTS, markdown, run_speed
+
+    result = run_speed(tmp_path / "speed.json", rounds=2, size=16, shared=False, log=lambda *_: None)
+    rows = result["scenes"]["studio-dress"]
+    assert set(rows) == set(VARIANTS) and rows["balanced"]["ratio_to_balanced"] == 1.0
+    assert all(r["p10_ms"] <= r["median_ms"] <= r["p90_ms"] and r["median_ms"] > 0 for r in rows.values())
+    assert json.loads((tmp_path / "speed.json").read_text())["rounds"] == 2
+    assert markdown(result).count("\n") == 2

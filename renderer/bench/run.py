@@ -110,6 +110,26 @@ def _settings_list(sweeps: dict) -> list[tuple[str, object, dict]]:
     return out
 
 
+def frame_settings(s: dict, size: int, mode: ShadingMode = ShadingMode.FULL) -> FrameSettings:
+    """A benchmark setting (BALANCED's keys) as the frame settings of a size x size image."""
+    return FrameSettings(size, size, shadow_size=s["shadow_size"], blur_scale=s["blur_scale"], mode=mode,
+                         horizon=s["horizon"], calibration=s["calibration"], diffuse=s["diffuse"],
+                         glossy_horizon=s["glossy_horizon"], terminator=s["terminator"],
+                         shadow_threshold=s["shadow_threshold"], sh_unshadowed=s["sh_unshadowed"],
+                         caster_detail=s["caster_detail"], small_light_scale=s["small_light_scale"])
+
+
+def _pems_for(r: Renderer, bs: BenchScene, s: dict, cache: dict):
+    """The PEM set of a setting, built once per (face size, PEM settings) into `cache`."""
+    pem = PEMSettings(s["lights"], Filter(s["filter"]))
+    if s["needed_levels"]:
+        pem = pem.for_materials(s["face_size"], bs.materials, s["calibration"])
+    key = (s["face_size"], pem.key())
+    if key not in cache:
+        cache[key] = r.build_pems(bs.cube(s["face_size"]), pem)
+    return cache[key]
+
+
 def _time_frames(r: Renderer, scene, pems, fs: FrameSettings, camera, n: int):
     r.render(scene, pems, fs, camera)  # warm-up: shader compilation, allocations
     frames = [r.render(scene, pems, fs, camera) for _ in range(n)]
@@ -156,19 +176,8 @@ def bench_scene(r: Renderer, bs: BenchScene, cfg: BenchConfig, log=print) -> lis
         jobs = [(k, v, s, ShadingMode.FULL) for k, v, s in _settings_list(sweeps)]
         jobs += [("baseline", m.value, dict(BALANCED), m) for m in BASELINE_MODES]
         for knob, value, s, mode in jobs:
-            pem = PEMSettings(s["lights"], Filter(s["filter"]))
-            if s["needed_levels"]:
-                pem = pem.for_materials(s["face_size"], bs.materials, s["calibration"])
-            key = (s["face_size"], pem.key())
-            if key not in pem_cache:
-                pem_cache[key] = r.build_pems(bs.cube(s["face_size"]), pem)
-            pems = pem_cache[key]
-            fs = FrameSettings(size, size, shadow_size=s["shadow_size"], blur_scale=s["blur_scale"], mode=mode,
-                               horizon=s["horizon"], calibration=s["calibration"], diffuse=s["diffuse"],
-                               glossy_horizon=s["glossy_horizon"], terminator=s["terminator"],
-                               shadow_threshold=s["shadow_threshold"],
-                               sh_unshadowed=s["sh_unshadowed"], caster_detail=s["caster_detail"],
-                               small_light_scale=s["small_light_scale"])
+            pems = _pems_for(r, bs, s, pem_cache)
+            fs = frame_settings(s, size, mode)
             frame, frame_ms, stages = _time_frames(r, scene, pems, fs, camera, cfg.frames)
             err = relative_rmse(frame.image, truth, mask)
             flip = mean_flip(frame.image, truth, mask)
