@@ -88,8 +88,9 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
                    help="small lights below the triangle's own plane light neither term (default on)")
     q.add_argument("--horizon", action=argparse.BooleanOptionalAction,
                    help="the tangent plane of the shading normal blocks every light, both terms (default off)")
-    q.add_argument("--diffuse", choices=["pem", "lights", "mixed"],
-                   help="diffuse term from the PEMs along the normal (the paper) or from each light's disc")
+    q.add_argument("--diffuse", choices=["pem", "lights", "mixed", "sh"],
+                   help="diffuse term from the PEMs along the normal (the paper), from each light's disc, mixed, "
+                        "or sh (large lights from their region's SH9 irradiance)")
     q.add_argument("--mode", default="full", choices=["full", "none", "ao", "ao-color", "many-lights"],
                    help="full method, no occlusion, grey AO, AO with colour (paper Fig. 6), or the plain "
                         "many-light baseline (the N lights shade as well as shadow)")

@@ -20,7 +20,7 @@ from .errors import InvalidInputError
 from .gpu.context import GLContext, StageTimer
 from .gpu.shaders import program
 from .lighting.glossiness import Calibration
-from .lighting.sh import irradiance_coefficients
+from .lighting.sh import A_BAND, irradiance_coefficients
 from .lighting.pem import REGIONS_PER_TEXTURE, PEMSet, PEMSettings
 from .mesh import Mesh
 from .scene import Scene
@@ -46,7 +46,7 @@ _MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_
                ShadingMode.MANY_LIGHTS: 4}
 
 
-DIFFUSE_SOURCES = ("pem", "lights", "mixed")
+DIFFUSE_SOURCES = ("pem", "lights", "mixed", "sh")
 GLOSSY_HORIZONS = ("off", "lobe", "lights", "both")
 
 
@@ -77,7 +77,8 @@ class FrameSettings:
     horizon: bool = False          # VIS_i includes the tangent plane (see lighting.frag); off: the paper
     # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level),
     # "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups) or
-    # "mixed" (small lights, angular radius <= ~6 degrees, from their disc; the rest from the PEMs).
+    # "mixed" (small lights, angular radius <= ~6 degrees, from their disc; the rest from the PEMs) or
+    # "sh" (small lights from their disc, the rest from their own SH9 irradiance; no diffuse lookups).
     diffuse: str = "pem"
     # The glossy lobe's part below the surface (full mode only; shading/horizon.py): "off" (the paper),
     # "lobe" (times the lobe's share above the shading normal's plane), "lights" (each light times the
@@ -154,7 +155,7 @@ class Renderer:
         defines = {"GLOSS_TABLE_SIZE": PEMSet.GLOSS_TABLE_SIZE, "REGIONS_PER_TEXTURE": REGIONS_PER_TEXTURE,
                    "HORIZON_N_MU": float(HORIZON_N_MU), "HORIZON_N_G": float(HORIZON_N_G)}
         self._defines = defines
-        self._shade_progs: dict[tuple[ShadingMode, bool], tuple[moderngl.Program, moderngl.VertexArray]] = {}
+        self._shade_progs: dict[tuple[ShadingMode, str], tuple[moderngl.Program, moderngl.VertexArray]] = {}
         self.bg_prog = program(ctx, "shading/background.vert", "shading/background.frag")
         self.bg_vao = ctx.vertex_array(self.bg_prog, [])
         self._shadow_maps: dict[str, ShadowMaps] = {}
@@ -176,12 +177,14 @@ class Renderer:
         return self._shade_variant(mode, diffuse)[0]
 
     def _shade_variant(self, mode: ShadingMode, diffuse: str) -> tuple[moderngl.Program, moderngl.VertexArray]:
-        lights = diffuse == "lights" and mode in (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
-        key = (mode, lights)
+        closed = diffuse in ("lights", "sh") and mode in (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
+        key = (mode, diffuse if closed else "pem")
         if key not in self._shade_progs:
             defines = {**self._defines, "MODE": _MODE_INDEX[mode]}
-            if lights:
-                defines["DIFFUSE_LIGHTS"] = 1
+            if closed:
+                defines["DIFFUSE_LIGHTS"] = 1   # no diffuse PEM lookups
+            if closed and diffuse == "sh":
+                defines["DIFFUSE_SH"] = 1
             prog = program(self.gl.ctx, "shading/background.vert", "shading/lighting.frag", defines)
             self._shade_progs[key] = (prog, self.gl.ctx.vertex_array(prog, []))
         return self._shade_progs[key]
@@ -321,6 +324,11 @@ class Renderer:
             fbo.depth_mask = False   # the depth buffer is the geometry pass's: clear the colour only
             fbo.clear(0.0, 0.0, 0.0, 0.0)
             lights_buf.bind_to_storage_buffer(0)
+            if settings.diffuse == "sh":
+                # Per light, its region's irradiance coefficients (9 x rgb, padded to vec4).
+                sh = np.zeros((n, 9, 4), np.float32)
+                sh[..., :3] = pems.region_sh * A_BAND[None, :, None]
+                self._buffer("light_sh", sh.tobytes()).bind_to_storage_buffer(3)
             self._gloss_buf.write(pems.gloss_table(settings.calibration).tobytes())
             self._gloss_buf.bind_to_storage_buffer(1)
             self._horizon_tex.use(location=7)

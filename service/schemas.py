@@ -72,9 +72,10 @@ class QualitySpec(_Strict):
     mode: ModeName = ModeName.FULL
     calibration: Literal["l2", "volume"] = Field("l2", description="g -> MIP level: closest normalized kernel "
                                                  "(l2) or the paper's equal lobe volume")
-    diffuse: Literal["pem", "lights", "mixed"] = Field(
-        "pem", description="diffuse term from the PEMs (the paper), from each light's disc, or mixed (small "
-                           "lights from their disc, the rest from the PEMs)")
+    diffuse: Literal["pem", "lights", "mixed", "sh"] = Field(
+        "pem", description="diffuse term from the PEMs (the paper), from each light's disc, mixed (small "
+                           "lights from their disc, the rest from the PEMs) or sh (small lights from their "
+                           "disc, the rest from their region's SH9 irradiance)")
     glossy_horizon: Literal["off", "lobe", "lights", "both"] = Field(
         "lights", description="drop the glossy lobe's part below the surface (off: the paper)")
     terminator: bool = Field(True, description="small lights below the triangle's own plane light neither term")

@@ -258,15 +258,16 @@ def test_horizon_term_stops_light_from_below_an_open_sheet(renderer):
 
 
 @pytest.mark.parametrize("n_lights", [6, 48, 384])
-def test_diffuse_from_lights_passes_the_furnace_test(renderer, sphere_scene, n_lights):
+@pytest.mark.parametrize("diffuse", ["lights", "sh"])
+def test_diffuse_from_lights_passes_the_furnace_test(renderer, sphere_scene, n_lights, diffuse):
     # diffuse="lights": each region as a uniform disc with the region's mean cosine, its clamped-cosine
     # integral in closed form. Exact for regions above the horizon; the discs only approximate the
     # regions that straddle it (measured: mean within 0.01 %, worst pixel 0.6 % at 6 lights, 1.8 % at
-    # 48, 0.08 % at 384).
+    # 48, 0.08 % at 384). diffuse="sh": large regions by their SH9 irradiance, exact for a constant map.
     L = 2.5
     pems = renderer.build_pems(np.full((6, 32, 32, 3), L, np.float32), PEMSettings(n_lights))
     try:
-        s = FrameSettings(96, 96, mode=ShadingMode.NO_OCCLUSION, diffuse="lights")
+        s = FrameSettings(96, 96, mode=ShadingMode.NO_OCCLUSION, diffuse=diffuse)
         image = renderer.render(sphere_scene, pems, s, CAM).image
     finally:
         pems.release()
@@ -370,10 +371,11 @@ def test_mixed_diffuse_takes_small_lights_in_closed_form(renderer):
     try:
         img = {d: renderer.render(scene, pems, FrameSettings(64, 64, diffuse=d, mode=ShadingMode.NO_OCCLUSION,
                                                             background=Background.BLACK), CAM).image
-               for d in ("pem", "lights", "mixed")}
+               for d in ("pem", "lights", "mixed", "sh")}
     finally:
         pems.release()
         scene.release()
     m = img["pem"][..., 3] > 0.5
     np.testing.assert_allclose(img["mixed"][m], img["lights"][m], rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(img["sh"][m], img["lights"][m], rtol=1e-4, atol=1e-6)  # the dark sky's SH is 0
     assert np.abs(img["pem"][m] - img["lights"][m]).max() > 0.05 * img["lights"][m].max()

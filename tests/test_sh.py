@@ -69,3 +69,31 @@ def test_sh_for_dim_lights_changes_the_image_a_little(renderer):
     change = np.abs(a.image - b.image)[m][:, :3].mean() / a.image[m][:, :3].mean()
     assert 0.0 < change < 0.01, change                # measured 0.2 %
     np.testing.assert_array_equal(ignored.image, full.image)  # no unshadowed light: nothing to replace
+
+
+def test_diffuse_sh_renders_a_band_limited_map_exactly(renderer):
+    # diffuse="sh": every large light's diffuse term is its region's SH9 irradiance; unoccluded
+    # (no-occlusion mode, a convex sphere) they sum to the map's own SH9 irradiance, which for a map
+    # of order <= 2 is the exact cosine convolution (test_band_limited_map_is_exact).
+    n = 32
+    d = texel_directions(n)
+    field = 1.0 + 0.5 * d[..., 1] + 0.3 * d[..., 0] ** 2 - 0.2 * d[..., 0] * d[..., 2]
+    cube = np.repeat(field[..., None], 3, -1).astype(np.float32)
+    from renderer.renderer import ShadingMode
+
+    scene = renderer.create_scene([sphere()], [Material((1.0, 1.0, 1.0), 0.0, 0.0)])
+    pems = renderer.build_pems(cube, PEMSettings(24))
+    try:
+        frame = renderer.render(scene, pems, FrameSettings(64, 64, diffuse="sh", mode=ShadingMode.NO_OCCLUSION), CAM)
+        small = int((np.sin(pems.regions.disc_radius_rad()) <= 0.1).sum())
+    finally:
+        pems.release()
+        scene.release()
+    assert small == 0   # every light here is large: all of them go through SH9
+    c = irradiance_coefficients(region_sh(cube.astype(np.float64), np.zeros((6, n, n), int), 1)[0])
+    img, cov = frame.image, frame.image[..., 3] > 0.5
+    assert cov.sum() > 1000
+    # Every pixel within the range of the map's SH9 irradiance over all normals (divided by pi).
+    e = irradiance(c, _normals(50000, 1)) / np.pi
+    px = img[cov][:, :3]
+    assert px.min() >= e.min() * (1 - 5e-3) and px.max() <= e.max() * (1 + 5e-3), (px.min(), px.max(), e.min(), e.max())

@@ -39,7 +39,7 @@ SWEEPS = {
     "filter": [f.value for f in Filter],
     "horizon": [False, True],
     "calibration": ["l2", "volume"],
-    "diffuse": ["pem", "lights", "mixed"],
+    "diffuse": ["pem", "lights", "mixed", "sh"],
     "glossy_horizon": ["off", "lobe", "lights", "both"],
     "terminator": [False],
     "needed_levels": [False],

@@ -138,6 +138,37 @@ bool exact_diffuse(int i) {   // the light's diffuse term in closed form: every 
 }
 vec3 g_diffuse_exact = vec3(0.0);   // added after the PEM terms' normalization
 
+#ifdef DIFFUSE_SH
+// diffuse "sh": each region's own irradiance as nine spherical-harmonic coefficients (its radiance
+// projected onto order <= 2 and convolved with the clamped cosine, renderer/lighting/sh.py), for the
+// lights larger than ~6 degrees; small ones (a sun, which order 2 cannot hold) from their disc.
+layout(std430, binding = 3) readonly buffer LightSH { vec4 light_sh[]; };   // 9 per light, rgb
+float g_sh_basis[9];   // Y_lm(n), set once per pixel
+void set_sh_basis(vec3 n) {
+    g_sh_basis[0] = 0.282095;
+    g_sh_basis[1] = 0.488603 * n.y; g_sh_basis[2] = 0.488603 * n.z; g_sh_basis[3] = 0.488603 * n.x;
+    g_sh_basis[4] = 1.092548 * n.x * n.y; g_sh_basis[5] = 1.092548 * n.y * n.z;
+    g_sh_basis[6] = 0.315392 * (3.0 * n.z * n.z - 1.0); g_sh_basis[7] = 1.092548 * n.x * n.z;
+    g_sh_basis[8] = 0.546274 * (n.x * n.x - n.y * n.y);
+}
+#endif
+
+// A light's diffuse term without its PEM: the disc's closed form, or (diffuse "sh", large lights)
+// its SH9 irradiance / pi.
+vec3 exact_diffuse_term(int i, vec3 n) {
+#ifdef DIFFUSE_SH
+    if (lights[i].params.w > TERMINATOR_MAX_SIN) {
+        vec3 e = vec3(0.0);
+        for (int k = 0; k < 9; ++k) e += light_sh[9 * i + k].rgb * g_sh_basis[k];
+        // Not clamped per light: a region behind the surface rings slightly negative, and the sum over
+        // the regions is the map's own SH9 irradiance only without per-light clamping (the total is
+        // clamped in main()).
+        return e / PI;
+    }
+#endif
+    return diffuse_from_light(i, n);
+}
+
 // Share of light i's energy, a disc of angular radius r (sin r = params.w) around its direction,
 // above the plane of `normal` (linear in the cosine across the disc).
 float disc_share_above(int i, vec3 normal) {
@@ -150,7 +181,7 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos) {
     pem_d *= scale;
     pem_g *= scale;
 #if MODE == 1
-    if (exact_diffuse(i)) g_diffuse_exact += diffuse_from_light(i, n);
+    if (exact_diffuse(i)) g_diffuse_exact += exact_diffuse_term(i, n);
     else g_diffuse += pem_d;
     g_glossy += pem_g;
 #elif MODE == 0
@@ -172,7 +203,7 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos) {
     // and its PEM's diffuse kernel spreads it anyway).
     bool small = u_terminator && sin_r <= TERMINATOR_MAX_SIN;
     if (small) vis *= above;
-    if (exact_diffuse(i)) g_diffuse_exact += vis * diffuse_from_light(i, n);
+    if (exact_diffuse(i)) g_diffuse_exact += vis * exact_diffuse_term(i, n);
     else g_diffuse += vis * pem_d;
     // The glossy lobe's part below the surface (renderer/shading/horizon.py), per light.
     if (u_glossy_horizon >= 2 && !small) vis *= above;
@@ -202,6 +233,9 @@ void main() {
     vec3 to_eye = normalize(u_camera_pos - ws_position);
     vec3 r = reflect(-to_eye, n);
     float specular = material.x;
+#ifdef DIFFUSE_SH
+    set_sh_basis(n);
+#endif
     float level_g = gloss_level(material.y);
 
 #if MODE == 4
@@ -245,7 +279,7 @@ void main() {
     if (u_sh_unshadowed) g_diffuse += sh_irradiance(n) / PI;
 #endif
 #endif
-    g_diffuse += g_diffuse_exact;
+    g_diffuse += max(g_diffuse_exact, vec3(0.0));
 #if MODE == 0
     if (glossy && (u_glossy_horizon == 1 || u_glossy_horizon == 3)) {
         // renderer/shading/horizon.py: the reference's lobe loses its part below the surface to
