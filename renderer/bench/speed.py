@@ -19,10 +19,11 @@ from ..renderer import Renderer
 from .run import _pems_for, frame_settings
 from .scenes import bundled_scene, shared_scenes
 
-# What balanced's measured choices save: each variant undoes one of them.
+# What balanced's measured choices cost and save: each variant changes one of them.
 VARIANTS = {
     "balanced": {},
     "balanced, small-light scale 1": {"small_light_scale": 1},
+    "balanced, small-light scale 4": {"small_light_scale": 4},
     "balanced, full caster detail": {"caster_detail": 1.0},
     "fast": "fast",
     "accurate": "accurate",
