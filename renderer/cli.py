@@ -75,10 +75,10 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
                    help="lights below this share of the energy get no shadow map (their PEMs are added unshadowed)")
     q.add_argument("--caster-detail", type=float,
                    help="share of the casters' triangles the shadow maps draw, in (0, 1] (a proxy with the same "
-                        "vertices; 1: the meshes themselves)")
+                        "vertices; 1: the meshes themselves; default: the preset's)")
     q.add_argument("--small-light-scale", type=int,
                    help="small lights (a sun, under ~6 degrees) get shadow maps K times --shadow-size per side, "
-                        "at full caster detail (default 1)")
+                        "at full caster detail (default: the preset's)")
     q.add_argument("--sh-unshadowed", action=argparse.BooleanOptionalAction,
                    help="the diffuse term of the unshadowed lights from SH9 irradiance (one lookup less per light)")
     q.add_argument("--glossy-horizon", choices=["off", "lobe", "lights", "both"],

@@ -18,11 +18,11 @@ def knob_defaults() -> dict:
 
 
 # A preset may also set any knob of knob_defaults() (its value wins over the default), chosen from the
-# benchmark (docs/benchmarks.md). Blur 0: the paper's blur made no scene more accurate at 48 lights
-# (the lights' many hard shadows already add up to soft ones) and cost 6-26 ms a frame. Caster detail
-# 0.25: 0-4 % more error for half the shadow pass. Small lights' maps at twice the size: the sun's
-# shadow edges are the largest error left in sunlit scenes. Lights and PEM faces beyond 48 and 128:
-# under 4 % less error for twice the time; the accurate preset spends it on shadow maps instead.
+# benchmark (docs/benchmarks.md). Blur 0: the paper's blur changed the error by -1 to +3 % at 48
+# lights (the lights' many hard shadows already add up to soft ones) for 8-32 ms a frame. Caster
+# detail 0.25: 0-5 % more error for half the shadow pass. Small lights' maps at twice the size: the
+# sun's shadow edges are the largest error left in sunlit scenes. Lights beyond 48 cost linear time
+# (96 lights: about twice) for 2-16 % less error; the accurate preset spends time on shadow maps.
 DEFAULT_PRESETS = {
     "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 0.0, "caster_detail": 0.1},
     "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.0, "caster_detail": 0.25,

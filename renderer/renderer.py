@@ -280,10 +280,12 @@ class Renderer:
         lights_buf = self._buffer("lights", lights.tobytes())
         # Main-array lights, then the small lights' array (drawn at full caster detail).
         casters = [sm for sm in scene.meshes if sm.caster]
-        passes = [("main", settings.shadow_size, plan.main_lights, [sm.shadow_vao(settings.caster_detail) for sm in casters]),
-                  ("sharp", settings.shadow_size * k, plan.sharp_lights, [sm.vao_shadow for sm in casters])]
+        # (A proxy is made only when a main-array light is drawn: a large mesh's takes seconds.)
+        passes = [("main", settings.shadow_size, plan.main_lights,
+                   lambda: [sm.shadow_vao(settings.caster_detail) for sm in casters]),
+                  ("sharp", settings.shadow_size * k, plan.sharp_lights, lambda: [sm.vao_shadow for sm in casters])]
         arrays = {}
-        for which, size, layer_lights, vaos in passes:
+        for which, size, layer_lights, vaos_of in passes:
             if which == "sharp" and not len(layer_lights):
                 if "sharp" in self._shadow_maps:   # no small light now: give its memory back
                     self._shadow_maps.pop("sharp").release()
@@ -291,7 +293,7 @@ class Renderer:
             arrays[which] = self._shadow_maps_for(which, size, max(len(layer_lights), 1))
             if len(layer_lights):
                 shadow_list = self._buffer(f"shadow_lights_{which}", layer_lights.tobytes())
-                arrays[which].render(vaos, lights_buf, shadow_list, timer)
+                arrays[which].render(vaos_of(), lights_buf, shadow_list, timer)
         shadow_maps = arrays["main"]
 
         # Shading.
@@ -332,8 +334,8 @@ class Renderer:
             self._gloss_buf.write(pems.gloss_table(settings.calibration).tobytes())
             self._gloss_buf.bind_to_storage_buffer(1)
             self._horizon_tex.use(location=7)
-            for k, t in enumerate(gbuf):
-                t.use(location=8 + k)
+            for unit, t in enumerate(gbuf):
+                t.use(location=8 + unit)
             pems.bind(0, 5, 6)
             shadow_maps.moments.use(location=1)
             arrays.get("sharp", shadow_maps).moments.use(location=12)
@@ -381,7 +383,8 @@ class Renderer:
         timings["n_triangles"] = scene.n_triangles
         # Triangles the shadow pass drew: the small lights' maps at full detail, the others' at caster_detail.
         full = sum(sm.shadow_triangles(1.0) for sm in scene.meshes if sm.caster)
-        coarse = sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster)
+        coarse = (sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster)
+                  if len(plan.main_lights) else 0)
         timings["shadow_triangles"] = len(plan.sharp_lights) * full + len(plan.main_lights) * coarse
         timings["device"] = gl.renderer_name
         info = {"frame": settings.as_dict(), "pems": pems.summary(),

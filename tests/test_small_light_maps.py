@@ -59,16 +59,16 @@ def test_a_small_lights_map_at_k_times_the_size_matches_a_map_of_that_size(rende
         return f, f.image[..., :3].mean(axis=-1)
 
     coarse_f, coarse = lum(32, 1)
-    tiled_f, tiled = lum(32, 4)
+    sharp_f, sharp = lum(32, 4)
     _, fine = lum(128, 1)
     # The same layers, but the small lights' in a 128^2 array: more memory.
-    assert tiled_f.timings["shadow_layers"] == coarse_f.timings["shadow_layers"]
-    assert tiled_f.settings["shadow_bytes"] > coarse_f.settings["shadow_bytes"]
+    assert sharp_f.timings["shadow_layers"] == coarse_f.timings["shadow_layers"]
+    assert sharp_f.settings["shadow_bytes"] > coarse_f.settings["shadow_bytes"]
     # The sun's shadow of the sphere is there in every version...
     dark = fine < 0.3 * np.percentile(fine, 95)
     assert dark.sum() > 100
-    # ... and with the sun's map at 4 x 32^2 it is drawn as with 128^2 maps, not as with 32^2 ones
+    # ... and with the sun's map at 128^2 (4 x 32) it is drawn as with 128^2 maps, not as with 32^2 ones
     # (the sky's lights keep 32^2 maps: the sky is dim here).
-    err_tiled = np.abs(tiled - fine).sum() / fine.sum()
+    err_sharp = np.abs(sharp - fine).sum() / fine.sum()
     err_coarse = np.abs(coarse - fine).sum() / fine.sum()
-    assert err_tiled < 0.02 and err_tiled < 0.5 * err_coarse, (err_tiled, err_coarse)
+    assert err_sharp < 0.02 and err_sharp < 0.5 * err_coarse, (err_sharp, err_coarse)

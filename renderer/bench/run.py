@@ -2,7 +2,8 @@
 one run on one machine, against the Monte Carlo reference (with its own noise floor stated).
 
 One-at-a-time sweeps around the `balanced` preset (lights, PEM face size, shadow-map size, blur
-scale, filter), plus baselines timed in the same run on the same scenes: unshadowed prefiltered
+scale, filter, calibration, diffuse source, horizon terms, needed levels, dim lights, caster detail,
+small lights' map size), the other presets as rows of their own, plus baselines timed in the same run on the same scenes: unshadowed prefiltered
 environment lighting, the plain many-light method, ambient occlusion times environment lighting
 (grey and colour), and the reference at the sample count that reaches the same error.
 """

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..camera import frame_meshes
 from ..gpu.context import GLContext
-from ..presets import DEFAULT_PRESETS, knob_defaults
+from ..presets import knob_defaults, presets
 from ..renderer import Renderer
 from .run import _pems_for, frame_settings
 from .scenes import bundled_scene, shared_scenes
@@ -30,16 +30,19 @@ VARIANTS = {
 }
 
 
-def _setting(variant) -> dict:
+def _setting(variant, table: dict) -> dict:
+    """A variant's knobs: a preset as the CLI and service apply it (the stored table's, else the
+    default), or balanced with some knobs changed."""
     base = {**knob_defaults(), "filter": "sqrt-cosine"}
     if isinstance(variant, str):
-        return {**base, **DEFAULT_PRESETS[variant]}
-    return {**base, **DEFAULT_PRESETS["balanced"], **variant}
+        return {**base, **table[variant]}
+    return {**base, **table["balanced"], **variant}
 
 
 def run_speed(out: Path | None, rounds: int = 15, size: int = 256, shared: bool = True, log=print) -> dict:
     scenes = (shared_scenes() if shared else []) or [bundled_scene()]
-    result = {"size": size, "rounds": rounds, "scenes": {}}
+    table, source = presets()
+    result = {"size": size, "rounds": rounds, "presets": source, "scenes": {}}
     gl = GLContext()
     # One renderer per setting on the one context: each keeps its own shadow maps and targets, as a
     # service rendering one scene at one setting does (a shared renderer would re-make them at
@@ -50,16 +53,21 @@ def run_speed(out: Path | None, rounds: int = 15, size: int = 256, shared: bool 
         for bs in scenes:
             camera = frame_meshes(bs.meshes, 1.0)
             cache: dict = {}
-            # A scene's vertex arrays belong to the programs of the renderer that made it: one each.
-            scenes_ = {name: r.create_scene(bs.meshes, bs.materials) for name, r in renderers.items()}
+            scenes_: dict = {}
             try:
-                jobs = {name: (renderers[name], scenes_[name], _pems_for(renderers[name], bs, _setting(v), cache),
-                               frame_settings(_setting(v), size)) for name, v in VARIANTS.items()}
+                # A scene's vertex arrays belong to the programs of the renderer that made it: one each.
+                for name, r in renderers.items():
+                    scenes_[name] = r.create_scene(bs.meshes, bs.materials)
+                jobs = {name: (renderers[name], scenes_[name], _pems_for(renderers[name], bs, _setting(v, table), cache),
+                               frame_settings(_setting(v, table), size)) for name, v in VARIANTS.items()}
                 for r, scene, pems, fs in jobs.values():   # warm-up: programs, arrays, proxies
                     r.render(scene, pems, fs, camera)
                 times = {name: [] for name in jobs}
-                for _ in range(rounds):
-                    for name, (r, scene, pems, fs) in jobs.items():
+                order = list(jobs)
+                for k in range(rounds):
+                    # The order rotates every round, so that no setting always follows the same one.
+                    for name in order[k % len(order):] + order[:k % len(order)]:
+                        r, scene, pems, fs = jobs[name]
                         times[name].append(r.render(scene, pems, fs, camera).timings["frame_wall_ms"])
             finally:
                 for p in cache.values():
