@@ -62,6 +62,16 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
                           terminator=bool(knobs["terminator"]), horizon=bool(knobs["horizon"]),
                           caster_detail=float(knobs["caster_detail"]),
                           small_light_scale=int(knobs["small_light_scale"]), background=Background(out.background))
+    # The shadow maps' memory before any is made, bounded as if every light were small: a request
+    # that cannot fit is refused here with the numbers, not by the GL driver mid-frame.
+    side = frame.shadow_size * frame.small_light_scale
+    worst = int(knobs["lights"]) * side * side * 16
+    if worst > settings.max_shadow_map_bytes:
+        raise InvalidRequestError(
+            f"quality asks for up to {worst / 2**30:.1f} GiB of shadow maps ({knobs['lights']} lights x "
+            f"({frame.shadow_size} x {frame.small_light_scale})^2 x 16 bytes), over the limit of "
+            f"{settings.max_shadow_map_bytes / 2**30:.1f} GiB (GARMENT_RENDER_MAX_SHADOW_MAP_BYTES): use fewer "
+            "lights, a smaller shadow_size or small_light_scale")
     pem = PEMSettings(int(knobs["lights"]), Filter(q.filter.value), q.levels)
     info = {"preset": name, "lights": pem.n_lights, "face_size": fs, "filter": pem.filter.value,
             "levels": q.levels, "shadow_size": frame.shadow_size, "blur_scale": frame.blur_scale,

@@ -573,6 +573,15 @@ def test_accuracy_knobs_reach_the_renderer_and_are_reported(http, env_upload, me
     assert_error(http.post("/render", json=body), 422, "caster_detail")
 
 
+def test_shadow_maps_beyond_the_memory_limit_are_refused_before_rendering(http, env_upload, mesh):
+    body = scene_body(env_upload[0]["id"], mesh)
+    body["quality"] = {**body["quality"], "lights": 384, "shadow_size": 2048, "small_light_scale": 2}
+    # 384 x 4096^2 x 16 bytes = 96 GiB, over the default 4 GiB.
+    assert_error(http.post("/render", json=body), 422, "GiB of shadow maps", "GARMENT_RENDER_MAX_SHADOW_MAP_BYTES")
+    body["quality"] = {**body["quality"], "shadow_size": 64, "small_light_scale": 1}
+    assert http.post("/render", json=body, params={"format": "json"}).status_code == 200
+
+
 def test_a_floor_that_casts_no_shadow(http, env_upload, mesh, tmp_path):
     import OpenEXR
 
