@@ -347,7 +347,7 @@ def cmd_speed(args) -> int:
     from .bench.speed import markdown, run_speed
 
     if args.rounds < 1 or args.size < 1:
-        raise InvalidInputError("--rounds and --size must be positive")
+        raise InvalidInputError(f"--rounds and --size must be positive, got {args.rounds} and {args.size}")
     result = run_speed(args.out, args.rounds, args.size, shared=not args.no_shared)
     print(f"{result['device']}, {args.size}x{args.size}, median of {args.rounds} frames per setting, "
           "settings taking turns (10th-90th percentile in brackets):")

@@ -20,7 +20,7 @@ from .errors import InvalidInputError
 from .gpu.context import GLContext, StageTimer
 from .gpu.shaders import program
 from .lighting.glossiness import Calibration
-from .lighting.sh import A_BAND, irradiance_coefficients
+from .lighting.sh import irradiance_coefficients
 from .lighting.pem import REGIONS_PER_TEXTURE, PEMSet, PEMSettings
 from .mesh import Mesh
 from .scene import Scene
@@ -153,7 +153,8 @@ class Renderer:
         self.gl = gl or GLContext()
         ctx = self.gl.ctx
         defines = {"GLOSS_TABLE_SIZE": PEMSet.GLOSS_TABLE_SIZE, "REGIONS_PER_TEXTURE": REGIONS_PER_TEXTURE,
-                   "HORIZON_N_MU": float(HORIZON_N_MU), "HORIZON_N_G": float(HORIZON_N_G)}
+                   "HORIZON_N_MU": float(HORIZON_N_MU), "HORIZON_N_G": float(HORIZON_N_G),
+                   "SMALL_LIGHT_MAX_SIN": float(SMALL_LIGHT_MAX_SIN)}
         self._defines = defines
         self._shade_progs: dict[tuple[ShadingMode, str], tuple[moderngl.Program, moderngl.VertexArray]] = {}
         self.bg_prog = program(ctx, "shading/background.vert", "shading/background.frag")
@@ -278,23 +279,20 @@ class Renderer:
                              sigma, plan.layer, regions.disc_radius_rad(), plan.sharp,
                              settings.shadow_size / sizes)
         lights_buf = self._buffer("lights", lights.tobytes())
-        # Main-array lights, then the small lights' array (drawn at full caster detail).
+        # The main array (casters at caster_detail; a proxy is made only when one is drawn: a large
+        # mesh's takes seconds), then the small lights' array (casters at full detail).
         casters = [sm for sm in scene.meshes if sm.caster]
-        # (A proxy is made only when a main-array light is drawn: a large mesh's takes seconds.)
-        passes = [("main", settings.shadow_size, plan.main_lights,
-                   lambda: [sm.shadow_vao(settings.caster_detail) for sm in casters]),
-                  ("sharp", settings.shadow_size * k, plan.sharp_lights, lambda: [sm.vao_shadow for sm in casters])]
-        arrays = {}
-        for which, size, layer_lights, vaos_of in passes:
-            if which == "sharp" and not len(layer_lights):
-                if "sharp" in self._shadow_maps:   # no small light now: give its memory back
-                    self._shadow_maps.pop("sharp").release()
-                continue
-            arrays[which] = self._shadow_maps_for(which, size, max(len(layer_lights), 1))
-            if len(layer_lights):
-                shadow_list = self._buffer(f"shadow_lights_{which}", layer_lights.tobytes())
-                arrays[which].render(vaos_of(), lights_buf, shadow_list, timer)
-        shadow_maps = arrays["main"]
+        shadow_maps = self._shadow_maps_for("main", settings.shadow_size, max(len(plan.main_lights), 1))
+        arrays = {"main": shadow_maps}
+        if len(plan.main_lights):
+            shadow_maps.render([sm.shadow_vao(settings.caster_detail) for sm in casters], lights_buf,
+                               self._buffer("shadow_lights_main", plan.main_lights.tobytes()), timer)
+        if len(plan.sharp_lights):
+            arrays["sharp"] = self._shadow_maps_for("sharp", settings.shadow_size * k, len(plan.sharp_lights))
+            arrays["sharp"].render([sm.vao_shadow for sm in casters], lights_buf,
+                                   self._buffer("shadow_lights_sharp", plan.sharp_lights.tobytes()), timer)
+        elif "sharp" in self._shadow_maps:   # no small light now: give its memory back
+            self._shadow_maps.pop("sharp").release()
 
         # Shading.
         w, h = settings.width, settings.height
@@ -329,7 +327,7 @@ class Renderer:
             if settings.diffuse == "sh":
                 # Per light, its region's irradiance coefficients (9 x rgb, padded to vec4).
                 sh = np.zeros((n, 9, 4), np.float32)
-                sh[..., :3] = pems.region_sh * A_BAND[None, :, None]
+                sh[..., :3] = irradiance_coefficients(pems.region_sh)
                 self._buffer("light_sh", sh.tobytes()).bind_to_storage_buffer(3)
             self._gloss_buf.write(pems.gloss_table(settings.calibration).tobytes())
             self._gloss_buf.bind_to_storage_buffer(1)

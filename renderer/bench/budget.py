@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from ..atomic import atomic_file
 from ..errors import InvalidInputError
 
 MEASURED = Path(__file__).with_name("measured.json")
@@ -45,7 +46,8 @@ def summarize(bench: dict) -> dict:
 
 def write_table(bench_json: Path, out: Path = MEASURED) -> dict:
     table = summarize(json.loads(Path(bench_json).read_text()))
-    out.write_text(json.dumps(table, indent=1))
+    with atomic_file(out) as f:   # the package's table: readers never see half of it
+        f.write(json.dumps(table, indent=1).encode())
     return table
 
 

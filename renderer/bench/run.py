@@ -54,7 +54,6 @@ SWEEPS = {
 QUICK_SWEEPS = {**SWEEPS, "lights": [6, 24, 48, 96], "face_size": [64, 128], "shadow_size": [128, 256],
                 "blur_scale": [0.0, 0.1, 1.0], "filter": ["none", "sqrt-cosine"], "shadow_threshold": [0.01],
                 "caster_detail": [1.0], "small_light_scale": [1, 2]}
-QUICK_SWEEPS["preset"] = SWEEPS["preset"]
 BASELINE_MODES = [ShadingMode.NO_OCCLUSION, ShadingMode.MANY_LIGHTS, ShadingMode.AO_GREY, ShadingMode.AO_COLOUR]
 
 
@@ -101,7 +100,9 @@ def _settings_list(sweeps: dict) -> list[tuple[str, object, dict]]:
     out = [("balanced", "balanced", dict(BALANCED))]
     for knob, values in sweeps.items():
         for v in values:
-            s = dict(BALANCED)
+            # A preset row is the preset as the CLI and service apply it (its knobs over the defaults),
+            # not balanced with the preset's knobs changed.
+            s = {**knob_defaults(), "filter": BALANCED["filter"]} if knob == "preset" else dict(BALANCED)
             s.update(v if isinstance(v, dict) else {knob: v})
             if s == BALANCED:
                 continue

@@ -58,8 +58,9 @@ def run_speed(out: Path | None, rounds: int = 15, size: int = 256, shared: bool 
                 # A scene's vertex arrays belong to the programs of the renderer that made it: one each.
                 for name, r in renderers.items():
                     scenes_[name] = r.create_scene(bs.meshes, bs.materials)
-                jobs = {name: (renderers[name], scenes_[name], _pems_for(renderers[name], bs, _setting(v, table), cache),
-                               frame_settings(_setting(v, table), size)) for name, v in VARIANTS.items()}
+                settings = {name: _setting(v, table) for name, v in VARIANTS.items()}
+                jobs = {name: (renderers[name], scenes_[name], _pems_for(renderers[name], bs, s, cache),
+                               frame_settings(s, size)) for name, s in settings.items()}
                 for r, scene, pems, fs in jobs.values():   # warm-up: programs, arrays, proxies
                     r.render(scene, pems, fs, camera)
                 times = {name: [] for name in jobs}

@@ -22,7 +22,7 @@ LIGHT_DTYPE = np.dtype([
 ])
 
 # Lights of angular radius up to asin(0.1) ~ 5.7 degrees count as small (a sun): their shadows are
-# sharp. Mirrors TERMINATOR_MAX_SIN in shaders/shading/lighting.frag.
+# sharp. The shaders get it as the define SMALL_LIGHT_MAX_SIN (renderer.py).
 SMALL_LIGHT_MAX_SIN = 0.1
 
 # Assumed occluder-to-receiver distance as a fraction of the shadow map's footprint; it turns a

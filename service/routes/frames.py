@@ -227,7 +227,8 @@ async def render_once(
     def job(gl: GLResources):
         pems, source = gl.pem_set(env.content_hash, cube, pem)
         env.note_pem_set(key, q.face_size, pem, pems, source)
-        scene = gl.renderer.create_scene(prepared.meshes, prepared.materials, casters=prepared.casters)
+        scene = gl.renderer.create_scene(prepared.meshes, prepared.materials, casters=prepared.casters,
+                                         proxies=prepared.proxies)
         try:
             return gl.renderer.render(scene, pems, q.frame, prepared.camera), source
         finally:

@@ -84,7 +84,8 @@ float gloss_level(float g) {
     return mix(level_of_g[k], level_of_g[k + 1], x - float(k));
 }
 
-const float TERMINATOR_MAX_SIN = 0.1;   // lights of angular radius up to ~5.7 degrees count as small
+// SMALL_LIGHT_MAX_SIN (a #define, renderer/shadows/lights.py): lights of angular radius up to ~5.7
+// degrees count as small.
 uniform bool u_terminator;             // FrameSettings.terminator
 uniform bool u_small_exact;            // FrameSettings.diffuse == "mixed" (full and no-occlusion modes)
 
@@ -133,7 +134,7 @@ bool exact_diffuse(int i) {   // the light's diffuse term in closed form: every 
 #ifdef DIFFUSE_LIGHTS
     return true;
 #else
-    return MODE <= 1 && u_small_exact && lights[i].params.w <= TERMINATOR_MAX_SIN && !sh_skip(i);
+    return MODE <= 1 && u_small_exact && lights[i].params.w <= SMALL_LIGHT_MAX_SIN && !sh_skip(i);
 #endif
 }
 vec3 g_diffuse_exact = vec3(0.0);   // added after the PEM terms' normalization
@@ -157,7 +158,7 @@ void set_sh_basis(vec3 n) {
 // its SH9 irradiance / pi.
 vec3 exact_diffuse_term(int i, vec3 n) {
 #ifdef DIFFUSE_SH
-    if (lights[i].params.w > TERMINATOR_MAX_SIN) {
+    if (lights[i].params.w > SMALL_LIGHT_MAX_SIN) {
         vec3 e = vec3(0.0);
         for (int k = 0; k < 9; ++k) e += light_sh[9 * i + k].rgb * g_sh_basis[k];
         // Not clamped per light: a region behind the surface rings slightly negative, and the sum over
@@ -201,7 +202,7 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos) {
     float above = disc_share_above(i, g_geometric_normal);
     // Small lights (a sun): both terms (their terminator is sharp; a large region's share is soft
     // and its PEM's diffuse kernel spreads it anyway).
-    bool small = u_terminator && sin_r <= TERMINATOR_MAX_SIN;
+    bool small = u_terminator && sin_r <= SMALL_LIGHT_MAX_SIN;
     if (small) vis *= above;
     if (exact_diffuse(i)) g_diffuse_exact += vis * exact_diffuse_term(i, n);
     else g_diffuse += vis * pem_d;
