@@ -11,7 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InvalidInputError, RenderError
-from .presets import DEFAULT_PRESETS, knob_defaults, presets
+from .presets import DEFAULT_PRESETS, PRESET_KNOBS, knob_defaults, merge_knobs, presets
+from .presets import frame_settings as presets_frame_settings
+from .presets import pem_settings as presets_pem_settings
 
 
 
@@ -105,8 +107,8 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def resolve_quality(args) -> dict:
-    """Quality settings: a budget (chosen from the measured table), else the preset; explicit
-    flags override either. The result says where the settings came from."""
+    """Quality knobs: a budget (chosen from the measured table), else the preset, over the
+    defaults; explicit flags override all (`merge_knobs`). The result says where they came from."""
     table_presets, source = presets()
     if args.frame_budget_ms is not None or args.error_budget is not None:
         from .bench.budget import choose, load_table
@@ -115,45 +117,28 @@ def resolve_quality(args) -> dict:
         if table is None:
             raise InvalidInputError("budgets need a measured table: run `garment-render bench --store` first")
         entry = choose(table, args.frame_budget_ms, args.error_budget)
-        q = {k: v for k, v in entry["settings"].items() if k != "filter"}
-        q["source"] = (f"budget: measured {entry['median_frame_ms']:.1f} ms, worst rel. RMSE "
-                       f"{entry['worst_rel_rmse']:.4f} ({source})")
+        base = {k: v for k, v in entry["settings"].items() if k != "filter"}
+        where = (f"budget: measured {entry['median_frame_ms']:.1f} ms, worst rel. RMSE "
+                 f"{entry['worst_rel_rmse']:.4f} ({source})")
     else:
-        q = dict(table_presets[args.preset])
-        q["source"] = f"preset {args.preset}, {source}"
-    for key in ("lights", "face_size", "shadow_size", "blur_scale"):
-        if getattr(args, key) is not None:
-            q[key] = getattr(args, key)
-    # The other knobs: an explicit flag, else the preset's or budget's measured value, else the default.
-    for key, default in knob_defaults().items():
-        value = getattr(args, key)
-        if value is None:
-            value = q.get(key, default)
-        setattr(args, key, value)
-        q[key] = value
-    return q
+        base = table_presets[args.preset]
+        where = f"preset {args.preset}, {source}"
+    knobs = merge_knobs(base, {k: getattr(args, k) for k in (*PRESET_KNOBS, *knob_defaults())})
+    return {**knobs, "source": where}
 
 
 def frame_settings(args, q: dict):
     """The frame's settings from the resolved quality (`resolve_quality`) and the output flags."""
-    from .renderer import Background, FrameSettings, ShadingMode
+    from .renderer import Background, ShadingMode
 
     w, h = args.size
-    return FrameSettings(width=w, height=h, shadow_size=q["shadow_size"], blur_scale=q["blur_scale"],
-                         bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
-                         calibration=args.calibration, diffuse=args.diffuse, glossy_horizon=args.glossy_horizon,
-                         shadow_threshold=args.shadow_threshold, sh_unshadowed=args.sh_unshadowed,
-                         caster_detail=args.caster_detail, small_light_scale=args.small_light_scale,
-                         terminator=args.terminator, horizon=args.horizon, background=Background(args.background))
+    return presets_frame_settings(q, w, h, bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
+                                  background=Background(args.background))
 
 
 def pem_settings(args, q: dict, materials):
-    """The PEM set's settings; with --needed-levels only the levels the materials' glossiness reads."""
-    from .lighting.filters import Filter
-    from .lighting.pem import PEMSettings
-
-    pem = PEMSettings(q["lights"], Filter.parse(args.filter), args.levels)
-    return pem.for_materials(q["face_size"], materials, args.calibration) if args.needed_levels else pem
+    """The PEM set's settings; with needed levels only the levels the materials' glossiness reads."""
+    return presets_pem_settings(q, args.filter, args.levels, materials)
 
 
 def load_scene_inputs(args, face_size: int):

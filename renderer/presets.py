@@ -4,10 +4,14 @@ Used by the command line, the service and the benchmark alike."""
 
 from __future__ import annotations
 
+# The knobs every preset names; the others (knob_defaults) a preset or budget may also set.
+PRESET_KNOBS = ("lights", "face_size", "shadow_size", "blur_scale")
+
+
 def knob_defaults() -> dict:
     """The quality knobs besides a preset's four (lights, PEM face, shadow map, blur) and their
     defaults: what a preset or budget from the measured table may also set, and what the benchmark's
-    balanced setting uses."""
+    balanced setting uses. The one place these defaults are stated (FrameSettings' own)."""
     from .renderer import FrameSettings
 
     f = FrameSettings()
@@ -15,6 +19,40 @@ def knob_defaults() -> dict:
             "terminator": f.terminator, "horizon": f.horizon, "shadow_threshold": f.shadow_threshold,
             "sh_unshadowed": f.sh_unshadowed, "needed_levels": True,
             "caster_detail": f.caster_detail, "small_light_scale": f.small_light_scale}
+
+
+def merge_knobs(base: dict, explicit: dict) -> dict:
+    """A preset's or budget's knobs (`base`) over the defaults, with the caller's explicit values
+    (None: not given) over both: the one rule the command line, the service and the benchmark share."""
+    knobs = {**knob_defaults(), **base}
+    knobs.update({k: v for k, v in explicit.items() if v is not None})
+    missing = [k for k in PRESET_KNOBS if k not in knobs]
+    if missing:
+        raise ValueError(f"quality knobs without a value: {missing}")
+    return knobs
+
+
+def frame_settings(knobs: dict, width: int, height: int, **output):
+    """The FrameSettings of resolved knobs (`merge_knobs`) for a width x height image; `output` are
+    the settings no preset chooses (mode, background, bleed_reduction)."""
+    from .renderer import FrameSettings
+
+    frame_knobs = {k: knobs[k] for k in knob_defaults() if k != "needed_levels"}
+    return FrameSettings(width=width, height=height, shadow_size=int(knobs["shadow_size"]),
+                         blur_scale=float(knobs["blur_scale"]), **frame_knobs, **output)
+
+
+def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
+    """The PEM set's settings of resolved knobs: with needed_levels and the scene's materials, only
+    the levels their glossiness reads (the same image, a fraction of the memory); without
+    materials, the whole chain."""
+    from .lighting.filters import Filter
+    from .lighting.pem import PEMSettings
+
+    pem = PEMSettings(int(knobs["lights"]), Filter.parse(filter), levels)
+    if knobs["needed_levels"] and materials is not None:
+        pem = pem.for_materials(int(knobs["face_size"]), materials, knobs["calibration"])
+    return pem
 
 
 # A preset may also set any knob of knob_defaults() (its value wins over the default), chosen from the

@@ -132,23 +132,12 @@ def _to_scene_up(positions: np.ndarray, up: str) -> list:
     return p.tolist()
 
 
-def scene_pem_settings(body: SceneCreate, prepared) -> PEMSettings:
-    """The PEM settings of a prepared scene: with quality.needed_levels (the default), only the levels
-    its materials' glossiness reads (the same image, a fraction of the memory). Noted in the quality info."""
-    q = prepared.quality
-    pem = q.pem
-    if q.info["needed_levels"]:
-        pem = pem.for_materials(q.face_size, prepared.materials, q.frame.calibration)
-    q.info["base_level"] = pem.base_level
-    return pem
-
-
 async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = None) -> SceneRecord:
     svc.scenes.check_room()
     env = await find_environment(svc, body.environment_id)
     prepared = await anyio.to_thread.run_sync(prepare_scene, body, svc.presets, svc.meshes, svc.settings)
     q = prepared.quality
-    pem = scene_pem_settings(body, prepared)
+    pem = q.pem
     cube = await anyio.to_thread.run_sync(env.cube, q.face_size)
     key = cache_key(env.content_hash, q.face_size, pem)
     record = SceneRecord(

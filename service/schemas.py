@@ -8,6 +8,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from renderer.presets import knob_defaults
+
 
 class Preset(str, Enum):
     FAST = "fast"
@@ -57,6 +59,10 @@ class _Strict(BaseModel):
 # -- quality and output --------------------------------------------------------------------------
 
 
+# The knobs' defaults are the renderer's (renderer/presets.py); a preset's values win over them.
+_KNOB = knob_defaults()
+
+
 class QualitySpec(_Strict):
     """A preset, refined by explicit knobs (each overrides the preset's value)."""
 
@@ -68,25 +74,25 @@ class QualitySpec(_Strict):
     shadow_size: int | None = Field(None, ge=16, le=4096, description="shadow-map size per light")
     blur_scale: float | None = Field(None, ge=0.0, le=100.0, description="shadow blur scale (0: hard)")
     bleed_reduction: float = Field(0.2, ge=0.0, lt=1.0)
-    shadow_threshold: float = Field(0.0, ge=0.0, le=1.0)
+    shadow_threshold: float = Field(_KNOB["shadow_threshold"], ge=0.0, le=1.0)
     mode: ModeName = ModeName.FULL
-    calibration: Literal["l2", "volume"] = Field("l2", description="g -> MIP level: closest normalized kernel "
+    calibration: Literal["l2", "volume"] = Field(_KNOB["calibration"], description="g -> MIP level: closest normalized kernel "
                                                  "(l2) or the paper's equal lobe volume")
     diffuse: Literal["pem", "lights", "mixed", "sh"] = Field(
-        "pem", description="diffuse term from the PEMs (the paper), from each light's disc, mixed (small "
+        _KNOB["diffuse"], description="diffuse term from the PEMs (the paper), from each light's disc, mixed (small "
                            "lights from their disc, the rest from the PEMs) or sh (small lights from their "
                            "disc, the rest from their region's SH9 irradiance)")
     glossy_horizon: Literal["off", "lobe", "lights", "both"] = Field(
-        "lights", description="drop the glossy lobe's part below the surface (off: the paper)")
-    terminator: bool = Field(True, description="small lights below the triangle's own plane light neither term")
-    horizon: bool = Field(False, description="the shading normal's tangent plane blocks every light, both terms")
-    needed_levels: bool = Field(True, description="store only the PEM levels the scene's glossiness reads "
+        _KNOB["glossy_horizon"], description="drop the glossy lobe's part below the surface (off: the paper)")
+    terminator: bool = Field(_KNOB["terminator"], description="small lights below the triangle's own plane light neither term")
+    horizon: bool = Field(_KNOB["horizon"], description="the shading normal's tangent plane blocks every light, both terms")
+    needed_levels: bool = Field(_KNOB["needed_levels"], description="store only the PEM levels the scene's glossiness reads "
                                 "(the same image, less memory)")
-    caster_detail: float = Field(1.0, gt=0.0, le=1.0, description="share of the casters' triangles the shadow "
+    caster_detail: float = Field(_KNOB["caster_detail"], gt=0.0, le=1.0, description="share of the casters' triangles the shadow "
                                  "maps draw (a proxy over the same vertices; 1: the meshes themselves)")
-    small_light_scale: int = Field(1, ge=1, le=8, description="small lights (a sun, under ~6 degrees) get shadow "
+    small_light_scale: int = Field(_KNOB["small_light_scale"], ge=1, le=8, description="small lights (a sun, under ~6 degrees) get shadow "
                                    "maps K times shadow_size per side, at full caster detail")
-    sh_unshadowed: bool = Field(False, description="the diffuse term of the lights below shadow_threshold "
+    sh_unshadowed: bool = Field(_KNOB["sh_unshadowed"], description="the diffuse term of the lights below shadow_threshold "
                                 "from SH9 irradiance")
 
 

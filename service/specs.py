@@ -9,13 +9,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from renderer.camera import Camera, frame_meshes
-from renderer.lighting.filters import Filter
 from renderer.lighting.median_cut import regions_per_face
 from renderer.lighting.pem import PEMSettings
 from renderer.errors import MeshError
 from renderer.mesh import Mesh, z_up_to_y_up
-from renderer.presets import knob_defaults
+from renderer.presets import PRESET_KNOBS, frame_settings, knob_defaults, merge_knobs, pem_settings
 from renderer.renderer import Background, FrameSettings, ShadingMode
+
 from renderer.shading.material import Material
 from renderer.shadows.proxy import caster_proxy_isolated
 
@@ -25,26 +25,24 @@ from .schemas import CameraSpec, MaterialSpec, MeshSpec, OutputSpec, QualitySpec
 from .settings import ServiceSettings
 
 
+_KNOBS = (*PRESET_KNOBS, *knob_defaults())
+
+
 @dataclass
 class Quality:
     face_size: int
     pem: PEMSettings
     frame: FrameSettings
-    info: dict  # the resolved knobs and where they came from
+    knobs: dict   # the resolved knobs (`merge_knobs`)
+    info: dict    # the resolved settings and where they came from, reported with each frame
 
 
 def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: ServiceSettings) -> Quality:
+    """The request's knobs over its preset's (the stored measured table's, else the defaults) over the
+    defaults (`merge_knobs`), as frame and PEM settings; the PEM set's full chain (a scene narrows it
+    to its materials' levels in `prepare_scene`)."""
     name = q.preset.value if q.preset is not None else settings.default_preset
-    knobs = dict(presets[name])
-    for key in ("lights", "face_size", "shadow_size", "blur_scale"):
-        value = getattr(q, key)
-        if value is not None:
-            knobs[key] = value
-    # The other knobs: the request's when it names them, else the preset's measured value (a table
-    # stored by `garment-render bench --store`), else the schema default.
-    for key in knob_defaults():
-        if key in q.model_fields_set or key not in knobs:
-            knobs[key] = getattr(q, key, None)
+    knobs = merge_knobs(presets[name], {k: getattr(q, k) for k in q.model_fields_set if k in _KNOBS})
     regions_per_face(int(knobs["lights"]))  # InvalidInputError naming the valid counts
 
     fs = int(knobs["face_size"])
@@ -54,14 +52,8 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
         if value > settings.max_image_side:
             raise InvalidRequestError(f"output.{side} {value} exceeds the limit {settings.max_image_side} "
                                       "(GARMENT_RENDER_MAX_IMAGE_SIDE)")
-    frame = FrameSettings(width=out.width, height=out.height, shadow_size=int(knobs["shadow_size"]),
-                          blur_scale=float(knobs["blur_scale"]), bleed_reduction=q.bleed_reduction,
-                          shadow_threshold=float(knobs["shadow_threshold"]), mode=ShadingMode(q.mode.value),
-                          calibration=knobs["calibration"], diffuse=knobs["diffuse"],
-                          glossy_horizon=knobs["glossy_horizon"], sh_unshadowed=bool(knobs["sh_unshadowed"]),
-                          terminator=bool(knobs["terminator"]), horizon=bool(knobs["horizon"]),
-                          caster_detail=float(knobs["caster_detail"]),
-                          small_light_scale=int(knobs["small_light_scale"]), background=Background(out.background))
+    frame = frame_settings(knobs, out.width, out.height, bleed_reduction=q.bleed_reduction,
+                           mode=ShadingMode(q.mode.value), background=Background(out.background))
     # The shadow maps' memory before any is made, bounded as if every light were small: a request
     # that cannot fit is refused here with the numbers, not by the GL driver mid-frame.
     side = frame.shadow_size * frame.small_light_scale
@@ -72,15 +64,11 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
             f"({frame.shadow_size} x {frame.small_light_scale})^2 x 16 bytes), over the limit of "
             f"{settings.max_shadow_map_bytes / 2**30:.1f} GiB (GARMENT_RENDER_MAX_SHADOW_MAP_BYTES): use fewer "
             "lights, a smaller shadow_size or small_light_scale")
-    pem = PEMSettings(int(knobs["lights"]), Filter(q.filter.value), q.levels)
-    info = {"preset": name, "lights": pem.n_lights, "face_size": fs, "filter": pem.filter.value,
-            "levels": q.levels, "shadow_size": frame.shadow_size, "blur_scale": frame.blur_scale,
-            "bleed_reduction": frame.bleed_reduction, "shadow_threshold": frame.shadow_threshold,
-            "mode": frame.mode.value, "calibration": frame.calibration.value, "diffuse": frame.diffuse,
-            "glossy_horizon": frame.glossy_horizon, "sh_unshadowed": frame.sh_unshadowed,
-            "terminator": frame.terminator, "horizon": frame.horizon, "needed_levels": bool(knobs["needed_levels"]),
-            "caster_detail": frame.caster_detail, "small_light_scale": frame.small_light_scale}
-    return Quality(fs, pem, frame, info)
+    pem = pem_settings(knobs, q.filter.value, q.levels)
+    applied = frame.as_dict()   # the knobs as the frame holds them (enums as their names)
+    info = {"preset": name, **{k: applied.get(k, knobs[k]) for k in _KNOBS}, "filter": pem.filter.value,
+            "levels": q.levels, "bleed_reduction": frame.bleed_reduction, "mode": frame.mode.value}
+    return Quality(fs, pem, frame, knobs, info)
 
 
 def check_counts(n_vertices: int, n_faces: int, role: str, settings: ServiceSettings) -> None:
@@ -179,6 +167,9 @@ def prepare_scene(body: SceneCreate, presets: dict, meshes: MeshStore, settings:
     if not any(casters):
         raise InvalidRequestError("cast_shadows is false on every mesh, so nothing would cast a shadow: set "
                                   "cast_shadows: true on the garment (a floor alone may be false)")
+    # The scene's PEM set: with needed_levels (the default), only the levels its materials' glossiness reads.
+    quality.pem = pem_settings(quality.knobs, quality.pem.filter, quality.pem.levels, materials)
+    quality.info["base_level"] = quality.pem.base_level
     detail = quality.frame.caster_detail
     proxies = ({detail: [caster_proxy_isolated(m.positions, m.faces, detail) if c else None
                          for m, c in zip(built, casters)]}

@@ -50,20 +50,16 @@ def test_a_budget_sets_every_measured_knob_unless_a_flag_says_otherwise(monkeypa
     table = summarize({**BENCH, "rows": rows})
     monkeypatch.setattr(budget, "load_table", lambda path=None: table)
 
-    args = build_parser().parse_args(["render", "--error-budget", "0.05"])
-    q = resolve_quality(args)
-    assert (q["lights"], args.glossy_horizon, args.calibration, args.terminator) == (48, "off", "volume", False)
+    def knobs(*flags):
+        q = resolve_quality(build_parser().parse_args(["render", *flags]))
+        return q, (q["glossy_horizon"], q["calibration"], q["terminator"], q["needed_levels"])
+
+    q, k = knobs("--error-budget", "0.05")
+    assert (q["lights"], k) == (48, ("off", "volume", False, True))
     assert "budget" in q["source"]
-
-    args = build_parser().parse_args(["render", "--error-budget", "0.05", "--glossy-horizon", "lobe", "--terminator"])
-    resolve_quality(args)
-    assert (args.glossy_horizon, args.terminator, args.calibration) == ("lobe", True, "volume")
-
-    args = build_parser().parse_args(["render"])              # the balanced preset is now that entry
-    resolve_quality(args)
-    assert (args.glossy_horizon, args.calibration) == ("off", "volume")
+    assert knobs("--error-budget", "0.05", "--glossy-horizon", "lobe", "--terminator")[1] == ("lobe", "volume", True, True)
+    assert knobs()[1] == ("off", "volume", False, True)          # the balanced preset is now that entry
 
     monkeypatch.setattr(budget, "load_table", lambda path=None: None)
-    args = build_parser().parse_args(["render"])              # no table: the defaults
-    resolve_quality(args)
-    assert (args.glossy_horizon, args.terminator, args.calibration, args.needed_levels) == ("lights", True, "l2", True)
+    q, k = knobs()                                              # no table: the defaults
+    assert k == ("lights", "l2", True, True) and q["small_light_scale"] == 2 and "default" in q["source"]

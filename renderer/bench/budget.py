@@ -12,14 +12,14 @@ from pathlib import Path
 
 from ..atomic import atomic_file
 from ..errors import InvalidInputError
+from ..presets import PRESET_KNOBS, knob_defaults
 
 MEASURED = Path(__file__).with_name("measured.json")
 
 # Error targets of the presets (relative RMSE against the Monte Carlo reference, worst scene).
 PRESET_ERROR = {"fast": 0.10, "balanced": 0.05}
-KNOBS = ("lights", "face_size", "shadow_size", "blur_scale", "filter", "horizon", "calibration", "diffuse",
-         "glossy_horizon", "terminator", "needed_levels", "shadow_threshold", "sh_unshadowed", "caster_detail",
-         "small_light_scale")
+# Every knob a table entry records: the presets' four, the PEM filter and the others.
+KNOBS = (*PRESET_KNOBS, "filter", *knob_defaults())
 # Knobs added after a table was stored take the value they had then (the only one there was).
 KNOB_DEFAULTS = {"horizon": False, "calibration": "volume", "diffuse": "pem", "glossy_horizon": "off",
                 "terminator": False, "needed_levels": False, "shadow_threshold": 0.0, "sh_unshadowed": False,

@@ -21,8 +21,8 @@ import numpy as np
 from ..camera import frame_meshes
 from ..gpu.context import GLContext
 from ..lighting.filters import Filter
-from ..lighting.pem import PEMSettings
 from ..reference import mean_flip, relative_rmse, render_reference
+from .. import presets
 from ..presets import DEFAULT_PRESETS, knob_defaults
 from ..renderer import FrameSettings, Renderer, ShadingMode
 from .scenes import BenchScene, bundled_scene, shared_scenes
@@ -114,18 +114,12 @@ def _settings_list(sweeps: dict) -> list[tuple[str, object, dict]]:
 
 def frame_settings(s: dict, size: int, mode: ShadingMode = ShadingMode.FULL) -> FrameSettings:
     """A benchmark setting (BALANCED's keys) as the frame settings of a size x size image."""
-    return FrameSettings(size, size, shadow_size=s["shadow_size"], blur_scale=s["blur_scale"], mode=mode,
-                         horizon=s["horizon"], calibration=s["calibration"], diffuse=s["diffuse"],
-                         glossy_horizon=s["glossy_horizon"], terminator=s["terminator"],
-                         shadow_threshold=s["shadow_threshold"], sh_unshadowed=s["sh_unshadowed"],
-                         caster_detail=s["caster_detail"], small_light_scale=s["small_light_scale"])
+    return presets.frame_settings(s, size, size, mode=mode)
 
 
 def _pems_for(r: Renderer, bs: BenchScene, s: dict, cache: dict):
     """The PEM set of a setting, built once per (face size, PEM settings) into `cache`."""
-    pem = PEMSettings(s["lights"], Filter(s["filter"]))
-    if s["needed_levels"]:
-        pem = pem.for_materials(s["face_size"], bs.materials, s["calibration"])
+    pem = presets.pem_settings(s, s["filter"], None, bs.materials)
     key = (s["face_size"], pem.key())
     if key not in cache:
         cache[key] = r.build_pems(bs.cube(s["face_size"]), pem)

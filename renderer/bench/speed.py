@@ -14,7 +14,7 @@ import numpy as np
 
 from ..camera import frame_meshes
 from ..gpu.context import GLContext
-from ..presets import knob_defaults, presets
+from ..presets import merge_knobs, presets
 from ..renderer import Renderer
 from .run import _pems_for, frame_settings
 from .scenes import bundled_scene, shared_scenes
@@ -33,10 +33,8 @@ VARIANTS = {
 def _setting(variant, table: dict) -> dict:
     """A variant's knobs: a preset as the CLI and service apply it (the stored table's, else the
     default), or balanced with some knobs changed."""
-    base = {**knob_defaults(), "filter": "sqrt-cosine"}
-    if isinstance(variant, str):
-        return {**base, **table[variant]}
-    return {**base, **table["balanced"], **variant}
+    knobs = merge_knobs(table[variant], {}) if isinstance(variant, str) else merge_knobs(table["balanced"], variant)
+    return {**knobs, "filter": "sqrt-cosine"}
 
 
 def run_speed(out: Path | None, rounds: int = 15, size: int = 256, shared: bool = True, log=print) -> dict:

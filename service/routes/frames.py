@@ -40,7 +40,7 @@ from ..pipeline import (
     render_job,
     server_timing,
 )
-from ..operations import find_environment, find_scene, scene_pem_settings
+from ..operations import find_environment, find_scene
 from ..schemas import BatchFormat, ImageFormat, SceneCreate
 from ..specs import prepare_scene
 from ..worker import GLResources
@@ -221,7 +221,7 @@ async def render_once(
     decode_ms = (time.perf_counter() - t0) * 1e3
     q = prepared.quality
     cube = await anyio.to_thread.run_sync(env.cube, q.face_size)
-    pem = scene_pem_settings(body, prepared)
+    pem = q.pem
     key = cache_key(env.content_hash, q.face_size, pem)
 
     def job(gl: GLResources):
