@@ -157,6 +157,23 @@ def test_furnace_glossy_sphere_loses_the_lobe_below_the_surface():
     assert np.mean(err < 3.0 * frame.noise_std[mask] + 0.02 * L) > 0.9
 
 
+def test_light_behind_an_open_sheet_does_not_reach_the_side_the_camera_sees():
+    # One plane (an open sheet, as cloth is) seen from above at a grazing angle, with a wide glossy lobe
+    # (g = 0: s = 1) around the reflection vector, which reaches below the plane. Light only from
+    # below: it would have to pass through the sheet, so the image is black. The same light above the
+    # plane lights it (the lobe is really there).
+    d = texel_directions(16)
+    below = np.where(d[..., 1:2] < -0.05, 1.0, 0.0).repeat(3, -1)
+    above = np.where(d[..., 1:2] > 0.05, 1.0, 0.0).repeat(3, -1)
+    glossy = [Material((0.0, 0.0, 0.0), 1.0, 0.0)]
+    dark = render_reference([plane()], glossy, below, CAM, 16, 16, 16, seed=1)
+    lit = render_reference([plane()], glossy, above, CAM, 16, 16, 16, seed=1)
+    mask = covered(dark)
+    assert mask.sum() > 50
+    assert np.all(dark.image[mask][:, :3] == 0.0)
+    assert lit.image[mask][:, :3].min() > 0.1
+
+
 def test_mirror_sphere_reflects_the_environment_without_noise():
     L = 0.7
     frame = render_reference([sphere()], [Material((0.0, 0.0, 0.0), 1.0, 1.0)], np.full((6, 4, 4, 3), L), CAM,

@@ -5,6 +5,7 @@ import numpy as np
 from renderer.envmap.cube import cube_solid_angles, texel_directions
 from renderer.lighting.pem import PEMSettings
 from renderer.lighting.sh import irradiance, irradiance_coefficients, region_sh
+from renderer.reference.montecarlo import primary_rays
 from renderer.renderer import FrameSettings
 from renderer.shading.material import Material
 
@@ -93,7 +94,18 @@ def test_diffuse_sh_renders_a_band_limited_map_exactly(renderer):
     c = irradiance_coefficients(region_sh(cube.astype(np.float64), np.zeros((6, n, n), int), 1)[0])
     img, cov = frame.image, frame.image[..., 3] > 0.5
     assert cov.sum() > 1000
-    # Every pixel within the range of the map's SH9 irradiance over all normals (divided by pi).
-    e = irradiance(c, _normals(50000, 1)) / np.pi
-    px = img[cov][:, :3]
-    assert px.min() >= e.min() * (1 - 5e-3) and px.max() <= e.max() * (1 + 5e-3), (px.min(), px.max(), e.min(), e.max())
+    # Each pixel against the irradiance along its own normal, from the analytic sphere (radius 0.5 at
+    # the origin) hit by the pixel's ray; the mesh's interpolated normals differ from it by a little,
+    # most at the silhouette, which is left out.
+    o, d = primary_rays(CAM, 64, 64, np.zeros(3), 0.5)
+    b = np.einsum("ij,ij->i", o, d)
+    disc = b * b - (np.einsum("ij,ij->i", o, o) - 0.25)
+    hit = disc > 0
+    t = -b - np.sqrt(np.where(hit, disc, 0.0))
+    nrm = (o + t[:, None] * d) / 0.5
+    facing = hit & (-np.einsum("ij,ij->i", nrm, d) > 0.3) & cov.ravel()
+    assert facing.sum() > 1000
+    px = img.reshape(-1, 4)[facing, :3]
+    want = irradiance(c, nrm[facing]) / np.pi
+    rel = np.abs(px - want).max(axis=1) / want.max(axis=1)
+    assert rel.max() < 0.01, rel.max()   # measured: 0.2 %

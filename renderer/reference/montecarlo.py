@@ -12,11 +12,16 @@ renderer's projection (so near clipping matches the rasterizer). At the first hi
 
 with albedo, specular and g the barycentric mix of `Material.vertex_arrays` (times / replaced by the
 material's texture maps, bilinear on their base level), L the piecewise-constant cube map (the
-radiance of the texel containing w) and V(x, w) = 1 when a ray from x + eps * sign(n_g.w) * n_g
-towards w hits nothing (n_g the triangle's geometric normal: the origin is pushed to the side of the
-surface the ray leaves from; eps = SHADOW_EPS_REL * scene radius). The glossy lobe is not clipped by
-the horizon of n, as in the renderer's lookup along r; the part of it that goes below the surface is
-blocked by V for closed objects. g = 1 is the mirror: L(r) V(x, r), evaluated once, no sampling.
+radiance of the texel containing w) and V(x, w) = 1 when w lies on the seen side of the triangle's
+own plane (n_g.w > 0, n_g the geometric normal flipped to face the camera) and a ray from
+x + eps * n_g towards w hits nothing (eps = SHADOW_EPS_REL * scene radius). The surface is an opaque
+sheet: light reaches the side the camera sees only from that side's half-space, whatever the shading
+normal says (the rule of pbrt's BSDF, which reflects only when both directions lie on the same side
+of the geometric surface). Without it, a cloth seen from inside a fold or at a grazing angle, where
+the interpolated normal leans across the triangle's plane, would show light arriving through the
+cloth from its other side. The lobes are not clipped by the horizon of n, as in the renderer's
+lookups along n and r; their parts below the triangle's plane are removed by V. g = 1 is the
+mirror: L(r) V(x, r), evaluated once, no sampling.
 Pixels that hit nothing show L along the view ray with alpha 0.
 
 Estimator (Veach 1997, ch. 9: multiple importance sampling, power heuristic with beta = 2). Per
@@ -210,7 +215,7 @@ class _Surface:
 
     x: np.ndarray          # (N, 3) hit points, on the triangle's plane
     n: np.ndarray          # (N, 3) shading normal, facing the camera
-    n_geom: np.ndarray     # (N, 3) geometric normal (winding side, not flipped)
+    n_geom: np.ndarray     # (N, 3) the triangle's plane normal, facing the camera (the side seen)
     r: np.ndarray          # (N, 3) reflection of the view ray about n
     albedo: np.ndarray     # (N, 3)
     specular: np.ndarray   # (N,)
@@ -238,6 +243,7 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
     n_geom = _normalize(np.cross(e1, e2), fallback=None)
     n = _normalize(mix(scene.normals), fallback=n_geom)
     n = np.where(_dot(n, -dirs)[:, None] < 0.0, -n, n)  # two-sided, as in gbuffer.frag
+    n_geom = np.where(_dot(n_geom, -dirs)[:, None] < 0.0, -n_geom, n_geom)  # the side the camera sees
     r = dirs - 2.0 * _dot(dirs, n)[:, None] * n
 
     albedo = mix(scene.albedo)
@@ -282,12 +288,15 @@ class _ShadowTracer:
         self.intersector, self.eps, self.rays_cast = intersector, eps, 0
 
     def visible(self, x: np.ndarray, n_geom: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """bool (M,): the ray from x, offset to the side of the surface w points to, escapes."""
-        if len(w) == 0:
-            return np.zeros(0, bool)
-        side = np.where(_dot(n_geom, w) >= 0.0, self.eps, -self.eps)
-        self.rays_cast += len(w)
-        return ~self.intersector.intersects_any(x + side[:, None] * n_geom, w)
+        """bool (M,): w lies on the seen side of the surface (n_geom faces the camera) and the ray
+        from x, offset to that side, escapes. A direction behind the triangle's own plane goes
+        through the (opaque) sheet: no ray is cast."""
+        vis = np.zeros(len(w), bool)
+        front = np.flatnonzero(_dot(n_geom, w) > 0.0)
+        if front.size:
+            self.rays_cast += front.size
+            vis[front] = ~self.intersector.intersects_any(x[front] + self.eps * n_geom[front], w[front])
+        return vis
 
 
 def _integrate(sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: _Surface, spp: int, batches: int,

@@ -146,7 +146,6 @@ def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma
     arr["dir_scale"][:, :3] = directions
     arr["dir_scale"][:, 3] = scales
     arr["params"][:, 0] = sigma
-    arr["params"][:, 1] = shadow_layer
     arr["params"][:, 2] = solid_angle_sr
     arr["params"][:, 3] = np.sin(np.clip(np.asarray(radius_rad if radius_rad is not None else np.zeros(n)), 1e-3, np.pi / 2))
     arr["energy"][:, :3] = energy_rgb

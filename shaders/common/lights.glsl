@@ -3,8 +3,7 @@
 struct Light {
     mat4 view_proj;      // world -> light clip space (orthographic, depth in [0, 1])
     vec4 dir_scale;      // xyz: unit direction towards the region's energy centroid; w: PEM scale
-    vec4 params;         // x: blur sigma (the light's own texels); y: shadow-map layer, -1 if
-                         // unshadowed (= shadow.x, a layer of the main or the sharp array); z: solid angle (sr);
+    vec4 params;         // x: blur sigma (the light's own texels); y: unused (0); z: solid angle (sr);
                          // w: sine of the light's angular radius (energy spread), for the horizon term
     vec4 energy;         // rgb: region energy (radiance x sr); a: luminance energy
     vec4 shadow;         // x: shadow-map layer (-1: none); y: 1 if the map is in the sharp array (a

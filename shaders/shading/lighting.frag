@@ -129,7 +129,7 @@ vec3 diffuse_from_light(int i, vec3 n) {
 }
 
 // Per-light choices; each depends on the light only, so branches on them do not diverge.
-bool sh_skip(int i) { return MODE == 0 && u_sh_unshadowed && lights[i].params.y < 0.0; }
+bool sh_skip(int i) { return MODE == 0 && u_sh_unshadowed && lights[i].shadow.x < 0.0; }
 bool exact_diffuse(int i) {   // the light's diffuse term in closed form: every light for "lights", small ones for "mixed"
 #ifdef DIFFUSE_LIGHTS
     return true;
