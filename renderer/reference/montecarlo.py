@@ -5,7 +5,8 @@ shadow maps), by ray casting with embree. Every accuracy number of the project i
 Model, per pixel (row, col), one primary ray through the pixel centre from the near plane of the
 renderer's projection (so near clipping matches the rasterizer). At the first hit x:
 
-    n   = normalized barycentric mix of the vertex normals, flipped to face the camera (two-sided cloth)
+    n   = normalized barycentric mix of the vertex normals, flipped to the side of the triangle's
+          plane the camera sees (two-sided cloth; it may then face slightly away from the camera)
     r   = reflect(-view, n)
     c   = albedo   * integral L(w) V(x, w) max(0, n.w) / pi dw
         + specular * integral L(w) V(x, w) (s + 1) / (2 pi) max(0, r.w)^s dw,   s = 1 / (1 - g)
@@ -242,8 +243,9 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
     x = bary[:, 0:1] * p0 + bary[:, 1:2] * p1 + bary[:, 2:3] * p2
     n_geom = _normalize(np.cross(e1, e2), fallback=None)
     n = _normalize(mix(scene.normals), fallback=n_geom)
-    n = np.where(_dot(n, -dirs)[:, None] < 0.0, -n, n)  # two-sided, as in gbuffer.frag
+    n = np.where(_dot(n, -dirs)[:, None] < 0.0, -n, n)
     n_geom = np.where(_dot(n_geom, -dirs)[:, None] < 0.0, -n_geom, n_geom)  # the side the camera sees
+    n = np.where(_dot(n, n_geom)[:, None] < 0.0, -n, n)  # two-sided: turned to the seen side, as in gbuffer.frag
     r = dirs - 2.0 * _dot(dirs, n)[:, None] * n
 
     albedo = mix(scene.albedo)

@@ -22,12 +22,16 @@ layout(location = 3) out vec4 o_albedo;     // rgb: diffuse reflectance; a: 1 (c
 void main() {
     vec3 n = normalize(v_ws_normal);
     vec3 to_eye = normalize(u_camera_pos - v_ws_position);
-    if (dot(n, to_eye) < 0.0) n = -n;   // cloth is two-sided: shade the side the camera sees
+    if (dot(n, to_eye) < 0.0) n = -n;
     // Degenerate derivatives (a triangle seen edge-on, underflow): fall back to the shading normal.
     vec3 c = cross(dFdx(v_ws_position), dFdy(v_ws_position));
     float c2 = dot(c, c);
     vec3 geometric = c2 > 1e-30 ? c * inversesqrt(c2) : n;
     if (dot(geometric, to_eye) < 0.0) geometric = -geometric;
+    // Cloth is two-sided: shade the side of the sheet the camera sees, which the triangle's plane
+    // decides. Where the interpolated normal leans across that plane (a fold seen from inside, a
+    // grazing silhouette), it is turned to the seen side even if it then faces slightly away.
+    if (dot(n, geometric) < 0.0) n = -n;
     vec3 albedo = u_use_albedo_map ? v_albedo * texture(u_albedo_map, v_uv).rgb : v_albedo;
     vec2 material = u_use_gloss_map ? texture(u_gloss_map, v_uv).rg : v_material;
     o_position = vec4(v_ws_position, material.x);
