@@ -328,6 +328,17 @@ def cmd_reference(args) -> int:
     return 0
 
 
+def cmd_error_split(args) -> int:
+    from .bench.split import markdown, run_split
+
+    if args.size < 8 or args.spp < 1:
+        raise InvalidInputError(f"--size must be >= 8 and --spp >= 1, got {args.size} and {args.spp}")
+    result = run_split(args.out, args.preset, args.size, args.spp, shared=not args.no_shared)
+    print(markdown(result))
+    print(f"wrote {args.out / 'split.md'}, split.json, split.png")
+    return 0
+
+
 def cmd_speed(args) -> int:
     from .bench.speed import markdown, run_speed
 
@@ -405,6 +416,14 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--no-shared", action="store_true", help="bundled scene only (skip ../shared/assets)")
     sp.add_argument("--out", type=Path, help="write the medians and ratios as JSON")
     sp.set_defaults(func=cmd_speed)
+    es = sub.add_parser("error-split", help="where a preset's error comes from: lighting alone, the worst pixels, "
+                                            "the silhouette (split.md, split.json, split.png)")
+    es.add_argument("--preset", choices=sorted(DEFAULT_PRESETS), default="balanced")
+    es.add_argument("--size", type=int, default=128)
+    es.add_argument("--spp", type=int, default=512, help="samples per technique of each of the four references")
+    es.add_argument("--no-shared", action="store_true", help="bundled scene only (skip ../shared/assets)")
+    es.add_argument("--out", type=Path, default=Path("out/error-split"))
+    es.set_defaults(func=cmd_error_split)
     sv = sub.add_parser("serve", help="run the HTTP render service (uvicorn); settings: GARMENT_RENDER_* variables")
     sv.add_argument("--host", help="default: GARMENT_RENDER_HOST, else 127.0.0.1")
     sv.add_argument("--port", type=int, help="default: GARMENT_RENDER_PORT, else 8000")

@@ -62,7 +62,7 @@ def sun_sky_cube(face_size: int, sun_dir, sun_radiance: float = 2000.0, sun_radi
 CAM = Camera((0.0, 0.3, 3.0), (0.0, 0.0, 0.0), fov_y_deg=30.0)
 
 
-def sphere(radius=0.5, centre=(0, 0, 0), subdivisions=4) -> Mesh:
+def sphere(radius=0.5, *, centre=(0, 0, 0), subdivisions=4) -> Mesh:
     s = trimesh.creation.icosphere(subdivisions, radius)
     return Mesh.from_arrays(np.asarray(s.vertices) + centre, np.asarray(s.faces), name="sphere")
 

@@ -1,6 +1,7 @@
 """The benchmark's outputs: the Pareto front, the plot and the settings sweep."""
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from renderer.bench.report import pareto_front, write_pareto
@@ -48,3 +49,22 @@ def test_speed_times_every_variant_side_by_side(tmp_path):
     assert all(r["p10_ms"] <= r["median_ms"] <= r["p90_ms"] and r["median_ms"] > 0 for r in rows.values())
     assert json.loads((tmp_path / "speed.json").read_text())["rounds"] == 2
     assert markdown(result).count("\n") == 2
+
+
+def test_error_split_accounts_for_the_whole_error(tmp_path):
+    import json
+
+    from renderer.bench.split import run_split
+
+    result = run_split(tmp_path, size=24, spp=8, shared=False, log=lambda *_: None)
+    (row,) = result["rows"]
+    assert row["scene"] == "studio-dress" and row["pixels"] > 50
+    assert 0.0 < row["rel_rmse"] < 1.0 and 0.0 < row["lighting_rel_rmse"] < 1.0
+    # The worst 1 % and the rest make up the whole relMSE.
+    n = row["pixels"]
+    worst = max(1, round(0.01 * n))
+    total = row["rel_rmse"] ** 2 * n
+    assert row["worst_share"] * total + row["rel_rmse_without_worst"] ** 2 * (n - worst) == pytest.approx(total)
+    assert 0.0 < row["silhouette_pixels"] < 1.0 and 0.0 <= row["silhouette_share"] <= 1.0
+    assert json.loads((tmp_path / "split.json").read_text())["rows"][0]["rel_rmse"] == pytest.approx(row["rel_rmse"])
+    assert (tmp_path / "split.png").stat().st_size > 1000 and "studio-dress" in (tmp_path / "split.md").read_text()

@@ -47,7 +47,7 @@ def test_a_proxy_casts_the_full_meshs_shadow_and_follows_it(renderer):
     sun = np.array([0.5, 1.0, 0.2])
     sun /= np.linalg.norm(sun)
     cube = sun_sky_cube(64, sun, sun_radiance=5e3, sun_radius_deg=2, sky=(0.05, 0.05, 0.05), ground=(0, 0, 0))
-    ball = sphere(0.4, (0.0, 0.8, 0.0), subdivisions=4)
+    ball = sphere(0.4, centre=(0.0, 0.8, 0.0), subdivisions=4)
     scene = renderer.create_scene([ball, plane(6.0)], [Material((0.5, 0.5, 0.5)), Material((0.8, 0.8, 0.8))])
     cam = Camera((0.0, 4.0, 3.0), (0.0, 0.0, 0.0), fov_y_deg=50.0)
     pems = renderer.build_pems(cube, PEMSettings(24))

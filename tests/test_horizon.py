@@ -64,7 +64,7 @@ def test_terminator_removes_a_sun_behind_the_surface(renderer):
     # the surface's own plane, the reference's rays to it hit the sphere, and a shadow map, where the
     # surface is its own occluder at grazing angles, lets it through. Measured (64 x 64, 128 spp):
     # rel. RMSE 2.40 with neither correction, 0.17 with the glossy one, 0.066 with both (the defaults).
-    meshes = [sphere(0.5, (0.0, 0.6, 0.0))]
+    meshes = [sphere(0.5, centre=(0.0, 0.6, 0.0))]
     mats = [Material((0.8, 0.3, 0.3), 0.5, 0.8)]
     cube = sun_sky_cube(32, (0.3, 0.5, -1.0), sun_radiance=2e3, sun_radius_deg=2)
     ref = render_reference(meshes, mats, cube, CAM, 64, 64, 128, seed=1).image

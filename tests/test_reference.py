@@ -11,6 +11,7 @@ from renderer.errors import InvalidInputError
 from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
 from renderer.reference import (EnvironmentSampler, ReferenceFrame, mean_flip, noise_floor, relative_rmse,
+                                relative_squared_errors,
                                 render_reference)
 from renderer.renderer import FrameSettings, ShadingMode
 from renderer.shading.material import Material
@@ -271,7 +272,7 @@ def test_texture_maps_are_looked_up_at_the_hit_uv_in_gl_convention():
 
 def test_background_pixels_show_the_environment_with_zero_alpha():
     cube = sun_sky_cube(8, (0.0, 1.0, 0.0))
-    frame = render_reference([sphere(0.1, 2)], [WHITE_DIFFUSE], cube, CAM, 16, 16, 1)
+    frame = render_reference([sphere(0.1, subdivisions=2)], [WHITE_DIFFUSE], cube, CAM, 16, 16, 1)
     bg = ~covered(frame)
     assert bg.sum() > 200 and np.all(frame.image[bg][:, 3] == 0)
     top, bottom = frame.image[0, 8, :3], frame.image[-1, 8, :3]  # camera looks slightly down
@@ -284,9 +285,33 @@ def test_background_pixels_show_the_environment_with_zero_alpha():
 
 def sun_scene(spp: int, seed: int, batches: int = 8) -> ReferenceFrame:
     cube = sun_sky_cube(16, (0.5, 1.0, 0.6), sun_radiance=300.0, sun_radius_deg=6.0)
-    return render_reference([sphere(0.5, 3), plane()], [Material((0.8, 0.6, 0.4), 0.5, 0.7), WHITE_DIFFUSE],
+    return render_reference([sphere(0.5, subdivisions=3), plane()], [Material((0.8, 0.6, 0.4), 0.5, 0.7), WHITE_DIFFUSE],
                             cube, Camera((0.0, 1.2, 3.0), (0.0, 0.0, 0.0), fov_y_deg=40.0), 24, 24, spp, seed,
                             batches)
+
+
+def test_without_occlusion_every_direction_is_visible():
+    # The sphere's shadow on the plane (and its self-shadowing) are gone: without occlusion the image
+    # is everywhere at least as bright, strictly brighter where the shadow was, and no ray is cast
+    # beyond the primary ones.
+    cube = sun_sky_cube(16, (0.3, 1.0, -0.8), sun_radiance=300.0, sun_radius_deg=6.0)  # shadow towards the camera
+    args = ([sphere(0.5, subdivisions=3), plane()], [WHITE_DIFFUSE, WHITE_DIFFUSE], cube,
+            Camera((0.0, 1.2, 3.0), (0.0, 0.0, 0.0), fov_y_deg=40.0), 24, 24, 16)
+    shadowed = render_reference(*args, seed=3)
+    free = render_reference(*args, seed=3, occlusion=False)
+    mask = covered(shadowed)
+    a, b = shadowed.image[mask][:, :3].mean(axis=1), free.image[mask][:, :3].mean(axis=1)
+    assert free.rays_cast == 24 * 24
+    assert np.all(b >= a - 3.0 * shadowed.noise_std[mask].max(axis=1) - 1e-6)
+    assert np.sum(b > 2.0 * a) > 5   # the sun's shadow on the plane
+
+
+def test_per_pixel_errors_average_to_the_relative_mse(white_furnace):
+    img = white_furnace.image.copy()
+    img[..., :3] *= np.linspace(0.5, 1.5, img.shape[1])[None, :, None]
+    per_px = relative_squared_errors(img, white_furnace.image)
+    assert per_px.shape == (covered(white_furnace).sum(),)
+    assert np.sqrt(per_px.mean()) == pytest.approx(relative_rmse(img, white_furnace.image), rel=1e-12)
 
 
 def test_same_seed_gives_identical_images_and_other_seeds_do_not():
@@ -325,7 +350,7 @@ def test_fewer_samples_than_batches_give_nan_noise_only_for_one_sample():
 def test_invalid_counts_are_rejected(kwargs):
     args = {"width": 8, "height": 8, "spp": 1, "seed": 0, "batches": 8, **kwargs}
     with pytest.raises(InvalidInputError):
-        render_reference([sphere(0.5, 1)], [WHITE_DIFFUSE], np.ones((6, 4, 4, 3)), CAM, **args)
+        render_reference([sphere(0.5, subdivisions=1)], [WHITE_DIFFUSE], np.ones((6, 4, 4, 3)), CAM, **args)
 
 
 # --- metrics ----------------------------------------------------------------------------------

@@ -109,7 +109,7 @@ def test_sphere_above_plane_casts_its_shadow_where_the_sun_says(renderer, sun):
     sun = np.asarray(sun) / np.linalg.norm(sun)
     centre = np.array([0.0, 0.8, 0.0])
     cube = sun_sky_cube(64, sun, sun_radiance=5e3, sun_radius_deg=2, sky=(0.05, 0.05, 0.05), ground=(0, 0, 0))
-    scene = renderer.create_scene([sphere(0.4, centre), plane(6.0)], [Material((0.5, 0.5, 0.5)), Material((0.8, 0.8, 0.8))])
+    scene = renderer.create_scene([sphere(0.4, centre=centre), plane(6.0)], [Material((0.5, 0.5, 0.5)), Material((0.8, 0.8, 0.8))])
     cam = Camera((0.0, 4.0, 3.0), (0.0, 0.0, 0.0), fov_y_deg=50.0)
     pems = renderer.build_pems(cube, PEMSettings(48))
     try:
@@ -180,7 +180,7 @@ def test_new_positions_reuse_gpu_objects_and_move_the_image(renderer):
 
 def test_lights_below_the_energy_threshold_get_no_shadow_map(renderer):
     cube = sun_sky_cube(32, (0.4, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3)
-    scene = renderer.create_scene([sphere(0.4, (0, 0.6, 0)), plane(4.0)], [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
+    scene = renderer.create_scene([sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)], [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
     pems = renderer.build_pems(cube, PEMSettings(48))
     # Horizon corrections off: with no shadow map the full mode must equal the unshadowed one exactly.
     try:
@@ -209,7 +209,7 @@ def test_scene_scale_does_not_change_the_image(renderer):
     try:
         for scale in (1.0, 1e-6, 1e6):
             meshes = [Mesh.from_arrays(m.positions.astype(np.float64) * scale, m.faces)
-                      for m in (sphere(0.4, (0, 0.6, 0)), plane(4.0))]
+                      for m in (sphere(0.4, centre=(0, 0.6, 0)), plane(4.0))]
             scene = renderer.create_scene(meshes, [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
             try:
                 images[scale] = renderer.render(scene, pems, FrameSettings(64, 64)).image
@@ -303,7 +303,7 @@ def test_shadow_blur_matches_a_numpy_box_cascade_and_leaves_unblurred_lights_alo
     from renderer.shadows.lights import blur_sigma_texels
 
     cube = sun_sky_cube(32, (1, 1, 0.5), sun_radiance=300.0, sun_radius_deg=8)
-    scene = renderer.create_scene([sphere(0.4, (0, 0.6, 0)), plane(4.0)], [Material(), Material()])
+    scene = renderer.create_scene([sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)], [Material(), Material()])
     pems = renderer.build_pems(cube, PEMSettings(n_lights))
     settings = FrameSettings(32, 32, shadow_size=64, blur_scale=0.5)
     try:
@@ -340,7 +340,7 @@ def test_a_receiver_that_casts_nothing_is_lit_outside_the_casters_shadow(rendere
     # maps' different texel sizes at the shadow's edge. Measured: 0.5 % of the floor pixels differ by
     # more than half; 5.8 % without the far-plane comparison (the map's empty texels read as occluded).
     cube = sun_sky_cube(32, (1.0, 1.0, 0.3), sun_radiance=2e3, sun_radius_deg=3)
-    meshes, mats = [sphere(0.4, (0, 0.6, 0)), plane(4.0)], [Material((0.8, 0.8, 0.8)), Material((0.8, 0.8, 0.8))]
+    meshes, mats = [sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)], [Material((0.8, 0.8, 0.8)), Material((0.8, 0.8, 0.8))]
     cam = Camera((0.0, 4.0, 0.5), (0.0, 0.0, 0.0), fov_y_deg=50.0)
     pems = renderer.build_pems(cube, PEMSettings(24))
     s = FrameSettings(64, 64, background=Background.BLACK)

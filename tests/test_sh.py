@@ -54,7 +54,7 @@ def test_renderer_furnace_with_every_light_unshadowed_and_sh(renderer):
 
 def test_sh_for_dim_lights_changes_the_image_a_little(renderer):
     cube = sun_sky_cube(32, (1, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3)
-    scene = renderer.create_scene([sphere(0.4, (0, 0.6, 0)), plane(4.0)],
+    scene = renderer.create_scene([sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)],
                                   [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
     pems = renderer.build_pems(cube, PEMSettings(48))
     try:

@@ -39,7 +39,7 @@ def sun_scene(renderer):
     sun = np.array([0.4, 1.0, 0.3])
     cube = sun_sky_cube(64, sun / np.linalg.norm(sun), sun_radiance=5e3, sun_radius_deg=2, sky=(0.02, 0.02, 0.02),
                         ground=(0, 0, 0))
-    scene = renderer.create_scene([sphere(0.4, (0.0, 0.8, 0.0)), plane(3.0)],
+    scene = renderer.create_scene([sphere(0.4, centre=(0.0, 0.8, 0.0)), plane(3.0)],
                                   [Material((0.5, 0.5, 0.5)), Material((0.8, 0.8, 0.8))])
     pems = renderer.build_pems(cube, PEMSettings(24))
     yield scene, pems

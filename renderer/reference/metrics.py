@@ -48,15 +48,24 @@ def relative_rmse(test: np.ndarray, ref: np.ndarray, mask: np.ndarray | None = N
                   eps: float = REL_MSE_EPS) -> float:
     """sqrt(relMSE) of test against ref over the mask (see the module doc). test, ref: (H, W, 3 or 4)
     linear RGB; mask: bool (H, W), default the reference's alpha > 0.5. NaN when the mask is empty."""
+    per_pixel = relative_squared_errors(test, ref, mask, eps)
+    return float(np.sqrt(per_pixel.mean())) if per_pixel.size else float("nan")
+
+
+def relative_squared_errors(test: np.ndarray, ref: np.ndarray, mask: np.ndarray | None = None,
+                            eps: float = REL_MSE_EPS) -> np.ndarray:
+    """Each covered pixel's share of relMSE: (t - r)^2 / (r^2 + eps) averaged over its 3 channels,
+    after the normalization of the module doc; float64 (mask.sum(),), in the mask's row-major order.
+    Its mean is relMSE: where in the image the error sits."""
     t, r, mask = _rgb_pair(test, ref, mask)
     if not mask.any():
-        return float("nan")
+        return np.zeros(0)
     t, r = t[mask], r[mask]
     scale = r.mean()
     if scale <= 0:
         scale = 1.0  # a black reference: plain relMSE in the map's units
     t, r = t / scale, r / scale
-    return float(np.sqrt(np.mean((t - r) ** 2 / (r * r + eps))))
+    return np.mean((t - r) ** 2 / (r * r + eps), axis=1)
 
 
 def mean_flip(test: np.ndarray, ref: np.ndarray, mask: np.ndarray | None = None) -> float:

@@ -103,13 +103,16 @@ class ReferenceFrame:
 
 
 def render_reference(meshes: list[Mesh], materials: list[Material], cube: np.ndarray, camera: Camera,
-                     width: int, height: int, spp: int, seed: int = 0, batches: int = 8) -> ReferenceFrame:
+                     width: int, height: int, spp: int, seed: int = 0, batches: int = 8,
+                     occlusion: bool = True) -> ReferenceFrame:
     """Render the ground truth of a scene (see the module doc for the model and the estimator).
 
     meshes, materials: one material per mesh, as `Renderer.create_scene` takes them.
     cube: (6, F, F, 3) linear RGB environment, OpenGL cube convention.
     camera: the renderer's camera; near/far are fitted to the scene's bounds as the renderer does.
     spp: samples per technique per pixel (>= 1). batches: independent batches for the noise estimate.
+    occlusion: False sets V = 1 everywhere (no ray cast, no sheet): the model of the renderer's
+    no-occlusion mode, against which the error of the lighting approximation alone is measured.
     Cost: ~1.2-2 M rays/s on one core (embree plus numpy); peak memory ~0.25 GB + ~0.4 KB per pixel.
     """
     t0 = time.perf_counter()
@@ -124,7 +127,7 @@ def render_reference(meshes: list[Mesh], materials: list[Material], cube: np.nda
     tri = scene.intersector.intersects_first(origins, dirs)
     hit = tri >= 0
     surf = _surface(scene, tri[hit], origins[hit], dirs[hit])
-    tracer = _ShadowTracer(scene.intersector, SHADOW_EPS_REL * radius)
+    tracer = _ShadowTracer(scene.intersector, SHADOW_EPS_REL * radius, occlusion)
 
     mean, std = _integrate(sampler, tracer, surf, spp, min(batches, spp), seed)
 
@@ -286,13 +289,15 @@ def _texture_bilinear(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
 class _ShadowTracer:
     """V(x, w) by any-hit queries; counts the rays it casts."""
 
-    def __init__(self, intersector, eps: float):
-        self.intersector, self.eps, self.rays_cast = intersector, eps, 0
+    def __init__(self, intersector, eps: float, occlusion: bool = True):
+        self.intersector, self.eps, self.occlusion, self.rays_cast = intersector, eps, occlusion, 0
 
     def visible(self, x: np.ndarray, n_geom: np.ndarray, w: np.ndarray) -> np.ndarray:
         """bool (M,): w lies on the seen side of the surface (n_geom faces the camera) and the ray
         from x, offset to that side, escapes. A direction behind the triangle's own plane goes
-        through the (opaque) sheet: no ray is cast."""
+        through the (opaque) sheet: no ray is cast. Without occlusion, every direction is visible."""
+        if not self.occlusion:
+            return np.ones(len(w), bool)
         vis = np.zeros(len(w), bool)
         front = np.flatnonzero(_dot(n_geom, w) > 0.0)
         if front.size:
