@@ -18,7 +18,8 @@ def knob_defaults() -> dict:
     return {"calibration": f.calibration.value, "diffuse": f.diffuse, "glossy_horizon": f.glossy_horizon,
             "terminator": f.terminator, "horizon": f.horizon, "shadow_threshold": f.shadow_threshold,
             "sh_unshadowed": f.sh_unshadowed, "needed_levels": True,
-            "caster_detail": f.caster_detail, "small_light_scale": f.small_light_scale}
+            "caster_detail": f.caster_detail, "small_light_scale": f.small_light_scale,
+            "small_light_min_share": f.small_light_min_share}
 
 
 def merge_knobs(base: dict, explicit: dict) -> dict:
@@ -58,13 +59,16 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 # A preset may also set any knob of knob_defaults() (its value wins over the default), chosen from the
 # benchmark (docs/benchmarks.md). Blur 0: the paper's blur changed the error by -1 to +3 % at 48
 # lights (the lights' many hard shadows already add up to soft ones) for 8-32 ms a frame. Caster
-# detail 0.25: 0-5 % more error for half the shadow pass. Small lights' maps at twice the size: the
-# sun's shadow edges are the largest error left in sunlit scenes. Lights beyond 48 cost linear time
+# detail 0.25: 0-5 % more error for half the shadow pass. The sun's shadow edges are the largest error
+# left in sunlit scenes: balanced draws the maps of small lights with at least 5 % of the energy (a
+# sun) at four times the size (hard sun 0.34 -> 0.20), and leaves the dim ones (an interior's ten
+# lamps and windows) to the main maps, where sharp maps for all of them cost a third more time for
+# less gain (docs/benchmarks.md). Lights beyond 48 cost linear time
 # (96 lights: about twice) for 2-16 % less error; the accurate preset spends time on shadow maps.
 DEFAULT_PRESETS = {
     "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 0.0, "caster_detail": 0.1},
     "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.0, "caster_detail": 0.25,
-                 "small_light_scale": 2},
+                 "small_light_scale": 4, "small_light_min_share": 0.05},
     "accurate": {"lights": 48, "face_size": 128, "shadow_size": 512, "blur_scale": 0.0, "caster_detail": 1.0,
                  "small_light_scale": 2},
 }

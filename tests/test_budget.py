@@ -62,4 +62,4 @@ def test_a_budget_sets_every_measured_knob_unless_a_flag_says_otherwise(monkeypa
 
     monkeypatch.setattr(budget, "load_table", lambda path=None: None)
     q, k = knobs()                                              # no table: the defaults
-    assert k == ("lights", "l2", True, True) and q["small_light_scale"] == 2 and "default" in q["source"]
+    assert k == ("lights", "l2", True, True) and q["small_light_scale"] == 4 and "default" in q["source"]

@@ -72,3 +72,28 @@ def test_a_small_lights_map_at_k_times_the_size_matches_a_map_of_that_size(rende
     err_sharp = np.abs(sharp - fine).sum() / fine.sum()
     err_coarse = np.abs(coarse - fine).sum() / fine.sum()
     assert err_sharp < 0.02 and err_sharp < 0.5 * err_coarse, (err_sharp, err_coarse)
+
+
+def test_only_small_lights_with_enough_of_the_energy_get_sharp_maps(renderer, sun_scene):
+    from renderer.shadows.lights import SMALL_LIGHT_MAX_SIN
+
+    scene, pems = sun_scene
+    cam = Camera((0.0, 3.0, 2.5), (0.0, 0.2, 0.0), fov_y_deg=50.0)
+    regions = pems.regions
+    share = regions.energy_luminance / regions.energy_luminance.sum()
+    small = np.sin(regions.disc_radius_rad()) <= SMALL_LIGHT_MAX_SIN
+
+    def frame(k, min_share):
+        fs = FrameSettings(64, 64, shadow_size=32, small_light_scale=k, small_light_min_share=min_share)
+        return renderer.render(scene, pems, fs, cam)
+
+    assert small.sum() >= 2 and share[small].max() > 0.2     # the sun, split into small regions
+    assert frame(4, 0.0).timings["sharp_layers"] == small.sum()
+    cut = float(np.sort(share[small])[-1] + np.sort(share[small])[-2]) / 2   # between the two largest
+    assert frame(4, cut).timings["sharp_layers"] == 1
+    # No light with that much energy: every map in the main array, the image of scale 1 exactly.
+    none = frame(4, 1.0)
+    assert none.timings["sharp_layers"] == 0
+    np.testing.assert_array_equal(none.image, frame(1, 0.0).image)
+    with pytest.raises(InvalidInputError, match="small_light_min_share"):
+        FrameSettings(small_light_min_share=1.5)
