@@ -48,6 +48,7 @@ _MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_
 
 DIFFUSE_SOURCES = ("pem", "lights", "mixed", "sh")
 GLOSSY_HORIZONS = ("off", "lobe", "lights", "both")
+GLOSSY_SOURCES = ("pem", "mixed")
 
 
 class Background(str, Enum):
@@ -88,11 +89,16 @@ class FrameSettings:
     # "lobe" (times the lobe's share above the shading normal's plane), "lights" (each light times the
     # share of its disc above the triangle's own plane; the default) or "both" (they overlap).
     glossy_horizon: str = "lights"
+    # Where the glossy term comes from: "pem" (the paper: PEM_i along the reflection vector at the level
+    # of g) or "mixed" (small lights, angular radius <= ~6 degrees, from their disc through the Phong
+    # lobe in closed form; the rest from the PEMs).
+    glossy: str = "pem"
     # Full mode: small lights (angular radius <= ~6 degrees) below the triangle's own plane are removed
     # from the diffuse term too: the terminator a shadow map cannot resolve (lighting.frag).
     terminator: bool = True
     # Full mode: the diffuse term of the lights that get no shadow map (below shadow_threshold) from
-    # their summed SH9 irradiance (lighting/sh.py) instead of one PEM lookup each.
+    # their summed SH9 irradiance (lighting/sh.py) instead of one PEM lookup (or disc) each; with
+    # diffuse "pem" or "mixed".
     sh_unshadowed: bool = False
     # g -> MIP level: "l2" (closest normalized kernel, the default: lower error in every target scene)
     # or "volume" (the paper's section 5); lighting/glossiness.py.
@@ -122,6 +128,8 @@ class FrameSettings:
         if self.glossy_horizon not in GLOSSY_HORIZONS:
             raise InvalidInputError(f"glossy_horizon must be one of {', '.join(GLOSSY_HORIZONS)}, "
                                     f"got {self.glossy_horizon!r}")
+        if self.glossy not in GLOSSY_SOURCES:
+            raise InvalidInputError(f"glossy must be one of {', '.join(GLOSSY_SOURCES)}, got {self.glossy!r}")
         if self.diffuse not in DIFFUSE_SOURCES:
             raise InvalidInputError(f"diffuse must be one of {', '.join(DIFFUSE_SOURCES)}, got {self.diffuse!r}")
         if not (0.0 <= self.blur_scale <= 100.0) or not np.isfinite(self.blur_scale):
@@ -363,7 +371,8 @@ class Renderer:
             _set_uniform(p, "u_horizon", settings.horizon)
             _set_uniform(p, "u_terminator", settings.terminator)
             _set_uniform(p, "u_small_exact", settings.diffuse == "mixed")
-            sh_on = settings.sh_unshadowed and settings.diffuse == "pem" and bool((layers < 0).any())
+            _set_uniform(p, "u_small_glossy_exact", settings.glossy == "mixed")
+            sh_on = settings.sh_unshadowed and settings.diffuse in ("pem", "mixed") and bool((layers < 0).any())
             _set_uniform(p, "u_sh_unshadowed", sh_on)
             if sh_on:
                 coeffs = irradiance_coefficients(pems.region_sh[layers < 0].sum(axis=0))

@@ -32,14 +32,17 @@ def _ok(frame):
     return frame.image
 
 
-def test_sun_far_beyond_half_float_range(renderer):
-    # Suns of 1e5 and 1e6 (half floats end at 65504): images are finite and scale with the light.
+@pytest.mark.parametrize("source", ["pem", "mixed"])
+def test_sun_far_beyond_half_float_range(renderer, source):
+    # Suns of 1e5 and 1e6 (half floats end at 65504): images are finite and scale with the light,
+    # through the PEMs and through the small lights' closed forms (diffuse and glossy "mixed").
     meshes = [uv_sphere(0.5, 16, 32, (0, 0.6, 0)), ground_plane(3.0)]
     images = []
     for sun in (1e5, 1e6):
         cube = sun_sky_cube(32, (0.3, 1.0, 0.4), sun_radiance=sun, sun_radius_deg=3, sky=(0, 0, 0), ground=(0, 0, 0))
         assert cube.max() == sun
-        frame = _frame(renderer, meshes, cube, settings=FrameSettings(48, 48, shadow_size=64, background=Background.BLACK))
+        fs = FrameSettings(48, 48, shadow_size=64, background=Background.BLACK, diffuse=source, glossy=source)
+        frame = _frame(renderer, meshes, cube, settings=fs)
         images.append(_ok(frame)[..., :3])
     np.testing.assert_allclose(images[1], 10.0 * images[0], rtol=5e-3, atol=1e-3 * images[1].max())
 

@@ -76,13 +76,15 @@ def test_unshadowed_image_does_not_depend_on_region_count(renderer):
         assert np.abs(img - images[0]).max() <= 3e-3 * peak
 
 
+@pytest.mark.parametrize("source", ["pem", "mixed"])
 @pytest.mark.parametrize("g", [0.0, 1e-7, 0.5, 1.0 - 1e-7, 1.0])
-def test_extreme_glossiness_gives_finite_images(renderer, g):
+def test_extreme_glossiness_gives_finite_images(renderer, g, source):
+    # Through the PEM lookups and through the small lights' closed forms (s' stays finite at g = 1).
     cube = sun_sky_cube(32, (0.3, 1, 0.2), sun_radiance=1e6, sun_radius_deg=1)
     scene = renderer.create_scene([sphere(), plane(y=-0.6)], [Material((0.8, 0.2, 0.2), 0.5, g), Material()])
     pems = renderer.build_pems(cube, PEMSettings(48))
     try:
-        frame = renderer.render(scene, pems, FrameSettings(64, 64), CAM)
+        frame = renderer.render(scene, pems, FrameSettings(64, 64, diffuse=source, glossy=source), CAM)
     finally:
         pems.release()
         scene.release()

@@ -88,9 +88,11 @@ float gloss_level(float g) {
 // degrees count as small.
 uniform bool u_terminator;             // FrameSettings.terminator
 uniform bool u_small_exact;            // FrameSettings.diffuse == "mixed" (full and no-occlusion modes)
+uniform bool u_small_glossy_exact;     // FrameSettings.glossy == "mixed" (full and no-occlusion modes)
 
 // Accumulators of main(), shared with add_light() (GLSL has no closures).
 vec3 g_geometric_normal = vec3(0.0, 0.0, 1.0);  // the triangle's plane, facing the camera
+vec3 g_reflect = vec3(0.0, 0.0, 1.0);           // the view direction reflected about the shading normal
 vec3 g_diffuse = vec3(0.0), g_glossy = vec3(0.0), g_ao_rgb = vec3(0.0), g_ao_norm = vec3(0.0);
 
 // Adds light i, given its PEM looked up along the normal (pem_d, diffuse level) and along the
@@ -138,6 +140,24 @@ bool exact_diffuse(int i) {   // the light's diffuse term in closed form: every 
 #endif
 }
 vec3 g_diffuse_exact = vec3(0.0);   // added after the PEM terms' normalization
+bool exact_glossy(int i) {    // glossy "mixed": a small light's glossy term in closed form
+    return MODE <= 1 && u_small_glossy_exact && lights[i].params.w <= SMALL_LIGHT_MAX_SIN;
+}
+vec3 g_glossy_exact = vec3(0.0);    // likewise
+float g_gloss = 0.0;                // the pixel's glossiness g
+
+// A small light's glossy term without its PEM: the region as a disc of angular radius a carrying its
+// energy E, seen through the normalized Phong lobe of exponent s around r (paper Eq. 3). The disc's
+// spread widens the lobe: in the small-angle (Gaussian) picture cos^s has variance 1 / s per axis and
+// a uniform disc a^2 / 4, which add, so the lobe of exponent s' = 1 / (1 / s + a^2 / 4) carries E.
+// Finite at g = 1 (the mirror): s' is then bounded by the disc's own size.
+vec3 glossy_from_light(int i, vec3 r) {
+    float sin_a = lights[i].params.w;
+    float inv_s = max(1.0 - g_gloss, 0.0);
+    float s = 1.0 / max(inv_s + 0.25 * sin_a * sin_a, 1e-6);
+    float c = max(dot(r, lights[i].dir_scale.xyz), 0.0);
+    return lights[i].energy.rgb * ((s + 1.0) / (2.0 * PI) * pow(c, s));
+}
 
 #ifdef DIFFUSE_SH
 // diffuse "sh": each region's own irradiance as nine spherical-harmonic coefficients (its radiance
@@ -184,7 +204,8 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos) {
 #if MODE == 1
     if (exact_diffuse(i)) g_diffuse_exact += exact_diffuse_term(i, n);
     else g_diffuse += pem_d;
-    g_glossy += pem_g;
+    if (exact_glossy(i)) g_glossy_exact += glossy_from_light(i, g_reflect);
+    else g_glossy += pem_g;
 #elif MODE == 0
     float vis = visibility(i, ws_pos, n);
     if (u_horizon) {
@@ -208,7 +229,8 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos) {
     else g_diffuse += vis * pem_d;
     // The glossy lobe's part below the surface (renderer/shading/horizon.py), per light.
     if (u_glossy_horizon >= 2 && !small) vis *= above;
-    g_glossy += vis * pem_g;
+    if (exact_glossy(i)) g_glossy_exact += vis * glossy_from_light(i, g_reflect);
+    else g_glossy += vis * pem_g;
 #else
     // Ambient-occlusion baselines (paper Fig. 6): unshadowed lighting times an occlusion factor
     // that averages VIS_i with cosine weights, by solid angle (grey) or by energy (colour).
@@ -233,6 +255,8 @@ void main() {
     vec2 material = vec2(g_pos.w, g_nrm.w);
     vec3 to_eye = normalize(u_camera_pos - ws_position);
     vec3 r = reflect(-to_eye, n);
+    g_reflect = r;
+    g_gloss = material.y;
     float specular = material.x;
 #ifdef DIFFUSE_SH
     set_sh_basis(n);
@@ -262,7 +286,7 @@ void main() {
             // Uniform across pixels (it depends on i only): no divergence; compiled out for "lights".
             if (!sh_skip(i) && !exact_diffuse(i))
                 pem_d = textureLod(u_pem0, vec4(n, float(i)), u_diffuse_level).rgb;
-            vec3 pem_g = glossy ? textureLod(u_pem0, vec4(r, float(i)), level_g).rgb : vec3(0.0);
+            vec3 pem_g = glossy && !exact_glossy(i) ? textureLod(u_pem0, vec4(r, float(i)), level_g).rgb : vec3(0.0);
             add_light(i, pem_d, pem_g, n, ws_position);
         }
         for (int i = n0; i < u_n_lights; ++i) {
@@ -270,7 +294,7 @@ void main() {
             vec3 pem_d = vec3(0.0);
             if (!sh_skip(i) && !exact_diffuse(i))
                 pem_d = textureLod(u_pem1, vec4(n, layer), u_diffuse_level).rgb;
-            vec3 pem_g = glossy ? textureLod(u_pem1, vec4(r, layer), level_g).rgb : vec3(0.0);
+            vec3 pem_g = glossy && !exact_glossy(i) ? textureLod(u_pem1, vec4(r, layer), level_g).rgb : vec3(0.0);
             add_light(i, pem_d, pem_g, n, ws_position);
         }
     }
@@ -291,6 +315,7 @@ void main() {
     }
 #endif
     if (glossy) g_glossy /= textureLod(u_pem_norm, vec4(r, 0.0), level_g).r;
+    g_glossy += g_glossy_exact;
 #endif
     if (MODE == 2 || MODE == 3) {
         vec3 ao = g_ao_rgb / max(g_ao_norm, vec3(1e-30));
