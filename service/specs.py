@@ -54,18 +54,23 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
                                       "(GARMENT_RENDER_MAX_IMAGE_SIDE)")
     frame = frame_settings(knobs, out.width, out.height, bleed_reduction=q.bleed_reduction,
                            mode=ShadingMode(q.mode.value), background=Background(out.background))
-    # The shadow maps' memory before any is made, bounded as if every light were small: a request
-    # that cannot fit is refused here with the numbers, not by the GL driver mid-frame.
+    # The shadow maps' memory before any is made, bounded as if every light that may be small were
+    # (at most 1 / small_light_min_share of them carry that share of the energy): a request that
+    # cannot fit is refused here with the numbers, not by the GL driver mid-frame.
+    n = int(knobs["lights"])
+    n_sharp = n if frame.small_light_scale == 1 or frame.small_light_min_share <= 0 else \
+        min(n, int(1.0 / frame.small_light_min_share))
     side = frame.shadow_size * frame.small_light_scale
-    worst = int(knobs["lights"]) * side * side * 16
+    worst = (n_sharp * side * side + (n - n_sharp) * frame.shadow_size ** 2) * 16
     if worst > settings.max_shadow_map_bytes:
         raise InvalidRequestError(
-            f"quality asks for up to {worst / 2**30:.1f} GiB of shadow maps ({knobs['lights']} lights x "
-            f"({frame.shadow_size} x {frame.small_light_scale})^2 x 16 bytes), over the limit of "
-            f"{settings.max_shadow_map_bytes / 2**30:.1f} GiB (GARMENT_RENDER_MAX_SHADOW_MAP_BYTES): use fewer "
-            "lights, a smaller shadow_size or small_light_scale")
+            f"quality asks for up to {worst / 2**30:.1f} GiB of shadow maps ({n_sharp} of {n} lights at "
+            f"({frame.shadow_size} x {frame.small_light_scale})^2, the others at {frame.shadow_size}^2, x 16 "
+            f"bytes), over the limit of {settings.max_shadow_map_bytes / 2**30:.1f} GiB "
+            "(GARMENT_RENDER_MAX_SHADOW_MAP_BYTES): use fewer lights, a smaller shadow_size or "
+            "small_light_scale, or a larger small_light_min_share")
     pem = pem_settings(knobs, q.filter.value, q.levels)
-    applied = frame.as_dict()   # the knobs as the frame holds them (enums as their names)
+    applied = frame.as_dict()   # the knobs as the frame holds them (enums as their values)
     info = {"preset": name, **{k: applied.get(k, knobs[k]) for k in _KNOBS}, "filter": pem.filter.value,
             "levels": q.levels, "bleed_reduction": frame.bleed_reduction, "mode": frame.mode.value}
     return Quality(fs, pem, frame, knobs, info)

@@ -22,10 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import frame_meshes
+from ..errors import InvalidInputError
 from ..presets import merge_knobs, pem_settings, presets
 from ..presets import frame_settings as preset_frame_settings
 from ..reference import mean_flip, relative_rmse, relative_squared_errors, render_reference
 from ..renderer import Renderer, ShadingMode
+from .run import BALANCED
 from .scenes import bundled_scene, shared_scenes
 
 WORST_SHARE = 0.01   # "the worst 1 % of pixels"
@@ -41,7 +43,7 @@ def _silhouette(mask: np.ndarray) -> np.ndarray:
 def split_scene(r: Renderer, bs, knobs: dict, size: int, spp: int, log=print) -> tuple[dict, dict]:
     """The split of one scene's error; returns (row, images for the figure)."""
     camera = frame_meshes(bs.meshes, 1.0)
-    cube = bs.cube(2 * int(knobs["face_size"]))     # the benchmark's reference cube
+    cube = bs.cube(2 * BALANCED["face_size"])     # the benchmark's reference cube
     t0 = time.perf_counter()
     refs = [render_reference(bs.meshes, bs.materials, cube, camera, size, size, spp, seed=s, occlusion=occ).image
             for occ, s in ((True, 1), (True, 2), (False, 3), (False, 4))]
@@ -59,6 +61,9 @@ def split_scene(r: Renderer, bs, knobs: dict, size: int, spp: int, log=print) ->
         scene.release()
         pems.release()
     per_px = relative_squared_errors(full, truth, mask)
+    if per_px.size < 2 or per_px.sum() <= 0:
+        raise InvalidInputError(f"{bs.name}: {per_px.size} covered pixels and a total error of "
+                                f"{per_px.sum():.3g}: nothing to split (a larger --size?)")
     order = np.sort(per_px)[::-1]
     n_worst = max(1, int(round(WORST_SHARE * len(order))))
     rim = _silhouette(mask)[mask]

@@ -218,7 +218,7 @@ class _Surface:
     """Shading inputs at the N primary hits, float64."""
 
     x: np.ndarray          # (N, 3) hit points, on the triangle's plane
-    n: np.ndarray          # (N, 3) shading normal, facing the camera
+    n: np.ndarray          # (N, 3) shading normal, turned to the seen side of the triangle's plane
     n_geom: np.ndarray     # (N, 3) the triangle's plane normal, facing the camera (the side seen)
     r: np.ndarray          # (N, 3) reflection of the view ray about n
     albedo: np.ndarray     # (N, 3)

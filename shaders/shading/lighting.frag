@@ -145,6 +145,7 @@ bool exact_glossy(int i) {    // glossy "mixed": a small light's glossy term in 
 }
 vec3 g_glossy_exact = vec3(0.0);    // likewise
 float g_gloss = 0.0;                // the pixel's glossiness g
+bool g_has_glossy = false;          // specular > 0
 
 // A small light's glossy term without its PEM: the region as a disc of angular radius a carrying its
 // energy E, seen through the normalized Phong lobe of exponent s around r (paper Eq. 3). The disc's
@@ -155,7 +156,7 @@ vec3 glossy_from_light(int i, vec3 r) {
     float sin_a = lights[i].params.w;
     float inv_s = max(1.0 - g_gloss, 0.0);
     float s = 1.0 / max(inv_s + 0.25 * sin_a * sin_a, 1e-6);
-    float c = max(dot(r, lights[i].dir_scale.xyz), 0.0);
+    float c = clamp(dot(r, lights[i].dir_scale.xyz), 0.0, 1.0);   // float32 can reach 1 + 1e-7; s' up to ~4e6
     return lights[i].energy.rgb * ((s + 1.0) / (2.0 * PI) * pow(c, s));
 }
 
@@ -204,7 +205,7 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos) {
 #if MODE == 1
     if (exact_diffuse(i)) g_diffuse_exact += exact_diffuse_term(i, n);
     else g_diffuse += pem_d;
-    if (exact_glossy(i)) g_glossy_exact += glossy_from_light(i, g_reflect);
+    if (exact_glossy(i)) { if (g_has_glossy) g_glossy_exact += glossy_from_light(i, g_reflect); }
     else g_glossy += pem_g;
 #elif MODE == 0
     float vis = visibility(i, ws_pos, n);
@@ -229,8 +230,15 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos) {
     else g_diffuse += vis * pem_d;
     // The glossy lobe's part below the surface (renderer/shading/horizon.py), per light.
     if (u_glossy_horizon >= 2 && !small) vis *= above;
-    if (exact_glossy(i)) g_glossy_exact += vis * glossy_from_light(i, g_reflect);
-    else g_glossy += vis * pem_g;
+    if (exact_glossy(i)) {
+        // Evaluated at the light's own direction, so the lobe's horizon factor does not apply; the
+        // disc's part below the triangle's plane is removed whatever the knobs (light from behind
+        // the sheet does not reach the seen side).
+        if (!small && u_glossy_horizon < 2) vis *= above;
+        if (g_has_glossy) g_glossy_exact += vis * glossy_from_light(i, g_reflect);
+    } else {
+        g_glossy += vis * pem_g;
+    }
 #else
     // Ambient-occlusion baselines (paper Fig. 6): unshadowed lighting times an occlusion factor
     // that averages VIS_i with cosine weights, by solid angle (grey) or by energy (colour).
@@ -277,6 +285,7 @@ void main() {
     }
 #else
     bool glossy = specular > 0.0;
+    g_has_glossy = glossy;
     {
         // Two loops, one per PEM texture, so that the sampler choice is not a per-light branch
         // (a divergent branch around texture lookups costs a third of the pass on llvmpipe).
