@@ -81,9 +81,9 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--small-light-scale", type=int,
                    help="small lights (a sun, under ~6 degrees) get shadow maps K times --shadow-size per side, "
                         "at full caster detail (default: the preset's)")
-    q.add_argument("--small-light-min-share", type=float,
-                   help="only small lights carrying at least this share of the map's energy get those maps; "
-                        "0: every small light (default: the preset's)")
+    q.add_argument("--small-light-min-energy", type=float,
+                   help="only small lights carrying at least this many times the mean light's energy get those "
+                        "maps; 0: every small light (default: the preset's)")
     q.add_argument("--sh-unshadowed", action=argparse.BooleanOptionalAction,
                    help="the diffuse term of the unshadowed lights from SH9 irradiance (one lookup less per light)")
     q.add_argument("--glossy-horizon", choices=["off", "lobe", "lights", "both"],

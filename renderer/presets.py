@@ -19,7 +19,7 @@ def knob_defaults() -> dict:
             "terminator": f.terminator, "horizon": f.horizon, "shadow_threshold": f.shadow_threshold,
             "sh_unshadowed": f.sh_unshadowed, "needed_levels": True, "glossy": f.glossy,
             "caster_detail": f.caster_detail, "small_light_scale": f.small_light_scale,
-            "small_light_min_share": f.small_light_min_share}
+            "small_light_min_energy": f.small_light_min_energy}
 
 
 def merge_knobs(base: dict, explicit: dict) -> dict:
@@ -60,8 +60,8 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 # benchmark (docs/benchmarks.md). Blur 0: the paper's blur changed the error by -1 to +3 % at 48
 # lights (the lights' many hard shadows already add up to soft ones) for 8-32 ms a frame. Caster
 # detail 0.25: 0-5 % more error for half the shadow pass. The sun's shadow edges are the largest error
-# left in sunlit scenes: balanced draws the maps of small lights with at least 5 % of the energy (a
-# sun) at four times the size (hard sun 0.34 -> 0.20), and leaves the dim ones (an interior's ten
+# left in sunlit scenes: balanced draws the maps of small lights with at least 2.4x the mean light's
+# energy (5 % of it at 48 lights: a sun) at four times the size (hard sun 0.34 -> 0.20), and leaves the dim ones (an interior's ten
 # lamps and windows) to the main maps, where sharp maps for all of them cost a third more time for
 # less gain (docs/benchmarks.md). Small lights' diffuse and glossy terms in closed form (their disc
 # through the cosine and the Phong lobe) instead of their PEMs' prefiltered kernels: the studio dress
@@ -71,7 +71,7 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 DEFAULT_PRESETS = {
     "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 0.0, "caster_detail": 0.1},
     "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.0, "caster_detail": 0.25,
-                 "small_light_scale": 4, "small_light_min_share": 0.05, "diffuse": "mixed", "glossy": "mixed"},
+                 "small_light_scale": 4, "small_light_min_energy": 2.4, "diffuse": "mixed", "glossy": "mixed"},
     "accurate": {"lights": 48, "face_size": 128, "shadow_size": 512, "blur_scale": 0.0, "caster_detail": 1.0,
                  "small_light_scale": 2, "diffuse": "mixed", "glossy": "mixed"},
 }

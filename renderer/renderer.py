@@ -75,10 +75,11 @@ class FrameSettings:
     # in an array of their own, drawn at full caster detail: their shadows are sharp. 1: the same maps
     # as every other light.
     small_light_scale: int = 1
-    # Of the small lights, only those carrying at least this share of the map's energy get the sharp
-    # maps; the others are shadowed like the large lights (their edges, dim, cost more than they
-    # show: docs/benchmarks.md). 0: every small light.
-    small_light_min_share: float = 0.0
+    # Of the small lights, only those carrying at least this many times the mean light's energy get
+    # the sharp maps; the others are shadowed like the large lights (their edges, dim, cost more than
+    # they show: docs/benchmarks.md). Relative to the mean, so that a sun split into more regions at
+    # more lights keeps its sharp maps. 0: every small light.
+    small_light_min_energy: float = 0.0
     horizon: bool = False          # VIS_i includes the tangent plane (see lighting.frag); off: the paper
     # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level),
     # "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups) or
@@ -117,9 +118,9 @@ class FrameSettings:
         if self.shadow_size * self.small_light_scale > 8192:
             raise InvalidInputError(f"shadow_size x small_light_scale must be at most 8192, got "
                                     f"{self.shadow_size} x {self.small_light_scale}")
-        if not (0.0 <= self.small_light_min_share <= 1.0):
-            raise InvalidInputError(f"small_light_min_share is a share of the energy in [0, 1], "
-                                    f"got {self.small_light_min_share}")
+        if not (0.0 <= self.small_light_min_energy <= 1e6):   # also refuses NaN
+            raise InvalidInputError(f"small_light_min_energy is a multiple of the mean light's energy in "
+                                    f"[0, 1e6], got {self.small_light_min_energy}")
         if not (0.0 < self.caster_detail <= 1.0):
             raise InvalidInputError(f"caster detail is the share of triangles kept, in (0, 1], got {self.caster_detail}")
         if not (0.0 <= self.shadow_threshold <= 1.0):
@@ -281,9 +282,9 @@ class Renderer:
         shadowed = settings.mode is not ShadingMode.NO_OCCLUSION
         layers = shadow_layers(regions.energy_luminance, settings.shadow_threshold if shadowed else 2.0)
         small = np.sin(regions.disc_radius_rad()) <= SMALL_LIGHT_MAX_SIN
-        share = regions.energy_luminance / max(float(regions.energy_luminance.sum()), 1e-300)
+        relative = regions.energy_luminance / max(float(regions.energy_luminance.mean()), 1e-300)
         k = settings.small_light_scale
-        plan = plan_layers(layers, small & (share >= settings.small_light_min_share), k)
+        plan = plan_layers(layers, small & (relative >= settings.small_light_min_energy), k)
         # Each light's map size; blur widths are in the light's own texels.
         sizes = np.where(plan.sharp, settings.shadow_size * k, settings.shadow_size)
         sigma = blur_sigma_texels(regions.light_radius_rad(), sizes, settings.blur_scale)

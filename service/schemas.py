@@ -95,9 +95,9 @@ class QualitySpec(_Strict):
                                  "maps draw (a proxy over the same vertices; 1: the meshes themselves)")
     small_light_scale: int = Field(_KNOB["small_light_scale"], ge=1, le=8, description="small lights (a sun, under ~6 degrees) get shadow "
                                    "maps K times shadow_size per side, at full caster detail")
-    small_light_min_share: float = Field(_KNOB["small_light_min_share"], ge=0.0, le=1.0, description="only small "
-                                         "lights carrying at least this share of the map's energy get those "
-                                         "maps (0: every small light)")
+    small_light_min_energy: float = Field(_KNOB["small_light_min_energy"], ge=0.0, le=1e6, description="only small "
+                                          "lights carrying at least this many times the mean light's energy get "
+                                          "those maps (0: every small light)")
     sh_unshadowed: bool = Field(_KNOB["sh_unshadowed"], description="the diffuse term of the lights below shadow_threshold "
                                 "from SH9 irradiance")
 

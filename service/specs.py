@@ -55,11 +55,11 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
     frame = frame_settings(knobs, out.width, out.height, bleed_reduction=q.bleed_reduction,
                            mode=ShadingMode(q.mode.value), background=Background(out.background))
     # The shadow maps' memory before any is made, bounded as if every light that may be small were
-    # (at most 1 / small_light_min_share of them carry that share of the energy): a request that
+    # (at most lights / small_light_min_energy of them carry that multiple of the mean): a request that
     # cannot fit is refused here with the numbers, not by the GL driver mid-frame.
     n = int(knobs["lights"])
-    n_sharp = n if frame.small_light_scale == 1 or frame.small_light_min_share <= 0 else \
-        min(n, int(1.0 / frame.small_light_min_share))
+    n_sharp = n if frame.small_light_scale == 1 or frame.small_light_min_energy <= 0 else \
+        min(n, int(n / frame.small_light_min_energy))
     side = frame.shadow_size * frame.small_light_scale
     worst = (n_sharp * side * side + (n - n_sharp) * frame.shadow_size ** 2) * 16
     if worst > settings.max_shadow_map_bytes:
@@ -68,7 +68,7 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
             f"({frame.shadow_size} x {frame.small_light_scale})^2, the others at {frame.shadow_size}^2, x 16 "
             f"bytes), over the limit of {settings.max_shadow_map_bytes / 2**30:.1f} GiB "
             "(GARMENT_RENDER_MAX_SHADOW_MAP_BYTES): use fewer lights, a smaller shadow_size or "
-            "small_light_scale, or a larger small_light_min_share")
+            "small_light_scale, or a larger small_light_min_energy")
     pem = pem_settings(knobs, q.filter.value, q.levels)
     applied = frame.as_dict()   # the knobs as the frame holds them (enums as their values)
     info = {"preset": name, **{k: applied.get(k, knobs[k]) for k in _KNOBS}, "filter": pem.filter.value,

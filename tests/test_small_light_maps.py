@@ -80,20 +80,22 @@ def test_only_small_lights_with_enough_of_the_energy_get_sharp_maps(renderer, su
     scene, pems = sun_scene
     cam = Camera((0.0, 3.0, 2.5), (0.0, 0.2, 0.0), fov_y_deg=50.0)
     regions = pems.regions
-    share = regions.energy_luminance / regions.energy_luminance.sum()
+    relative = regions.energy_luminance / regions.energy_luminance.mean()   # x the mean light's energy
     small = np.sin(regions.disc_radius_rad()) <= SMALL_LIGHT_MAX_SIN
 
-    def frame(k, min_share):
-        fs = FrameSettings(64, 64, shadow_size=32, small_light_scale=k, small_light_min_share=min_share)
+    def frame(k, min_energy):
+        fs = FrameSettings(64, 64, shadow_size=32, small_light_scale=k, small_light_min_energy=min_energy)
         return renderer.render(scene, pems, fs, cam)
 
-    assert small.sum() >= 2 and share[small].max() > 0.2     # the sun, split into small regions
+    assert small.sum() >= 2 and relative[small].max() > 4.0     # the sun, split into small regions
     assert frame(4, 0.0).timings["sharp_layers"] == small.sum()
-    cut = float(np.sort(share[small])[-1] + np.sort(share[small])[-2]) / 2   # between the two largest
-    assert frame(4, cut).timings["sharp_layers"] == 1
+    top = np.sort(relative[small])
+    assert top[-1] > top[-2]
+    assert frame(4, float(top[-1] + top[-2]) / 2).timings["sharp_layers"] == 1   # between the two largest
     # No light with that much energy: every map in the main array, the image of scale 1 exactly.
-    none = frame(4, 1.0)
+    none = frame(4, float(relative.max()) * 1.01)
     assert none.timings["sharp_layers"] == 0
     np.testing.assert_array_equal(none.image, frame(1, 0.0).image)
-    with pytest.raises(InvalidInputError, match="small_light_min_share"):
-        FrameSettings(small_light_min_share=1.5)
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(InvalidInputError, match="small_light_min_energy"):
+            FrameSettings(small_light_min_energy=bad)

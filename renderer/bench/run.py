@@ -49,14 +49,14 @@ SWEEPS = {
     "shadow_threshold": [0.002, 0.01, 0.03],
     "sh_unshadowed": DIM_LIGHTS,
     "caster_detail": [1.0, 0.5, 0.25, 0.1],
-    "small_light_scale": [1, 2, 4, {"small_light_scale": 2, "small_light_min_share": 0.0}],
-    "small_light_min_share": [0.0, 0.02, 0.1],
+    "small_light_scale": [1, 2, 4, {"small_light_scale": 2, "small_light_min_energy": 0.0}],
+    "small_light_min_energy": [0.0, 1.0, 4.8],
     # The other default presets, measured as a whole beside balanced.
     "preset": [DEFAULT_PRESETS["fast"], DEFAULT_PRESETS["accurate"]],
 }
 QUICK_SWEEPS = {**SWEEPS, "lights": [6, 24, 48, 96], "face_size": [64, 128], "shadow_size": [128, 256],
                 "blur_scale": [0.0, 0.1, 1.0], "filter": ["none", "sqrt-cosine"], "shadow_threshold": [0.01],
-                "caster_detail": [1.0], "small_light_scale": [1, 2], "small_light_min_share": [0.0]}
+                "caster_detail": [1.0], "small_light_scale": [1, 2], "small_light_min_energy": [0.0]}
 BASELINE_MODES = [ShadingMode.NO_OCCLUSION, ShadingMode.MANY_LIGHTS, ShadingMode.AO_GREY, ShadingMode.AO_COLOUR]
 
 

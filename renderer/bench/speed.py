@@ -23,8 +23,8 @@ from .scenes import bundled_scene, shared_scenes
 VARIANTS = {
     "balanced": {},
     "balanced, small-light scale 1": {"small_light_scale": 1},
-    "balanced, every small light at scale 4": {"small_light_min_share": 0.0},
-    "balanced, every small light at scale 2": {"small_light_scale": 2, "small_light_min_share": 0.0},
+    "balanced, every small light at scale 4": {"small_light_min_energy": 0.0},
+    "balanced, every small light at scale 2": {"small_light_scale": 2, "small_light_min_energy": 0.0},
     "balanced, full caster detail": {"caster_detail": 1.0},
     "fast": "fast",
     "accurate": "accurate",
