@@ -57,17 +57,18 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 
 
 # A preset may also set any knob of knob_defaults() (its value wins over the default), chosen from the
-# benchmark (docs/benchmarks.md). Blur 0: the paper's blur changed the error by -1 to +3 % at 48
-# lights (the lights' many hard shadows already add up to soft ones) for 8-32 ms a frame. Caster
-# detail 0.25: 0-5 % more error for half the shadow pass. The sun's shadow edges are the largest error
-# left in sunlit scenes: balanced draws the maps of small lights with at least 2.4x the mean light's
-# energy (5 % of it at 48 lights: a sun) at four times the size (hard sun 0.34 -> 0.20), and leaves the dim ones (an interior's ten
-# lamps and windows) to the main maps, where sharp maps for all of them cost a third more time for
-# less gain (docs/benchmarks.md). Small lights' diffuse and glossy terms in closed form (their disc
-# through the cosine and the Phong lobe) instead of their PEMs' prefiltered kernels: the studio dress
-# 0.127 -> 0.084 at balanced, no scene worse; not in fast, whose 24 regions are too coarse for it.
-# Lights beyond 48 cost linear time
-# (96 lights: about twice) for 2-16 % less error; the accurate preset spends time on shadow maps.
+# benchmark (docs/benchmarks.md). Blur 0: the paper's blur changed the error by 0 to +9 % at 48
+# lights (the lights' many hard shadows already add up to soft ones) for more time a frame. Caster
+# detail 0.25: 0-5 % more error for a third to half less frame time. The sun's shadow edges are the
+# largest error left in sunlit scenes: balanced draws the maps of small lights with at least 2.4x the
+# mean light's energy (5 % of it at 48 lights: a sun) at four times the size (hard sun 0.366 ->
+# 0.202), and leaves the dim ones (an interior's ten lamps and windows) to the main maps, where sharp
+# maps for all of them cost 1.6x the frame time for less gain. Small lights' diffuse and glossy terms
+# in closed form (their disc through the cosine and the Phong lobe) instead of their PEMs'
+# prefiltered kernels: the studio dress 0.127 -> 0.084 at balanced, no scene worse; not in fast,
+# whose hard sun measured worse with them in a side run (not a bench row). Lights beyond 48 cost
+# linear time (96 lights: about twice) for 2-31 % less error; the accurate preset spends time on
+# shadow maps.
 DEFAULT_PRESETS = {
     "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 0.0, "caster_detail": 0.1},
     "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.0, "caster_detail": 0.25,
