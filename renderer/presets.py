@@ -25,11 +25,18 @@ def knob_defaults() -> dict:
 def merge_knobs(base: dict, explicit: dict) -> dict:
     """A preset's or budget's knobs (`base`) over the defaults, with the caller's explicit values
     (None: not given) over both: the one rule the command line, the service and the benchmark share."""
+    from .renderer import MAX_SHADOW_SIDE
+
     knobs = {**knob_defaults(), **base}
-    knobs.update({k: v for k, v in explicit.items() if v is not None})
+    given = {k: v for k, v in explicit.items() if v is not None}
+    knobs.update(given)
     missing = [k for k in PRESET_KNOBS if k not in knobs]
     if missing:
         raise ValueError(f"quality knobs without a value: {missing}")
+    # A preset's small-light scale yields to an explicit large shadow map (the sharp maps stay within
+    # MAX_SHADOW_SIDE); a scale the caller names is kept, and FrameSettings refuses it if too large.
+    if "small_light_scale" not in given and int(knobs["shadow_size"]) * int(knobs["small_light_scale"]) > MAX_SHADOW_SIDE:
+        knobs["small_light_scale"] = max(1, MAX_SHADOW_SIDE // int(knobs["shadow_size"]))
     return knobs
 
 

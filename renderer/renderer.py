@@ -49,6 +49,7 @@ _MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_
 DIFFUSE_SOURCES = ("pem", "lights", "mixed", "sh")
 GLOSSY_HORIZONS = ("off", "lobe", "lights", "both")
 GLOSSY_SOURCES = ("pem", "mixed")
+MAX_SHADOW_SIDE = 8192   # the largest shadow map side, small lights' included (shadow_size x small_light_scale)
 
 
 class Background(str, Enum):
@@ -115,8 +116,8 @@ class FrameSettings:
         if not (isinstance(self.small_light_scale, (int, np.integer)) and 1 <= self.small_light_scale <= 8):
             raise InvalidInputError(f"small_light_scale is a whole number in 1..8 (times the shadow-map size), "
                                     f"got {self.small_light_scale!r}")
-        if self.shadow_size * self.small_light_scale > 8192:
-            raise InvalidInputError(f"shadow_size x small_light_scale must be at most 8192, got "
+        if self.shadow_size * self.small_light_scale > MAX_SHADOW_SIDE:
+            raise InvalidInputError(f"shadow_size x small_light_scale must be at most {MAX_SHADOW_SIDE}, got "
                                     f"{self.shadow_size} x {self.small_light_scale}")
         if not (0.0 <= self.small_light_min_energy <= 1e6):   # also refuses NaN
             raise InvalidInputError(f"small_light_min_energy is a multiple of the mean light's energy in "

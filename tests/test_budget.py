@@ -63,3 +63,16 @@ def test_a_budget_sets_every_measured_knob_unless_a_flag_says_otherwise(monkeypa
     monkeypatch.setattr(budget, "load_table", lambda path=None: None)
     q, k = knobs()                                              # no table: the defaults
     assert k == ("lights", "l2", True, True) and q["small_light_scale"] == 4 and "default" in q["source"]
+
+
+def test_a_presets_small_light_scale_yields_to_a_large_shadow_map():
+    from renderer.presets import DEFAULT_PRESETS, frame_settings, merge_knobs
+
+    assert DEFAULT_PRESETS["balanced"]["small_light_scale"] == 4
+    knobs = merge_knobs(DEFAULT_PRESETS["balanced"], {"shadow_size": 4096})
+    assert knobs["small_light_scale"] == 2 and frame_settings(knobs, 8, 8).shadow_size == 4096
+    assert merge_knobs(DEFAULT_PRESETS["balanced"], {"shadow_size": 1024})["small_light_scale"] == 4
+    # A scale the caller names is kept, and the frame settings refuse what cannot be made.
+    knobs = merge_knobs(DEFAULT_PRESETS["balanced"], {"shadow_size": 4096, "small_light_scale": 4})
+    with pytest.raises(InvalidInputError, match="8192"):
+        frame_settings(knobs, 8, 8)
