@@ -72,7 +72,7 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 # 0.202), and leaves the dim ones (an interior's ten lamps and windows) to the main maps, where sharp
 # maps for all of them cost 1.6x the frame time for less gain. Small lights' diffuse and glossy terms
 # in closed form (their disc through the cosine and the Phong lobe) instead of their PEMs'
-# prefiltered kernels: the studio dress 0.127 -> 0.084 at balanced, no scene worse; not in fast,
+# prefiltered kernels: the studio dress 0.127 -> 0.084 at balanced, no scene worse by more than 2 %; not in fast,
 # whose hard sun measured worse with them in a side run (not a bench row). Lights beyond 48 cost
 # linear time (96 lights: about twice) for 2-31 % less error; the accurate preset spends time on
 # shadow maps.

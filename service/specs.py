@@ -59,7 +59,7 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
     # cannot fit is refused here with the numbers, not by the GL driver mid-frame.
     n = int(knobs["lights"])
     n_sharp = n if frame.small_light_scale == 1 or frame.small_light_min_energy <= 0 else \
-        min(n, int(n / frame.small_light_min_energy))
+        int(min(n, n / frame.small_light_min_energy))   # min first: n / 1e-320 is inf
     side = frame.shadow_size * frame.small_light_scale
     worst = (n_sharp * side * side + (n - n_sharp) * frame.shadow_size ** 2) * 16
     if worst > settings.max_shadow_map_bytes:
