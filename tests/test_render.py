@@ -381,3 +381,31 @@ def test_mixed_diffuse_takes_small_lights_in_closed_form(renderer):
     np.testing.assert_allclose(img["mixed"][m], img["lights"][m], rtol=1e-4, atol=1e-6)
     np.testing.assert_allclose(img["sh"][m], img["lights"][m], rtol=1e-4, atol=1e-6)  # the dark sky's SH is 0
     assert np.abs(img["pem"][m] - img["lights"][m]).max() > 0.05 * img["lights"][m].max()
+
+
+def test_the_shading_normal_is_turned_to_the_side_of_the_sheet_the_camera_sees(renderer):
+    # A sheet in the plane z = 0 seen at a grazing angle from +x and +z, with vertex normals that lean
+    # across the plane, below it but still towards the camera (as inside a fold). Shaded as given, the
+    # normal would look below the sheet; turned to the seen side (+z) it looks up and back. Light only
+    # in the quarter x < 0, z > 0: bright if the normal is turned, black if not.
+    from renderer.envmap.cube import texel_directions
+
+    v = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
+    sheet = Mesh.from_arrays(v, np.array([[0, 1, 2], [0, 2, 3]]), name="sheet")
+    lean = np.tile(np.array([0.9, 0.0, -0.44]) / np.hypot(0.9, 0.44), (4, 1)).astype(np.float32)
+    d = texel_directions(16)
+    cube = np.where(((d[..., 0] < -0.2) & (d[..., 2] > 0.2))[..., None], 1.0, 0.0).repeat(3, -1).astype(np.float32)
+    cam = Camera((3.0, 0.0, 0.45), (0.0, 0.0, 0.0), fov_y_deg=30.0)
+    scene = renderer.create_scene([sheet], [Material((1.0, 1.0, 1.0), 0.0, 0.0)])
+    pems = renderer.build_pems(cube, PEMSettings(24))
+    try:
+        fs = FrameSettings(32, 32, mode=ShadingMode.NO_OCCLUSION, background=Background.BLACK)
+        frame = renderer.render(scene, pems, fs, cam, positions=[v], normals=[lean])
+    finally:
+        pems.release()
+        scene.release()
+    seen = covered(frame)
+    assert seen.sum() > 20
+    # The turned normal (-0.9, 0, 0.44) faces the lit quarter. Measured: 0.40 turned, 0.02 without
+    # the turn (the PEM's diffuse lobe reaches a little past 90 degrees).
+    assert frame.image[seen][:, :3].mean() > 0.2
