@@ -63,7 +63,8 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--error-budget", type=float, help="choose the fastest measured setting within this rel. RMSE")
     q.add_argument("--lights", type=int, help="regions / lights, 6 * 2^k")
     q.add_argument("--face-size", type=int, help="PEM cube face size (power of two)")
-    q.add_argument("--filter", default="sqrt-cosine", choices=["none", "box", "gauss", "cosine", "sqrt-cosine"])
+    q.add_argument("--filter", choices=["none", "box", "gauss", "cosine", "sqrt-cosine"],
+                   help="PEM MIP filter (default: the budget's measured setting, else sqrt-cosine)")
     q.add_argument("--levels", type=int, help="MIP levels to build (default: the full chain)")
     q.add_argument("--needed-levels", action=argparse.BooleanOptionalAction,
                    help="store only the PEM levels the materials' glossiness reads (the same image, less memory "
@@ -114,8 +115,10 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
 
 def resolve_quality(args) -> dict:
     """Quality knobs: a budget (chosen from the measured table), else the preset, over the
-    defaults; explicit flags override all (`merge_knobs`). The result says where they came from."""
+    defaults; explicit flags override all (`merge_knobs`). The result says where they came from,
+    and which PEM filter: --filter, else the budget's measured one, else sqrt-cosine."""
     table_presets, source = presets()
+    filter_name = args.filter
     if args.frame_budget_ms is not None or args.error_budget is not None:
         from .bench.budget import choose, load_table
 
@@ -124,13 +127,14 @@ def resolve_quality(args) -> dict:
             raise InvalidInputError("budgets need a measured table: run `garment-render bench --store` first")
         entry = choose(table, args.frame_budget_ms, args.error_budget)
         base = {k: v for k, v in entry["settings"].items() if k != "filter"}
+        filter_name = args.filter or entry["settings"].get("filter")
         where = (f"budget: measured {entry['median_frame_ms']:.1f} ms, worst rel. RMSE "
                  f"{entry['worst_rel_rmse']:.4f} ({source})")
     else:
         base = table_presets[args.preset]
         where = f"preset {args.preset}, {source}"
     knobs = merge_knobs(base, {k: getattr(args, k) for k in (*PRESET_KNOBS, *knob_defaults())})
-    return {**knobs, "source": where}
+    return {**knobs, "filter": filter_name or "sqrt-cosine", "source": where}
 
 
 def frame_settings(args, q: dict):
@@ -144,7 +148,7 @@ def frame_settings(args, q: dict):
 
 def pem_settings(args, q: dict, materials):
     """The PEM set's settings; with needed levels only the levels the materials' glossiness reads."""
-    return presets_pem_settings(q, args.filter, args.levels, materials)
+    return presets_pem_settings(q, q["filter"], args.levels, materials)
 
 
 def load_scene_inputs(args, face_size: int):

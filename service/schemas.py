@@ -67,6 +67,11 @@ class QualitySpec(_Strict):
     """A preset, refined by explicit knobs (each overrides the preset's value)."""
 
     preset: Preset | None = Field(None, description="fast | balanced | accurate; default: the service's default")
+    frame_budget_ms: float | None = Field(None, gt=0.0, description="instead of a preset: the most accurate setting "
+                                          "measured within this frame time (the stored benchmark table)")
+    error_budget: float | None = Field(None, gt=0.0, description="instead of a preset: the fastest setting measured "
+                                       "within this worst-scene rel. RMSE (with frame_budget_ms: the most accurate "
+                                       "within both)")
     lights: int | None = Field(None, description="median-cut regions = lights, 6 * 2^k", ge=6, le=384)
     face_size: int | None = Field(None, description="PEM cube face size, a power of two", ge=4, le=2048)
     filter: FilterName = FilterName.SQRT_COSINE

@@ -13,6 +13,7 @@ from renderer.lighting.median_cut import regions_per_face
 from renderer.lighting.pem import PEMSettings
 from renderer.errors import MeshError
 from renderer.mesh import Mesh, z_up_to_y_up
+from renderer.bench.budget import choose, load_table
 from renderer.presets import PRESET_KNOBS, frame_settings, knob_defaults, merge_knobs, pem_settings
 from renderer.renderer import Background, FrameSettings, ShadingMode
 
@@ -42,7 +43,22 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
     defaults (`merge_knobs`), as frame and PEM settings; the PEM set's full chain (a scene narrows it
     to its materials' levels in `prepare_scene`)."""
     name = q.preset.value if q.preset is not None else settings.default_preset
-    knobs = merge_knobs(presets[name], {k: getattr(q, k) for k in q.model_fields_set if k in _KNOBS})
+    base, source, filter_name = presets[name], f"preset {name}", q.filter.value
+    if q.frame_budget_ms is not None or q.error_budget is not None:
+        # The measured setting that meets the budgets (renderer/bench/budget.py), never a guess.
+        table = load_table()
+        if table is None:
+            raise InvalidRequestError("quality budgets choose from the measured table (renderer/bench/measured.json, "
+                                      "written by `garment-render bench --store`), and none is stored")
+        entry = choose(table, q.frame_budget_ms, q.error_budget)   # InvalidInputError (422) when none does
+        base = {k: v for k, v in entry["settings"].items() if k != "filter"}
+        if "filter" not in q.model_fields_set:
+            filter_name = entry["settings"].get("filter", filter_name)
+        name = None
+        source = (f"budget: measured {entry['median_frame_ms']:.1f} ms median, worst rel. RMSE "
+                  f"{entry['worst_rel_rmse']:.4f} on {table['machine'].get('gl_renderer', '?')} "
+                  f"({table['machine'].get('date', '?')})")
+    knobs = merge_knobs(base, {k: getattr(q, k) for k in q.model_fields_set if k in _KNOBS})
     regions_per_face(int(knobs["lights"]))  # InvalidInputError naming the valid counts
 
     fs = int(knobs["face_size"])
@@ -69,9 +85,10 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
             f"bytes), over the limit of {settings.max_shadow_map_bytes / 2**30:.1f} GiB "
             "(GARMENT_RENDER_MAX_SHADOW_MAP_BYTES): use fewer lights, a smaller shadow_size or "
             "small_light_scale, or a larger small_light_min_energy")
-    pem = pem_settings(knobs, q.filter.value, q.levels)
+    pem = pem_settings(knobs, filter_name, q.levels)
     applied = frame.as_dict()   # the knobs as the frame holds them (enums as their values)
-    info = {"preset": name, **{k: applied.get(k, knobs[k]) for k in _KNOBS}, "filter": pem.filter.value,
+    info = {"preset": name, "source": source, **{k: applied.get(k, knobs[k]) for k in _KNOBS},
+            "filter": pem.filter.value,
             "levels": q.levels, "bleed_reduction": frame.bleed_reduction, "mode": frame.mode.value}
     return Quality(fs, pem, frame, knobs, info)
 

@@ -76,3 +76,22 @@ def test_a_presets_small_light_scale_yields_to_a_large_shadow_map():
     knobs = merge_knobs(DEFAULT_PRESETS["balanced"], {"shadow_size": 4096, "small_light_scale": 4})
     with pytest.raises(InvalidInputError, match="8192"):
         frame_settings(knobs, 8, 8)
+
+
+def test_a_budget_brings_its_measured_filter_unless_one_is_named(monkeypatch):
+    import renderer.bench.budget as budget
+    from renderer.cli import build_parser, pem_settings, resolve_quality
+    from renderer.shading.material import Material
+
+    box = dict(_row("a", 48, 40, 0.05))
+    box["settings"] = {**box["settings"], "filter": "box"}
+    table = summarize({**BENCH, "rows": [box, dict(_row("a", 24, 30, 0.3))]})
+    monkeypatch.setattr(budget, "load_table", lambda path=None: table)
+
+    args = build_parser().parse_args(["render", "--error-budget", "0.1"])
+    q = resolve_quality(args)
+    assert q["filter"] == "box" and q["lights"] == 48
+    assert pem_settings(args, q, [Material()]).filter.value == "box"   # the PEMs are built as measured
+    args = build_parser().parse_args(["render", "--error-budget", "0.1", "--filter", "gauss"])
+    assert resolve_quality(args)["filter"] == "gauss"
+    assert resolve_quality(build_parser().parse_args(["render"]))["filter"] == "sqrt-cosine"

@@ -573,6 +573,29 @@ def test_accuracy_knobs_reach_the_renderer_and_are_reported(http, env_upload, me
     assert_error(http.post("/render", json=body), 422, "caster_detail")
 
 
+def test_a_per_request_budget_chooses_a_measured_setting_and_says_so(http, env_upload, mesh):
+    from renderer.bench.budget import choose, load_table
+
+    table = load_table()
+    assert table is not None   # the package keeps the table measured by `garment-render bench --store`
+    body = scene_body(env_upload[0]["id"], mesh)
+    want = choose(table, error_budget=0.3)["settings"]
+    body["quality"] = {"error_budget": 0.3}
+    r = http.post("/scenes", json=body)
+    assert r.status_code in (200, 201), r.text
+    quality = r.json()["quality"]
+    assert http.delete(f"/scenes/{r.json()['id']}").status_code in (200, 204)
+    assert quality["preset"] is None and quality["source"].startswith("budget: measured")
+    keys = ("lights", "face_size", "shadow_size", "filter", "small_light_scale", "diffuse")
+    assert {k: quality[k] for k in keys} == {k: want[k] for k in keys}
+    # A budget nothing measured meets: a 422 that says so; a knob the request names still wins.
+    body["quality"] = {"frame_budget_ms": 0.001}
+    assert_error(http.post("/render", json=body), 422, "no measured setting meets")
+    body["quality"] = {"error_budget": 0.3, "lights": 6}
+    r = http.post("/render", json=body, params={"format": "json"})
+    assert r.status_code == 200 and r.json()["render"]["n_lights"] == 6
+
+
 def test_shadow_maps_beyond_the_memory_limit_are_refused_before_rendering(http, env_upload, mesh):
     body = scene_body(env_upload[0]["id"], mesh)
     body["quality"] = {**body["quality"], "lights": 384, "shadow_size": 2048, "small_light_scale": 2,
