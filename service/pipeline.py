@@ -119,22 +119,26 @@ def render_info(frame: Frame, source: str) -> dict:
 
 
 def frame_payload(scene_id: str | None, index: int | None, frame: Frame, enc: Encoded, timings: dict,
-                  source: str) -> dict:
+                  source: str, quality: dict | None = None) -> dict:
     h, w = frame.image.shape[:2]
     return {"scene_id": scene_id, "frame_index": index, "width": w, "height": h, "exposure_ev": enc.exposure_ev,
-            "timings_ms": timings, "render": render_info(frame, source),
+            "timings_ms": timings, "render": {**render_info(frame, source), "quality": quality},
             "image": {"format": "exr" if enc.media_type == "image/x-exr" else "png", "media_type": enc.media_type,
                       "base64": base64.b64encode(enc.content).decode("ascii")}}
 
 
 def frame_response(fmt: ImageFormat, scene_id: str | None, index: int | None, frame: Frame, enc: Encoded,
-                   timings: dict, source: str) -> Response:
+                   timings: dict, source: str, quality: dict | None = None) -> Response:
+    """The frame as an image (settings in headers) or as JSON; `quality` is the scene's resolved quality
+    (the knobs and where they came from: a preset or a budget), reported with every frame."""
     headers = {"Server-Timing": server_timing(timings), "X-Render-Lights": str(frame.timings["n_lights"]),
                "X-PEM-Source": source, "X-Render-Process": str(os.getpid()), "Cache-Control": "no-store"}
+    if quality is not None and quality.get("source"):
+        headers["X-Quality-Source"] = quality["source"]
     if index is not None:
         headers["X-Frame-Index"] = str(index)
     if enc.exposure_ev is not None:
         headers["X-Exposure-EV"] = f"{enc.exposure_ev:.4f}"
     if fmt is ImageFormat.JSON:
-        return JSONResponse(frame_payload(scene_id, index, frame, enc, timings, source), headers=headers)
+        return JSONResponse(frame_payload(scene_id, index, frame, enc, timings, source, quality), headers=headers)
     return Response(enc.content, media_type=enc.media_type, headers=headers)

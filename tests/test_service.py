@@ -594,6 +594,10 @@ def test_a_per_request_budget_chooses_a_measured_setting_and_says_so(http, env_u
     body["quality"] = {"error_budget": 0.3, "lights": 6}
     r = http.post("/render", json=body, params={"format": "json"})
     assert r.status_code == 200 and r.json()["render"]["n_lights"] == 6
+    reported = r.json()["render"]["quality"]          # with every frame: the knobs and where they came from
+    assert reported["lights"] == 6 and reported["source"].startswith("budget: measured")
+    r = http.post("/render", json=body)               # a PNG: the source in a header
+    assert r.status_code == 200 and r.headers["X-Quality-Source"].startswith("budget: measured")
 
 
 def test_shadow_maps_beyond_the_memory_limit_are_refused_before_rendering(http, env_upload, mesh):

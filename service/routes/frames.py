@@ -91,7 +91,7 @@ async def post_frame(
     metrics.observe_frame("frames", fmt.value, timings)
     index = x_frame_index if x_frame_index is not None else sequence - 1
     keep_latest(scene, index, sequence, frame, enc, timings)
-    response = frame_response(fmt, scene.id, index, frame, enc, timings, source)
+    response = frame_response(fmt, scene.id, index, frame, enc, timings, source, scene.quality)
     response.headers["X-Frame-Sequence"] = str(sequence)
     return response
 
@@ -190,7 +190,7 @@ async def post_batch(
                 results.append({"frame_index": i, "sequence": sequence, "exposure_ev": enc.exposure_ev,
                                 "timings_ms": timings})
             else:
-                results.append(frame_payload(scene.id, i, frame, enc, timings, source))
+                results.append(frame_payload(scene.id, i, frame, enc, timings, source, scene.quality))
             frames_in[i] = None  # free the decoded arrays as we go
     finally:
         stop = True
@@ -239,5 +239,5 @@ async def render_once(
     enc = await encode_async(frame, fmt, body.output.model_dump(), exposure, settings.png_compress_level, json_image)
     timings = frame_timings(frame, decode_ms, 0.0, result.queue_ms, result.run_ms, enc.encode_ms, t_start)
     metrics.observe_frame("render", fmt.value, timings)
-    return frame_response(fmt, None, None, frame, enc, timings, source)
+    return frame_response(fmt, None, None, frame, enc, timings, source, q.info)
 
