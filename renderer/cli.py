@@ -82,6 +82,9 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--small-light-scale", type=int,
                    help="small lights (a sun, under ~6 degrees) get shadow maps K times --shadow-size per side, "
                         "at full caster detail (default: the preset's)")
+    q.add_argument("--sharp-large-lights", action=argparse.BooleanOptionalAction,
+                   help="large lights with at least --small-light-min-energy x the mean energy get those maps too "
+                        "(default: the preset's)")
     q.add_argument("--small-light-min-energy", type=float,
                    help="only small lights carrying at least this many times the mean light's energy get those "
                         "maps; 0: every small light (default: the preset's)")

@@ -19,7 +19,7 @@ def knob_defaults() -> dict:
             "terminator": f.terminator, "horizon": f.horizon, "shadow_threshold": f.shadow_threshold,
             "sh_unshadowed": f.sh_unshadowed, "needed_levels": True, "glossy": f.glossy,
             "caster_detail": f.caster_detail, "small_light_scale": f.small_light_scale,
-            "small_light_min_energy": f.small_light_min_energy}
+            "small_light_min_energy": f.small_light_min_energy, "sharp_large_lights": f.sharp_large_lights}
 
 
 def merge_knobs(base: dict, explicit: dict) -> dict:

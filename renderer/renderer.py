@@ -81,6 +81,10 @@ class FrameSettings:
     # they show: docs/benchmarks.md). Relative to the mean, so that a sun split into more regions at
     # more lights keeps its sharp maps. 0: every small light.
     small_light_min_energy: float = 0.0
+    # Large lights with at least small_light_min_energy x the mean energy get the sharp maps too (the
+    # bright sky beside a sun, an overcast sky's brightest patches: their energy is more concentrated
+    # than their region). Only with small_light_min_energy > 0.
+    sharp_large_lights: bool = False
     horizon: bool = False          # VIS_i includes the tangent plane (see lighting.frag); off: the paper
     # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level),
     # "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups) or
@@ -285,7 +289,9 @@ class Renderer:
         small = np.sin(regions.disc_radius_rad()) <= SMALL_LIGHT_MAX_SIN
         relative = regions.energy_luminance / max(float(regions.energy_luminance.mean()), 1e-300)
         k = settings.small_light_scale
-        plan = plan_layers(layers, small & (relative >= settings.small_light_min_energy), k)
+        bright = relative >= settings.small_light_min_energy
+        sharp = (small | settings.sharp_large_lights) & bright if settings.small_light_min_energy > 0 else small
+        plan = plan_layers(layers, sharp, k)
         # Each light's map size; blur widths are in the light's own texels.
         sizes = np.where(plan.sharp, settings.shadow_size * k, settings.shadow_size)
         sigma = blur_sigma_texels(regions.light_radius_rad(), sizes, settings.blur_scale)

@@ -100,6 +100,8 @@ class QualitySpec(_Strict):
                                  "maps draw (a proxy over the same vertices; 1: the meshes themselves)")
     small_light_scale: int = Field(_KNOB["small_light_scale"], ge=1, le=8, description="small lights (a sun, under ~6 degrees) get shadow "
                                    "maps K times shadow_size per side, at full caster detail")
+    sharp_large_lights: bool = Field(_KNOB["sharp_large_lights"], description="large lights with at least "
+                                     "small_light_min_energy x the mean energy get the sharp maps too")
     small_light_min_energy: float = Field(_KNOB["small_light_min_energy"], ge=0.0, le=1e6, description="only small "
                                           "lights carrying at least this many times the mean light's energy get "
                                           "those maps (0: every small light)")

@@ -99,3 +99,23 @@ def test_only_small_lights_with_enough_of_the_energy_get_sharp_maps(renderer, su
     for bad in (-1.0, float("nan")):
         with pytest.raises(InvalidInputError, match="small_light_min_energy"):
             FrameSettings(small_light_min_energy=bad)
+
+
+def test_bright_large_lights_join_the_sharp_maps_only_when_asked(renderer, sun_scene):
+    from renderer.shadows.lights import SMALL_LIGHT_MAX_SIN
+
+    scene, pems = sun_scene
+    cam = Camera((0.0, 3.0, 2.5), (0.0, 0.2, 0.0), fov_y_deg=50.0)
+    regions = pems.regions
+    relative = regions.energy_luminance / regions.energy_luminance.mean()
+    small = np.sin(regions.disc_radius_rad()) <= SMALL_LIGHT_MAX_SIN
+    cut = float(np.median(relative[~small]))      # about half of the large lights are that bright
+
+    def sharp_layers(min_energy, large):
+        fs = FrameSettings(64, 64, shadow_size=32, small_light_scale=2, small_light_min_energy=min_energy,
+                           sharp_large_lights=large)
+        return renderer.render(scene, pems, fs, cam).timings["sharp_layers"]
+
+    assert sharp_layers(cut, False) == int((small & (relative >= cut)).sum())
+    assert sharp_layers(cut, True) == int((relative >= cut).sum()) > sharp_layers(cut, False)
+    assert sharp_layers(0.0, True) == sharp_layers(0.0, False) == int(small.sum())   # without a threshold: small ones only

@@ -23,7 +23,8 @@ KNOBS = (*PRESET_KNOBS, "filter", *knob_defaults())
 # Knobs added after a table was stored take the value they had then (the only one there was).
 KNOB_DEFAULTS = {"horizon": False, "calibration": "volume", "diffuse": "pem", "glossy_horizon": "off",
                 "terminator": False, "needed_levels": False, "shadow_threshold": 0.0, "sh_unshadowed": False,
-                "caster_detail": 1.0, "small_light_scale": 1, "small_light_min_energy": 0.0, "glossy": "pem"}
+                "caster_detail": 1.0, "small_light_scale": 1, "small_light_min_energy": 0.0, "glossy": "pem",
+                "sharp_large_lights": False}
 
 
 def summarize(bench: dict) -> dict:

@@ -26,6 +26,7 @@ VARIANTS = {
     "balanced, every small light at scale 4": {"small_light_min_energy": 0.0},
     "balanced, every small light at scale 2": {"small_light_scale": 2, "small_light_min_energy": 0.0},
     "balanced, full caster detail": {"caster_detail": 1.0},
+    "balanced, bright large lights' maps at scale 4 too": {"sharp_large_lights": True},
     "fast": "fast",
     "accurate": "accurate",
 }
