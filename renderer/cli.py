@@ -120,24 +120,15 @@ def resolve_quality(args) -> dict:
     """Quality knobs: a budget (chosen from the measured table), else the preset, over the
     defaults; explicit flags override all (`merge_knobs`). The result says where they came from,
     and which PEM filter: --filter, else the budget's measured one, else sqrt-cosine."""
-    table_presets, source = presets()
-    filter_name = args.filter
     if args.frame_budget_ms is not None or args.error_budget is not None:
-        from .bench.budget import choose, load_table
+        from .bench.budget import budget_knobs
 
-        table = load_table()
-        if table is None:
-            raise InvalidInputError("budgets need a measured table: run `garment-render bench --store` first")
-        entry = choose(table, args.frame_budget_ms, args.error_budget)
-        base = {k: v for k, v in entry["settings"].items() if k != "filter"}
-        filter_name = args.filter or entry["settings"].get("filter")
-        where = (f"budget: measured {entry['median_frame_ms']:.1f} ms, worst rel. RMSE "
-                 f"{entry['worst_rel_rmse']:.4f} ({source})")
+        base, measured_filter, where = budget_knobs(args.frame_budget_ms, args.error_budget)
     else:
-        base = table_presets[args.preset]
-        where = f"preset {args.preset}, {source}"
+        table_presets, source = presets()
+        base, measured_filter, where = table_presets[args.preset], "sqrt-cosine", f"preset {args.preset}, {source}"
     knobs = merge_knobs(base, {k: getattr(args, k) for k in (*PRESET_KNOBS, *knob_defaults())})
-    return {**knobs, "filter": filter_name or "sqrt-cosine", "source": where}
+    return {**knobs, "filter": args.filter or measured_filter, "source": where}
 
 
 def frame_settings(args, q: dict):

@@ -348,11 +348,8 @@ class Renderer:
             fbo.depth_mask = False   # the depth buffer is the geometry pass's: clear the colour only
             fbo.clear(0.0, 0.0, 0.0, 0.0)
             lights_buf.bind_to_storage_buffer(0)
-            if settings.diffuse == "sh":
-                # Per light, its region's irradiance coefficients (9 x rgb, padded to vec4).
-                sh = np.zeros((n, 9, 4), np.float32)
-                sh[..., :3] = irradiance_coefficients(pems.region_sh)
-                self._buffer("light_sh", sh.tobytes()).bind_to_storage_buffer(3)
+            if settings.diffuse == "sh":   # per light, its region's irradiance coefficients
+                self._buffer("light_sh", pems.light_sh).bind_to_storage_buffer(3)
             self._gloss_buf.write(pems.gloss_table(settings.calibration).tobytes())
             self._gloss_buf.bind_to_storage_buffer(1)
             self._horizon_tex.use(location=7)

@@ -13,10 +13,9 @@ from renderer.lighting.median_cut import regions_per_face
 from renderer.lighting.pem import PEMSettings
 from renderer.errors import MeshError
 from renderer.mesh import Mesh, z_up_to_y_up
-from renderer.bench.budget import choose, load_table
+from renderer.bench.budget import budget_knobs
 from renderer.presets import PRESET_KNOBS, frame_settings, knob_defaults, merge_knobs, pem_settings
 from renderer.renderer import Background, FrameSettings, ShadingMode
-
 from renderer.shading.material import Material
 from renderer.shadows.proxy import caster_proxy_isolated
 
@@ -45,19 +44,11 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
     name = q.preset.value if q.preset is not None else settings.default_preset
     base, source, filter_name = presets[name], f"preset {name}", q.filter.value
     if q.frame_budget_ms is not None or q.error_budget is not None:
-        # The measured setting that meets the budgets (renderer/bench/budget.py), never a guess.
-        table = load_table()
-        if table is None:
-            raise InvalidRequestError("quality budgets choose from the measured table (renderer/bench/measured.json, "
-                                      "written by `garment-render bench --store`), and none is stored")
-        entry = choose(table, q.frame_budget_ms, q.error_budget)   # InvalidInputError (422) when none does
-        base = {k: v for k, v in entry["settings"].items() if k != "filter"}
+        # The measured setting that meets the budgets, never a guess (InvalidInputError: 422).
+        base, measured_filter, source = budget_knobs(q.frame_budget_ms, q.error_budget)
         if "filter" not in q.model_fields_set:
-            filter_name = entry["settings"].get("filter", filter_name)
+            filter_name = measured_filter
         name = None
-        source = (f"budget: measured {entry['median_frame_ms']:.1f} ms median, worst rel. RMSE "
-                  f"{entry['worst_rel_rmse']:.4f} on {table['machine'].get('gl_renderer', '?')} "
-                  f"({table['machine'].get('date', '?')})")
     knobs = merge_knobs(base, {k: getattr(q, k) for k in q.model_fields_set if k in _KNOBS})
     regions_per_face(int(knobs["lights"]))  # InvalidInputError naming the valid counts
 

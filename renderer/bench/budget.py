@@ -74,6 +74,22 @@ def choose(table: dict, frame_budget_ms: float | None = None, error_budget: floa
     return min(entries, key=lambda e: (e["worst_rel_rmse"], e["median_frame_ms"]))
 
 
+def budget_knobs(frame_budget_ms: float | None, error_budget: float | None,
+                 table: dict | None = None) -> tuple[dict, str, str]:
+    """The knobs (without the filter), the PEM filter and a description of the stored table's entry
+    that meets the budgets (`choose`): what the command line and the service apply for a budget."""
+    table = load_table() if table is None else table
+    if table is None:
+        raise InvalidInputError("budgets choose from the measured table (renderer/bench/measured.json), and none "
+                                "is stored: run `garment-render bench --store` first, or name a preset")
+    entry = choose(table, frame_budget_ms, error_budget)
+    knobs = {k: v for k, v in entry["settings"].items() if k != "filter"}
+    source = (f"budget: measured {entry['median_frame_ms']:.1f} ms median, worst rel. RMSE "
+              f"{entry['worst_rel_rmse']:.4f} on {table['machine'].get('gl_renderer', '?')} "
+              f"({table['machine'].get('date', '?')})")
+    return knobs, entry["settings"].get("filter", "sqrt-cosine"), source
+
+
 def presets(table: dict) -> dict[str, dict]:
     """fast / balanced: the fastest settings within 10 % / 5 % worst error; accurate: the lowest error."""
     out = {}

@@ -106,8 +106,10 @@ def _settings_list(sweeps: dict) -> list[tuple[str, object, dict]]:
         for v in values:
             # A preset row is the preset as the CLI and service apply it (its knobs over the defaults),
             # not balanced with the preset's knobs changed.
-            s = {**knob_defaults(), "filter": BALANCED["filter"]} if knob == "preset" else dict(BALANCED)
-            s.update(v if isinstance(v, dict) else {knob: v})
+            if knob == "preset":
+                s = {**presets.merge_knobs(v, {}), "filter": BALANCED["filter"]}
+            else:
+                s = {**BALANCED, **(v if isinstance(v, dict) else {knob: v})}
             if s == BALANCED:
                 continue
             label = ", ".join(f"{k}={x}" for k, x in v.items()) if isinstance(v, dict) else v

@@ -117,6 +117,7 @@ class PEMSet:
         self.median_cut_ms = (time.perf_counter() - t0) * 1e3
         self._cube = cube  # float32, kept for the SH9 coefficients, computed on first use
         self._region_sh: np.ndarray | None = None
+        self._light_sh: bytes | None = None
         n_regions = self.regions.n_regions
 
         if n_regions > REGIONS_PER_TEXTURE * MAX_TEXTURES:
@@ -245,6 +246,18 @@ class PEMSet:
         if self._region_sh is None:
             self._region_sh = region_sh(self._cube[..., :3], self.regions.labels, self.regions.n_regions)
         return self._region_sh
+
+    @property
+    def light_sh(self) -> bytes:
+        """Every region's own irradiance coefficients (9 x rgb per light, padded to vec4, float32) as
+        the shading pass's `diffuse "sh"` reads them; computed once."""
+        if self._light_sh is None:
+            from .sh import irradiance_coefficients
+
+            sh = np.zeros((self.n_regions, 9, 4), np.float32)
+            sh[..., :3] = irradiance_coefficients(self.region_sh)
+            self._light_sh = sh.tobytes()
+        return self._light_sh
 
     @property
     def n_regions(self) -> int:

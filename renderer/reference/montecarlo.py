@@ -246,7 +246,6 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
     x = bary[:, 0:1] * p0 + bary[:, 1:2] * p1 + bary[:, 2:3] * p2
     n_geom = _normalize(np.cross(e1, e2), fallback=None)
     n = _normalize(mix(scene.normals), fallback=n_geom)
-    n = np.where(_dot(n, -dirs)[:, None] < 0.0, -n, n)
     n_geom = np.where(_dot(n_geom, -dirs)[:, None] < 0.0, -n_geom, n_geom)  # the side the camera sees
     n = np.where(_dot(n, n_geom)[:, None] < 0.0, -n, n)  # two-sided: turned to the seen side, as in gbuffer.frag
     r = dirs - 2.0 * _dot(dirs, n)[:, None] * n

@@ -22,7 +22,6 @@ layout(location = 3) out vec4 o_albedo;     // rgb: diffuse reflectance; a: 1 (c
 void main() {
     vec3 n = normalize(v_ws_normal);
     vec3 to_eye = normalize(u_camera_pos - v_ws_position);
-    if (dot(n, to_eye) < 0.0) n = -n;
     // Degenerate derivatives (a triangle seen edge-on, underflow): fall back to the shading normal.
     vec3 c = cross(dFdx(v_ws_position), dFdy(v_ws_position));
     float c2 = dot(c, c);
