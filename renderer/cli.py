@@ -85,6 +85,13 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--sharp-large-lights", action=argparse.BooleanOptionalAction,
                    help="large lights with at least --small-light-min-energy x the mean energy get those maps too "
                         "(default: the preset's)")
+    q.add_argument("--sharp-share-deg", type=float,
+                   help="sharp lights within this many degrees of a brighter one share its map, drawn along their "
+                        "energy-weighted direction (a sun split into a few regions); 0: one map each (default: the "
+                        "preset's)")
+    q.add_argument("--sharp-max-maps", type=int,
+                   help="at most this many sharp maps, the brightest lights' first; the others go to the main maps "
+                        "(0: no cap; default: the preset's)")
     q.add_argument("--small-light-min-energy", type=float,
                    help="only small lights carrying at least this many times the mean light's energy get those "
                         "maps; 0: every small light (default: the preset's)")

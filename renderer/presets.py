@@ -19,7 +19,8 @@ def knob_defaults() -> dict:
             "terminator": f.terminator, "horizon": f.horizon, "shadow_threshold": f.shadow_threshold,
             "sh_unshadowed": f.sh_unshadowed, "needed_levels": True, "glossy": f.glossy,
             "caster_detail": f.caster_detail, "small_light_scale": f.small_light_scale,
-            "small_light_min_energy": f.small_light_min_energy, "sharp_large_lights": f.sharp_large_lights}
+            "small_light_min_energy": f.small_light_min_energy, "sharp_large_lights": f.sharp_large_lights,
+            "sharp_share_deg": f.sharp_share_deg, "sharp_max_maps": f.sharp_max_maps}
 
 
 def merge_knobs(base: dict, explicit: dict) -> dict:
@@ -69,8 +70,10 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 # detail 0.25: 0-5 % more error for a third to half less frame time. The sun's shadow edges are the
 # largest error left in sunlit scenes: balanced draws the maps of small lights with at least 2.4x the
 # mean light's energy (5 % of it at 48 lights: a sun) at four times the size (hard sun 0.366 ->
-# 0.202), and leaves the dim ones (an interior's ten lamps and windows) to the main maps, where sharp
-# maps for all of them cost 1.6x the frame time for less gain. Small lights' diffuse and glossy terms
+# 0.202); the regions of one sun (a degree apart) share one map (sharp_share_deg 2: the same error
+# for 14 % less time on the hard sun in a side run; the bench's sharp_share_deg rows); and it leaves
+# the dim ones (an interior's ten lamps and windows) to the main maps, where sharp maps for all of
+# them cost 1.6x the frame time for less gain. Small lights' diffuse and glossy terms
 # in closed form (their disc through the cosine and the Phong lobe) instead of their PEMs'
 # prefiltered kernels: the studio dress 0.127 -> 0.084 at balanced, no scene worse by more than 2 %; not in fast,
 # whose hard sun measured worse with them in a side run (not a bench row). Lights beyond 48 cost
@@ -79,9 +82,10 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 DEFAULT_PRESETS = {
     "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 0.0, "caster_detail": 0.1},
     "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.0, "caster_detail": 0.25,
-                 "small_light_scale": 4, "small_light_min_energy": 2.4, "diffuse": "mixed", "glossy": "mixed"},
+                 "small_light_scale": 4, "small_light_min_energy": 2.4, "sharp_share_deg": 2.0,
+                 "diffuse": "mixed", "glossy": "mixed"},
     "accurate": {"lights": 48, "face_size": 128, "shadow_size": 512, "blur_scale": 0.0, "caster_detail": 1.0,
-                 "small_light_scale": 2, "diffuse": "mixed", "glossy": "mixed"},
+                 "small_light_scale": 2, "sharp_share_deg": 2.0, "diffuse": "mixed", "glossy": "mixed"},
 }
 
 

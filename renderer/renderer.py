@@ -27,7 +27,7 @@ from .scene import Scene
 from .shading.horizon import N_G as HORIZON_N_G, N_MU as HORIZON_N_MU, horizon_table
 from .shading.material import Material
 from .shadows.lights import (SMALL_LIGHT_MAX_SIN, blur_sigma_texels, fit_light_view_projs, pack_lights, plan_layers,
-                             shadow_layers)
+                             shadow_layers, share_sharp_maps)
 from .shadows.vsm import ShadowMaps
 
 
@@ -85,6 +85,13 @@ class FrameSettings:
     # bright sky beside a sun, an overcast sky's brightest patches: their energy is more concentrated
     # than their region). Only with small_light_min_energy > 0.
     sharp_large_lights: bool = False
+    # Sharp lights within this many degrees of a brighter sharp light share its map, drawn along the
+    # group's energy-weighted direction (a sun the median cut split into regions a degree apart; each
+    # keeps its own direction and energy for shading). 0: one map each.
+    sharp_share_deg: float = 0.0
+    # At most this many sharp maps (the brightest lights' groups); the other lights go back to the main
+    # maps. 0: no cap.
+    sharp_max_maps: int = 0
     horizon: bool = False          # VIS_i includes the tangent plane (see lighting.frag); off: the paper
     # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level),
     # "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups) or
@@ -126,6 +133,10 @@ class FrameSettings:
         if not (0.0 <= self.small_light_min_energy <= 1e6):   # also refuses NaN
             raise InvalidInputError(f"small_light_min_energy is a multiple of the mean light's energy in "
                                     f"[0, 1e6], got {self.small_light_min_energy}")
+        if not (0.0 <= self.sharp_share_deg <= 180.0):   # also refuses NaN
+            raise InvalidInputError(f"sharp_share_deg is an angle in [0, 180] degrees, got {self.sharp_share_deg}")
+        if not (isinstance(self.sharp_max_maps, (int, np.integer)) and 0 <= self.sharp_max_maps <= 4096):
+            raise InvalidInputError(f"sharp_max_maps is a whole number in 0..4096 (0: no cap), got {self.sharp_max_maps!r}")
         if not (0.0 < self.caster_detail <= 1.0):
             raise InvalidInputError(f"caster detail is the share of triangles kept, in (0, 1], got {self.caster_detail}")
         if not (0.0 <= self.shadow_threshold <= 1.0):
@@ -292,12 +303,14 @@ class Renderer:
         bright = relative >= settings.small_light_min_energy
         sharp = (small | settings.sharp_large_lights) & bright if settings.small_light_min_energy > 0 else small
         plan = plan_layers(layers, sharp, k)
+        plan, shadow_dirs = share_sharp_maps(plan, regions.directions, regions.energy_luminance,
+                                             np.radians(settings.sharp_share_deg), settings.sharp_max_maps)
         # Each light's map size; blur widths are in the light's own texels.
         sizes = np.where(plan.sharp, settings.shadow_size * k, settings.shadow_size)
         sigma = blur_sigma_texels(regions.light_radius_rad(), sizes, settings.blur_scale)
         # Square texels: the blur's sigma is in texels, the same on both axes, so rectangular texels
         # would make penumbrae anisotropic (a side run fitting x and y separately gained 0-2.5 %).
-        vp = fit_light_view_projs(regions.directions, lo, hi, sigma, sizes)
+        vp = fit_light_view_projs(shadow_dirs, lo, hi, sigma, sizes)
         n_shadowed = int((layers >= 0).sum())
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
                              sigma, plan.layer, regions.disc_radius_rad(), plan.sharp,

@@ -102,6 +102,10 @@ class QualitySpec(_Strict):
                                    "maps K times shadow_size per side, at full caster detail")
     sharp_large_lights: bool = Field(_KNOB["sharp_large_lights"], description="large lights with at least "
                                      "small_light_min_energy x the mean energy get the sharp maps too")
+    sharp_share_deg: float = Field(_KNOB["sharp_share_deg"], ge=0.0, le=180.0, description="sharp lights within this "
+                                   "many degrees of a brighter one share its map (a sun split into a few regions)")
+    sharp_max_maps: int = Field(_KNOB["sharp_max_maps"], ge=0, le=4096, description="at most this many sharp maps, "
+                                "the brightest lights' first (0: no cap)")
     small_light_min_energy: float = Field(_KNOB["small_light_min_energy"], ge=0.0, le=1e6, description="only small "
                                           "lights carrying at least this many times the mean light's energy get "
                                           "those maps (0: every small light)")

@@ -62,11 +62,14 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: Se
     frame = frame_settings(knobs, out.width, out.height, bleed_reduction=q.bleed_reduction,
                            mode=ShadingMode(q.mode.value), background=Background(out.background))
     # The shadow maps' memory before any is made, bounded as if every light that may be small were
-    # (at most lights / small_light_min_energy of them carry that multiple of the mean): a request that
-    # cannot fit is refused here with the numbers, not by the GL driver mid-frame.
+    # (at most lights / small_light_min_energy of them carry that multiple of the mean, and at most
+    # sharp_max_maps of them): a request that cannot fit is refused here with the numbers, not by the
+    # GL driver mid-frame.
     n = int(knobs["lights"])
     n_sharp = n if frame.small_light_scale == 1 or frame.small_light_min_energy <= 0 else \
         int(min(n, n / frame.small_light_min_energy))   # min first: n / 1e-320 is inf
+    if frame.sharp_max_maps > 0:
+        n_sharp = min(n_sharp, frame.sharp_max_maps)
     side = frame.shadow_size * frame.small_light_scale
     worst = (n_sharp * side * side + (n - n_sharp) * frame.shadow_size ** 2) * 16
     if worst > settings.max_shadow_map_bytes:

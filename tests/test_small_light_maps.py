@@ -119,3 +119,80 @@ def test_bright_large_lights_join_the_sharp_maps_only_when_asked(renderer, sun_s
     assert sharp_layers(cut, False) == int((small & (relative >= cut)).sum())
     assert sharp_layers(cut, True) == int((relative >= cut).sum()) > sharp_layers(cut, False)
     assert sharp_layers(0.0, True) == sharp_layers(0.0, False) == int(small.sum())   # without a threshold: small ones only
+
+
+def test_sharp_lights_close_together_share_one_map():
+    from renderer.shadows.lights import share_sharp_maps
+
+    def unit(deg_x, deg_y=0.0):
+        v = np.array([np.tan(np.radians(deg_x)), np.tan(np.radians(deg_y)), 1.0])
+        return v / np.linalg.norm(v)
+
+    # Lights 0, 1, 3 small and bright (0 and 3 a degree apart, 1 twenty degrees away), 2 a large light, 4
+    # without a shadow map.
+    directions = np.array([unit(0.0), unit(20.0), unit(0.0, 30.0), unit(1.0), unit(-40.0)])
+    energy = np.array([4.0, 3.0, 1.0, 2.0, 0.5])
+    plan = plan_layers(np.array([0, 1, 2, 3, -1], np.int32), np.array([True, True, False, True, False]), 4)
+    assert list(plan.sharp_lights) == [0, 1, 3]
+
+    same, dirs = share_sharp_maps(plan, directions, energy, 0.0)
+    assert same is plan and np.array_equal(dirs, directions)
+
+    shared, dirs = share_sharp_maps(plan, directions, energy, np.radians(2.0))
+    assert list(shared.sharp_lights) == [0, 1]            # the brightest light leads its group
+    assert list(shared.layer) == [0, 1, 0, 0, -1] and list(shared.sharp) == [True, True, False, True, False]
+    assert list(shared.main_lights) == [2]
+    mean = (4.0 * directions[0] + 2.0 * directions[3]) / np.linalg.norm(4.0 * directions[0] + 2.0 * directions[3])
+    np.testing.assert_allclose(dirs[0], mean)
+    np.testing.assert_allclose(dirs[3], mean)
+    np.testing.assert_array_equal(dirs[[1, 2, 4]], directions[[1, 2, 4]])   # alone, or not sharp: their own
+
+    # At most one sharp map: the sun's group keeps it, light 1 goes back to the main maps.
+    capped, _ = share_sharp_maps(plan, directions, energy, np.radians(2.0), max_maps=1)
+    assert list(capped.sharp_lights) == [0] and list(capped.main_lights) == [1, 2]
+    assert list(capped.layer) == [0, 0, 1, 0, -1] and list(capped.sharp) == [True, False, False, True, False]
+    # A cap without sharing: the brightest lights' own maps.
+    alone, dirs = share_sharp_maps(plan, directions, energy, 0.0, max_maps=2)
+    assert list(alone.sharp_lights) == [0, 1] and list(alone.main_lights) == [2, 3]
+    np.testing.assert_array_equal(dirs, directions)
+
+
+def test_a_suns_regions_sharing_one_map_shade_as_with_their_own(renderer, sun_scene):
+    from renderer.shadows.lights import SMALL_LIGHT_MAX_SIN
+
+    scene, pems = sun_scene
+    cam = Camera((0.0, 3.0, 2.5), (0.0, 0.2, 0.0), fov_y_deg=50.0)
+    small = np.sin(pems.regions.disc_radius_rad()) <= SMALL_LIGHT_MAX_SIN
+
+    def frame(**kw):
+        fs = FrameSettings(160, 160, shadow_size=32, small_light_scale=4, blur_scale=0.0,
+                           background=Background.BLACK, **kw)
+        f = renderer.render(scene, pems, fs, cam)
+        assert np.isfinite(f.image).all()
+        return f
+
+    own = frame()
+    shared = frame(sharp_share_deg=10.0)     # the sun's disc is 2 degrees in radius: its regions are closer
+    capped = frame(sharp_max_maps=1)
+    assert own.timings["sharp_layers"] == int(small.sum()) >= 2
+    assert shared.timings["sharp_layers"] == capped.timings["sharp_layers"] == 1
+    # Every light keeps its shadow; the shared maps are drawn once, the capped lights' in the main array.
+    assert shared.timings["shadowed_lights"] == capped.timings["shadowed_lights"] == own.timings["shadowed_lights"]
+    assert shared.timings["shadow_layers"] == own.timings["shadow_layers"] - (int(small.sum()) - 1)
+    assert capped.timings["shadow_layers"] == own.timings["shadow_layers"]
+    assert shared.settings["shadow_bytes"] < own.settings["shadow_bytes"]
+    lum = [f.image[..., :3].mean(axis=-1) for f in (own, shared, capped)]
+    dark = lum[0] < 0.3 * np.percentile(lum[0], 95)
+    assert dark.sum() > 100                  # the sphere's shadow is in the image
+    # One map along the sun's energy-weighted direction draws that shadow as the regions' own maps do;
+    # the cap sends the dimmer regions back to 32^2 maps, which blur its edge.
+    err_shared = np.abs(lum[1] - lum[0]).sum() / lum[0].sum()
+    err_capped = np.abs(lum[2] - lum[0]).sum() / lum[0].sum()
+    assert err_shared < 0.01, err_shared
+    assert err_capped > 2.0 * err_shared, (err_capped, err_shared)
+    for bad in (-1.0, 181.0, float("nan")):
+        with pytest.raises(InvalidInputError, match="sharp_share_deg"):
+            FrameSettings(sharp_share_deg=bad)
+    for bad in (-1, 1.5, 5000):
+        with pytest.raises(InvalidInputError, match="sharp_max_maps"):
+            FrameSettings(sharp_max_maps=bad)

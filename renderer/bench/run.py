@@ -51,7 +51,9 @@ SWEEPS = {
     "caster_detail": [1.0, 0.5, 0.25, 0.1],
     "small_light_scale": [1, 2, 4, {"small_light_scale": 2, "small_light_min_energy": 0.0}],
     "small_light_min_energy": [0.0, 1.0, 4.8],
-    "sharp_large_lights": [True, {"sharp_large_lights": True, "small_light_min_energy": 4.8}],
+    "sharp_large_lights": [True, {"sharp_large_lights": True, "sharp_max_maps": 2},
+                           {"sharp_large_lights": True, "small_light_min_energy": 4.8}],
+    "sharp_share_deg": [0.0, 1.0, 4.0],
     # The other default presets, measured as a whole beside balanced.
     "preset": [DEFAULT_PRESETS["fast"], DEFAULT_PRESETS["accurate"]],
 }

@@ -26,7 +26,9 @@ VARIANTS = {
     "balanced, every small light at scale 4": {"small_light_min_energy": 0.0},
     "balanced, every small light at scale 2": {"small_light_scale": 2, "small_light_min_energy": 0.0},
     "balanced, full caster detail": {"caster_detail": 1.0},
+    "balanced, one map per sharp light": {"sharp_share_deg": 0.0},
     "balanced, bright large lights' maps at scale 4 too": {"sharp_large_lights": True},
+    "balanced, bright large lights too, at most 2 sharp maps": {"sharp_large_lights": True, "sharp_max_maps": 2},
     "fast": "fast",
     "accurate": "accurate",
 }

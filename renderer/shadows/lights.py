@@ -75,6 +75,44 @@ def plan_layers(layers: np.ndarray, small: np.ndarray, small_light_scale: int) -
     return LayerPlan(layer, sharp, np.nonzero(main)[0].astype(np.int32), np.nonzero(sharp)[0].astype(np.int32))
 
 
+def share_sharp_maps(plan: LayerPlan, directions: np.ndarray, energy: np.ndarray, max_angle_rad: float,
+                     max_maps: int = 0) -> tuple[LayerPlan, np.ndarray]:
+    """Sharp lights within `max_angle_rad` of a brighter sharp light share its map (a sun split by the
+    median cut into a few regions a degree apart): brightest first, each light joins the first group
+    whose leader is that close, else leads a group of its own. With `max_maps` > 0 the lights of the
+    groups beyond the brightest `max_maps` go back to the main array. Returns the new plan and each
+    light's shadow direction (its group's energy-weighted mean direction; its own outside groups).
+    The lights keep their own directions and energies for shading; only their visibility is shared."""
+    shadow_dirs = np.array(directions, np.float64, copy=True)
+    if (max_angle_rad <= 0.0 and max_maps <= 0) or len(plan.sharp_lights) == 0:
+        return plan, shadow_dirs
+    cos_max = np.cos(max_angle_rad) if max_angle_rad > 0.0 else 2.0
+    order = plan.sharp_lights[np.argsort(-energy[plan.sharp_lights], kind="stable")]
+    groups: list[list[int]] = []
+    for i in order:
+        for members in groups:
+            if float(directions[i] @ directions[members[0]]) >= cos_max:
+                members.append(int(i))
+                break
+        else:
+            groups.append([int(i)])
+    if max_maps > 0:
+        groups = groups[:max_maps]   # made brightest leader first; a group's members are dimmer
+    sharp = np.zeros_like(plan.sharp)
+    layer = np.full(len(plan.layer), -1, np.int32)
+    for g, members in enumerate(groups):
+        m = np.array(members)
+        sharp[m] = True
+        layer[m] = g
+        if len(m) > 1:
+            d = (energy[m, None] * directions[m]).sum(axis=0)
+            shadow_dirs[m] = d / max(np.linalg.norm(d), 1e-30)
+    main = (plan.layer >= 0) & ~sharp
+    layer[main] = np.arange(int(main.sum()), dtype=np.int32)
+    return (LayerPlan(layer, sharp, np.nonzero(main)[0].astype(np.int32),
+                      np.array([members[0] for members in groups], np.int32)), shadow_dirs)
+
+
 def light_basis(direction: np.ndarray) -> np.ndarray:
     """Rows: right, up, forward (= -direction) of a light looking at the scene. (3, 3) float64, or
     (N, 3, 3) for directions (N, 3)."""
