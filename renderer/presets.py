@@ -89,12 +89,14 @@ DEFAULT_PRESETS = {
 }
 
 
-def presets() -> tuple[dict, str]:
-    """The presets and where they come from (the measured table when there is one)."""
-    from .bench.budget import load_table
+def presets(table: dict | None | str = "stored") -> tuple[dict, str]:
+    """The presets and where they come from: the measured table's when there is one (by default the
+    package's stored table, read now; or the table given, None for none), else the defaults."""
+    from .bench.budget import STORED, load_table
     from .bench.budget import presets as measured_presets
 
-    table = load_table()
+    if table == STORED:
+        table = load_table()
     if table is None:
         return DEFAULT_PRESETS, "default (no measured table stored)"
     found = measured_presets(table)

@@ -18,6 +18,7 @@ from contextlib import asynccontextmanager
 import anyio
 from fastapi import FastAPI
 
+from renderer.bench.budget import load_table
 from renderer.presets import presets as renderer_presets
 
 from .errors import install_error_handlers
@@ -49,7 +50,10 @@ def limit_malloc_arenas(n: int = 2) -> None:
 async def lifespan(app: FastAPI):
     settings: ServiceSettings = app.state.settings
     limit_malloc_arenas()
-    app.state.presets, app.state.presets_source = renderer_presets()
+    # The measured table is read once: the presets and every budget request choose from the same one
+    # (a table stored while the service runs applies after a restart).
+    measured = load_table()
+    app.state.presets, app.state.presets_source = renderer_presets(measured)
     app.state.environments = EnvironmentStore(settings.max_environments)
     app.state.scenes = SceneStore(settings.max_scenes)
     app.state.meshes = MeshStore(settings.max_meshes)
@@ -69,7 +73,7 @@ async def lifespan(app: FastAPI):
         "meshes": len(app.state.meshes.list())})
     state = StateDir(settings.state_dir) if settings.state_dir else None
     app.state.services = Services(settings, worker, app.state.environments, app.state.scenes, app.state.meshes,
-                                  app.state.presets, state)
+                                  app.state.presets, measured, state)
     await anyio.to_thread.run_sync(worker.start)  # not ready (503s) rather than dead when GL fails
     try:
         yield

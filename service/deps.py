@@ -41,10 +41,6 @@ def get_metrics(request: Request) -> ServiceMetrics:
     return request.app.state.metrics
 
 
-def get_presets(request: Request) -> dict:
-    return request.app.state.presets
-
-
 def get_services(request: Request) -> Services:
     return request.app.state.services
 
@@ -55,7 +51,6 @@ EnvironmentsDep = Annotated[EnvironmentStore, Depends(get_environments)]
 ScenesDep = Annotated[SceneStore, Depends(get_scenes)]
 MeshesDep = Annotated[MeshStore, Depends(get_meshes)]
 MetricsDep = Annotated[ServiceMetrics, Depends(get_metrics)]
-PresetsDep = Annotated[dict, Depends(get_presets)]
 ServicesDep = Annotated[Services, Depends(get_services)]
 
 _bearer = HTTPBearer(auto_error=False, description="GARMENT_RENDER_TOKEN, when the service sets one")

@@ -36,13 +36,15 @@ class Services:
     scenes: SceneStore
     meshes: MeshStore
     presets: dict
+    measured: dict | None   # the measured table read at start-up (None: none stored)
     state: StateDir | None = None
     _restoring: dict[str, asyncio.Lock] = field(default_factory=dict)
 
     def quality(self, spec: QualitySpec) -> Quality:
         from .schemas import OutputSpec
 
-        return resolve_quality(spec, OutputSpec(width=16, height=16), self.presets, self.settings)
+        return resolve_quality(spec, OutputSpec(width=16, height=16), self.presets, self.measured,
+                               self.settings)
 
     def _lock(self, key: str) -> asyncio.Lock:
         return self._restoring.setdefault(key, asyncio.Lock())
@@ -135,7 +137,8 @@ def _to_scene_up(positions: np.ndarray, up: str) -> list:
 async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = None) -> SceneRecord:
     svc.scenes.check_room()
     env = await find_environment(svc, body.environment_id)
-    prepared = await anyio.to_thread.run_sync(prepare_scene, body, svc.presets, svc.meshes, svc.settings)
+    prepared = await anyio.to_thread.run_sync(prepare_scene, body, svc.presets, svc.measured, svc.meshes,
+                                              svc.settings)
     q = prepared.quality
     pem = q.pem
     cube = await anyio.to_thread.run_sync(env.cube, q.face_size)

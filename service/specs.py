@@ -37,15 +37,17 @@ class Quality:
     info: dict    # the resolved settings and where they came from, reported with each frame
 
 
-def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, settings: ServiceSettings) -> Quality:
+def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: dict | None,
+                    settings: ServiceSettings) -> Quality:
     """The request's knobs over its preset's (the stored measured table's, else the defaults) over the
     defaults (`merge_knobs`), as frame and PEM settings; the PEM set's full chain (a scene narrows it
-    to its materials' levels in `prepare_scene`)."""
+    to its materials' levels in `prepare_scene`). Budgets choose from `measured`, the table the presets
+    came from (None: none stored)."""
     name = q.preset.value if q.preset is not None else settings.default_preset
     base, source, filter_name = presets[name], f"preset {name}", q.filter.value
     if q.frame_budget_ms is not None or q.error_budget is not None:
         # The measured setting that meets the budgets, never a guess (InvalidInputError: 422).
-        base, measured_filter, source = budget_knobs(q.frame_budget_ms, q.error_budget)
+        base, measured_filter, source = budget_knobs(q.frame_budget_ms, q.error_budget, measured)
         if "filter" not in q.model_fields_set:
             filter_name = measured_filter
         name = None
@@ -173,8 +175,9 @@ class PreparedScene:
     proxies: dict | None = None   # the casters' shadow proxies at the quality's detail, made here (off the GL thread)
 
 
-def prepare_scene(body: SceneCreate, presets: dict, meshes: MeshStore, settings: ServiceSettings) -> PreparedScene:
-    quality = resolve_quality(body.quality, body.output, presets, settings)
+def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshes: MeshStore,
+                  settings: ServiceSettings) -> PreparedScene:
+    quality = resolve_quality(body.quality, body.output, presets, measured, settings)
     specs = [("garment", body.garment)] + ([("body", body.body)] if body.body is not None else [])
     built = [build_mesh(spec, role, body.up, meshes, settings) for role, spec in specs]
     materials = [build_material(spec.material, mesh, role) for (role, spec), mesh in zip(specs, built)]

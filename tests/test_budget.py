@@ -95,3 +95,22 @@ def test_a_budget_brings_its_measured_filter_unless_one_is_named(monkeypatch):
     args = build_parser().parse_args(["render", "--error-budget", "0.1", "--filter", "gauss"])
     assert resolve_quality(args)["filter"] == "gauss"
     assert resolve_quality(build_parser().parse_args(["render"]))["filter"] == "sqrt-cosine"
+
+
+def test_the_service_chooses_budgets_and_presets_from_the_table_it_read_at_start_up():
+    from renderer.presets import presets as resolved_presets
+    from service.schemas import OutputSpec, QualitySpec
+    from service.settings import ServiceSettings
+    from service.specs import resolve_quality
+
+    table = summarize(BENCH)             # not the package's stored table
+    found, source = resolved_presets(table)
+    assert found["balanced"]["lights"] == 48 and "measured on test" in source
+    settings = ServiceSettings()
+    q = resolve_quality(QualitySpec(error_budget=0.1), OutputSpec(width=16, height=16), found, table, settings)
+    assert q.knobs["lights"] == 24 and "on test" in q.info["source"]
+    # None stored when the service started: a budget is refused with what to do, whatever the disk holds now.
+    defaults, source = resolved_presets(None)
+    assert source.startswith("default")
+    with pytest.raises(InvalidInputError, match="none is stored"):
+        resolve_quality(QualitySpec(frame_budget_ms=100), OutputSpec(width=16, height=16), defaults, None, settings)

@@ -74,11 +74,16 @@ def choose(table: dict, frame_budget_ms: float | None = None, error_budget: floa
     return min(entries, key=lambda e: (e["worst_rel_rmse"], e["median_frame_ms"]))
 
 
+# `budget_knobs(table=STORED)`: read the package's table now (the command line); a long-running caller
+# passes the table it read at start-up (None: none was stored), so that its presets and budgets agree.
+STORED = "stored"
+
+
 def budget_knobs(frame_budget_ms: float | None, error_budget: float | None,
-                 table: dict | None = None) -> tuple[dict, str, str]:
-    """The knobs (without the filter), the PEM filter and a description of the stored table's entry
-    that meets the budgets (`choose`): what the command line and the service apply for a budget."""
-    table = load_table() if table is None else table
+                 table: dict | None | str = STORED) -> tuple[dict, str, str]:
+    """The knobs (without the filter), the PEM filter and a description of the table's entry that
+    meets the budgets (`choose`): what the command line and the service apply for a budget."""
+    table = load_table() if table == STORED else table
     if table is None:
         raise InvalidInputError("budgets choose from the measured table (renderer/bench/measured.json), and none "
                                 "is stored: run `garment-render bench --store` first, or name a preset")

@@ -131,20 +131,12 @@ def blur_sigma_texels(angular_radius_rad: np.ndarray, shadow_size: int, blur_sca
     return np.clip(sigma, MIN_SIGMA_TEXELS if blur_scale > 0 else 0.0, MAX_BLUR_RADIUS / 3.0)
 
 
-def fit_light_view_proj(direction: np.ndarray, lo: np.ndarray, hi: np.ndarray, sigma_texels: float,
-                        shadow_size: int, square: bool = True) -> np.ndarray:
-    """World -> light clip matrix (4, 4) float64: x, y in [-1, 1] over the casters' box (lo, hi), depth
-    z in [0, 1] from its nearest to its farthest corner (GL clip space with w = 1). `square=False` fits
-    x and y separately (rectangular texels; the renderer keeps them square so that the blur, in texels,
-    stays isotropic)."""
-    return fit_light_view_projs(np.asarray(direction, np.float64)[None], lo, hi, np.array([sigma_texels]),
-                                shadow_size, square)[0]
-
-
 def fit_light_view_projs(directions: np.ndarray, lo: np.ndarray, hi: np.ndarray, sigma_texels: np.ndarray,
-                         shadow_size, square: bool = True) -> np.ndarray:
-    """`fit_light_view_proj` for N lights at once: (N, 4, 4) (the per-frame fit of every light);
-    shadow_size is one size or each light's."""
+                         shadow_size) -> np.ndarray:
+    """World -> light clip matrices (N, 4, 4) float64 of N directions (N, 3): x, y in [-1, 1] over the
+    casters' box (lo, hi), depth z in [0, 1] from its nearest to its farthest corner (GL clip space
+    with w = 1). The footprint is square (the larger of its two sides), so that a blur in texels stays
+    isotropic; shadow_size is one size or each light's."""
     basis = light_basis(directions)                                        # (N, 3, 3)
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     ls = np.einsum("cj,nij->nci", corners, basis)                          # (N, 8, 3)
@@ -152,8 +144,7 @@ def fit_light_view_projs(directions: np.ndarray, lo: np.ndarray, hi: np.ndarray,
     centre = 0.5 * (cmin + cmax)
     tiny = np.maximum(1e-12 * np.maximum(1.0, np.abs(centre).max(axis=1)), 1e-30)
     half_xy = 0.5 * (cmax[:, :2] - cmin[:, :2])
-    if square:
-        half_xy = np.repeat(half_xy.max(axis=1, keepdims=True), 2, axis=1)
+    half_xy = np.repeat(half_xy.max(axis=1, keepdims=True), 2, axis=1)
     half_xy = np.maximum(half_xy, np.maximum(tiny, 1e-6 * half_xy.max(axis=1))[:, None])
     # Widen by the blur's reach (3 sigma texels) plus one texel for rasterization at the border.
     size = np.broadcast_to(np.asarray(shadow_size, np.float64), (len(basis),))[:, None]   # per light, or one for all

@@ -217,7 +217,8 @@ async def render_once(
     json_image = _json_image(image)
     env = await find_environment(svc, body.environment_id)
     t0 = time.perf_counter()
-    prepared = await anyio.to_thread.run_sync(prepare_scene, body, svc.presets, svc.meshes, settings)
+    prepared = await anyio.to_thread.run_sync(prepare_scene, body, svc.presets, svc.measured, svc.meshes,
+                                              settings)
     decode_ms = (time.perf_counter() - t0) * 1e3
     q = prepared.quality
     cube = await anyio.to_thread.run_sync(env.cube, q.face_size)
