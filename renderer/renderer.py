@@ -177,6 +177,37 @@ def _set_uniform(prog: moderngl.Program, name: str, value) -> None:
             prog[name].value = value
 
 
+N_LIGHT_KINDS = 16   # lighting.frag's kinds: 4 bits
+
+
+def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
+                sh_unshadowed: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The lighting pass's order of the lights and the end of each kind in it (int32 arrays: the
+    light_order buffer and u_kind_end of lighting.frag). A light's kind: bit 0 it reads its diffuse
+    PEM, bit 1 its glossy PEM, bit 2 its map is in the sharp array, bit 3 its region is in the second
+    PEM texture. Whether a term comes from the PEM follows the shader's modes: in the full and
+    no-occlusion modes small lights (angular radius <= ~6 degrees) have their diffuse term in closed
+    form with diffuse "mixed" (every light with "lights" or "sh"), their glossy term with glossy
+    "mixed"; lights without a shadow map get their diffuse term from SH9 when `sh_unshadowed`."""
+    n = len(lights)
+    exact_modes = settings.mode in (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
+    # The shader compares the packed float32 sine with the float32 define.
+    small = lights["params"][:, 3] <= np.float32(SMALL_LIGHT_MAX_SIN)
+    if exact_modes and settings.diffuse in ("lights", "sh"):
+        pem_diffuse = np.zeros(n, bool)
+    else:
+        pem_diffuse = ~(small & exact_modes & (settings.diffuse == "mixed"))
+    if settings.mode is ShadingMode.FULL and sh_unshadowed:
+        pem_diffuse &= lights["shadow"][:, 0] >= 0
+    pem_glossy = ~(small & exact_modes & (settings.glossy == "mixed"))
+    second = np.arange(n) >= REGIONS_PER_TEXTURE
+    kind = (pem_diffuse.astype(np.int32) | pem_glossy.astype(np.int32) << 1 | np.asarray(sharp, np.int32) << 2
+            | second.astype(np.int32) << 3)
+    order = np.argsort(kind, kind="stable").astype(np.int32)
+    kind_end = np.searchsorted(kind[order], np.arange(1, N_LIGHT_KINDS + 1)).astype(np.int32)
+    return order, kind_end
+
+
 class Renderer:
     """Owns the GL context (or borrows one) and the per-size GPU resources reused across frames."""
 
@@ -188,7 +219,7 @@ class Renderer:
                    "HORIZON_N_MU": float(HORIZON_N_MU), "HORIZON_N_G": float(HORIZON_N_G),
                    "SMALL_LIGHT_MAX_SIN": float(SMALL_LIGHT_MAX_SIN)}
         self._defines = defines
-        self._shade_progs: dict[tuple[ShadingMode, str], tuple[moderngl.Program, moderngl.VertexArray]] = {}
+        self._shade_progs: dict[tuple, tuple[moderngl.Program, moderngl.VertexArray]] = {}
         self.bg_prog = program(ctx, "shading/background.vert", "shading/background.frag")
         self.bg_vao = ctx.vertex_array(self.bg_prog, [])
         self._shadow_maps: dict[str, ShadowMaps] = {}
@@ -209,11 +240,14 @@ class Renderer:
         full and no-occlusion modes only."""
         return self._shade_variant(mode, diffuse)[0]
 
-    def _shade_variant(self, mode: ShadingMode, diffuse: str) -> tuple[moderngl.Program, moderngl.VertexArray]:
+    def _shade_variant(self, mode: ShadingMode, diffuse: str,
+                       two_textures: bool) -> tuple[moderngl.Program, moderngl.VertexArray]:
+        """The lighting program of a mode and diffuse source; `two_textures`: the PEM set spans two
+        textures (more than REGIONS_PER_TEXTURE regions), whose second needs loops of its own."""
         closed = diffuse in ("lights", "sh") and mode in (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
-        key = (mode, diffuse if closed else "pem")
+        key = (mode, diffuse if closed else "pem", two_textures)
         if key not in self._shade_progs:
-            defines = {**self._defines, "MODE": _MODE_INDEX[mode]}
+            defines = {**self._defines, "MODE": _MODE_INDEX[mode], "TWO_PEM_TEXTURES": int(two_textures)}
             if closed:
                 defines["DIFFUSE_LIGHTS"] = 1   # no diffuse PEM lookups
             if closed and diffuse == "sh":
@@ -380,7 +414,12 @@ class Renderer:
             # depth is nearer (covered pixels only; the depth buffer is not written).
             ctx.enable(moderngl.DEPTH_TEST)
             ctx.depth_func = ">"
-            p, vao = self._shade_variant(settings.mode, settings.diffuse)
+            sh_on = settings.sh_unshadowed and settings.diffuse in ("pem", "mixed") and bool((layers < 0).any())
+            p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE)
+            order, kind_end = light_kinds(lights, plan.sharp, settings, sh_on)
+            self._buffer("light_order", order.tobytes()).bind_to_storage_buffer(4)
+            if "u_kind_end" in p:   # the compiler keeps the entries up to the last kind this variant loops over
+                p["u_kind_end"].write(kind_end[:p["u_kind_end"].array_length].tobytes())
             _set_uniform(p, "u_camera_pos", tuple(float(x) for x in camera.eye))
             _set_uniform(p, "u_n_lights", n)
             _set_uniform(p, "u_diffuse_level", pems.lookup_level(pems.diffuse_level(settings.calibration)))
@@ -388,9 +427,6 @@ class Renderer:
             _set_uniform(p, "u_bleed_reduction", settings.bleed_reduction)
             _set_uniform(p, "u_horizon", settings.horizon)
             _set_uniform(p, "u_terminator", settings.terminator)
-            _set_uniform(p, "u_small_exact", settings.diffuse == "mixed")
-            _set_uniform(p, "u_small_glossy_exact", settings.glossy == "mixed")
-            sh_on = settings.sh_unshadowed and settings.diffuse in ("pem", "mixed") and bool((layers < 0).any())
             _set_uniform(p, "u_sh_unshadowed", sh_on)
             if sh_on:
                 coeffs = irradiance_coefficients(pems.region_sh[layers < 0].sum(axis=0))

@@ -94,3 +94,34 @@ def test_a_second_context_on_the_thread_does_not_steal_the_first(renderer):
     finally:
         pems.release()
         other.release()
+
+
+def test_the_lighting_pass_visits_every_light_once_grouped_by_kind():
+    from renderer.lighting.pem import REGIONS_PER_TEXTURE
+    from renderer.renderer import FrameSettings, ShadingMode, light_kinds
+
+    n = REGIONS_PER_TEXTURE + 8
+    lights = np.zeros(n, LIGHT_DTYPE)
+    small = np.arange(n) % 5 == 0                     # angular radius ~3 degrees, else ~30
+    lights["params"][:, 3] = np.where(small, 0.05, 0.5)
+    lights["shadow"][:, 0] = np.where(np.arange(n) % 7 == 0, -1, 0)   # every 7th without a shadow map
+    sharp = small & (np.arange(n) % 2 == 0)
+
+    def kinds(sh=False, **kw):
+        order, end = light_kinds(lights, sharp, FrameSettings(**kw), sh)
+        assert sorted(order) == list(range(n)) and end[-1] == n and np.all(np.diff(end) >= 0)
+        kind = np.zeros(n, int)
+        kind[order] = np.searchsorted(end, np.arange(n), side="right")   # the kind of each light
+        return kind
+
+    k = kinds(diffuse="mixed", glossy="mixed")
+    np.testing.assert_array_equal(k & 1, ~small)               # small lights: both terms in closed form
+    np.testing.assert_array_equal(k >> 1 & 1, ~small)
+    np.testing.assert_array_equal(k >> 2 & 1, sharp)
+    np.testing.assert_array_equal(k >> 3 & 1, np.arange(n) >= REGIONS_PER_TEXTURE)
+    assert np.all(kinds(diffuse="pem", glossy="pem") & 3 == 3)
+    assert np.all(kinds(diffuse="lights", glossy="mixed") & 3 == np.where(small, 0, 2))
+    # The baselines read both PEMs of every light; SH9 carries the unshadowed lights' diffuse term.
+    assert np.all(kinds(diffuse="mixed", glossy="mixed", mode=ShadingMode.AO_GREY) & 3 == 3)
+    shu = kinds(sh=True, diffuse="pem", glossy="pem")
+    np.testing.assert_array_equal(shu & 1, lights["shadow"][:, 0] >= 0)

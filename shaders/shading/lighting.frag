@@ -10,6 +10,12 @@
 // MODE (a #define, one program per mode: llvmpipe runs both sides of uniform branches under a mask,
 // so unused modes would cost time): 0 full method, 1 no occlusion, 2 grey AO, 3 colour AO,
 // 4 the many-light baseline.
+//
+// Lights come in kinds, for the same reason: which of its PEMs a light reads (diffuse, glossy: a small
+// light's terms may be in closed form instead), which shadow-map array holds its map, and which PEM
+// texture holds its region. The renderer sorts the lights by kind (light_order, u_kind_end) and each
+// kind has a loop of its own in which those choices are constants, so that no light pays for the
+// lookups and closed forms of another kind (renderer.py, light_kinds).
 #include "common/lights.glsl"
 
 // The full-screen triangle lies at the far plane and the depth test is GREATER against the geometry
@@ -18,6 +24,7 @@ layout(early_fragment_tests) in;
 
 layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
 layout(std430, binding = 1) readonly buffer GlossLevels { float level_of_g[]; };  // GLOSS_TABLE_SIZE
+layout(std430, binding = 4) readonly buffer LightOrder { int light_order[]; };      // the lights by kind
 layout(binding = 0) uniform samplerCubeArray u_pem0;         // layer i = region i < 192, scaled by 1/scale_i
 layout(binding = 5) uniform samplerCubeArray u_pem1;         // layer i - 192 = region i >= 192
 layout(binding = 6) uniform samplerCubeArray u_pem_norm;     // layer 0: B = chain(w), the normalizer
@@ -31,6 +38,9 @@ layout(binding = 11) uniform sampler2D u_g_albedo;
 
 uniform vec3 u_camera_pos;
 uniform int u_n_lights;
+// light_order[u_kind_end[k - 1] .. u_kind_end[k]) are the lights of kind k: bit 0 reads its diffuse
+// PEM, bit 1 its glossy PEM, bit 2 its map is in the sharp array, bit 3 its region is in u_pem1.
+uniform int u_kind_end[16];
 uniform float u_diffuse_level;
 uniform float u_min_variance;
 uniform float u_bleed_reduction;   // Lauritzen's light-bleeding reduction: clip p_max below this
@@ -49,15 +59,14 @@ const float PI = 3.14159265358979;
 float linstep(float lo, float hi, float x) { return clamp((x - lo) / (hi - lo), 0.0, 1.0); }
 
 // Chebyshev's one-tailed inequality on the blurred depth moments (Donnelly & Lauritzen 2006).
-float visibility(int i, vec3 ws_pos, vec3 n) {
+float visibility(int i, vec3 ws_pos, vec3 n, bool sharp) {
     float layer = lights[i].shadow.x;
     if (layer < 0.0) return 1.0;   // no shadow map: the PEM is added unshadowed
     // The normal offset is in the light's own texels (a sharp map's are smaller).
     vec4 p = lights[i].view_proj * vec4(ws_pos + (u_normal_offset * lights[i].shadow.z) * n, 1.0);
     vec2 uv = p.xy * 0.5 + 0.5;
     if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
-    vec2 m = lights[i].shadow.y > 0.5 ? texture(u_moments_sharp, vec3(uv, layer)).xy
-                                      : texture(u_moments, vec3(uv, layer)).xy;
+    vec2 m = sharp ? texture(u_moments_sharp, vec3(uv, layer)).xy : texture(u_moments, vec3(uv, layer)).xy;
     // A receiver behind every caster (beyond the far plane, e.g. a floor that casts nothing) is compared
     // at the far plane: lit where no caster is, shadowed where one is.
     float t = min(p.z, 1.0);
@@ -87,8 +96,6 @@ float gloss_level(float g) {
 // SMALL_LIGHT_MAX_SIN (a #define, renderer/shadows/lights.py): lights of angular radius up to ~5.7
 // degrees count as small.
 uniform bool u_terminator;             // FrameSettings.terminator
-uniform bool u_small_exact;            // FrameSettings.diffuse == "mixed" (full and no-occlusion modes)
-uniform bool u_small_glossy_exact;     // FrameSettings.glossy == "mixed" (full and no-occlusion modes)
 
 // Accumulators of main(), shared with add_light() (GLSL has no closures).
 vec3 g_geometric_normal = vec3(0.0, 0.0, 1.0);  // the triangle's plane, facing the camera
@@ -130,20 +137,10 @@ vec3 diffuse_from_light(int i, vec3 n) {
     return lights[i].energy.rgb * (integral / (PI * max(omega, 1e-30)));
 }
 
-// Per-light choices; each depends on the light only, so branches on them do not diverge.
+// A light without a shadow map whose diffuse term the summed SH9 irradiance carries (full mode).
 bool sh_skip(int i) { return MODE == 0 && u_sh_unshadowed && lights[i].shadow.x < 0.0; }
-bool exact_diffuse(int i) {   // the light's diffuse term in closed form: every light for "lights", small ones for "mixed"
-#ifdef DIFFUSE_LIGHTS
-    return true;
-#else
-    return MODE <= 1 && u_small_exact && lights[i].params.w <= SMALL_LIGHT_MAX_SIN && !sh_skip(i);
-#endif
-}
-vec3 g_diffuse_exact = vec3(0.0);   // added after the PEM terms' normalization
-bool exact_glossy(int i) {    // glossy "mixed": a small light's glossy term in closed form
-    return MODE <= 1 && u_small_glossy_exact && lights[i].params.w <= SMALL_LIGHT_MAX_SIN;
-}
-vec3 g_glossy_exact = vec3(0.0);    // likewise
+vec3 g_diffuse_exact = vec3(0.0);   // the closed-form terms, added after the PEM terms' normalization
+vec3 g_glossy_exact = vec3(0.0);
 float g_gloss = 0.0;                // the pixel's glossiness g
 bool g_has_glossy = false;          // specular > 0
 
@@ -198,17 +195,20 @@ float disc_share_above(int i, vec3 normal) {
     return clamp((dot(normal, lights[i].dir_scale.xyz) + sin_r) / (2.0 * sin_r), 0.0, 1.0);
 }
 
-void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos) {
+// pem_diffuse / pem_glossy: the light's terms come from its PEMs (else in closed form, or from SH9 for
+// the diffuse term of an sh_skip light); sharp: its map is in the sharp array. Constants of the
+// caller's loop (see main()).
+void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos, bool pem_diffuse, bool pem_glossy, bool sharp) {
     float scale = lights[i].dir_scale.w;
     pem_d *= scale;
     pem_g *= scale;
 #if MODE == 1
-    if (exact_diffuse(i)) g_diffuse_exact += exact_diffuse_term(i, n);
+    if (!pem_diffuse) g_diffuse_exact += exact_diffuse_term(i, n);
     else g_diffuse += pem_d;
-    if (exact_glossy(i)) { if (g_has_glossy) g_glossy_exact += glossy_from_light(i, g_reflect); }
+    if (!pem_glossy) { if (g_has_glossy) g_glossy_exact += glossy_from_light(i, g_reflect); }
     else g_glossy += pem_g;
 #elif MODE == 0
-    float vis = visibility(i, ws_pos, n);
+    float vis = visibility(i, ws_pos, n, sharp);
     if (u_horizon) {
         // The tangent plane blocks light from below the surface. A shadow map cannot see this on
         // open cloth (the sheet itself is the first surface from a light behind it) and the PEM's
@@ -226,11 +226,11 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos) {
     // and its PEM's diffuse kernel spreads it anyway).
     bool small = u_terminator && sin_r <= SMALL_LIGHT_MAX_SIN;
     if (small) vis *= above;
-    if (exact_diffuse(i)) g_diffuse_exact += vis * exact_diffuse_term(i, n);
-    else g_diffuse += vis * pem_d;
+    if (pem_diffuse) g_diffuse += vis * pem_d;
+    else if (!sh_skip(i)) g_diffuse_exact += vis * exact_diffuse_term(i, n);
     // The glossy lobe's part below the surface (renderer/shading/horizon.py), per light.
     if (u_glossy_horizon >= 2 && !small) vis *= above;
-    if (exact_glossy(i)) {
+    if (!pem_glossy) {
         // Evaluated at the light's own direction, so the lobe's horizon factor does not apply; the
         // disc's part below the triangle's plane is removed whatever the knobs (light from behind
         // the sheet does not reach the seen side).
@@ -242,7 +242,7 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos) {
 #else
     // Ambient-occlusion baselines (paper Fig. 6): unshadowed lighting times an occlusion factor
     // that averages VIS_i with cosine weights, by solid angle (grey) or by energy (colour).
-    float vis = visibility(i, ws_pos, n);
+    float vis = visibility(i, ws_pos, n, sharp);
     float cosine = max(dot(n, lights[i].dir_scale.xyz), 0.0);
     vec3 w = MODE == 2 ? vec3(lights[i].params.z) : lights[i].energy.rgb;
     g_ao_rgb += vis * cosine * w;
@@ -250,6 +250,21 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos) {
     g_diffuse += pem_d;
     g_glossy += pem_g;
 #endif
+}
+
+// One light of a kind: its PEM lookups (region i in u_pem0, or in u_pem1 when in_pem1), then add_light.
+void shade_light(int i, bool pem_diffuse, bool pem_glossy, bool sharp, bool in_pem1, vec3 n, vec3 r, float level_g,
+                 bool glossy, vec3 ws_position) {
+    vec3 pem_d = vec3(0.0), pem_g = vec3(0.0);
+    if (in_pem1) {
+        float layer = float(i - REGIONS_PER_TEXTURE);
+        if (pem_diffuse) pem_d = textureLod(u_pem1, vec4(n, layer), u_diffuse_level).rgb;
+        if (pem_glossy && glossy) pem_g = textureLod(u_pem1, vec4(r, layer), level_g).rgb;
+    } else {
+        if (pem_diffuse) pem_d = textureLod(u_pem0, vec4(n, float(i)), u_diffuse_level).rgb;
+        if (pem_glossy && glossy) pem_g = textureLod(u_pem0, vec4(r, float(i)), level_g).rgb;
+    }
+    add_light(i, pem_d, pem_g, n, ws_position, pem_diffuse, pem_glossy, sharp);
 }
 
 void main() {
@@ -278,7 +293,8 @@ void main() {
         float s_phong = 1.0 / max(1.0 - material.y, 1e-4);   // Eq. 3, capped so g = 1 stays finite
         for (int i = 0; i < u_n_lights; ++i) {
             vec3 l = lights[i].dir_scale.xyz;
-            vec3 e = visibility(i, ws_position, n) * lights[i].energy.rgb;
+            vec3 e = (lights[i].shadow.y > 0.5 ? visibility(i, ws_position, n, true)
+                                               : visibility(i, ws_position, n, false)) * lights[i].energy.rgb;
             g_diffuse += e * max(dot(n, l), 0.0) / PI;
             g_glossy += e * (s_phong + 1.0) / (2.0 * PI) * pow(max(dot(r, l), 0.0), s_phong);
         }
@@ -286,27 +302,15 @@ void main() {
 #else
     bool glossy = specular > 0.0;
     g_has_glossy = glossy;
-    {
-        // Two loops, one per PEM texture, so that the sampler choice is not a per-light branch
-        // (a divergent branch around texture lookups costs a third of the pass on llvmpipe).
-        int n0 = min(u_n_lights, REGIONS_PER_TEXTURE);
-        for (int i = 0; i < n0; ++i) {
-            vec3 pem_d = vec3(0.0);
-            // Uniform across pixels (it depends on i only): no divergence; compiled out for "lights".
-            if (!sh_skip(i) && !exact_diffuse(i))
-                pem_d = textureLod(u_pem0, vec4(n, float(i)), u_diffuse_level).rgb;
-            vec3 pem_g = glossy && !exact_glossy(i) ? textureLod(u_pem0, vec4(r, float(i)), level_g).rgb : vec3(0.0);
-            add_light(i, pem_d, pem_g, n, ws_position);
-        }
-        for (int i = n0; i < u_n_lights; ++i) {
-            float layer = float(i - REGIONS_PER_TEXTURE);
-            vec3 pem_d = vec3(0.0);
-            if (!sh_skip(i) && !exact_diffuse(i))
-                pem_d = textureLod(u_pem1, vec4(n, layer), u_diffuse_level).rgb;
-            vec3 pem_g = glossy && !exact_glossy(i) ? textureLod(u_pem1, vec4(r, layer), level_g).rgb : vec3(0.0);
-            add_light(i, pem_d, pem_g, n, ws_position);
-        }
-    }
+    // One loop per kind of light (see the top): the constants fold the choices away.
+#define KIND_LOOP(K) \
+    for (int k = (K) == 0 ? 0 : u_kind_end[max((K) - 1, 0)]; k < u_kind_end[K]; ++k) \
+        shade_light(light_order[k], ((K) & 1) != 0, ((K) & 2) != 0, ((K) & 4) != 0, ((K) & 8) != 0, \
+                    n, r, level_g, glossy, ws_position);
+    KIND_LOOP(0) KIND_LOOP(1) KIND_LOOP(2) KIND_LOOP(3) KIND_LOOP(4) KIND_LOOP(5) KIND_LOOP(6) KIND_LOOP(7)
+#if TWO_PEM_TEXTURES
+    KIND_LOOP(8) KIND_LOOP(9) KIND_LOOP(10) KIND_LOOP(11) KIND_LOOP(12) KIND_LOOP(13) KIND_LOOP(14) KIND_LOOP(15)
+#endif
 #ifndef DIFFUSE_LIGHTS
     g_diffuse /= textureLod(u_pem_norm, vec4(n, 0.0), u_diffuse_level).r;
 #if MODE == 0
