@@ -345,6 +345,10 @@ class Renderer:
         # Square texels: the blur's sigma is in texels, the same on both axes, so rectangular texels
         # would make penumbrae anisotropic (a side run fitting x and y separately gained 0-2.5 %).
         vp = fit_light_view_projs(shadow_dirs, lo, hi, sigma, sizes)
+        # Lights sharing a map look it up through the projection it was drawn with (its first light's:
+        # with a blur the fit's margin follows each light's own width).
+        sharp_layer = plan.layer[plan.sharp]
+        vp[plan.sharp] = vp[plan.sharp_lights[sharp_layer]]
         n_shadowed = int((layers >= 0).sum())
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
                              sigma, plan.layer, regions.disc_radius_rad(), plan.sharp,

@@ -196,3 +196,19 @@ def test_a_suns_regions_sharing_one_map_shade_as_with_their_own(renderer, sun_sc
     for bad in (-1, 1.5, 5000):
         with pytest.raises(InvalidInputError, match="sharp_max_maps"):
             FrameSettings(sharp_max_maps=bad)
+
+
+def test_lights_sharing_a_map_look_it_up_through_the_projection_it_was_drawn_with(renderer, sun_scene):
+    from renderer.shadows.lights import LIGHT_DTYPE
+
+    scene, pems = sun_scene
+    cam = Camera((0.0, 3.0, 2.5), (0.0, 0.2, 0.0), fov_y_deg=50.0)
+    # A blur: each light's fitted footprint is widened by its own blur width.
+    fs = FrameSettings(64, 64, shadow_size=32, small_light_scale=4, blur_scale=1.0, sharp_share_deg=10.0)
+    f = renderer.render(scene, pems, fs, cam)
+    assert f.timings["sharp_layers"] == 1
+    lights = np.frombuffer(renderer._buffers["lights"].read(), LIGHT_DTYPE)
+    shared = lights[lights["shadow"][:, 1] > 0.5]
+    assert len(shared) >= 2 and np.all(shared["shadow"][:, 0] == 0)
+    assert len(np.unique(shared["params"][:, 0])) > 1            # different blur widths...
+    assert np.all(shared["view_proj"] == shared["view_proj"][0])  # ... one projection
