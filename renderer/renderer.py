@@ -50,6 +50,14 @@ DIFFUSE_SOURCES = ("pem", "lights", "mixed", "sh")
 GLOSSY_HORIZONS = ("off", "lobe", "lights", "both")
 GLOSSY_SOURCES = ("pem", "mixed")
 MAX_SHADOW_SIDE = 8192   # the largest shadow map side, small lights' included (shadow_size x small_light_scale)
+# Lights within this of a group's brightest share its map: the group's mean direction then stays within it
+# of every member (its component along the brightest light's is at least cos 30 degrees of the total).
+MAX_SHARP_SHARE_DEG = 30.0
+
+
+def _whole(x) -> bool:
+    """A whole number, not a bool (True is an int in Python)."""
+    return isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_))
 
 
 class Background(str, Enum):
@@ -85,9 +93,9 @@ class FrameSettings:
     # bright sky beside a sun, an overcast sky's brightest patches: their energy is more concentrated
     # than their region). Only with small_light_min_energy > 0.
     sharp_large_lights: bool = False
-    # Sharp lights within this many degrees of a brighter sharp light share its map, drawn along the
-    # group's energy-weighted direction (a sun the median cut split into regions a degree apart; each
-    # keeps its own direction and energy for shading). 0: one map each.
+    # Sharp lights within this many degrees (at most MAX_SHARP_SHARE_DEG) of a brighter sharp light
+    # share its map, drawn along the group's energy-weighted direction (a sun the median cut split into
+    # regions a degree apart; each keeps its own direction and energy for shading). 0: one map each.
     sharp_share_deg: float = 0.0
     # At most this many sharp maps (the brightest lights' groups); the other lights go back to the main
     # maps. 0: no cap.
@@ -124,7 +132,7 @@ class FrameSettings:
             raise InvalidInputError(f"image size must be within 1..8192 per side, got {self.width}x{self.height}")
         if not (0.0 <= self.bleed_reduction < 1.0):
             raise InvalidInputError(f"bleed reduction must be in [0, 1), got {self.bleed_reduction}")
-        if not (isinstance(self.small_light_scale, (int, np.integer)) and 1 <= self.small_light_scale <= 8):
+        if not (_whole(self.small_light_scale) and 1 <= self.small_light_scale <= 8):
             raise InvalidInputError(f"small_light_scale is a whole number in 1..8 (times the shadow-map size), "
                                     f"got {self.small_light_scale!r}")
         if self.shadow_size * self.small_light_scale > MAX_SHADOW_SIDE:
@@ -133,9 +141,10 @@ class FrameSettings:
         if not (0.0 <= self.small_light_min_energy <= 1e6):   # also refuses NaN
             raise InvalidInputError(f"small_light_min_energy is a multiple of the mean light's energy in "
                                     f"[0, 1e6], got {self.small_light_min_energy}")
-        if not (0.0 <= self.sharp_share_deg <= 180.0):   # also refuses NaN
-            raise InvalidInputError(f"sharp_share_deg is an angle in [0, 180] degrees, got {self.sharp_share_deg}")
-        if not (isinstance(self.sharp_max_maps, (int, np.integer)) and 0 <= self.sharp_max_maps <= 4096):
+        if isinstance(self.sharp_share_deg, bool) or not (0.0 <= self.sharp_share_deg <= MAX_SHARP_SHARE_DEG):
+            raise InvalidInputError(f"sharp_share_deg is an angle in [0, {MAX_SHARP_SHARE_DEG:g}] degrees, got "
+                                    f"{self.sharp_share_deg!r}")   # also refuses NaN
+        if not (_whole(self.sharp_max_maps) and 0 <= self.sharp_max_maps <= 4096):
             raise InvalidInputError(f"sharp_max_maps is a whole number in 0..4096 (0: no cap), got {self.sharp_max_maps!r}")
         if not (0.0 < self.caster_detail <= 1.0):
             raise InvalidInputError(f"caster detail is the share of triangles kept, in (0, 1], got {self.caster_detail}")
@@ -234,16 +243,12 @@ class Renderer:
         self.gbuffer_prog = program(ctx, "shading/surface.vert", "shading/gbuffer.frag")
         self._programs = {"moments": self._shadow_prog, "gbuffer": self.gbuffer_prog}
 
-    def shade_program(self, mode: ShadingMode, diffuse: str = "pem") -> moderngl.Program:
-        """The lighting program of a mode and diffuse source (a full-screen pass over the geometry
-        pass's targets), compiled on first use (one variant each). The diffuse source matters to the
-        full and no-occlusion modes only."""
-        return self._shade_variant(mode, diffuse)[0]
-
     def _shade_variant(self, mode: ShadingMode, diffuse: str,
                        two_textures: bool) -> tuple[moderngl.Program, moderngl.VertexArray]:
-        """The lighting program of a mode and diffuse source; `two_textures`: the PEM set spans two
-        textures (more than REGIONS_PER_TEXTURE regions), whose second needs loops of its own."""
+        """The lighting program of a mode and diffuse source (a full-screen pass over the geometry
+        pass's targets), compiled on first use (one variant each; the diffuse source matters to the
+        full and no-occlusion modes only); `two_textures`: the PEM set spans two textures (more than
+        REGIONS_PER_TEXTURE regions), whose second needs loops of its own."""
         closed = diffuse in ("lights", "sh") and mode in (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
         key = (mode, diffuse if closed else "pem", two_textures)
         if key not in self._shade_progs:

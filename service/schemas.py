@@ -9,6 +9,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from renderer.presets import knob_defaults
+from renderer.renderer import MAX_SHARP_SHARE_DEG
 
 
 class Preset(str, Enum):
@@ -98,14 +99,15 @@ class QualitySpec(_Strict):
                                 "(the same image, less memory)")
     caster_detail: float = Field(_KNOB["caster_detail"], gt=0.0, le=1.0, description="share of the casters' triangles the shadow "
                                  "maps draw (a proxy over the same vertices; 1: the meshes themselves)")
-    small_light_scale: int = Field(_KNOB["small_light_scale"], ge=1, le=8, description="small lights (a sun, under ~6 degrees) get shadow "
+    small_light_scale: int = Field(_KNOB["small_light_scale"], ge=1, le=8, strict=True, description="small lights (a sun, under ~6 degrees) get shadow "
                                    "maps K times shadow_size per side, at full caster detail")
     sharp_large_lights: bool = Field(_KNOB["sharp_large_lights"], description="large lights with at least "
                                      "small_light_min_energy x the mean energy get the sharp maps too")
-    sharp_share_deg: float = Field(_KNOB["sharp_share_deg"], ge=0.0, le=180.0, description="sharp lights within this "
-                                   "many degrees of a brighter one share its map (a sun split into a few regions)")
-    sharp_max_maps: int = Field(_KNOB["sharp_max_maps"], ge=0, le=4096, description="at most this many sharp maps, "
-                                "the brightest lights' first (0: no cap)")
+    sharp_share_deg: float = Field(_KNOB["sharp_share_deg"], ge=0.0, le=MAX_SHARP_SHARE_DEG, strict=True,
+                                   description="sharp lights within this many degrees of a brighter one share its "
+                                   "map (a sun split into a few regions)")
+    sharp_max_maps: int = Field(_KNOB["sharp_max_maps"], ge=0, le=4096, strict=True, description="at most this many "
+                                "sharp maps, the brightest lights' first (0: no cap)")
     small_light_min_energy: float = Field(_KNOB["small_light_min_energy"], ge=0.0, le=1e6, description="only small "
                                           "lights carrying at least this many times the mean light's energy get "
                                           "those maps (0: every small light)")

@@ -80,7 +80,7 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: di
             f"({frame.shadow_size} x {frame.small_light_scale})^2, the others at {frame.shadow_size}^2, x 16 "
             f"bytes), over the limit of {settings.max_shadow_map_bytes / 2**30:.1f} GiB "
             "(GARMENT_RENDER_MAX_SHADOW_MAP_BYTES): use fewer lights, a smaller shadow_size or "
-            "small_light_scale, or a larger small_light_min_energy")
+            "small_light_scale, a larger small_light_min_energy, or a sharp_max_maps")
     pem = pem_settings(knobs, filter_name, q.levels)
     applied = frame.as_dict()   # the knobs as the frame holds them (enums as their values)
     info = {"preset": name, "source": source, **{k: applied.get(k, knobs[k]) for k in _KNOBS},

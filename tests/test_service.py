@@ -571,6 +571,9 @@ def test_accuracy_knobs_reach_the_renderer_and_are_reported(http, env_upload, me
     assert images[True] != images[False]
     body["quality"] = {**body["quality"], "caster_detail": 0.0}
     assert_error(http.post("/render", json=body), 422, "caster_detail")
+    for knob, bad in (("sharp_max_maps", True), ("sharp_share_deg", 45.0), ("small_light_scale", 2.5)):
+        body["quality"] = {k: v for k, v in body["quality"].items() if k != "caster_detail"} | {knob: bad}
+        assert_error(http.post("/render", json=body), 422, knob)
 
 
 def test_a_per_request_budget_chooses_a_measured_setting_and_says_so(http, env_upload, mesh):

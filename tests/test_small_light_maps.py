@@ -27,7 +27,7 @@ def test_small_lights_get_layers_of_the_sharp_array():
 
 
 def test_the_scale_must_be_a_small_whole_number():
-    for bad in (0, 9, 1.5, "2"):
+    for bad in (0, 9, 1.5, "2", True):
         with pytest.raises(InvalidInputError, match="small_light_scale"):
             FrameSettings(small_light_scale=bad)
     with pytest.raises(InvalidInputError, match="8192"):
@@ -151,6 +151,11 @@ def test_sharp_lights_close_together_share_one_map():
     capped, _ = share_sharp_maps(plan, directions, energy, np.radians(2.0), max_maps=1)
     assert list(capped.sharp_lights) == [0] and list(capped.main_lights) == [1, 2]
     assert list(capped.layer) == [0, 0, 1, 0, -1] and list(capped.sharp) == [True, False, False, True, False]
+    # Members that cancel (opposite, equally bright) leave the map along the brightest light's direction.
+    opposite = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])
+    both = plan_layers(np.array([0, 1], np.int32), np.array([True, True]), 4)
+    _, dirs = share_sharp_maps(both, opposite, np.array([1.0, 1.0]), np.pi)
+    np.testing.assert_array_equal(dirs, [opposite[0], opposite[0]])
     # A cap without sharing: the brightest lights' own maps.
     alone, dirs = share_sharp_maps(plan, directions, energy, 0.0, max_maps=2)
     assert list(alone.sharp_lights) == [0, 1] and list(alone.main_lights) == [2, 3]
@@ -190,10 +195,10 @@ def test_a_suns_regions_sharing_one_map_shade_as_with_their_own(renderer, sun_sc
     err_capped = np.abs(lum[2] - lum[0]).sum() / lum[0].sum()
     assert err_shared < 0.01, err_shared
     assert err_capped > 2.0 * err_shared, (err_capped, err_shared)
-    for bad in (-1.0, 181.0, float("nan")):
+    for bad in (-1.0, 31.0, float("nan"), True):
         with pytest.raises(InvalidInputError, match="sharp_share_deg"):
             FrameSettings(sharp_share_deg=bad)
-    for bad in (-1, 1.5, 5000):
+    for bad in (-1, 1.5, 5000, True):
         with pytest.raises(InvalidInputError, match="sharp_max_maps"):
             FrameSettings(sharp_max_maps=bad)
 

@@ -106,7 +106,9 @@ def share_sharp_maps(plan: LayerPlan, directions: np.ndarray, energy: np.ndarray
         layer[m] = g
         if len(m) > 1:
             d = (energy[m, None] * directions[m]).sum(axis=0)
-            shadow_dirs[m] = d / max(np.linalg.norm(d), 1e-30)
+            norm, total = float(np.linalg.norm(d)), float(energy[m].sum())
+            # Members far apart could cancel (or carry no energy): the brightest light's direction then.
+            shadow_dirs[m] = d / norm if norm > 0.5 * total else directions[m[0]]
     main = (plan.layer >= 0) & ~sharp
     layer[main] = np.arange(int(main.sum()), dtype=np.int32)
     return (LayerPlan(layer, sharp, np.nonzero(main)[0].astype(np.int32),

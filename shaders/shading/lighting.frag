@@ -302,14 +302,25 @@ void main() {
 #else
     bool glossy = specular > 0.0;
     g_has_glossy = glossy;
-    // One loop per kind of light (see the top): the constants fold the choices away.
-#define KIND_LOOP(K) \
-    for (int k = (K) == 0 ? 0 : u_kind_end[max((K) - 1, 0)]; k < u_kind_end[K]; ++k) \
-        shade_light(light_order[k], ((K) & 1) != 0, ((K) & 2) != 0, ((K) & 4) != 0, ((K) & 8) != 0, \
-                    n, r, level_g, glossy, ws_position);
+    // One loop per kind of light (see the top): the constants fold the choices away. Only the kinds
+    // this variant can have are compiled: without diffuse PEMs (DIFFUSE_LIGHTS) none reads one, and
+    // the ambient-occlusion modes read both PEMs of every light (renderer.py, light_kinds).
+#define KIND_LOOP(K) for (int k = (K) == 0 ? 0 : u_kind_end[max((K) - 1, 0)]; k < u_kind_end[K]; ++k) shade_light(light_order[k], ((K) & 1) != 0, ((K) & 2) != 0, ((K) & 4) != 0, ((K) & 8) != 0, n, r, level_g, glossy, ws_position);
+#if defined(DIFFUSE_LIGHTS)
+    KIND_LOOP(0) KIND_LOOP(2) KIND_LOOP(4) KIND_LOOP(6)
+#if TWO_PEM_TEXTURES
+    KIND_LOOP(8) KIND_LOOP(10) KIND_LOOP(12) KIND_LOOP(14)
+#endif
+#elif MODE >= 2
+    KIND_LOOP(3) KIND_LOOP(7)
+#if TWO_PEM_TEXTURES
+    KIND_LOOP(11) KIND_LOOP(15)
+#endif
+#else
     KIND_LOOP(0) KIND_LOOP(1) KIND_LOOP(2) KIND_LOOP(3) KIND_LOOP(4) KIND_LOOP(5) KIND_LOOP(6) KIND_LOOP(7)
 #if TWO_PEM_TEXTURES
     KIND_LOOP(8) KIND_LOOP(9) KIND_LOOP(10) KIND_LOOP(11) KIND_LOOP(12) KIND_LOOP(13) KIND_LOOP(14) KIND_LOOP(15)
+#endif
 #endif
 #ifndef DIFFUSE_LIGHTS
     g_diffuse /= textureLod(u_pem_norm, vec4(n, 0.0), u_diffuse_level).r;
