@@ -353,12 +353,21 @@ def cmd_error_split(args) -> int:
 def cmd_speed(args) -> int:
     from .bench.speed import markdown, run_speed
 
-    if args.rounds < 1 or args.size < 1:
-        raise InvalidInputError(f"--rounds and --size must be positive, got {args.rounds} and {args.size}")
-    result = run_speed(args.out, args.rounds, args.size, shared=not args.no_shared)
-    print(f"{result['device']}, {args.size}x{args.size}, median of {args.rounds} frames per setting, "
-          "settings taking turns (10th-90th percentile in brackets):")
+    size = args.size if args.size is not None else (1024 if args.large else 256)
+    if args.rounds < 1 or size < 1 or args.min_triangles < 1:
+        raise InvalidInputError(f"--rounds, --size and --min-triangles must be positive, got {args.rounds}, "
+                                f"{size} and {args.min_triangles}")
+    variants = ["balanced", "fast", "accurate"] if args.large else None
+    result = run_speed(args.out, args.rounds, size, shared=not args.no_shared, large=args.large,
+                       min_triangles=args.min_triangles, variants=variants)
+    what = f", {result['triangles']} triangles ({result['garment_triangles']} in the garment)" if args.large else ""
+    print(f"{result['device']}, {size}x{size}{what}, median of {args.rounds} frames per setting, "
+          "settings taking turns (10th-90th percentile in brackets; GPU: GL timer queries, where meaningful):")
     print(markdown(result))
+    if args.large:
+        b = result["pem_build"]
+        gpu = f", GPU {b['gpu_ms']:.2f} ms" if b["gpu_ms"] is not None else ""
+        print(f"PEM set of {b['lights']} regions at {b['face_size']}^2 faces built in {b['wall_ms']:.1f} ms{gpu}")
     return 0
 
 
@@ -423,8 +432,13 @@ def build_parser() -> argparse.ArgumentParser:
     b.set_defaults(func=cmd_bench)
     sp = sub.add_parser("speed", help="frame times of the presets side by side (settings take turns, frame by frame)")
     sp.add_argument("--rounds", type=int, default=15, help="frames per setting and scene")
-    sp.add_argument("--size", type=int, default=256)
+    sp.add_argument("--size", type=int, help="image side (default 256; 1024 with --large)")
     sp.add_argument("--no-shared", action="store_true", help="bundled scene only (skip ../shared/assets)")
+    sp.add_argument("--large", action="store_true",
+                    help="the GPU target's scene instead: the newton shirt subdivided to at least --min-triangles "
+                         "on its dress form under the hard sun, positions uploaded every frame, balanced, fast and "
+                         "accurate, with the PEM set's build time (needs ../shared/assets)")
+    sp.add_argument("--min-triangles", type=int, default=100_000, help="the --large garment's least triangle count")
     sp.add_argument("--out", type=Path, help="write the medians and ratios as JSON")
     sp.set_defaults(func=cmd_speed)
     es = sub.add_parser("error-split", help="where a preset's error comes from: lighting alone, the worst pixels, "

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
 from ..envmap import environment_from_array, load_environment, studio_environment
 from ..mesh import Mesh, load_mesh
@@ -63,3 +64,24 @@ def shared_scenes(probes: dict[str, str] = TARGET_PROBES) -> list[BenchScene]:
         out.append(BenchScene(f"newton-shirt/{kind}", fname, [shirt, form], [GARMENT, BODY],
                               lambda f, path=path: load_environment(path, face_size=f, repair=True)))
     return out
+
+
+# The GPU speed target's scene (issue 3, section 7): a garment of at least 100k triangles.
+LARGE_GARMENT_TRIANGLES = 100_000
+
+
+def large_scene(min_triangles: int = LARGE_GARMENT_TRIANGLES, probe: str = "hard-sun") -> BenchScene | None:
+    """The newton shirt's last frame, each triangle split in four (trimesh's midpoint subdivision)
+    until the garment has at least `min_triangles`, on its dress form under one target probe; None
+    when ../shared/assets is absent."""
+    found = shared_scenes({probe: TARGET_PROBES[probe]})
+    if not found:
+        return None
+    scene = found[0]
+    shirt, form = scene.meshes
+    positions, faces = shirt.positions, shirt.faces
+    while len(faces) < min_triangles:
+        positions, faces = trimesh.remesh.subdivide(positions, faces)
+    garment = Mesh.from_arrays(positions, faces, name=f"{shirt.name} ({len(faces)} triangles)")
+    return BenchScene(f"newton-shirt-{len(faces)}/{probe}", scene.env_name, [garment, form], scene.materials,
+                      scene._env_loader)

@@ -3,21 +3,29 @@
 On a shared, noisy machine a setting timed alone can be 1.3x off (docs/benchmarks.md). Here the
 settings take turns, frame by frame, for N rounds on each scene, so that a slow spell of the machine
 falls on all of them alike: the medians and the ratios to `balanced` are comparable.
+
+`--large` times the scene of the GPU speed target instead (issue 3, section 7: a garment of at least
+100k triangles at 1024x1024 with 48 lights): the newton shirt subdivided on its dress form under the
+hard sun, each frame uploading the garment's positions as a simulation does, with the GL timer
+queries' GPU time beside the wall clock where the driver's queries mean something (not llvmpipe),
+and the PEM set's build time.
 """
 
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
 
 from ..camera import frame_meshes
-from ..gpu.context import GLContext
-from ..presets import merge_knobs, presets
+from ..errors import InvalidInputError
+from ..gpu.context import GLContext, StageTimer
+from ..presets import merge_knobs, pem_settings, presets
 from ..renderer import Renderer
 from .run import _pems_for, frame_settings
-from .scenes import bundled_scene, shared_scenes
+from .scenes import LARGE_GARMENT_TRIANGLES, bundled_scene, large_scene, shared_scenes
 
 # What balanced's measured choices cost and save: each variant changes one of them.
 VARIANTS = {
@@ -41,17 +49,38 @@ def _setting(variant, table: dict) -> dict:
     return {**knobs, "filter": "sqrt-cosine"}
 
 
-def run_speed(out: Path | None, rounds: int = 15, size: int = 256, shared: bool = True, log=print) -> dict:
-    scenes = (shared_scenes() if shared else []) or [bundled_scene()]
+def _median_gpu_ms(frames: list) -> float | None:
+    """Median GPU time of frames whose timings carry GL timer queries (None without them)."""
+    totals = [sum(f.timings["gpu_ms"].values()) for f in frames if f.timings["gpu_ms"]]
+    return float(np.median(totals)) if totals else None
+
+
+def run_speed(out: Path | None, rounds: int = 15, size: int = 256, shared: bool = True, log=print,
+              large: bool = False, min_triangles: int = LARGE_GARMENT_TRIANGLES,
+              variants: list[str] | None = None) -> dict:
+    """`variants`: the names of VARIANTS to time (default all). `large`: the GPU target's scene
+    (`large_scene(min_triangles)`) instead of the target scenes, positions uploaded every frame."""
+    names = list(VARIANTS) if variants is None else list(variants)
+    unknown = [n for n in names if n not in VARIANTS]
+    if unknown or "balanced" not in names:
+        raise InvalidInputError(f"speed variants must include balanced and be among {list(VARIANTS)}, got {names}")
+    if large:
+        big = large_scene(min_triangles)
+        if big is None:
+            raise InvalidInputError("--large needs the shared assets (../shared/assets beside the project)")
+        scenes = [big]
+    else:
+        scenes = (shared_scenes() if shared else []) or [bundled_scene()]
     table, source = presets()
-    result = {"size": size, "rounds": rounds, "presets": source, "scenes": {}}
+    result = {"size": size, "rounds": rounds, "presets": source, "large": large, "scenes": {}}
     gl = GLContext()
     # One renderer per setting on the one context: each keeps its own shadow maps and targets, as a
     # service rendering one scene at one setting does (a shared renderer would re-make them at
     # every change of size).
-    renderers = {name: Renderer(gl) for name in VARIANTS}
+    renderers = {name: Renderer(gl) for name in names}
     try:
         result["device"] = gl.renderer_name
+        result["gpu_timers"] = gl.gpu_timers_meaningful
         for bs in scenes:
             camera = frame_meshes(bs.meshes, 1.0)
             cache: dict = {}
@@ -60,28 +89,37 @@ def run_speed(out: Path | None, rounds: int = 15, size: int = 256, shared: bool 
                 # A scene's vertex arrays belong to the programs of the renderer that made it: one each.
                 for name, r in renderers.items():
                     scenes_[name] = r.create_scene(bs.meshes, bs.materials)
-                settings = {name: _setting(v, table) for name, v in VARIANTS.items()}
+                settings = {name: _setting(VARIANTS[name], table) for name in names}
                 jobs = {name: (renderers[name], scenes_[name], _pems_for(renderers[name], bs, s, cache),
                                frame_settings(s, size)) for name, s in settings.items()}
+                # A simulation's frame uploads the garment's positions (and the normals made from them).
+                positions = [bs.meshes[0].positions] + [None] * (len(bs.meshes) - 1) if large else None
                 for r, scene, pems, fs in jobs.values():   # warm-up: programs, arrays, proxies
-                    r.render(scene, pems, fs, camera)
-                times = {name: [] for name in jobs}
+                    r.render(scene, pems, fs, camera, positions=positions)
+                frames = {name: [] for name in jobs}
                 order = list(jobs)
                 for k in range(rounds):
                     # The order rotates every round, so that no setting always follows the same one.
                     for name in order[k % len(order):] + order[:k % len(order)]:
                         r, scene, pems, fs = jobs[name]
-                        times[name].append(r.render(scene, pems, fs, camera).timings["frame_wall_ms"])
+                        frames[name].append(r.render(scene, pems, fs, camera, positions=positions))
+                build = _time_pem_build(renderers["balanced"], bs, settings["balanced"]) if large else None
             finally:
                 for p in cache.values():
                     p.release()
                 for scene in scenes_.values():
                     scene.release()
+            times = {name: [f.timings["frame_wall_ms"] for f in fs_] for name, fs_ in frames.items()}
             base = float(np.median(times["balanced"]))
             rows = {name: {"median_ms": float(np.median(t)), "p10_ms": float(np.percentile(t, 10)),
-                           "p90_ms": float(np.percentile(t, 90)), "ratio_to_balanced": float(np.median(t)) / base}
+                           "p90_ms": float(np.percentile(t, 90)), "ratio_to_balanced": float(np.median(t)) / base,
+                           "gpu_ms": _median_gpu_ms(frames[name])}
                     for name, t in times.items()}
             result["scenes"][bs.name] = rows
+            if large:
+                result["triangles"] = int(sum(len(m.faces) for m in bs.meshes))
+                result["garment_triangles"] = int(len(bs.meshes[0].faces))
+                result["pem_build"] = build
             log(f"{bs.name}: " + ", ".join(f"{n} {v['median_ms']:.0f} ms ({v['ratio_to_balanced']:.2f}x)"
                                            for n, v in rows.items()))
     finally:
@@ -94,10 +132,30 @@ def run_speed(out: Path | None, rounds: int = 15, size: int = 256, shared: bool 
     return result
 
 
+def _time_pem_build(r: Renderer, bs, s: dict, repeats: int = 3) -> dict:
+    """Median wall (and GPU, where timer queries mean something) time of building a setting's PEM set."""
+    pem = pem_settings(s, s["filter"], None, bs.materials)
+    cube = bs.cube(s["face_size"])
+    wall, gpu = [], []
+    for _ in range(repeats):
+        timer = StageTimer()
+        t0 = time.perf_counter()
+        r.build_pems(cube, pem, timer).release()
+        wall.append((time.perf_counter() - t0) * 1e3)
+        if timer.gpu_ms:
+            gpu.append(sum(timer.gpu_ms.values()))
+    return {"lights": int(s["lights"]), "face_size": int(s["face_size"]), "wall_ms": float(np.median(wall)),
+            "gpu_ms": float(np.median(gpu)) if gpu else None}
+
+
 def markdown(result: dict) -> str:
-    names = list(VARIANTS)
+    names = list(next(iter(result["scenes"].values())))
+
+    def cell(row):
+        text = f"{row['median_ms']:.0f} ({row['p10_ms']:.0f}-{row['p90_ms']:.0f})"
+        return text + (f", GPU {row['gpu_ms']:.2f}" if row.get("gpu_ms") is not None else "")
+
     lines = [f"| scene | {' | '.join(names)} |", "|---|" + "---|" * len(names)]
     for scene, rows in result["scenes"].items():
-        cells = [f"{rows[n]['median_ms']:.0f} ({rows[n]['p10_ms']:.0f}-{rows[n]['p90_ms']:.0f})" for n in names]
-        lines.append(f"| {scene} | {' | '.join(cells)} |")
+        lines.append(f"| {scene} | {' | '.join(cell(rows[n]) for n in names)} |")
     return "\n".join(lines)
