@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InvalidInputError
+from .mesh import bounds
 
 
 @dataclass(frozen=True)
@@ -79,7 +80,6 @@ def bounds_sphere(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, float]:
 def frame_meshes(meshes, aspect: float = 1.0, fov_y_deg: float = 35.0) -> Camera:
     """The default camera of a scene made of `meshes` (renderer.mesh.Mesh): the same one the
     renderer uses when no camera is given, so other renderers (the reference) can match it."""
-    lo = np.min([m.positions.min(axis=0) for m in meshes], axis=0)
-    hi = np.max([m.positions.max(axis=0) for m in meshes], axis=0)
+    lo, hi = bounds(meshes)
     centre, radius = bounds_sphere(lo, hi)
     return default_camera(centre, radius, aspect, fov_y_deg)

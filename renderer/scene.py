@@ -9,7 +9,7 @@ import numpy as np
 
 from .errors import MeshError
 from .gpu.context import GLContext
-from .mesh import Mesh, vertex_normals
+from .mesh import Mesh, box, vertex_normals
 from .shading.material import Material
 from .shadows.proxy import caster_proxy
 
@@ -35,6 +35,7 @@ class SceneMesh:
                 raise MeshError(f"mesh {mesh.name!r}: a caster proxy must be (M, 3) indices of its {self.n_vertices} vertices")
             self._proxy_faces[float(detail)] = np.ascontiguousarray(faces, np.int32)
         self.positions = mesh.positions
+        self.box = box(mesh.positions)   # (lo, hi), kept with the positions: read every frame
         normals = vertex_normals(mesh.positions, mesh.faces)
         self.vbo_pos = ctx.buffer(np.ascontiguousarray(mesh.positions, np.float32).tobytes(), dynamic=True)
         self.vbo_nrm = ctx.buffer(normals.astype(np.float32).tobytes(), dynamic=True)
@@ -95,6 +96,7 @@ class SceneMesh:
         if normals is None:
             normals = vertex_normals(positions, self.mesh.faces)
         self.positions = positions
+        self.box = box(positions)
         self.vbo_pos.write(np.ascontiguousarray(positions, np.float32).tobytes())
         self.vbo_nrm.write(np.ascontiguousarray(normals, np.float32).tobytes())
 
@@ -149,11 +151,11 @@ class Scene:
         for sm in self.meshes:
             if casters_only and not sm.caster:
                 continue
-            los.append(sm.positions.min(axis=0))
-            his.append(sm.positions.max(axis=0))
+            los.append(sm.box[0])
+            his.append(sm.box[1])
         if not los:
             return self.bounds(False)
-        return np.min(los, axis=0).astype(np.float64), np.max(his, axis=0).astype(np.float64)
+        return np.min(los, axis=0), np.max(his, axis=0)
 
     @property
     def n_triangles(self) -> int:

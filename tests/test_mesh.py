@@ -16,6 +16,7 @@ from renderer.mesh import (
     Mesh,
     bounding_sphere,
     bounds,
+    box,
     load_mesh,
     vertex_normals,
     z_up_to_y_up,
@@ -284,6 +285,30 @@ def test_bounds_and_bounding_sphere_cover_every_mesh():
         assert np.linalg.norm(m.positions - centre, axis=1).max() <= radius + 1e-9
     assert radius <= 0.5 * np.linalg.norm(hi - lo) + 1e-9
     np.testing.assert_array_equal(bounds(b)[0], [3, 0, 0])  # a single Mesh works too
+
+
+@settings(max_examples=50, deadline=None)
+@given(hnp.arrays(np.float32, st.tuples(st.integers(1, 50), st.just(3)),
+                  elements=st.floats(-1e6, 1e6, allow_nan=False, width=32)))
+def test_box_is_the_per_axis_min_and_max(points):
+    lo, hi = box(points)
+    assert lo.dtype == hi.dtype == np.float64
+    np.testing.assert_array_equal(lo, points.min(axis=0))
+    np.testing.assert_array_equal(hi, points.max(axis=0))
+
+
+def test_a_scenes_bounds_follow_every_frames_positions(renderer):
+    a = uv_sphere(radius=1.0, centre=(0, 0, 0), n_lat=8, n_lon=8)
+    b = Mesh.from_arrays(QUAD_P + [3, 0, 0], QUAD_F)
+    scene = renderer.create_scene([a, b])
+    try:
+        np.testing.assert_array_equal(scene.bounds(), bounds([a, b]))
+        scene.set_positions([a.positions * 2.0, None])
+        lo, hi = scene.bounds()
+        np.testing.assert_allclose(lo, [-2, -2, -2], atol=1e-6)
+        np.testing.assert_allclose(hi, [4, 2, 2], atol=1e-6)
+    finally:
+        scene.release()
 
 
 def test_bounding_sphere_of_a_single_point_has_positive_radius():
