@@ -107,9 +107,10 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--diffuse", choices=["pem", "lights", "mixed", "sh"],
                    help="diffuse term from the PEMs along the normal (the paper), from each light's disc, mixed, "
                         "or sh (large lights from their region's SH9 irradiance)")
-    q.add_argument("--glossy", choices=["pem", "mixed"],
-                   help="glossy term from the PEMs along the reflection vector (the paper), or mixed (small "
-                        "lights from their disc through the Phong lobe in closed form; default: the preset's)")
+    q.add_argument("--glossy", choices=["pem", "mixed", "wide"],
+                   help="glossy term from the PEMs along the reflection vector (the paper), mixed (small "
+                        "lights from their disc through the Phong lobe in closed form), or wide (as mixed, and "
+                        "large lights too where the lobe is wider than their disc; default: the preset's)")
     q.add_argument("--mode", default="full", choices=["full", "none", "ao", "ao-color", "many-lights"],
                    help="full method, no occlusion, grey AO, AO with colour (paper Fig. 6), or the plain "
                         "many-light baseline (the N lights shade as well as shadow)")

@@ -48,7 +48,7 @@ _MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_
 
 DIFFUSE_SOURCES = ("pem", "lights", "mixed", "sh")
 GLOSSY_HORIZONS = ("off", "lobe", "lights", "both")
-GLOSSY_SOURCES = ("pem", "mixed")
+GLOSSY_SOURCES = ("pem", "mixed", "wide")
 MAX_SHADOW_SIDE = 8192   # the largest shadow map side, small lights' included (shadow_size x small_light_scale)
 # Lights within this of a group's brightest share its map: the group's mean direction then stays within it
 # of every member (its component along the brightest light's is at least cos 30 degrees of the total).
@@ -111,8 +111,10 @@ class FrameSettings:
     # share of its disc above the triangle's own plane; the default) or "both" (they overlap).
     glossy_horizon: str = "lights"
     # Where the glossy term comes from: "pem" (the paper: PEM_i along the reflection vector at the level
-    # of g) or "mixed" (small lights, angular radius <= ~6 degrees, from their disc through the Phong
-    # lobe in closed form; the rest from the PEMs).
+    # of g), "mixed" (small lights, angular radius <= ~6 degrees, from their disc through the Phong
+    # lobe in closed form; the rest from the PEMs) or "wide" (as mixed, and the large lights too
+    # wherever the lobe is wider than their disc, 1 / s >= a^2 / 4: there the PEM's coarse MIP levels
+    # are the larger error; a narrow lobe reads the PEM's fine levels, which hold the region's detail).
     glossy: str = "pem"
     # Full mode: small lights (angular radius <= ~6 degrees) below the triangle's own plane are removed
     # from the diffuse term too: the terminator a shadow map cannot resolve (lighting.frag).
@@ -208,7 +210,7 @@ def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
         pem_diffuse = ~(small & exact_modes & (settings.diffuse == "mixed"))
     if settings.mode is ShadingMode.FULL and sh_unshadowed:
         pem_diffuse &= lights["shadow"][:, 0] >= 0
-    pem_glossy = ~(small & exact_modes & (settings.glossy == "mixed"))
+    pem_glossy = ~(small & exact_modes & (settings.glossy in ("mixed", "wide")))
     second = np.arange(n) >= REGIONS_PER_TEXTURE
     kind = (pem_diffuse.astype(np.int32) | pem_glossy.astype(np.int32) << 1 | np.asarray(sharp, np.int32) << 2
             | second.astype(np.int32) << 3)
@@ -243,16 +245,19 @@ class Renderer:
         self.gbuffer_prog = program(ctx, "shading/surface.vert", "shading/gbuffer.frag")
         self._programs = {"moments": self._shadow_prog, "gbuffer": self.gbuffer_prog}
 
-    def _shade_variant(self, mode: ShadingMode, diffuse: str,
-                       two_textures: bool) -> tuple[moderngl.Program, moderngl.VertexArray]:
+    def _shade_variant(self, mode: ShadingMode, diffuse: str, two_textures: bool,
+                       glossy: str = "pem") -> tuple[moderngl.Program, moderngl.VertexArray]:
         """The lighting program of a mode and diffuse source (a full-screen pass over the geometry
         pass's targets), compiled on first use (one variant each; the diffuse source matters to the
         full and no-occlusion modes only); `two_textures`: the PEM set spans two textures (more than
         REGIONS_PER_TEXTURE regions), whose second needs loops of its own."""
         closed = diffuse in ("lights", "sh") and mode in (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
-        key = (mode, diffuse if closed else "pem", two_textures)
+        wide = glossy == "wide" and mode in (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
+        key = (mode, diffuse if closed else "pem", two_textures, wide)
         if key not in self._shade_progs:
             defines = {**self._defines, "MODE": _MODE_INDEX[mode], "TWO_PEM_TEXTURES": int(two_textures)}
+            if wide:
+                defines["GLOSSY_WIDE"] = 1   # large lights' glossy term in closed form where the lobe is wide
             if closed:
                 defines["DIFFUSE_LIGHTS"] = 1   # no diffuse PEM lookups
             if closed and diffuse == "sh":
@@ -424,7 +429,7 @@ class Renderer:
             ctx.enable(moderngl.DEPTH_TEST)
             ctx.depth_func = ">"
             sh_on = settings.sh_unshadowed and settings.diffuse in ("pem", "mixed") and bool((layers < 0).any())
-            p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE)
+            p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE, settings.glossy)
             order, kind_end = light_kinds(lights, plan.sharp, settings, sh_on)
             self._buffer("light_order", order.tobytes()).bind_to_storage_buffer(4)
             if "u_kind_end" in p:   # the compiler keeps the entries up to the last kind this variant loops over

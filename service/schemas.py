@@ -88,9 +88,11 @@ class QualitySpec(_Strict):
         _KNOB["diffuse"], description="diffuse term from the PEMs (the paper), from each light's disc, mixed (small "
                            "lights from their disc, the rest from the PEMs) or sh (small lights from their "
                            "disc, the rest from their region's SH9 irradiance)")
-    glossy: Literal["pem", "mixed"] = Field(
-        _KNOB["glossy"], description="glossy term from the PEMs (the paper) or mixed (small lights from their "
-                                     "disc through the Phong lobe in closed form, the rest from the PEMs)")
+    glossy: Literal["pem", "mixed", "wide"] = Field(
+        _KNOB["glossy"], description="glossy term from the PEMs (the paper), mixed (small lights from their "
+                                     "disc through the Phong lobe in closed form, the rest from the PEMs) or "
+                                     "wide (as mixed, and large lights too where the lobe is wider than their "
+                                     "disc)")
     glossy_horizon: Literal["off", "lobe", "lights", "both"] = Field(
         _KNOB["glossy_horizon"], description="drop the glossy lobe's part below the surface (off: the paper)")
     terminator: bool = Field(_KNOB["terminator"], description="small lights below the triangle's own plane light neither term")

@@ -120,6 +120,8 @@ def test_the_lighting_pass_visits_every_light_once_grouped_by_kind():
     np.testing.assert_array_equal(k >> 2 & 1, sharp)
     np.testing.assert_array_equal(k >> 3 & 1, np.arange(n) >= REGIONS_PER_TEXTURE)
     assert np.all(kinds(diffuse="pem", glossy="pem") & 3 == 3)
+    # "wide": the large lights read their glossy PEM (the shader picks the closed form per pixel).
+    np.testing.assert_array_equal(kinds(diffuse="mixed", glossy="wide"), k)
     assert np.all(kinds(diffuse="lights", glossy="mixed") & 3 == np.where(small, 0, 2))
     # The baselines read both PEMs of every light; SH9 carries the unshadowed lights' diffuse term.
     assert np.all(kinds(diffuse="mixed", glossy="mixed", mode=ShadingMode.AO_GREY) & 3 == 3)

@@ -41,7 +41,7 @@ SWEEPS = {
     "horizon": [False, True],
     "calibration": ["l2", "volume"],
     "diffuse": ["pem", "lights", "mixed", "sh"],
-    "glossy": ["pem", "mixed"],
+    "glossy": ["pem", "mixed", "wide"],
     "source": [{"diffuse": "pem", "glossy": "pem"}],   # the paper's PEM lookups for both terms
     "glossy_horizon": ["off", "lobe", "lights", "both"],
     "terminator": [False],

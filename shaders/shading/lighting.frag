@@ -195,6 +195,19 @@ float disc_share_above(int i, vec3 normal) {
     return clamp((dot(normal, lights[i].dir_scale.xyz) + sin_r) / (2.0 * sin_r), 0.0, 1.0);
 }
 
+// GLOSSY_WIDE (glossy "wide"): a large light's glossy term in closed form too where the lobe is wider
+// than its disc (variance 1 / s >= a^2 / 4, the two spreads of glossy_from_light): there the PEM's
+// coarse MIP levels (a few texels a face) are the larger error; a narrower lobe reads the fine levels,
+// which hold the region's own detail that a disc does not. Per pixel: g may vary.
+bool wide_lobe(int i) {
+#ifdef GLOSSY_WIDE
+    float sin_a = lights[i].params.w;
+    return max(1.0 - g_gloss, 0.0) >= 0.25 * sin_a * sin_a;
+#else
+    return false;
+#endif
+}
+
 // pem_diffuse / pem_glossy: the light's terms come from its PEMs (else in closed form, or from SH9 for
 // the diffuse term of an sh_skip light); sharp: its map is in the sharp array. Constants of the
 // caller's loop (see main()).
@@ -205,7 +218,7 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos, bool pem_diff
 #if MODE == 1
     if (!pem_diffuse) g_diffuse_exact += exact_diffuse_term(i, n);
     else g_diffuse += pem_d;
-    if (!pem_glossy) { if (g_has_glossy) g_glossy_exact += glossy_from_light(i, g_reflect); }
+    if (!pem_glossy || wide_lobe(i)) { if (g_has_glossy) g_glossy_exact += glossy_from_light(i, g_reflect); }
     else g_glossy += pem_g;
 #elif MODE == 0
     float vis = visibility(i, ws_pos, n, sharp);
@@ -230,7 +243,7 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos, bool pem_diff
     else if (!sh_skip(i)) g_diffuse_exact += vis * exact_diffuse_term(i, n);
     // The glossy lobe's part below the surface (renderer/shading/horizon.py), per light.
     if (u_glossy_horizon >= 2 && !small) vis *= above;
-    if (!pem_glossy) {
+    if (!pem_glossy || wide_lobe(i)) {
         // Evaluated at the light's own direction, so the lobe's horizon factor does not apply; the
         // disc's part below the triangle's plane is removed whatever the knobs (light from behind
         // the sheet does not reach the seen side).
