@@ -65,13 +65,13 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 
 
 # A preset may also set any knob of knob_defaults() (its value wins over the default), chosen from the
-# benchmark (docs/benchmarks.md). Blur 0: the paper's blur changed the error by 0 to +9 % at 48
+# benchmark (docs/benchmarks.md). Blur 0: the paper's blur changed the error by -1 to +11 % at 48
 # lights (the lights' many hard shadows already add up to soft ones) for more time a frame. Caster
-# detail 0.25: 0-5 % more error for a third to half less frame time. The sun's shadow edges are the
+# detail 0.25: 0-6 % more error for 17-47 % less frame time. The sun's shadow edges are the
 # largest error left in sunlit scenes: balanced draws the maps of small lights with at least 2.4x the
-# mean light's energy (5 % of it at 48 lights: a sun) at four times the size (hard sun 0.366 ->
-# 0.202); the regions of one sun (a degree apart) share one map (sharp_share_deg 2: the same error
-# for 14 % less time on the hard sun in a side run; the bench's sharp_share_deg rows); and it leaves
+# mean light's energy (5 % of it at 48 lights: a sun) at four times the size (hard sun 0.361 ->
+# 0.203); the regions of one sun (a degree apart) share one map (sharp_share_deg 2: the same error
+# for 17-20 % less time on the hard sun side by side; the bench's sharp_share_deg rows); and it leaves
 # the dim ones (an interior's ten lamps and windows) to the main maps, where sharp maps for all of
 # them cost 1.6x the frame time for less gain. Small lights' diffuse and glossy terms
 # in closed form (their disc through the cosine and the Phong lobe) instead of their PEMs'
