@@ -86,9 +86,9 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
                    help="large lights with at least --small-light-min-energy x the mean energy get those maps too "
                         "(default: the preset's)")
     q.add_argument("--sharp-share-deg", type=float,
-                   help="sharp lights within this many degrees (at most 30) of a brighter one share its map, drawn "
-                        "along their energy-weighted direction (a sun split into a few regions); 0: one map each "
-                        "(default: the preset's)")
+                   help="sharp lights within this many degrees (at most 30) of a brighter one whose disc theirs "
+                        "overlaps share its map, drawn along their energy-weighted direction (a sun split into a "
+                        "few regions); 0: one map each (default: the preset's)")
     q.add_argument("--sharp-max-maps", type=int,
                    help="at most this many sharp maps, the brightest lights' first; the others go to the main maps "
                         "(0: no cap; default: the preset's)")

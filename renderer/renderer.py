@@ -94,8 +94,9 @@ class FrameSettings:
     # than their region). Only with small_light_min_energy > 0.
     sharp_large_lights: bool = False
     # Sharp lights within this many degrees (at most MAX_SHARP_SHARE_DEG) of a brighter sharp light
-    # share its map, drawn along the group's energy-weighted direction (a sun the median cut split into
-    # regions a degree apart; each keeps its own direction and energy for shading). 0: one map each.
+    # whose disc theirs overlaps share its map, drawn along the group's energy-weighted direction (a sun
+    # the median cut split into regions a degree apart; each keeps its own direction and energy for
+    # shading). 0: one map each.
     sharp_share_deg: float = 0.0
     # At most this many sharp maps (the brightest lights' groups); the other lights go back to the main
     # maps. 0: no cap.
@@ -348,7 +349,8 @@ class Renderer:
         sharp = (small | settings.sharp_large_lights) & bright if settings.small_light_min_energy > 0 else small
         plan = plan_layers(layers, sharp, k)
         plan, shadow_dirs = share_sharp_maps(plan, regions.directions, regions.energy_luminance,
-                                             np.radians(settings.sharp_share_deg), settings.sharp_max_maps)
+                                             np.radians(settings.sharp_share_deg), settings.sharp_max_maps,
+                                             regions.disc_radius_rad())
         # Each light's map size; blur widths are in the light's own texels.
         sizes = np.where(plan.sharp, settings.shadow_size * k, settings.shadow_size)
         sigma = blur_sigma_texels(regions.light_radius_rad(), sizes, settings.blur_scale)

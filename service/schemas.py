@@ -106,8 +106,8 @@ class QualitySpec(_Strict):
     sharp_large_lights: bool = Field(_KNOB["sharp_large_lights"], description="large lights with at least "
                                      "small_light_min_energy x the mean energy get the sharp maps too")
     sharp_share_deg: float = Field(_KNOB["sharp_share_deg"], ge=0.0, le=MAX_SHARP_SHARE_DEG, strict=True,
-                                   description="sharp lights within this many degrees of a brighter one share its "
-                                   "map (a sun split into a few regions)")
+                                   description="sharp lights within this many degrees of a brighter one whose disc "
+                                   "theirs overlaps share its map (a sun split into a few regions)")
     sharp_max_maps: int = Field(_KNOB["sharp_max_maps"], ge=0, le=4096, strict=True, description="at most this many "
                                 "sharp maps, the brightest lights' first (0: no cap)")
     small_light_min_energy: float = Field(_KNOB["small_light_min_energy"], ge=0.0, le=1e6, description="only small "

@@ -151,6 +151,11 @@ def test_sharp_lights_close_together_share_one_map():
     capped, _ = share_sharp_maps(plan, directions, energy, np.radians(2.0), max_maps=1)
     assert list(capped.sharp_lights) == [0] and list(capped.main_lights) == [1, 2]
     assert list(capped.layer) == [0, 0, 1, 0, -1] and list(capped.sharp) == [True, False, False, True, False]
+    # With the lights' angular radii: lights 0 and 3 (a degree apart) share only if their discs overlap.
+    points, _ = share_sharp_maps(plan, directions, energy, np.radians(2.0), radii=np.full(5, np.radians(0.3)))
+    assert list(points.sharp_lights) == [0, 1, 3]                 # 0.3 + 0.3 < 1 degree: a map each
+    discs, _ = share_sharp_maps(plan, directions, energy, np.radians(2.0), radii=np.full(5, np.radians(0.6)))
+    assert list(discs.sharp_lights) == [0, 1] and list(discs.layer) == list(shared.layer)
     # Members that cancel (opposite, equally bright) leave the map along the brightest light's direction.
     opposite = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])
     both = plan_layers(np.array([0, 1], np.int32), np.array([True, True]), 4)

@@ -76,10 +76,13 @@ def plan_layers(layers: np.ndarray, small: np.ndarray, small_light_scale: int) -
 
 
 def share_sharp_maps(plan: LayerPlan, directions: np.ndarray, energy: np.ndarray, max_angle_rad: float,
-                     max_maps: int = 0) -> tuple[LayerPlan, np.ndarray]:
+                     max_maps: int = 0, radii: np.ndarray | None = None) -> tuple[LayerPlan, np.ndarray]:
     """Sharp lights within `max_angle_rad` of a brighter sharp light share its map (a sun split by the
     median cut into a few regions a degree apart): brightest first, each light joins the first group
-    whose leader is that close, else leads a group of its own. With `max_maps` > 0 the lights of the
+    whose leader is that close, else leads a group of its own. With `radii` (each light's angular
+    radius) only lights whose discs overlap the leader's join it (angle <= the sum of the radii): each
+    one's own spread then covers the offset, while point-like parts a degree apart (a sun split into
+    many regions) keep their maps, whose offsets draw the sun's penumbra. With `max_maps` > 0 the lights of the
     groups beyond the brightest `max_maps` go back to the main array. Returns the new plan and each
     light's shadow direction (its group's energy-weighted mean direction; its own outside groups).
     The lights keep their own directions and energies for shading; only their visibility is shared."""
@@ -91,7 +94,12 @@ def share_sharp_maps(plan: LayerPlan, directions: np.ndarray, energy: np.ndarray
     groups: list[list[int]] = []
     for i in order:
         for members in groups:
-            if float(directions[i] @ directions[members[0]]) >= cos_max:
+            lead = members[0]
+            close = float(directions[i] @ directions[lead]) >= cos_max
+            if close and radii is not None:
+                angle = float(np.arccos(np.clip(directions[i] @ directions[lead], -1.0, 1.0)))
+                close = angle <= float(radii[i] + radii[lead])
+            if close:
                 members.append(int(i))
                 break
         else:
