@@ -77,8 +77,9 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 # in closed form (their disc through the cosine and the Phong lobe) instead of their PEMs'
 # prefiltered kernels: the studio dress 0.127 -> 0.084 at balanced, no scene worse by more than 2 %; not in fast,
 # whose hard sun measured worse with them in a side run (not a bench row). The large lights' glossy
-# terms too where the lobe is wider than their disc (glossy "wide"): lower error than "mixed" in every
-# scene of a side run, also at g = 0.5, 0.95 and 0.99 (the bench's glossy rows). Lights beyond 48 cost
+# terms too where the lobe is wider than their disc (glossy "wide"): against "mixed" the studio
+# dress 0.084 -> 0.060, overcast 0.118 -> 0.109, night 0.107 -> 0.098, the hard sun 0.201 -> 0.203 with
+# lower FLIP (the bench's glossy rows); no worse at g = 0.5, 0.95 and 0.99 in a side run. Lights beyond 48 cost
 # linear time (96 lights: about twice) for 2-31 % less error; the accurate preset spends time on
 # shadow maps.
 DEFAULT_PRESETS = {

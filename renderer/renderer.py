@@ -190,6 +190,14 @@ def _set_uniform(prog: moderngl.Program, name: str, value) -> None:
 
 
 N_LIGHT_KINDS = 16   # lighting.frag's kinds: 4 bits
+# The modes whose lighting pass has closed-form terms (the others read every PEM).
+_CLOSED_FORM_MODES = (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
+
+
+def _no_diffuse_pems(mode: ShadingMode, diffuse: str) -> bool:
+    """Every light's diffuse term without PEM lookups: the DIFFUSE_LIGHTS program variant, whose
+    loops are compiled only for the kinds light_kinds then gives (one rule for both)."""
+    return diffuse in ("lights", "sh") and mode in _CLOSED_FORM_MODES
 
 
 def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
@@ -202,10 +210,10 @@ def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
     form with diffuse "mixed" (every light with "lights" or "sh"), their glossy term with glossy
     "mixed"; lights without a shadow map get their diffuse term from SH9 when `sh_unshadowed`."""
     n = len(lights)
-    exact_modes = settings.mode in (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
+    exact_modes = settings.mode in _CLOSED_FORM_MODES
     # The shader compares the packed float32 sine with the float32 define.
     small = lights["params"][:, 3] <= np.float32(SMALL_LIGHT_MAX_SIN)
-    if exact_modes and settings.diffuse in ("lights", "sh"):
+    if _no_diffuse_pems(settings.mode, settings.diffuse):
         pem_diffuse = np.zeros(n, bool)
     else:
         pem_diffuse = ~(small & exact_modes & (settings.diffuse == "mixed"))
@@ -252,8 +260,8 @@ class Renderer:
         pass's targets), compiled on first use (one variant each; the diffuse source matters to the
         full and no-occlusion modes only); `two_textures`: the PEM set spans two textures (more than
         REGIONS_PER_TEXTURE regions), whose second needs loops of its own."""
-        closed = diffuse in ("lights", "sh") and mode in (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
-        wide = glossy == "wide" and mode in (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
+        closed = _no_diffuse_pems(mode, diffuse)
+        wide = glossy == "wide" and mode in _CLOSED_FORM_MODES
         key = (mode, diffuse if closed else "pem", two_textures, wide)
         if key not in self._shade_progs:
             defines = {**self._defines, "MODE": _MODE_INDEX[mode], "TWO_PEM_TEXTURES": int(two_textures)}
@@ -342,7 +350,8 @@ class Renderer:
         lo, hi = scene.bounds(casters_only=True)
         shadowed = settings.mode is not ShadingMode.NO_OCCLUSION
         layers = shadow_layers(regions.energy_luminance, settings.shadow_threshold if shadowed else 2.0)
-        small = np.sin(regions.disc_radius_rad()) <= SMALL_LIGHT_MAX_SIN
+        disc_radius = regions.disc_radius_rad()
+        small = np.sin(disc_radius) <= SMALL_LIGHT_MAX_SIN
         relative = regions.energy_luminance / max(float(regions.energy_luminance.mean()), 1e-300)
         k = settings.small_light_scale
         bright = relative >= settings.small_light_min_energy
@@ -350,7 +359,7 @@ class Renderer:
         plan = plan_layers(layers, sharp, k)
         plan, shadow_dirs = share_sharp_maps(plan, regions.directions, regions.energy_luminance,
                                              np.radians(settings.sharp_share_deg), settings.sharp_max_maps,
-                                             regions.disc_radius_rad())
+                                             disc_radius)
         # Each light's map size; blur widths are in the light's own texels.
         sizes = np.where(plan.sharp, settings.shadow_size * k, settings.shadow_size)
         sigma = blur_sigma_texels(regions.light_radius_rad(), sizes, settings.blur_scale)
@@ -363,7 +372,7 @@ class Renderer:
         vp[plan.sharp] = vp[plan.sharp_lights[sharp_layer]]
         n_shadowed = int((layers >= 0).sum())
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
-                             sigma, plan.layer, regions.disc_radius_rad(), plan.sharp,
+                             sigma, plan.layer, disc_radius, plan.sharp,
                              settings.shadow_size / sizes)
         lights_buf = self._buffer("lights", lights.tobytes())
         # The main array (casters at caster_detail; a proxy is made only when one is drawn: a large

@@ -89,17 +89,17 @@ def share_sharp_maps(plan: LayerPlan, directions: np.ndarray, energy: np.ndarray
     shadow_dirs = np.array(directions, np.float64, copy=True)
     if (max_angle_rad <= 0.0 and max_maps <= 0) or len(plan.sharp_lights) == 0:
         return plan, shadow_dirs
-    cos_max = np.cos(max_angle_rad) if max_angle_rad > 0.0 else 2.0
+    def close(i: int, lead: int) -> bool:
+        if max_angle_rad <= 0.0:   # a cap without sharing
+            return False
+        limit = max_angle_rad if radii is None else min(max_angle_rad, float(radii[i] + radii[lead]))
+        return float(directions[i] @ directions[lead]) >= np.cos(limit)
+
     order = plan.sharp_lights[np.argsort(-energy[plan.sharp_lights], kind="stable")]
     groups: list[list[int]] = []
     for i in order:
         for members in groups:
-            lead = members[0]
-            close = float(directions[i] @ directions[lead]) >= cos_max
-            if close and radii is not None:
-                angle = float(np.arccos(np.clip(directions[i] @ directions[lead], -1.0, 1.0)))
-                close = angle <= float(radii[i] + radii[lead])
-            if close:
+            if close(i, members[0]):
                 members.append(int(i))
                 break
         else:
