@@ -92,6 +92,14 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--sharp-max-maps", type=int,
                    help="at most this many sharp maps, the brightest lights' first; the others go to the main maps "
                         "(0: no cap; default: the preset's)")
+    q.add_argument("--normal-offset-texels", type=float,
+                   help="shadow lookups pushed off the surface along the normal by this many of the main maps' "
+                        "texels, 0-16 (default: the preset's)")
+    q.add_argument("--sharp-normal-offset-texels", type=float,
+                   help="the same for the sharp maps, in their own texels (default: the preset's)")
+    q.add_argument("--min-sigma-texels", type=float,
+                   help="least deviation of the depths under a shadow-map texel, in that map's texels, 0-16: "
+                        "keeps sloped surfaces from shadowing themselves (default: the preset's)")
     q.add_argument("--small-light-min-energy", type=float,
                    help="only small lights carrying at least this many times the mean light's energy get those "
                         "maps; 0: every small light (default: the preset's)")

@@ -20,7 +20,9 @@ def knob_defaults() -> dict:
             "sh_unshadowed": f.sh_unshadowed, "needed_levels": True, "glossy": f.glossy,
             "caster_detail": f.caster_detail, "small_light_scale": f.small_light_scale,
             "small_light_min_energy": f.small_light_min_energy, "sharp_large_lights": f.sharp_large_lights,
-            "sharp_share_deg": f.sharp_share_deg, "sharp_max_maps": f.sharp_max_maps}
+            "sharp_share_deg": f.sharp_share_deg, "sharp_max_maps": f.sharp_max_maps,
+            "normal_offset_texels": f.normal_offset_texels, "sharp_normal_offset_texels": f.sharp_normal_offset_texels,
+            "min_sigma_texels": f.min_sigma_texels}
 
 
 def merge_knobs(base: dict, explicit: dict) -> dict:

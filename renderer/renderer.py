@@ -26,7 +26,7 @@ from .mesh import Mesh
 from .scene import Scene
 from .shading.horizon import N_G as HORIZON_N_G, N_MU as HORIZON_N_MU, horizon_table
 from .shading.material import Material
-from .shadows.lights import (SMALL_LIGHT_MAX_SIN, blur_sigma_texels, fit_light_view_projs, pack_lights, plan_layers,
+from .shadows.lights import (SMALL_LIGHT_MAX_SIN, blur_sigma_texels, texel_sizes, fit_light_view_projs, pack_lights, plan_layers,
                              shadow_layers, share_sharp_maps)
 from .shadows.vsm import ShadowMaps
 
@@ -65,6 +65,10 @@ class Background(str, Enum):
     BLACK = "black"
 
 
+# Shadow bias beyond this many texels moves shadows visibly off their casters.
+MAX_BIAS_TEXELS = 16.0
+
+
 @dataclass(frozen=True)
 class FrameSettings:
     """Per-frame quality and output settings (the PEM set's own settings are in PEMSettings)."""
@@ -74,8 +78,13 @@ class FrameSettings:
     shadow_size: int = 256
     blur_scale: float = 0.1  # the paper's per-light blur, narrowed; the presets use 0 (docs/benchmarks.md)
     bleed_reduction: float = 0.2
-    min_variance: float = 1e-6
-    normal_offset_texels: float = 1.5
+    # Shadow-map bias, in each map's own texels: the lookup pushed off the surface along the normal
+    # (main maps, sharp maps), and the least deviation of the depths under a texel (Chebyshev's
+    # variance floor). Chosen on the benchmark scenes (docs/benchmarks.md, the bias rows): a main-map
+    # offset of 1.5 texels gains 7-22 % on them but makes a lit floor flicker under refitted maps.
+    normal_offset_texels: float = 3.3
+    sharp_normal_offset_texels: float = 2.0
+    min_sigma_texels: float = 3.0
     shadow_threshold: float = 0.0  # lights below this share of the energy get no shadow map
     # Share of the casters' triangles the shadow pass draws (shadows/proxy.py; 1: the meshes
     # themselves): the pass costs per triangle on a CPU rasterizer.
@@ -161,6 +170,10 @@ class FrameSettings:
             raise InvalidInputError(f"glossy must be one of {', '.join(GLOSSY_SOURCES)}, got {self.glossy!r}")
         if self.diffuse not in DIFFUSE_SOURCES:
             raise InvalidInputError(f"diffuse must be one of {', '.join(DIFFUSE_SOURCES)}, got {self.diffuse!r}")
+        for name in ("normal_offset_texels", "sharp_normal_offset_texels", "min_sigma_texels"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (0.0 <= value <= MAX_BIAS_TEXELS):   # also refuses NaN
+                raise InvalidInputError(f"{name} is a number of texels in [0, {MAX_BIAS_TEXELS:g}], got {value!r}")
         if not (0.0 <= self.blur_scale <= 100.0) or not np.isfinite(self.blur_scale):
             raise InvalidInputError(f"blur scale must be in [0, 100], got {self.blur_scale}")
 
@@ -373,7 +386,7 @@ class Renderer:
         n_shadowed = int((layers >= 0).sum())
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
                              sigma, plan.layer, disc_radius, plan.sharp,
-                             settings.shadow_size / sizes)
+                             texel_sizes(vp, sizes))
         lights_buf = self._buffer("lights", lights.tobytes())
         # The main array (casters at caster_detail; a proxy is made only when one is drawn: a large
         # mesh's takes seconds), then the small lights' array (casters at full detail).
@@ -448,7 +461,9 @@ class Renderer:
             _set_uniform(p, "u_camera_pos", tuple(float(x) for x in camera.eye))
             _set_uniform(p, "u_n_lights", n)
             _set_uniform(p, "u_diffuse_level", pems.lookup_level(pems.diffuse_level(settings.calibration)))
-            _set_uniform(p, "u_min_variance", settings.min_variance)
+            _set_uniform(p, "u_min_sigma_texels", settings.min_sigma_texels)
+            _set_uniform(p, "u_normal_offset_texels", settings.normal_offset_texels)
+            _set_uniform(p, "u_sharp_normal_offset_texels", settings.sharp_normal_offset_texels)
             _set_uniform(p, "u_bleed_reduction", settings.bleed_reduction)
             _set_uniform(p, "u_horizon", settings.horizon)
             _set_uniform(p, "u_terminator", settings.terminator)
@@ -457,8 +472,6 @@ class Renderer:
                 coeffs = irradiance_coefficients(pems.region_sh[layers < 0].sum(axis=0))
                 _set_uniform(p, "u_sh", coeffs.astype(np.float32).tobytes())
             _set_uniform(p, "u_glossy_horizon", GLOSSY_HORIZONS.index(settings.glossy_horizon))
-            extent = 2.0 * float(np.linalg.norm(hi - lo))
-            _set_uniform(p, "u_normal_offset", settings.normal_offset_texels * extent / settings.shadow_size)
             vao.render(moderngl.TRIANGLES, vertices=3)
             fbo.depth_mask = True
             ctx.depth_func = "<"

@@ -9,7 +9,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from renderer.presets import knob_defaults
-from renderer.renderer import MAX_SHARP_SHARE_DEG
+from renderer.renderer import MAX_BIAS_TEXELS, MAX_SHARP_SHARE_DEG
 
 
 class Preset(str, Enum):
@@ -110,6 +110,15 @@ class QualitySpec(_Strict):
                                    "theirs overlaps share its map (a sun split into a few regions)")
     sharp_max_maps: int = Field(_KNOB["sharp_max_maps"], ge=0, le=4096, strict=True, description="at most this many "
                                 "sharp maps, the brightest lights' first (0: no cap)")
+    normal_offset_texels: float = Field(_KNOB["normal_offset_texels"], ge=0.0, le=MAX_BIAS_TEXELS, strict=True,
+                                        description="shadow lookups pushed off the surface along the normal by "
+                                        "this many of the main maps' texels")
+    sharp_normal_offset_texels: float = Field(_KNOB["sharp_normal_offset_texels"], ge=0.0, le=MAX_BIAS_TEXELS,
+                                              strict=True, description="the same for the sharp maps, in their "
+                                              "own texels")
+    min_sigma_texels: float = Field(_KNOB["min_sigma_texels"], ge=0.0, le=MAX_BIAS_TEXELS, strict=True,
+                                    description="least deviation of the depths under a shadow-map texel, in that "
+                                    "map's texels (keeps sloped surfaces from shadowing themselves)")
     small_light_min_energy: float = Field(_KNOB["small_light_min_energy"], ge=0.0, le=1e6, description="only small "
                                           "lights carrying at least this many times the mean light's energy get "
                                           "those maps (0: every small light)")

@@ -5,7 +5,7 @@ import pytest
 
 from renderer.errors import ShaderError
 from renderer.gpu.shaders import _rewrite_log, compose, compute_shader
-from renderer.shadows.lights import LIGHT_DTYPE, fit_light_view_projs, pack_lights
+from renderer.shadows.lights import LIGHT_DTYPE, fit_light_view_projs, pack_lights, texel_sizes
 
 
 def test_light_struct_mirror_matches_glsl_std430(gl):
@@ -13,7 +13,7 @@ def test_light_struct_mirror_matches_glsl_std430(gl):
     n = 5
     vp = rng.random((n, 4, 4))
     arr = pack_lights(rng.random((n, 3)), rng.random(n), rng.random(n), rng.random((n, 3)), vp,
-                      rng.random(n), np.arange(n) - 1, rng.random(n), rng.integers(1, 4, n), 1 + rng.random(n))
+                      rng.random(n), np.arange(n) - 1, rng.random(n), rng.integers(1, 4, n), rng.random((n, 2)))
     assert LIGHT_DTYPE.itemsize == 128
     ctx = gl.ctx
     src = ctx.buffer(arr.tobytes())
@@ -50,6 +50,24 @@ def test_light_projection_maps_the_casters_box_into_clip_space():
         # Depth grows away from the light: the corner furthest along the light direction is nearest.
         dist = corners[:, :3] @ np.asarray(d, float)
         assert c[np.argmax(dist), 2] == pytest.approx(c[:, 2].min())
+
+
+def test_texel_sizes_are_one_texel_of_each_map_in_world_and_depth_units():
+    lo, hi = np.array([-1.0, 0.0, -2.0]), np.array([3.0, 2.0, 1.0])
+    dirs = np.array([[0, 1, 0], [1, 1, 1], [-0.3, 0.2, -1]], float)
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    sizes = np.array([256, 1024, 64])
+    ms = fit_light_view_projs(dirs, lo, hi, np.zeros(len(dirs)), sizes)
+    texel = texel_sizes(ms, sizes)
+    p = np.array([0.5, 1.0, -0.5, 1.0])
+    for m, (world, depth), size in zip(ms, texel, sizes):
+        across = m[0, :3] / np.linalg.norm(m[0, :3])      # the map's x axis in world space
+        step = np.append(across * world, 0.0)
+        # One texel across: clip x moves by 2 / size (the map spans [-1, 1]).
+        assert (m @ (p + step))[0] - (m @ p)[0] == pytest.approx(2.0 / size)
+        # The same distance along the light's depth axis moves depth by `depth`.
+        along = np.append(m[2, :3] / np.linalg.norm(m[2, :3]) * world, 0.0)
+        assert (m @ (p + along))[2] - (m @ p)[2] == pytest.approx(depth)
 
 
 def test_composed_shader_carries_line_directives_per_file():

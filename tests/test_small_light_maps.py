@@ -222,3 +222,11 @@ def test_lights_sharing_a_map_look_it_up_through_the_projection_it_was_drawn_wit
     assert len(shared) >= 2 and np.all(shared["shadow"][:, 0] == 0)
     assert len(np.unique(shared["params"][:, 0])) > 1            # different blur widths...
     assert np.all(shared["view_proj"] == shared["view_proj"][0])  # ... one projection
+
+
+def test_shadow_bias_is_a_bounded_number_of_texels():
+    for name in ("normal_offset_texels", "sharp_normal_offset_texels", "min_sigma_texels"):
+        assert FrameSettings(**{name: 0.0}) and FrameSettings(**{name: 16.0})
+        for bad in (-0.5, 16.5, float("nan"), True):
+            with pytest.raises(InvalidInputError, match=name):
+                FrameSettings(**{name: bad})

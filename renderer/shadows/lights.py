@@ -173,12 +173,21 @@ def fit_light_view_projs(directions: np.ndarray, lo: np.ndarray, hi: np.ndarray,
     return m
 
 
+def texel_sizes(view_proj: np.ndarray, shadow_size) -> np.ndarray:
+    """(N, 2) float64: the width of one texel of each light's map (shadow_size texels a side, one
+    size or each light's) in world units and in the light's depth units (its depth range is 1), read
+    from the rows of `fit_light_view_projs`' matrices (x row: 1 / half width; z row: 1 / range)."""
+    vp = np.asarray(view_proj, np.float64)
+    width = 2.0 / np.linalg.norm(vp[:, 0, :3], axis=1) / np.asarray(shadow_size, np.float64)
+    return np.stack([width, width * np.linalg.norm(vp[:, 2, :3], axis=1)], axis=1)
+
+
 def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma, shadow_layer,
-                radius_rad=None, sharp=None, texel_scale=None) -> np.ndarray:
+                radius_rad=None, sharp=None, texel=None) -> np.ndarray:
     """Build the std430 array of `struct Light` for n lights; shadow_layer[i] = -1: no shadow map
     (else its layer); radius_rad: angular radius of each light's energy (for the horizon term),
-    default 0; sharp: the light's map is in the sharp array (default none); texel_scale: its texel
-    size in main-array texels (1 / small_light_scale for sharp maps; default 1)."""
+    default 0; sharp: the light's map is in the sharp array (default none); texel: (N, 2) the width
+    of one texel of its map in world units and in its depth units (`texel_sizes`; default 0, 0)."""
     n = len(directions)
     arr = np.zeros(n, LIGHT_DTYPE)
     arr["view_proj"] = np.transpose(view_proj, (0, 2, 1)).reshape(n, 16)  # column-major for GLSL
@@ -191,5 +200,7 @@ def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma
     arr["energy"][:, 3] = np.asarray(energy_rgb) @ np.array([0.2126, 0.7152, 0.0722])
     arr["shadow"][:, 0] = shadow_layer
     arr["shadow"][:, 1] = np.asarray(sharp, np.float32) if sharp is not None else 0.0
-    arr["shadow"][:, 2] = texel_scale if texel_scale is not None else 1.0
+    texel = np.zeros((n, 2)) if texel is None else np.asarray(texel, np.float64)
+    arr["shadow"][:, 2] = texel[:, 0]
+    arr["params"][:, 1] = texel[:, 1]
     return arr

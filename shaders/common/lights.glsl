@@ -3,12 +3,13 @@
 struct Light {
     mat4 view_proj;      // world -> light clip space (orthographic, depth in [0, 1])
     vec4 dir_scale;      // xyz: unit direction towards the region's energy centroid; w: PEM scale
-    vec4 params;         // x: blur sigma (the light's own texels); y: unused (0); z: solid angle (sr);
+    vec4 params;         // x: blur sigma (the light's own texels); y: one texel of its map in its depth
+                         // units (the depth range is 1); z: solid angle (sr);
                          // w: sine of the light's angular radius (energy spread), for the horizon term
     vec4 energy;         // rgb: region energy (radiance x sr); a: luminance energy
     vec4 shadow;         // x: shadow-map layer (-1: none); y: 1 if the map is in the sharp array (a
-                         // small light's, small_light_scale times the size), else 0; z: its texel
-                         // size in main-array texels (1 / small_light_scale for sharp maps, else 1)
+                         // small light's, small_light_scale times the size), else 0; z: one texel of
+                         // its map in world units
 };
 
 // Lights that have a shadow map, in layer order (layer k belongs to light shadow_lights[k]).

@@ -42,9 +42,10 @@ uniform int u_n_lights;
 // PEM, bit 1 its glossy PEM, bit 2 its map is in the sharp array, bit 3 its region is in u_pem1.
 uniform int u_kind_end[16];
 uniform float u_diffuse_level;
-uniform float u_min_variance;
+uniform float u_min_sigma_texels;  // FrameSettings.min_sigma_texels: least deviation of the depths under a texel
 uniform float u_bleed_reduction;   // Lauritzen's light-bleeding reduction: clip p_max below this
-uniform float u_normal_offset;     // world units, pushes the shadow lookup off the surface
+uniform float u_normal_offset_texels;        // the shadow lookup pushed off the surface along n, in the
+uniform float u_sharp_normal_offset_texels;  // light's own texels: main maps, sharp maps
 uniform bool u_horizon;            // include the tangent plane in VIS_i
 uniform bool u_sh_unshadowed;      // full mode: lights without a shadow map light the diffuse term by SH9
 uniform vec3 u_sh[9];              // their irradiance coefficients (renderer/lighting/sh.py)
@@ -63,7 +64,8 @@ float visibility(int i, vec3 ws_pos, vec3 n, bool sharp) {
     float layer = lights[i].shadow.x;
     if (layer < 0.0) return 1.0;   // no shadow map: the PEM is added unshadowed
     // The normal offset is in the light's own texels (a sharp map's are smaller).
-    vec4 p = lights[i].view_proj * vec4(ws_pos + (u_normal_offset * lights[i].shadow.z) * n, 1.0);
+    float offset = (sharp ? u_sharp_normal_offset_texels : u_normal_offset_texels) * lights[i].shadow.z;
+    vec4 p = lights[i].view_proj * vec4(ws_pos + offset * n, 1.0);
     vec2 uv = p.xy * 0.5 + 0.5;
     if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
     vec2 m = sharp ? texture(u_moments_sharp, vec3(uv, layer)).xy : texture(u_moments, vec3(uv, layer)).xy;
@@ -71,7 +73,10 @@ float visibility(int i, vec3 ws_pos, vec3 n, bool sharp) {
     // at the far plane: lit where no caster is, shadowed where one is.
     float t = min(p.z, 1.0);
     if (t <= m.x) return 1.0;
-    float variance = max(m.y - m.x * m.x, u_min_variance);
+    // The depths under one texel spread by about a texel where the surface slopes: a floor on the
+    // deviation, in the light's own texels, keeps a surface from shadowing itself.
+    float floor_sigma = u_min_sigma_texels * lights[i].params.y;
+    float variance = max(m.y - m.x * m.x, max(floor_sigma * floor_sigma, 1e-12));
     float d = t - m.x;
     float p_max = variance / (variance + d * d);
     return linstep(u_bleed_reduction, 1.0, p_max);
