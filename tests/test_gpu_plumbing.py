@@ -5,7 +5,7 @@ import pytest
 
 from renderer.errors import ShaderError
 from renderer.gpu.shaders import _rewrite_log, compose, compute_shader
-from renderer.shadows.lights import LIGHT_DTYPE, fit_light_view_projs, pack_lights, texel_sizes
+from renderer.shadows.lights import FOOTPRINT_STEPS_PER_OCTAVE, LIGHT_DTYPE, fit_light_view_projs, pack_lights, texel_sizes
 
 
 def test_light_struct_mirror_matches_glsl_std430(gl):
@@ -42,14 +42,33 @@ def test_light_projection_maps_the_casters_box_into_clip_space():
     for d, m in zip(dirs, ms):
         c = corners @ m.T
         assert np.all(np.abs(c[:, :2]) <= 1.0) and np.all((c[:, 2] >= 0) & (c[:, 2] <= 1))
-        # Tight and square: the box touches the map's border (within the blur's margin) on its wider
-        # axis, and x and y have the same scale.
-        margin = 1.0 + 2.0 * (3.0 * 2.0 + 1.0) / 256
-        assert np.abs(c[:, :2]).max() * margin == pytest.approx(1.0)
+        # Tight and square: the box fills the map on its wider axis up to the blur's margin, the half
+        # texel the centre's rounding needs and the footprint's size step, and x and y have the same scale.
+        margin = (1.0 + 2.0 * (3.0 * 2.0 + 1.0) / 256) * (1.0 + 1.0 / 256)
+        assert 2.0 ** (-1.0 / FOOTPRINT_STEPS_PER_OCTAVE) <= np.abs(c[:, :2]).max() * margin <= 1.0
         assert np.linalg.norm(m[0, :3]) == pytest.approx(np.linalg.norm(m[1, :3]))
         # Depth grows away from the light: the corner furthest along the light direction is nearest.
         dist = corners[:, :3] @ np.asarray(d, float)
         assert c[np.argmax(dist), 2] == pytest.approx(c[:, 2].min())
+
+
+def test_texel_grid_stays_put_while_the_casters_box_changes_a_little():
+    # The cloth moves the casters' box every frame; static geometry must see the same texel grid
+    # (else its shadow edges shimmer): the footprint keeps its size within a size step and its
+    # centre moves by whole texels.
+    dirs = np.array([[0.9, 0.03, 0.43], [-0.3, 0.9, 0.2]])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    lo = np.array([-1.5, 0.0, -1.5])
+    grids = []
+    for top in np.linspace(1.95, 1.90, 6):              # the cloth's top coming down by 5 cm
+        m = fit_light_view_projs(dirs, lo, np.array([1.5, top, 1.5]), np.zeros(2), 256)
+        grids.append(m)
+    for m in grids[1:]:
+        np.testing.assert_allclose(m[:, :2, :3], grids[0][:, :2, :3])   # the same texel size and axes
+        # A world point's texel coordinate moves by a whole number of texels.
+        p = np.array([0.3, 0.2, -0.7, 1.0])
+        shift = ((m @ p)[:, :2] - (grids[0] @ p)[:, :2]) * 256 / 2
+        np.testing.assert_allclose(shift, np.round(shift), atol=1e-6)
 
 
 def test_texel_sizes_are_one_texel_of_each_map_in_world_and_depth_units():

@@ -56,7 +56,7 @@ SWEEPS = {
     "sharp_share_deg": [0.0, 1.0, 4.0],
     # Shadow bias in each map's texels (renderer.FrameSettings): the normal offsets and the variance
     # floor; shadow_bias: the bias before it was stated in texels.
-    "normal_offset_texels": [1.0, 1.5],
+    "normal_offset_texels": [1.0, 3.3],
     "sharp_normal_offset_texels": [1.0, 3.3],
     "min_sigma_texels": [0.0, 6.0],
     "shadow_bias": [{"normal_offset_texels": 3.3, "sharp_normal_offset_texels": 3.3, "min_sigma_texels": 0.25}],
