@@ -67,20 +67,22 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 
 
 # A preset may also set any knob of knob_defaults() (its value wins over the default), chosen from the
-# benchmark (docs/benchmarks.md). Blur 0: the paper's blur changed the error by -1 to +11 % at 48
-# lights (the lights' many hard shadows already add up to soft ones) for more time a frame. Caster
-# detail 0.25: 0-6 % more error for 17-47 % less frame time. The sun's shadow edges are the
+# benchmark (docs/benchmarks.md; numbers from the bench at a921258). Blur 0: the paper's blur changed
+# the error by 0 to +12 % at 48 lights, +70 % on the hard sun (the lights' many hard shadows already
+# add up to soft ones) for more time a frame. Caster detail 0.25: 0-3 % more error for 44-52 % less
+# frame time. The sun's shadow edges are the
 # largest error left in sunlit scenes: balanced draws the maps of small lights with at least 2.4x the
-# mean light's energy (5 % of it at 48 lights: a sun) at four times the size (hard sun 0.361 ->
-# 0.203); the regions of one sun (a degree apart) share one map (sharp_share_deg 2: the same error
-# for 17-20 % less time on the hard sun side by side; the bench's sharp_share_deg rows); and it leaves
+# mean light's energy (5 % of it at 48 lights: a sun) at four times the size (hard sun 0.246 ->
+# 0.190 against twice); the regions of one sun (a degree apart) share one map (sharp_share_deg 2: the
+# same error for 18-20 % less time on the hard sun side by side; the bench's sharp_share_deg rows); and it leaves
 # the dim ones (an interior's ten lamps and windows) to the main maps, where sharp maps for all of
 # them cost 1.6x the frame time for less gain. Small lights' diffuse and glossy terms
 # in closed form (their disc through the cosine and the Phong lobe) instead of their PEMs'
-# prefiltered kernels: the studio dress 0.127 -> 0.084 at balanced, no scene worse by more than 2 %; not in fast,
+# prefiltered kernels: the studio dress 0.123 -> 0.052 at balanced (with the wide glossy lobes below),
+# no scene worse by more than 2 %; not in fast,
 # whose hard sun measured worse with them in a side run (not a bench row). The large lights' glossy
 # terms too where the lobe is wider than their disc (glossy "wide"): against "mixed" the studio
-# dress 0.084 -> 0.060, overcast 0.118 -> 0.109, night 0.107 -> 0.098, the hard sun 0.201 -> 0.203 with
+# dress 0.077 -> 0.052, overcast 0.092 -> 0.083, night 0.097 -> 0.091, the hard sun 0.188 -> 0.190 with
 # lower FLIP (the bench's glossy rows); no worse at g = 0.5, 0.95 and 0.99 in a side run. Lights beyond 48 cost
 # linear time (96 lights: about twice) for 2-31 % less error; the accurate preset spends time on
 # shadow maps.
