@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InvalidInputError, RenderError
-from .presets import DEFAULT_PRESETS, PRESET_KNOBS, knob_defaults, merge_knobs, presets
+from .presets import DEFAULT_PRESETS, PRESET_KNOBS, base_knobs, knob_defaults, merge_knobs, presets
 from .presets import frame_settings as presets_frame_settings
 from .presets import pem_settings as presets_pem_settings
 
@@ -136,15 +136,12 @@ def resolve_quality(args) -> dict:
     """Quality knobs: a budget (chosen from the measured table), else the preset, over the
     defaults; explicit flags override all (`merge_knobs`). The result says where they came from,
     and which PEM filter: --filter, else the budget's measured one, else sqrt-cosine."""
-    if args.frame_budget_ms is not None or args.error_budget is not None:
-        from .bench.budget import budget_knobs
-
-        base, measured_filter, where = budget_knobs(args.frame_budget_ms, args.error_budget)
-    else:
-        table_presets, source = presets()
-        base, measured_filter, where = table_presets[args.preset], "sqrt-cosine", f"preset {args.preset}, {source}"
+    budget = args.frame_budget_ms is not None or args.error_budget is not None
+    table_presets, source = presets() if not budget else ({}, None)
+    base, measured_filter, where, _ = base_knobs(args.preset, table_presets, source, args.frame_budget_ms,
+                                                 args.error_budget)
     knobs = merge_knobs(base, {k: getattr(args, k) for k in (*PRESET_KNOBS, *knob_defaults())})
-    return {**knobs, "filter": args.filter or measured_filter, "source": where}
+    return {**knobs, "filter": args.filter or measured_filter or "sqrt-cosine", "source": where}
 
 
 def frame_settings(args, q: dict):

@@ -13,8 +13,7 @@ from renderer.lighting.median_cut import regions_per_face
 from renderer.lighting.pem import PEMSettings
 from renderer.errors import MeshError
 from renderer.mesh import Mesh, z_up_to_y_up
-from renderer.bench.budget import budget_knobs
-from renderer.presets import PRESET_KNOBS, frame_settings, knob_defaults, merge_knobs, pem_settings
+from renderer.presets import PRESET_KNOBS, base_knobs, frame_settings, knob_defaults, merge_knobs, pem_settings
 from renderer.renderer import Background, FrameSettings, ShadingMode
 from renderer.shading.material import Material
 from renderer.shadows.proxy import caster_proxy_isolated
@@ -44,13 +43,11 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: di
     to its materials' levels in `prepare_scene`). Budgets choose from `measured`, the table the presets
     came from (None: none stored)."""
     name = q.preset.value if q.preset is not None else settings.default_preset
-    base, source, filter_name = presets[name], f"preset {name}", q.filter.value
-    if q.frame_budget_ms is not None or q.error_budget is not None:
-        # The measured setting that meets the budgets, never a guess (InvalidInputError: 422).
-        base, measured_filter, source = budget_knobs(q.frame_budget_ms, q.error_budget, measured)
-        if "filter" not in q.model_fields_set:
-            filter_name = measured_filter
-        name = None
+    # A budget chooses the measured setting that meets it, never a guess (InvalidInputError: 422).
+    base, measured_filter, source, budget = base_knobs(name, presets, None, q.frame_budget_ms, q.error_budget,
+                                                        measured)
+    filter_name = measured_filter if measured_filter and "filter" not in q.model_fields_set else q.filter.value
+    name = None if budget else name
     knobs = merge_knobs(base, {k: getattr(q, k) for k in q.model_fields_set if k in _KNOBS})
     regions_per_face(int(knobs["lights"]))  # InvalidInputError naming the valid counts
 
