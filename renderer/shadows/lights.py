@@ -144,6 +144,8 @@ def blur_sigma_texels(angular_radius_rad: np.ndarray, shadow_size: int, blur_sca
 # Footprint sizes a light's map can take per octave (fit_light_view_projs): 8 steps cost at most 9 %
 # (on average 4 %) of the map's resolution.
 FOOTPRINT_STEPS_PER_OCTAVE = 8
+# The least depth range of a light's projection, in its texels (fit_light_view_projs).
+MIN_DEPTH_TEXELS = 16.0
 
 
 def fit_light_view_projs(directions: np.ndarray, lo: np.ndarray, hi: np.ndarray, sigma_texels: np.ndarray,
@@ -169,14 +171,18 @@ def fit_light_view_projs(directions: np.ndarray, lo: np.ndarray, hi: np.ndarray,
     # it exactly would slide the texel grid under static geometry (a floor, the body) every frame,
     # so that shadow edges there shimmer. The footprint's size is rounded up to one of
     # FOOTPRINT_STEPS_PER_OCTAVE sizes per octave and its centre to whole texels: the grid moves
-    # only when the size steps. Half a texel more keeps the box inside after the centre's rounding.
+    # only when the size steps. The centre's rounding moves the box by up to half a texel: half a
+    # texel more here, and the texel of rasterization border above, keep it inside.
     half_xy = half_xy * (1.0 + 1.0 / size)
     steps = np.ceil(np.log2(half_xy / unit) * FOOTPRINT_STEPS_PER_OCTAVE)
     half_xy = unit * np.exp2(steps / FOOTPRINT_STEPS_PER_OCTAVE)
     texel = 2.0 * half_xy / size
     centre = centre.copy()
     centre[:, :2] = np.round(centre[:, :2] / texel) * texel
-    depth = np.maximum(cmax[:, 2] - cmin[:, 2], 1e-30)
+    # At least MIN_DEPTH_TEXELS texels deep: a box thin along the light (a flat sheet lit along its
+    # normal) would otherwise make a texel many depth ranges wide, and the variance floor, stated in
+    # texels, would let light through the sheet onto receivers behind it.
+    depth = np.maximum(cmax[:, 2] - cmin[:, 2], MIN_DEPTH_TEXELS * texel[:, 0])
     z0 = cmin[:, 2] - 0.01 * depth
     z_range = 1.02 * depth
     m = np.zeros((len(basis), 4, 4))

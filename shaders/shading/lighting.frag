@@ -76,7 +76,8 @@ float visibility(int i, vec3 ws_pos, vec3 n, bool sharp) {
     // The depths under one texel spread by about a texel where the surface slopes: a floor on the
     // deviation, in the light's own texels, keeps a surface from shadowing itself.
     float floor_sigma = u_min_sigma_texels * lights[i].params.y;
-    float variance = max(m.y - m.x * m.x, max(floor_sigma * floor_sigma, 1e-12));
+    // 1e-7: float32's cancellation in m.y - m.x^2 (depths in [0, 1]), the floor when the knob is 0.
+    float variance = max(m.y - m.x * m.x, max(floor_sigma * floor_sigma, 1e-7));
     float d = t - m.x;
     float p_max = variance / (variance + d * d);
     return linstep(u_bleed_reduction, 1.0, p_max);
