@@ -138,8 +138,8 @@ def resolve_quality(args) -> dict:
     and which PEM filter: --filter, else the budget's measured one, else sqrt-cosine."""
     budget = args.frame_budget_ms is not None or args.error_budget is not None
     table_presets, source = presets() if not budget else ({}, None)
-    base, measured_filter, where, _ = base_knobs(args.preset, table_presets, source, args.frame_budget_ms,
-                                                 args.error_budget)
+    base, measured_filter, where = base_knobs(args.preset, table_presets, source, args.frame_budget_ms,
+                                              args.error_budget)
     knobs = merge_knobs(base, {k: getattr(args, k) for k in (*PRESET_KNOBS, *knob_defaults())})
     return {**knobs, "filter": args.filter or measured_filter or "sqrt-cosine", "source": where}
 

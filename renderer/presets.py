@@ -119,16 +119,14 @@ def presets(table: dict | None | str = "stored") -> tuple[dict, str]:
 
 
 def base_knobs(preset: str, preset_knobs: dict, preset_source: str | None, frame_budget_ms: float | None,
-               error_budget: float | None, table: dict | None | str = "stored") -> tuple[dict, str | None, str, bool]:
+               error_budget: float | None, table: dict | None | str = "stored") -> tuple[dict, str | None, str]:
     """What a request's knobs go over (`merge_knobs`): the measured setting that meets its budgets
     when it names one (`budget_knobs`, chosen from `table`), else its preset's knobs (from
-    `preset_knobs`, the presets in use). Returns (knobs, the measured PEM filter or None, where they
-    came from, whether a budget chose them): the one rule the command line and the service share."""
+    `preset_knobs`, the presets in use). Returns (knobs, the measured PEM filter, or None when the
+    preset chose them, and where they came from): the one rule the command line and the service share."""
     if frame_budget_ms is not None or error_budget is not None:
         from .bench.budget import budget_knobs
 
-        knobs, measured_filter, where = budget_knobs(frame_budget_ms, error_budget, table)
-        return knobs, measured_filter, where, True
-    where = f"preset {preset}" + (f", {preset_source}" if preset_source else "")
-    return preset_knobs[preset], None, where, False
+        return budget_knobs(frame_budget_ms, error_budget, table)
+    return preset_knobs[preset], None, f"preset {preset}" + (f", {preset_source}" if preset_source else "")
 

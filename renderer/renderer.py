@@ -26,8 +26,8 @@ from .mesh import Mesh
 from .scene import Scene
 from .shading.horizon import N_G as HORIZON_N_G, N_MU as HORIZON_N_MU, horizon_table
 from .shading.material import Material
-from .shadows.lights import (SMALL_LIGHT_MAX_SIN, blur_sigma_texels, texel_sizes, fit_light_view_projs, pack_lights, plan_layers,
-                             shadow_layers, share_sharp_maps)
+from .shadows.lights import (SMALL_LIGHT_MAX_SIN, blur_sigma_texels, fit_light_view_projs, pack_lights, plan_layers,
+                             shadow_layers, share_sharp_maps, texel_sizes)
 from .shadows.vsm import ShadowMaps
 
 

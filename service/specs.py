@@ -44,10 +44,12 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: di
     came from (None: none stored)."""
     name = q.preset.value if q.preset is not None else settings.default_preset
     # A budget chooses the measured setting that meets it, never a guess (InvalidInputError: 422).
-    base, measured_filter, source, budget = base_knobs(name, presets, None, q.frame_budget_ms, q.error_budget,
-                                                        measured)
-    filter_name = measured_filter if measured_filter and "filter" not in q.model_fields_set else q.filter.value
-    name = None if budget else name
+    base, measured_filter, source = base_knobs(name, presets, None, q.frame_budget_ms, q.error_budget, measured)
+    if measured_filter is not None:   # a budget chose the knobs: no preset name, and its filter unless named
+        name = None
+        filter_name = q.filter.value if "filter" in q.model_fields_set else measured_filter
+    else:
+        filter_name = q.filter.value
     knobs = merge_knobs(base, {k: getattr(q, k) for k in q.model_fields_set if k in _KNOBS})
     regions_per_face(int(knobs["lights"]))  # InvalidInputError naming the valid counts
 

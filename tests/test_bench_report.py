@@ -87,6 +87,10 @@ def test_error_split_accounts_for_the_whole_error(tmp_path):
     total = row["rel_rmse"] ** 2 * n
     assert row["worst_share"] * total + row["rel_rmse_without_worst"] ** 2 * (n - worst) == pytest.approx(total)
     assert 0.01 <= row["worst_share"] <= 1.0     # the worst pixels carry at least their own share
+    # The worst ten are among the worst 1 % or hold it (here 1 % is fewer than ten pixels), and the
+    # worst pixel is a covered one.
+    assert 0.0 < row["worst_pixels_share"] <= 1.0 and row["worst_pixels_share"] >= row["worst_share"] - 1e-12
+    assert all(0 <= v < 24 for v in row["worst_pixel"])
     assert 0.0 < row["silhouette_pixels"] < 1.0 and 0.0 <= row["silhouette_share"] <= 1.0
     assert json.loads((tmp_path / "split.json").read_text())["rows"][0]["rel_rmse"] == pytest.approx(row["rel_rmse"])
     assert (tmp_path / "split.png").stat().st_size > 1000 and "studio-dress" in (tmp_path / "split.md").read_text()

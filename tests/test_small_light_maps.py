@@ -228,7 +228,8 @@ def test_lights_sharing_a_map_look_it_up_through_the_projection_it_was_drawn_wit
 
 def test_shadow_bias_is_a_bounded_number_of_texels():
     for name in ("normal_offset_texels", "sharp_normal_offset_texels", "min_sigma_texels"):
-        assert FrameSettings(**{name: 0.0}) and FrameSettings(**{name: 16.0})
+        for good in (0.0, 16.0):
+            assert getattr(FrameSettings(**{name: good}), name) == good
         for bad in (-0.5, 16.5, float("nan"), True):
             with pytest.raises(InvalidInputError, match=name):
                 FrameSettings(**{name: bad})

@@ -20,15 +20,15 @@ MEASURED = Path(__file__).with_name("measured.json")
 PRESET_ERROR = {"fast": 0.10, "balanced": 0.05}
 # Every knob a table entry records: the presets' four, the PEM filter and the others.
 KNOBS = (*PRESET_KNOBS, "filter", *knob_defaults())
+# The shadow bias before it was stated in each map's texels: 1.5 x 2 |box diagonal| / map size (about
+# 3.3 texels on the bench scenes) and an absolute variance floor of 1e-6 in depth units (about 0.25
+# texels of a 256^2 map, 1 of a 1024^2 one: this approximates it). The bench's shadow_bias row.
+OLD_SHADOW_BIAS = {"normal_offset_texels": 3.3, "sharp_normal_offset_texels": 3.3, "min_sigma_texels": 0.25}
 # Knobs added after a table was stored take the value they had then (the only one there was).
 KNOB_DEFAULTS = {"horizon": False, "calibration": "volume", "diffuse": "pem", "glossy_horizon": "off",
                 "terminator": False, "needed_levels": False, "shadow_threshold": 0.0, "sh_unshadowed": False,
                 "caster_detail": 1.0, "small_light_scale": 1, "small_light_min_energy": 0.0, "glossy": "pem",
-                "sharp_large_lights": False, "sharp_share_deg": 0.0, "sharp_max_maps": 0,
-                # The bias before it was stated in each map's texels: 1.5 x 2 |box diagonal| / map size
-                # (about 3.3 texels on the bench scenes) and an absolute variance floor of 1e-6 in depth
-                # units (about 0.25 texels of a 256^2 map, 1 of a 1024^2 one: this entry approximates it).
-                "normal_offset_texels": 3.3, "sharp_normal_offset_texels": 3.3, "min_sigma_texels": 0.25}
+                "sharp_large_lights": False, "sharp_share_deg": 0.0, "sharp_max_maps": 0, **OLD_SHADOW_BIAS}
 
 
 def summarize(bench: dict) -> dict:

@@ -25,6 +25,7 @@ from ..reference import mean_flip, relative_rmse, render_reference
 from .. import presets
 from ..presets import DEFAULT_PRESETS, knob_defaults
 from ..renderer import FrameSettings, Renderer, ShadingMode
+from .budget import OLD_SHADOW_BIAS
 from .scenes import BenchScene, bundled_scene, shared_scenes
 
 BALANCED = {**knob_defaults(), **DEFAULT_PRESETS["balanced"], "filter": "sqrt-cosine"}
@@ -59,7 +60,7 @@ SWEEPS = {
     "normal_offset_texels": [1.0, 3.3],
     "sharp_normal_offset_texels": [1.0, 3.3],
     "min_sigma_texels": [0.0, 6.0],
-    "shadow_bias": [{"normal_offset_texels": 3.3, "sharp_normal_offset_texels": 3.3, "min_sigma_texels": 0.25}],
+    "shadow_bias": [OLD_SHADOW_BIAS],
     # The other default presets, measured as a whole beside balanced.
     "preset": [DEFAULT_PRESETS["fast"], DEFAULT_PRESETS["accurate"]],
 }

@@ -7,6 +7,8 @@ that number is made of. Per scene, at one preset:
   (V = 1): the PEM lookups and lobe calibration, with every shadow term left out on both sides;
 * **the worst 1 % of pixels**: their share of the squared relative error (relMSE), and the error
   of the rest, since a few pixels (a shadow edge, a contact shadow) can carry most of it;
+* **the worst ten pixels**: their share, and where the worst one is (row, column from the top left),
+  since a handful of dark pixels rendered bright can decide the relative RMSE;
 * **the silhouette**: the covered pixels with an uncovered neighbour, and their share;
 
 each beside the references' own noise floors (two seeds compared). An image per scene shows the
@@ -31,6 +33,7 @@ from .run import BALANCED
 from .scenes import bundled_scene, shared_scenes
 
 WORST_SHARE = 0.01   # "the worst 1 % of pixels"
+WORST_PIXELS = 10    # "the worst ten pixels"
 
 
 def _silhouette(mask: np.ndarray) -> np.ndarray:
@@ -64,7 +67,9 @@ def split_scene(r: Renderer, bs, knobs: dict, size: int, spp: int, log=print) ->
     if per_px.size < 2 or per_px.sum() <= 0:
         raise InvalidInputError(f"{bs.name}: {per_px.size} covered pixels and a total error of "
                                 f"{per_px.sum():.3g}: nothing to split (a larger --size?)")
-    order = np.sort(per_px)[::-1]
+    ranked = np.argsort(per_px)[::-1]
+    order = per_px[ranked]
+    worst_row, worst_col = (int(v[ranked[0]]) for v in np.nonzero(mask))   # per_px is in the mask's row-major order
     n_worst = max(1, int(round(WORST_SHARE * len(order))))
     rim = _silhouette(mask)[mask]
     # The noise floors: one seed against the other is sqrt(2) x one image's noise; the averaged
@@ -78,6 +83,8 @@ def split_scene(r: Renderer, bs, knobs: dict, size: int, spp: int, log=print) ->
         "lighting_noise_rel_rmse": relative_rmse(refs[3], refs[2], mask) / 2.0,
         "worst_share": float(order[:n_worst].sum() / order.sum()),
         "rel_rmse_without_worst": float(np.sqrt(order[n_worst:].mean())),
+        "worst_pixels_share": float(order[:WORST_PIXELS].sum() / order.sum()),
+        "worst_pixel": [worst_row, worst_col],
         "silhouette_pixels": float(rim.mean()), "silhouette_share": float(per_px[rim].sum() / per_px.sum()),
         "reference_s": ref_s,
     }
@@ -85,7 +92,8 @@ def split_scene(r: Renderer, bs, knobs: dict, size: int, spp: int, log=print) ->
     err[mask] = np.sqrt(per_px)
     log(f"  {bs.name}: rel. RMSE {row['rel_rmse']:.3f} (noise {row['noise_rel_rmse']:.3f}); lighting alone "
         f"{row['lighting_rel_rmse']:.3f} (noise {row['lighting_noise_rel_rmse']:.3f}); worst 1 % of pixels "
-        f"{100 * row['worst_share']:.0f} % of relMSE, the rest {row['rel_rmse_without_worst']:.3f}; silhouette "
+        f"{100 * row['worst_share']:.0f} % of relMSE, the rest {row['rel_rmse_without_worst']:.3f}; worst "
+        f"{WORST_PIXELS} pixels {100 * row['worst_pixels_share']:.0f} % (the worst at {tuple(row['worst_pixel'])}); silhouette "
         f"{100 * row['silhouette_pixels']:.0f} % of pixels, {100 * row['silhouette_share']:.0f} % of relMSE")
     return row, {"reference": truth, "render": full, "error": err, "mask": mask}
 
@@ -113,12 +121,14 @@ def markdown(result: dict) -> str:
     lines = [f"Preset {result['preset']} at {result['size']}x{result['size']}, references 2 x {result['spp']} spp "
              "per term (with and without occlusion), noise floors of their averages in brackets.", "",
              "| scene | rel. RMSE | FLIP | lighting alone (no occlusion) | worst 1 % of pixels: share of relMSE | "
-             "rel. RMSE of the other 99 % | silhouette: pixels, share of relMSE |",
-             "|---|---|---|---|---|---|---|"]
+             f"rel. RMSE of the other 99 % | worst {WORST_PIXELS} pixels: share (worst at row, column) | "
+             "silhouette: pixels, share of relMSE |",
+             "|---|---|---|---|---|---|---|---|"]
     for w in result["rows"]:
         lines.append(f"| {w['scene']} | {w['rel_rmse']:.3f} ({w['noise_rel_rmse']:.3f}) | {w['flip']:.3f} | "
                      f"{w['lighting_rel_rmse']:.3f} ({w['lighting_noise_rel_rmse']:.3f}) | "
                      f"{100 * w['worst_share']:.0f} % | {w['rel_rmse_without_worst']:.3f} | "
+                     f"{100 * w['worst_pixels_share']:.0f} % ({w['worst_pixel'][0]}, {w['worst_pixel'][1]}) | "
                      f"{100 * w['silhouette_pixels']:.0f} %, {100 * w['silhouette_share']:.0f} % |")
     return "\n".join(lines)
 
