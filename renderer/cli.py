@@ -100,6 +100,10 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--min-sigma-texels", type=float,
                    help="least deviation of the depths under a shadow-map texel, in that map's texels, 0-16: "
                         "keeps sloped surfaces from shadowing themselves (default: the preset's)")
+    q.add_argument("--contact-shadow-texels", type=float,
+                   help="contact shadows: occluders within this many of the main maps' texels of a surface, which "
+                        "the maps' bias skips, found along screen lines in the camera's view, 0-64; 0: off, the "
+                        "paper (default: the preset's)")
     q.add_argument("--small-light-min-energy", type=float,
                    help="only small lights carrying at least this many times the mean light's energy get those "
                         "maps; 0: every small light (default: the preset's)")

@@ -22,7 +22,7 @@ def knob_defaults() -> dict:
             "small_light_min_energy": f.small_light_min_energy, "sharp_large_lights": f.sharp_large_lights,
             "sharp_share_deg": f.sharp_share_deg, "sharp_max_maps": f.sharp_max_maps,
             "normal_offset_texels": f.normal_offset_texels, "sharp_normal_offset_texels": f.sharp_normal_offset_texels,
-            "min_sigma_texels": f.min_sigma_texels}
+            "min_sigma_texels": f.min_sigma_texels, "contact_shadow_texels": f.contact_shadow_texels}
 
 
 def merge_knobs(base: dict, explicit: dict) -> dict:
@@ -87,7 +87,8 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 # linear time (96 lights: about twice) for 2-31 % less error; the accurate preset spends time on
 # shadow maps.
 DEFAULT_PRESETS = {
-    "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 0.0, "caster_detail": 0.1},
+    "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 0.0, "caster_detail": 0.1,
+             "contact_shadow_texels": 5.0},
     "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.0, "caster_detail": 0.25,
                  "small_light_scale": 4, "small_light_min_energy": 2.4, "sharp_share_deg": 2.0,
                  "diffuse": "mixed", "glossy": "wide"},

@@ -67,6 +67,10 @@ class Background(str, Enum):
 
 # Shadow bias beyond this many texels moves shadows visibly off their casters.
 MAX_BIAS_TEXELS = 16.0
+# Contact shadows search the screen this far (in main-map texels); the search's steps are capped.
+MAX_CONTACT_TEXELS = 64.0
+# Screen lines (slices) and steps per side of the contact-shadow search (lighting.frag).
+CONTACT_SLICES, CONTACT_STEPS = 4, 8
 
 
 @dataclass(frozen=True)
@@ -84,6 +88,10 @@ class FrameSettings:
     normal_offset_texels: float = 1.5
     sharp_normal_offset_texels: float = 2.0
     min_sigma_texels: float = 3.0
+    # Contact shadows (full mode; lighting.frag): occluders within this many main-map texels of a
+    # surface, which the maps' bias skips, found in the geometry pass's positions along screen lines
+    # (the collar over the neck). 0: off (the paper).
+    contact_shadow_texels: float = 8.0
     shadow_threshold: float = 0.0  # lights below this share of the energy get no shadow map
     # Share of the casters' triangles the shadow pass draws (shadows/proxy.py; 1: the meshes
     # themselves): the pass costs per triangle on a CPU rasterizer.
@@ -171,6 +179,9 @@ class FrameSettings:
             raise InvalidInputError(f"glossy must be one of {', '.join(GLOSSY_SOURCES)}, got {self.glossy!r}")
         if self.diffuse not in DIFFUSE_SOURCES:
             raise InvalidInputError(f"diffuse must be one of {', '.join(DIFFUSE_SOURCES)}, got {self.diffuse!r}")
+        if isinstance(self.contact_shadow_texels, bool) or not (0.0 <= self.contact_shadow_texels <= MAX_CONTACT_TEXELS):
+            raise InvalidInputError(f"contact_shadow_texels is a number of texels in [0, {MAX_CONTACT_TEXELS:g}], "
+                                    f"got {self.contact_shadow_texels!r}")   # also refuses NaN
         for name in ("normal_offset_texels", "sharp_normal_offset_texels", "min_sigma_texels"):
             value = getattr(self, name)
             if isinstance(value, bool) or not (0.0 <= value <= MAX_BIAS_TEXELS):   # also refuses NaN
@@ -269,14 +280,15 @@ class Renderer:
         self._programs = {"moments": self._shadow_prog, "gbuffer": self.gbuffer_prog}
 
     def _shade_variant(self, mode: ShadingMode, diffuse: str, two_textures: bool,
-                       glossy: str = "pem") -> tuple[moderngl.Program, moderngl.VertexArray]:
+                       glossy: str = "pem", contact: bool = False) -> tuple[moderngl.Program, moderngl.VertexArray]:
         """The lighting program of a mode and diffuse source (a full-screen pass over the geometry
         pass's targets), compiled on first use (one variant each; the diffuse source matters to the
         full and no-occlusion modes only); `two_textures`: the PEM set spans two textures (more than
         REGIONS_PER_TEXTURE regions), whose second needs loops of its own."""
         closed = _no_diffuse_pems(mode, diffuse)
         wide = glossy == "wide" and mode in _CLOSED_FORM_MODES
-        key = (mode, diffuse if closed else "pem", two_textures, wide)
+        contact = contact and mode is ShadingMode.FULL
+        key = (mode, diffuse if closed else "pem", two_textures, wide, contact)
         if key not in self._shade_progs:
             defines = {**self._defines, "MODE": _MODE_INDEX[mode], "TWO_PEM_TEXTURES": int(two_textures)}
             if wide:
@@ -285,6 +297,8 @@ class Renderer:
                 defines["DIFFUSE_LIGHTS"] = 1   # no diffuse PEM lookups
             if closed and diffuse == "sh":
                 defines["DIFFUSE_SH"] = 1
+            if contact:
+                defines.update(CONTACT_SHADOWS=1, CONTACT_SLICES=CONTACT_SLICES, CONTACT_STEPS=CONTACT_STEPS)
             prog = program(self.gl.ctx, "shading/background.vert", "shading/lighting.frag", defines)
             self._shade_progs[key] = (prog, self.gl.ctx.vertex_array(prog, []))
         return self._shade_progs[key]
@@ -454,7 +468,23 @@ class Renderer:
             ctx.enable(moderngl.DEPTH_TEST)
             ctx.depth_func = ">"
             sh_on = settings.sh_unshadowed and settings.diffuse in ("pem", "mixed") and bool((layers < 0).any())
-            p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE, settings.glossy)
+            contact = settings.contact_shadow_texels > 0 and n_shadowed > 0
+            p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE, settings.glossy,
+                                         contact)
+            if "u_contact_radius" in p:
+                # In main-map texels (the maps whose bias hides the contact), else the sharp maps'.
+                texel = lights["shadow"][:, 2][lights["shadow"][:, 0] >= 0]
+                main = texel[lights["shadow"][:, 1][lights["shadow"][:, 0] >= 0] < 0.5]
+                p["u_contact_radius"] = float(settings.contact_shadow_texels * np.median(main if len(main) else texel))
+                p["u_view_proj"].write(vp_bytes)
+                # Per light, what contact_visibility needs of it alone: its direction in clip space
+                # (x, y, w) and its angular radius (at least 0.01 rad: a sun's edge a few pixels wide).
+                lc = np.einsum("ij,nj->ni", view_proj[:, :3], lights["dir_scale"][:, :3].astype(np.float64))
+                screen = np.stack([lc[:, 0], lc[:, 1], lc[:, 3],
+                                   np.maximum(np.arcsin(np.clip(lights["params"][:, 3], 0, 1)), 0.01)], axis=1)
+                self._buffer("light_screen", screen.astype(np.float32).tobytes()).bind_to_storage_buffer(5)
+                p["u_image_size"] = (float(w), float(h))
+                p["u_focal_px"] = 0.5 * h / float(np.tan(np.radians(camera.fov_y_deg) / 2.0))
             order, kind_end = light_kinds(lights, plan.sharp, settings, sh_on)
             self._buffer("light_order", order.tobytes()).bind_to_storage_buffer(4)
             if "u_kind_end" in p:   # the compiler keeps the entries up to the last kind this variant loops over

@@ -9,7 +9,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from renderer.presets import knob_defaults
-from renderer.renderer import MAX_BIAS_TEXELS, MAX_SHARP_SHARE_DEG
+from renderer.renderer import MAX_BIAS_TEXELS, MAX_CONTACT_TEXELS, MAX_SHARP_SHARE_DEG
 
 
 class Preset(str, Enum):
@@ -119,6 +119,9 @@ class QualitySpec(_Strict):
     min_sigma_texels: float = Field(_KNOB["min_sigma_texels"], ge=0.0, le=MAX_BIAS_TEXELS, strict=True,
                                     description="least deviation of the depths under a shadow-map texel, in that "
                                     "map's texels (keeps sloped surfaces from shadowing themselves)")
+    contact_shadow_texels: float = Field(_KNOB["contact_shadow_texels"], ge=0.0, le=MAX_CONTACT_TEXELS, strict=True,
+                                         description="contact shadows: occluders within this many of the main "
+                                         "maps' texels of a surface, found in the camera's view (0: off)")
     small_light_min_energy: float = Field(_KNOB["small_light_min_energy"], ge=0.0, le=1e6, description="only small "
                                           "lights carrying at least this many times the mean light's energy get "
                                           "those maps (0: every small light)")

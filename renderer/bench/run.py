@@ -61,12 +61,15 @@ SWEEPS = {
     "sharp_normal_offset_texels": [1.0, 3.3],
     "min_sigma_texels": [0.0, 6.0],
     "shadow_bias": [OLD_SHADOW_BIAS],
+    # Contact shadows (0: the paper's method without them), in main-map texels.
+    "contact_shadow_texels": [0.0, 3.0, 8.0],
     # The other default presets, measured as a whole beside balanced.
     "preset": [DEFAULT_PRESETS["fast"], DEFAULT_PRESETS["accurate"]],
 }
 QUICK_SWEEPS = {**SWEEPS, "lights": [6, 24, 48, 96], "face_size": [64, 128], "shadow_size": [128, 256],
                 "blur_scale": [0.0, 0.1, 1.0], "filter": ["none", "sqrt-cosine"], "shadow_threshold": [0.01],
-                "caster_detail": [1.0], "small_light_scale": [1, 2], "small_light_min_energy": [0.0]}
+                "caster_detail": [1.0], "small_light_scale": [1, 2], "small_light_min_energy": [0.0],
+                "contact_shadow_texels": [0.0]}
 BASELINE_MODES = [ShadingMode.NO_OCCLUSION, ShadingMode.MANY_LIGHTS, ShadingMode.AO_GREY, ShadingMode.AO_COLOUR]
 
 

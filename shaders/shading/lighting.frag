@@ -83,6 +83,75 @@ float visibility(int i, vec3 ws_pos, vec3 n, bool sharp) {
     return linstep(u_bleed_reduction, 1.0, p_max);
 }
 
+#ifdef CONTACT_SHADOWS
+// Contact shadows (full mode): occluders nearer than a shadow map resolves. A light's map sees
+// nothing closer than its normal offset and its variance floor, a few of its texels (millimetres on
+// a garment): a collar over the neck, a fold's lips. The geometry pass's positions do: per pixel, the
+// horizon within u_contact_radius (world units) along CONTACT_SLICES screen lines through the pixel,
+// each a plane through the eye, the pixel and the line (so it holds the view direction). A light lies
+// in the slice of its own screen direction; it is hidden there where it is farther from the view
+// direction than the horizon, by the share of its disc beyond the horizon. VIS_i takes the smaller
+// of this and the shadow map's. Only what the camera sees can occlude (what hides behind the visible
+// surface is the map's), within the radius only (a sheet seen in front is taken as solid).
+uniform mat4 u_view_proj;        // the camera's
+uniform vec2 u_image_size;       // pixels
+uniform float u_focal_px;        // pixels per unit of view-space slope: height / (2 tan(fov_y / 2))
+uniform float u_contact_radius;  // world units
+// Sine of the least elevation above the triangle's plane at which a neighbour occludes: a mesh's
+// facets bend by a few degrees between neighbouring pixels on a smooth surface.
+const float CONTACT_MIN_ELEVATION = 0.1;
+const int CONTACT_DIRS = 2 * CONTACT_SLICES;   // screen direction k at angle k pi / CONTACT_SLICES
+float g_horizon[CONTACT_DIRS];   // per direction: the horizon's angle from the view direction (2 pi: none)
+// Per light: xy, w of the camera's view_proj times (direction, 0); z: its angular radius (radians).
+layout(std430, binding = 5) readonly buffer LightScreen { vec4 light_screen[]; };
+vec4 g_clip;                     // the pixel's clip-space position
+
+void contact_horizons(vec3 p, vec3 v, vec3 plane, ivec2 px) {
+    g_clip = u_view_proj * vec4(p, 1.0);
+    ivec2 size = ivec2(u_image_size);
+    float radius_px = u_contact_radius * u_focal_px / max(g_clip.w, 1e-30);
+    // A step per two pixels of the radius, at most CONTACT_STEPS.
+    int steps = clamp(int(ceil(0.5 * radius_px)), 1, CONTACT_STEPS);
+    for (int k = 0; k < CONTACT_DIRS; ++k) {
+        float phi = float(k) * (PI / float(CONTACT_SLICES));
+        vec2 d = vec2(cos(phi), sin(phi));
+        d /= max(abs(d.x), abs(d.y));   // whole pixels along the major axis
+        float h = -1.0;
+        for (int j = 1; j <= steps; ++j) {
+            // Denser near the pixel (the nearest occluders are the ones the maps miss), a pixel apart at least.
+            float t = float(j) / float(steps);
+            ivec2 q = px + ivec2(round(d * max(radius_px * t * t, float(j))));
+            if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, size))) break;
+            if (texelFetch(u_g_geometric, q, 0).w < 0.5) continue;   // background
+            vec3 e = texelFetch(u_g_position, q, 0).xyz - p;
+            float len = length(e);
+            // Only what rises above the surface's own plane: the plane itself is the terminator's and
+            // the PEMs' (a flat or convex neighbourhood hides nothing more).
+            if (!(dot(e, plane) > CONTACT_MIN_ELEVATION * len)) continue;
+            // Fades out over the radius' outer half, so that an occluder crossing it does not flicker.
+            float w = 1.0 - smoothstep(0.5 * u_contact_radius, u_contact_radius, len);
+            h = max(h, mix(-1.0, dot(e, v) / len, w));
+        }
+        // Nothing above the plane: beyond any light, so that even one behind the pixel (near pi from
+        // the view direction at a silhouette) keeps its whole disc.
+        g_horizon[k] = h > -1.0 ? acos(h) : 2.0 * PI;
+    }
+}
+
+float contact_visibility(int i, vec3 v) {
+    vec4 ls = light_screen[i];
+    // The screen direction of the light at the pixel: d(ndc)/dt of p + t l, in pixels (a positive
+    // factor dropped).
+    vec2 d = (ls.xy * g_clip.w - g_clip.xy * ls.z) * u_image_size;
+    float x = dot(d, d) > 0.0 ? atan(d.y, d.x) * (float(CONTACT_SLICES) / PI) : 0.0;
+    x = x < 0.0 ? x + float(CONTACT_DIRS) : x;
+    int k0 = min(int(x), CONTACT_DIRS - 1);
+    float theta_h = mix(g_horizon[k0], g_horizon[(k0 + 1) % CONTACT_DIRS], x - float(k0));
+    float theta_l = acos(clamp(dot(lights[i].dir_scale.xyz, v), -1.0, 1.0));
+    return clamp(0.5 + (theta_h - theta_l) / (2.0 * ls.w), 0.0, 1.0);
+}
+#endif
+
 // E(n) from the SH9 irradiance coefficients (the basis of renderer/lighting/sh.py).
 vec3 sh_irradiance(vec3 n) {
     vec3 e = u_sh[0] * 0.282095
@@ -105,6 +174,7 @@ uniform bool u_terminator;             // FrameSettings.terminator
 
 // Accumulators of main(), shared with add_light() (GLSL has no closures).
 vec3 g_geometric_normal = vec3(0.0, 0.0, 1.0);  // the triangle's plane, facing the camera
+vec3 g_to_eye = vec3(0.0, 0.0, 1.0);            // unit, from the pixel's surface point to the eye
 vec3 g_reflect = vec3(0.0, 0.0, 1.0);           // the view direction reflected about the shading normal
 vec3 g_diffuse = vec3(0.0), g_glossy = vec3(0.0), g_ao_rgb = vec3(0.0), g_ao_norm = vec3(0.0);
 
@@ -228,6 +298,9 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos, bool pem_diff
     else g_glossy += pem_g;
 #elif MODE == 0
     float vis = visibility(i, ws_pos, n, sharp);
+#ifdef CONTACT_SHADOWS
+    if (lights[i].shadow.x >= 0.0) vis = min(vis, contact_visibility(i, g_to_eye));
+#endif
     if (u_horizon) {
         // The tangent plane blocks light from below the surface. A shadow map cannot see this on
         // open cloth (the sheet itself is the first surface from a light behind it) and the PEM's
@@ -298,6 +371,10 @@ void main() {
     vec3 to_eye = normalize(u_camera_pos - ws_position);
     vec3 r = reflect(-to_eye, n);
     g_reflect = r;
+    g_to_eye = to_eye;
+#ifdef CONTACT_SHADOWS
+    contact_horizons(ws_position, to_eye, g_geometric_normal, px);
+#endif
     g_gloss = material.y;
     float specular = material.x;
 #ifdef DIFFUSE_SH
