@@ -40,6 +40,18 @@ def test_presets_follow_the_error_targets():
     assert (p["fast"]["lights"], p["balanced"]["lights"], p["accurate"]["lights"]) == (24, 48, 96)
 
 
+def test_a_preset_is_never_slower_than_the_one_above_it():
+    # Only the slow settings are within 10 %: none of them is a fast preset. Balanced is then the
+    # default's entry (48 lights, 60 ms): a 10 % setting must beat that too.
+    rows = [_row("a", 6, 10, 0.20), _row("a", 48, 60, 0.12), _row("a", 192, 300, 0.09), _row("a", 384, 600, 0.08)]
+    table = summarize({**BENCH, "rows": rows})
+    default = {k: v for k, v in table["entries"][1]["settings"].items()}
+    p = presets(table, {"balanced": default})
+    assert p["accurate"]["lights"] == 384 and "balanced" not in p and "fast" not in p
+    # Without the default's entry the bound is the preset above: 192 lights is faster than accurate.
+    assert presets(table)["fast"]["lights"] == 192
+
+
 def test_a_budget_sets_every_measured_knob_unless_a_flag_says_otherwise(monkeypatch):
     import renderer.bench.budget as budget
     from renderer.cli import build_parser, resolve_quality

@@ -100,13 +100,28 @@ def budget_knobs(frame_budget_ms: float | None, error_budget: float | None,
     return knobs, entry["settings"].get("filter", "sqrt-cosine"), source
 
 
-def presets(table: dict) -> dict[str, dict]:
-    """fast / balanced: the fastest settings within 10 % / 5 % worst error; accurate: the lowest error."""
-    out = {}
-    for name, err in PRESET_ERROR.items():
+def _entry_of(table: dict, knobs: dict) -> dict | None:
+    """The table's entry of exactly these knobs (every KNOBS value), if it was measured."""
+    want = tuple(knobs.get(k) for k in KNOBS)
+    return next((e for e in table["entries"] if tuple(e["settings"].get(k) for k in KNOBS) == want), None)
+
+
+def presets(table: dict, defaults: dict[str, dict] | None = None) -> dict[str, dict]:
+    """accurate: the lowest error; balanced / fast: the fastest settings within 5 % / 10 % worst error,
+    each no slower than the preset above it (a 10 % setting that takes longer than balanced is no fast
+    preset). `defaults`: a preset's knobs when the table has none for it (their entry's time is then
+    the bound for the preset below). Presets the table has no setting for are left out."""
+    best = choose(table)
+    out = {"accurate": best["settings"]}
+    bound = best["median_frame_ms"]
+    for name in ("balanced", "fast"):
         try:
-            out[name] = choose(table, error_budget=err)["settings"]
+            entry = choose(table, error_budget=PRESET_ERROR[name])
         except InvalidInputError:
-            pass
-    out["accurate"] = choose(table)["settings"]
+            entry = None
+        if entry is not None and entry["median_frame_ms"] <= bound:
+            out[name] = entry["settings"]
+        else:
+            entry = _entry_of(table, defaults[name]) if defaults and name in defaults else None
+        bound = entry["median_frame_ms"] if entry is not None else bound
     return out

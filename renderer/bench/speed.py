@@ -37,6 +37,8 @@ VARIANTS = {
     "balanced, one map per sharp light": {"sharp_share_deg": 0.0},
     "balanced, bright large lights' maps at scale 4 too": {"sharp_large_lights": True},
     "balanced, bright large lights too, at most 2 sharp maps": {"sharp_large_lights": True, "sharp_max_maps": 2},
+    "balanced, no contact shadows": {"contact_shadow_texels": 0.0},
+    "balanced, large lights' diffuse term from the PEMs": {"diffuse": "mixed"},
     "fast": "fast",
     "accurate": "accurate",
 }

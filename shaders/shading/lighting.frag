@@ -102,7 +102,8 @@ uniform float u_contact_radius;  // world units
 const float CONTACT_MIN_ELEVATION = 0.1;
 const int CONTACT_DIRS = 2 * CONTACT_SLICES;   // screen direction k at angle k pi / CONTACT_SLICES
 float g_horizon[CONTACT_DIRS];   // per direction: the horizon's angle from the view direction (2 pi: none)
-// Per light: xy, w of the camera's view_proj times (direction, 0); z: its angular radius (radians).
+// Per light: xyz = x, y, w of the camera's view_proj times (direction, 0); w: its angular radius
+// (radians, at least 0.01).
 layout(std430, binding = 5) readonly buffer LightScreen { vec4 light_screen[]; };
 vec4 g_clip;                     // the pixel's clip-space position
 
