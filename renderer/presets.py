@@ -95,12 +95,13 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 # lower on all five (worst 0.107 -> 0.091), and no diffuse PEM lookups (the bench's diffuse rows).
 DEFAULT_PRESETS = {
     "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 0.0, "caster_detail": 0.1,
-             "contact_shadow_texels": 5.0},
+             "contact_shadow_texels": 12.0},
     "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.0, "caster_detail": 0.25,
                  "small_light_scale": 4, "small_light_min_energy": 2.4, "sharp_share_deg": 2.0,
                  "diffuse": "lights", "glossy": "wide"},
     "accurate": {"lights": 48, "face_size": 128, "shadow_size": 512, "blur_scale": 0.0, "caster_detail": 1.0,
-                 "small_light_scale": 2, "sharp_share_deg": 2.0, "diffuse": "mixed", "glossy": "wide"},
+                 "small_light_scale": 2, "sharp_share_deg": 2.0, "diffuse": "lights", "glossy": "wide",
+                 "contact_shadow_texels": 48.0},
 }
 
 

@@ -89,9 +89,10 @@ class FrameSettings:
     sharp_normal_offset_texels: float = 2.0
     min_sigma_texels: float = 3.0
     # Contact shadows (full mode; lighting.frag): occluders within this many main-map texels of a
-    # surface, which the maps' bias skips, found in the geometry pass's positions along screen lines
-    # (the collar over the neck). 0: off (the paper).
-    contact_shadow_texels: float = 8.0
+    # surface, found in the geometry pass's positions along screen lines: those the maps' bias skips
+    # (the collar over the neck) and the near ones a 256^2 map drawn from a proxy blurs (a fold's
+    # lips). 0: off (the paper). Chosen on the benchmark scenes (docs/benchmarks.md).
+    contact_shadow_texels: float = 24.0
     shadow_threshold: float = 0.0  # lights below this share of the energy get no shadow map
     # Share of the casters' triangles the shadow pass draws (shadows/proxy.py; 1: the meshes
     # themselves): the pass costs per triangle on a CPU rasterizer.
@@ -429,7 +430,9 @@ class Renderer:
             # Geometry pass: nearest surface's position, normals and material per pixel.
             gbuf_fbo.use()
             ctx.viewport = (0, 0, w, h)
-            gbuf_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+            # w = -1 marks a pixel no surface covers (a covered one's are >= 0: specular weight,
+            # glossiness, 1, 1), so that the lighting pass's contact search reads positions alone.
+            gbuf_fbo.clear(0.0, 0.0, 0.0, -1.0, depth=1.0)
             ctx.enable(moderngl.DEPTH_TEST)
             ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
             ctx.depth_func = "<"
@@ -478,7 +481,8 @@ class Renderer:
                 p["u_contact_radius"] = float(settings.contact_shadow_texels * np.median(main if len(main) else texel))
                 p["u_view_proj"].write(vp_bytes)
                 # Per light, what contact_visibility needs of it alone: its direction in clip space
-                # (x, y, w) and its angular radius (at least 0.01 rad: a sun's edge a few pixels wide).
+                # (x, y, w) and its angular radius, the width of its visibility's ramp across a horizon
+                # (at least 0.01 rad, so that the ramp has a width).
                 lc = np.einsum("ij,nj->ni", view_proj[:, :3], lights["dir_scale"][:, :3].astype(np.float64))
                 screen = np.stack([lc[:, 0], lc[:, 1], lc[:, 3],
                                    np.maximum(np.arcsin(np.clip(lights["params"][:, 3], 0, 1)), 0.01)], axis=1)

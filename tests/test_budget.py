@@ -48,8 +48,11 @@ def test_a_preset_is_never_slower_than_the_one_above_it():
     default = {k: v for k, v in table["entries"][1]["settings"].items()}
     p = presets(table, {"balanced": default})
     assert p["accurate"]["lights"] == 384 and "balanced" not in p and "fast" not in p
-    # Without the default's entry the bound is the preset above: 192 lights is faster than accurate.
-    assert presets(table)["fast"]["lights"] == 192
+    # Without the default's entry nothing is shown to be faster than balanced: no measured fast preset.
+    assert set(presets(table)) == {"accurate"}
+    # With a measured balanced, a 10 % setting faster than it is the fast preset.
+    rows.append(_row("a", 24, 30, 0.095))
+    assert presets(summarize({**BENCH, "rows": rows}), {"balanced": default})["fast"]["lights"] == 24
 
 
 def test_a_budget_sets_every_measured_knob_unless_a_flag_says_otherwise(monkeypatch):

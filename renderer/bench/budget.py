@@ -109,8 +109,10 @@ def _entry_of(table: dict, knobs: dict) -> dict | None:
 def presets(table: dict, defaults: dict[str, dict] | None = None) -> dict[str, dict]:
     """accurate: the lowest error; balanced / fast: the fastest settings within 5 % / 10 % worst error,
     each no slower than the preset above it (a 10 % setting that takes longer than balanced is no fast
-    preset). `defaults`: a preset's knobs when the table has none for it (their entry's time is then
-    the bound for the preset below). Presets the table has no setting for are left out."""
+    preset). `defaults`: a preset's knobs when the table has none for it: their entry's time is then
+    the bound for the preset below, and without an entry (the default was not measured) the presets
+    below cannot be shown to be faster and are left to their defaults too. Presets the table has no
+    setting for are left out."""
     best = choose(table)
     out = {"accurate": best["settings"]}
     bound = best["median_frame_ms"]
@@ -123,5 +125,5 @@ def presets(table: dict, defaults: dict[str, dict] | None = None) -> dict[str, d
             out[name] = entry["settings"]
         else:
             entry = _entry_of(table, defaults[name]) if defaults and name in defaults else None
-        bound = entry["median_frame_ms"] if entry is not None else bound
+        bound = entry["median_frame_ms"] if entry is not None else -1.0
     return out

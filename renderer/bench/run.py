@@ -62,7 +62,7 @@ SWEEPS = {
     "min_sigma_texels": [0.0, 6.0],
     "shadow_bias": [OLD_SHADOW_BIAS],
     # Contact shadows (0: the paper's method without them), in main-map texels.
-    "contact_shadow_texels": [0.0, 3.0, 8.0],
+    "contact_shadow_texels": [0.0, 8.0, 48.0],
     # The other default presets, measured as a whole beside balanced.
     "preset": [DEFAULT_PRESETS["fast"], DEFAULT_PRESETS["accurate"]],
 }

@@ -14,7 +14,7 @@ uniform bool u_use_albedo_map;
 uniform bool u_use_gloss_map;
 uniform vec3 u_camera_pos;
 
-layout(location = 0) out vec4 o_position;   // xyz: world position; w: specular weight
+layout(location = 0) out vec4 o_position;   // xyz: world position; w: specular weight (>= 0; -1: no surface)
 layout(location = 1) out vec4 o_normal;     // xyz: shading normal, turned to the seen side; w: glossiness g
 layout(location = 2) out vec4 o_geometric;  // xyz: the triangle's own plane normal, facing the camera; w: 1 (covered)
 layout(location = 3) out vec4 o_albedo;     // rgb: diffuse reflectance; a: 1 (covered)

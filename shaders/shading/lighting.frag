@@ -90,7 +90,8 @@ float visibility(int i, vec3 ws_pos, vec3 n, bool sharp) {
 // horizon within u_contact_radius (world units) along CONTACT_SLICES screen lines through the pixel,
 // each a plane through the eye, the pixel and the line (so it holds the view direction). A light lies
 // in the slice of its own screen direction; it is hidden there where it is farther from the view
-// direction than the horizon, by the share of its disc beyond the horizon. VIS_i takes the smaller
+// direction than the horizon, linearly across its disc (its angular radius either side), and between
+// two slices the two visibilities are interpolated. VIS_i takes the smaller
 // of this and the shadow map's. Only what the camera sees can occlude (what hides behind the visible
 // surface is the map's), within the radius only (a sheet seen in front is taken as solid).
 uniform mat4 u_view_proj;        // the camera's
@@ -123,8 +124,9 @@ void contact_horizons(vec3 p, vec3 v, vec3 plane, ivec2 px) {
             float t = float(j) / float(steps);
             ivec2 q = px + ivec2(round(d * max(radius_px * t * t, float(j))));
             if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, size))) break;
-            if (texelFetch(u_g_geometric, q, 0).w < 0.5) continue;   // background
-            vec3 e = texelFetch(u_g_position, q, 0).xyz - p;
+            vec4 s = texelFetch(u_g_position, q, 0);
+            if (s.w < 0.0) continue;   // no surface there (the geometry pass clears w to -1)
+            vec3 e = s.xyz - p;
             float len = length(e);
             // Only what rises above the surface's own plane: the plane itself is the terminator's and
             // the PEMs' (a flat or convex neighbourhood hides nothing more).
@@ -135,7 +137,7 @@ void contact_horizons(vec3 p, vec3 v, vec3 plane, ivec2 px) {
         }
         // Nothing above the plane: beyond any light, so that even one behind the pixel (near pi from
         // the view direction at a silhouette) keeps its whole disc.
-        g_horizon[k] = h > -1.0 ? acos(h) : 2.0 * PI;
+        g_horizon[k] = h > -1.0 ? acos(clamp(h, -1.0, 1.0)) : 2.0 * PI;
     }
 }
 
@@ -147,9 +149,12 @@ float contact_visibility(int i, vec3 v) {
     float x = dot(d, d) > 0.0 ? atan(d.y, d.x) * (float(CONTACT_SLICES) / PI) : 0.0;
     x = x < 0.0 ? x + float(CONTACT_DIRS) : x;
     int k0 = min(int(x), CONTACT_DIRS - 1);
-    float theta_h = mix(g_horizon[k0], g_horizon[(k0 + 1) % CONTACT_DIRS], x - float(k0));
     float theta_l = acos(clamp(dot(lights[i].dir_scale.xyz, v), -1.0, 1.0));
-    return clamp(0.5 + (theta_h - theta_l) / (2.0 * ls.w), 0.0, 1.0);
+    // Per slice, the light's disc beyond that slice's horizon; then between the two slices (the angles
+    // themselves are not interpolated: a slice without an occluder has none to interpolate).
+    vec2 theta_h = vec2(g_horizon[k0], g_horizon[(k0 + 1) % CONTACT_DIRS]);
+    vec2 vis = clamp(0.5 + (theta_h - theta_l) / (2.0 * ls.w), 0.0, 1.0);
+    return mix(vis.x, vis.y, x - float(k0));
 }
 #endif
 
