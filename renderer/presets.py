@@ -67,32 +67,36 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 
 
 # A preset may also set any knob of knob_defaults() (its value wins over the default), chosen from the
-# benchmark (docs/benchmarks.md; numbers from the bench at a921258). Blur 0: the paper's blur changed
-# the error by 0 to +12 % at 48 lights, +70 % on the hard sun (the lights' many hard shadows already
-# add up to soft ones) for more time a frame. Caster detail 0.25: 0-3 % more error for 44-52 % less
-# frame time. The sun's shadow edges are the
+# benchmark (docs/benchmarks.md; numbers from the bench at c943bd6 unless a side run or an older bench
+# is named). Blur 0: the paper's blur changed the error by -4 to +1 % at 48 lights, +23 % on the hard
+# sun (the lights' many hard shadows already add up to soft ones) for more time a frame. Caster detail
+# 0.25: 0-2 % more error for 39-53 % less frame time. The sun's shadow edges are the
 # largest error left in sunlit scenes: balanced draws the maps of small lights with at least 2.4x the
-# mean light's energy (5 % of it at 48 lights: a sun) at four times the size (hard sun 0.246 ->
-# 0.190 against twice); the regions of one sun (a degree apart) share one map (sharp_share_deg 2: the
-# same error for 18-20 % less time on the hard sun side by side; the bench's sharp_share_deg rows); and it leaves
+# mean light's energy (5 % of it at 48 lights: a sun) at four times the size (hard sun 0.145 ->
+# 0.107 against twice); the regions of one sun (a degree apart) share one map (sharp_share_deg 2: the
+# same error for 18-20 % less time on the hard sun side by side at a921258; the bench's sharp_share_deg rows); and it leaves
 # the dim ones (an interior's ten lamps and windows) to the main maps, where sharp maps for all of
 # them cost 1.6x the frame time for less gain. Small lights' diffuse and glossy terms
 # in closed form (their disc through the cosine and the Phong lobe) instead of their PEMs'
-# prefiltered kernels: the studio dress 0.123 -> 0.052 at balanced (with the wide glossy lobes below),
-# no scene worse by more than 2 %; not in fast,
+# prefiltered kernels: the studio dress 0.123 -> 0.052 at balanced (at a921258, with the wide glossy
+# lobes below), no scene worse by more than 2 %; not in fast,
 # whose hard sun measured worse with them in a side run (not a bench row). The large lights' glossy
 # terms too where the lobe is wider than their disc (glossy "wide"): against "mixed" the studio
-# dress 0.077 -> 0.052, overcast 0.092 -> 0.083, night 0.097 -> 0.091, the hard sun 0.188 -> 0.190 with
-# lower FLIP (the bench's glossy rows); no worse at g = 0.5, 0.95 and 0.99 in a side run. Lights beyond 48 cost
-# linear time (96 lights: about twice) for 2-31 % less error; the accurate preset spends time on
-# shadow maps. Contact shadows (contact_shadow_texels, 8 main-map texels by default) find the
-# occluders the maps' bias skips (the collar over the dress form's neck): at balanced, hard sun
-# 0.190 -> 0.131, interior 0.141 -> 0.104, night 0.091 -> 0.066 (the bench's contact_shadow_texels
-# rows, bench at fcd0082); fast keeps 5, its maps' texels being twice as wide (its hard sun 0.229
-# at 5 against 0.277 at 8 in a side run). With them the large lights' diffuse term from their disc
-# too (diffuse "lights", balanced) against "mixed": studio dress 0.052 -> 0.032, overcast 0.077 ->
-# 0.070, night 0.066 -> 0.056, hard sun 0.131 -> 0.132, interior 0.104 -> 0.110 rel. RMSE, FLIP
-# lower on all five (worst 0.107 -> 0.091), and no diffuse PEM lookups (the bench's diffuse rows).
+# dress 0.058 -> 0.031, hard sun 0.109 -> 0.107, interior 0.090 -> 0.086, overcast 0.062 -> 0.048,
+# night 0.068 -> 0.046 (the bench's glossy rows); no worse at g = 0.5, 0.95 and 0.99 in a side run
+# (before the contact shadows). Lights beyond 48 cost linear time (96 lights: about 2.2x) for 0-17 %
+# less error; the default accurate preset spends time on shadow maps instead. Contact shadows (contact_shadow_texels) find the occluders the maps' bias skips and
+# the near ones a proxy's 256^2 map blurs (the collar over the dress form's neck, the lips of folds):
+# at balanced (24 main-map texels, about 12 cm there) against none, hard sun 0.198 -> 0.107,
+# interior 0.148 -> 0.086, overcast 0.079 -> 0.048, night 0.089 -> 0.046 rel. RMSE, FLIP lower on
+# all (the bench's contact_shadow_texels rows at c943bd6: 8 texels and 48 measure higher on the
+# shirt's worst maps). Fast and accurate keep the same distance in the scene (12 texels of 128^2
+# maps, 48 of 512^2: side runs put fast's hard sun at 0.211 with 12 against 0.233 with 5, and
+# accurate lowest at that distance). With them the large lights' diffuse term from their disc too
+# (diffuse "lights", balanced and accurate) against "mixed" (from the PEMs): studio dress 0.051 ->
+# 0.031, hard sun 0.113 -> 0.107, interior 0.086 -> 0.086, overcast 0.074 -> 0.048, night 0.067 ->
+# 0.046, FLIP lower on all five (worst 0.112 -> 0.087), and no diffuse PEM lookups (the bench's
+# diffuse rows).
 DEFAULT_PRESETS = {
     "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 0.0, "caster_detail": 0.1,
              "contact_shadow_texels": 12.0},
