@@ -94,3 +94,17 @@ def test_error_split_accounts_for_the_whole_error(tmp_path):
     assert 0.0 < row["silhouette_pixels"] < 1.0 and 0.0 <= row["silhouette_share"] <= 1.0
     assert json.loads((tmp_path / "split.json").read_text())["rows"][0]["rel_rmse"] == pytest.approx(row["rel_rmse"])
     assert (tmp_path / "split.png").stat().st_size > 1000 and "studio-dress" in (tmp_path / "split.md").read_text()
+
+
+def test_the_assets_folder_can_be_named(monkeypatch, tmp_path):
+    from conftest import asset
+    from renderer.bench import scenes
+
+    real = asset("sim", "newton_shirt_drape_f060.obj").parents[1]
+    monkeypatch.setenv(scenes.ASSETS_VARIABLE, str(tmp_path))      # an empty folder: no target scenes
+    assert scenes.shared_assets() == tmp_path and scenes.shared_scenes() == [] and scenes.large_scene() is None
+    monkeypatch.setenv(scenes.ASSETS_VARIABLE, str(real))
+    found = scenes.shared_scenes()
+    assert [s.name for s in found] == [f"newton-shirt/{k}" for k in scenes.TARGET_PROBES]
+    monkeypatch.delenv(scenes.ASSETS_VARIABLE)
+    assert scenes.shared_assets() == scenes.SHARED_ASSETS

@@ -3,6 +3,7 @@ assets (the newton shirt's last frame on its dress form under four probes of dif
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,6 +16,13 @@ from ..procedural import procedural_body, procedural_garment
 from ..shading.material import Material
 
 SHARED_ASSETS = Path(__file__).resolve().parents[2].parent / "shared" / "assets"
+# Where the shared assets are when not beside the project (a copy elsewhere on a benchmark machine).
+ASSETS_VARIABLE = "GARMENT_RENDER_ASSETS"
+
+
+def shared_assets() -> Path:
+    """The shared assets' folder: $GARMENT_RENDER_ASSETS when set, else ../shared/assets."""
+    return Path(os.environ[ASSETS_VARIABLE]) if os.environ.get(ASSETS_VARIABLE) else SHARED_ASSETS
 
 # The four probes of different kinds named by the accuracy target (issue 3, section 7).
 TARGET_PROBES = {
@@ -52,15 +60,16 @@ def bundled_scene() -> BenchScene:
 
 
 def shared_scenes(probes: dict[str, str] = TARGET_PROBES) -> list[BenchScene]:
-    """The target scenes, or [] when ../shared/assets is absent (a user's machine)."""
-    sim = SHARED_ASSETS / "sim"
+    """The target scenes, or [] when the shared assets are absent (a user's machine)."""
+    assets = shared_assets()
+    sim = assets / "sim"
     if not (sim / "newton_shirt_drape_f060.obj").exists():
         return []
     shirt = load_mesh(sim / "newton_shirt_drape_f060.obj", up="z")
     form = load_mesh(sim / "newton_shirt_drape_colliders.obj", up="z")
     out = []
     for kind, fname in probes.items():
-        path = SHARED_ASSETS / "hdri" / fname
+        path = assets / "hdri" / fname
         out.append(BenchScene(f"newton-shirt/{kind}", fname, [shirt, form], [GARMENT, BODY],
                               lambda f, path=path: load_environment(path, face_size=f, repair=True)))
     return out
