@@ -481,11 +481,11 @@ class Renderer:
                 p["u_contact_radius"] = float(settings.contact_shadow_texels * np.median(main if len(main) else texel))
                 p["u_view_proj"].write(vp_bytes)
                 # Per light, what contact_visibility needs of it alone: its direction in clip space
-                # (x, y, w) and its angular radius, the width of its visibility's ramp across a horizon
-                # (at least 0.01 rad, so that the ramp has a width).
+                # (x, y, w) and 1 / (2 x its angular radius), the radius being the half width of its
+                # visibility's ramp across a horizon (at least 0.01 rad, so that the ramp has a width).
                 lc = np.einsum("ij,nj->ni", view_proj[:, :3], lights["dir_scale"][:, :3].astype(np.float64))
-                screen = np.stack([lc[:, 0], lc[:, 1], lc[:, 3],
-                                   np.maximum(np.arcsin(np.clip(lights["params"][:, 3], 0, 1)), 0.01)], axis=1)
+                radius = np.maximum(np.arcsin(np.clip(lights["params"][:, 3], 0, 1)), 0.01)
+                screen = np.stack([lc[:, 0], lc[:, 1], lc[:, 3], 0.5 / radius], axis=1)
                 self._buffer("light_screen", screen.astype(np.float32).tobytes()).bind_to_storage_buffer(5)
                 p["u_image_size"] = (float(w), float(h))
                 p["u_focal_px"] = 0.5 * h / float(np.tan(np.radians(camera.fov_y_deg) / 2.0))

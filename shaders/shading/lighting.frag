@@ -102,9 +102,12 @@ uniform float u_contact_radius;  // world units
 // facets bend by a few degrees between neighbouring pixels on a smooth surface.
 const float CONTACT_MIN_ELEVATION = 0.1;
 const int CONTACT_DIRS = 2 * CONTACT_SLICES;   // screen direction k at angle k pi / CONTACT_SLICES
-float g_horizon[CONTACT_DIRS];   // per direction: the horizon's angle from the view direction (2 pi: none)
-// Per light: xyz = x, y, w of the camera's view_proj times (direction, 0); w: its angular radius
-// (radians, at least 0.01).
+// Per direction: the cosine of the horizon's angle from the view direction (-3: none, below any
+// light), and 1 / its sine (the ramp across a light's disc, linearized in the cosine).
+float g_horizon_cos[CONTACT_DIRS];
+float g_horizon_inv_sin[CONTACT_DIRS];
+// Per light: xyz = x, y, w of the camera's view_proj times (direction, 0); w: 1 / (2 x its angular
+// radius), the radius at least 0.01 radians.
 layout(std430, binding = 5) readonly buffer LightScreen { vec4 light_screen[]; };
 vec4 g_clip;                     // the pixel's clip-space position
 
@@ -135,9 +138,11 @@ void contact_horizons(vec3 p, vec3 v, vec3 plane, ivec2 px) {
             float w = 1.0 - smoothstep(0.5 * u_contact_radius, u_contact_radius, len);
             h = max(h, mix(-1.0, dot(e, v) / len, w));
         }
-        // Nothing above the plane: beyond any light, so that even one behind the pixel (near pi from
+        // Nothing above the plane: below any light, so that even one behind the pixel (near pi from
         // the view direction at a silhouette) keeps its whole disc.
-        g_horizon[k] = h > -1.0 ? acos(clamp(h, -1.0, 1.0)) : 2.0 * PI;
+        h = min(h, 1.0);
+        g_horizon_cos[k] = h > -1.0 ? h : -3.0;
+        g_horizon_inv_sin[k] = h > -1.0 ? inversesqrt(max(1.0 - h * h, 0.01)) : 1.0;
     }
 }
 
@@ -146,14 +151,20 @@ float contact_visibility(int i, vec3 v) {
     // The screen direction of the light at the pixel: d(ndc)/dt of p + t l, in pixels (a positive
     // factor dropped).
     vec2 d = (ls.xy * g_clip.w - g_clip.xy * ls.z) * u_image_size;
-    float x = dot(d, d) > 0.0 ? atan(d.y, d.x) * (float(CONTACT_SLICES) / PI) : 0.0;
-    x = x < 0.0 ? x + float(CONTACT_DIRS) : x;
+    // Its angle as a "diamond angle" in [0, 4): 0, 1, 2, 3 at 0, 90, 180, 270 degrees, 0.5 at 45,
+    // monotonic between (exact at the slices' directions: they are the weights' nodes), no atan.
+    float s = abs(d.x) + abs(d.y);
+    vec2 u = s > 0.0 ? d / s : vec2(1.0, 0.0);
+    float dia = u.y >= 0.0 ? (u.x >= 0.0 ? u.y : 1.0 - u.x) : (u.x < 0.0 ? 2.0 - u.y : 3.0 + u.x);
+    float x = dia * (float(CONTACT_SLICES) / 2.0);
     int k0 = min(int(x), CONTACT_DIRS - 1);
-    float theta_l = acos(clamp(dot(lights[i].dir_scale.xyz, v), -1.0, 1.0));
-    // Per slice, the light's disc beyond that slice's horizon; then between the two slices (the angles
-    // themselves are not interpolated: a slice without an occluder has none to interpolate).
-    vec2 theta_h = vec2(g_horizon[k0], g_horizon[(k0 + 1) % CONTACT_DIRS]);
-    vec2 vis = clamp(0.5 + (theta_h - theta_l) / (2.0 * ls.w), 0.0, 1.0);
+    int k1 = (k0 + 1) % CONTACT_DIRS;
+    float c = dot(lights[i].dir_scale.xyz, v);
+    // Per slice, the light's disc beyond that slice's horizon (the angle between them is the cosines'
+    // difference over the horizon's sine); then between the two slices (the horizons themselves are
+    // not interpolated: a slice without an occluder has none to interpolate).
+    vec2 vis = clamp(0.5 + (c - vec2(g_horizon_cos[k0], g_horizon_cos[k1]))
+                     * vec2(g_horizon_inv_sin[k0], g_horizon_inv_sin[k1]) * ls.w, 0.0, 1.0);
     return mix(vis.x, vis.y, x - float(k0));
 }
 #endif
