@@ -87,7 +87,7 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 # (before the contact shadows). Lights beyond 48 cost linear time (96 lights: about 2.2x) for 0-16 %
 # less error; the default accurate preset spends time on shadow maps instead. Contact shadows (contact_shadow_texels) find the occluders the maps' bias skips and
 # the near ones a proxy's 256^2 map blurs (the collar over the dress form's neck, the lips of folds):
-# at balanced (24 main-map texels, about 12 cm there) against none, hard sun 0.198 -> 0.111,
+# at balanced (24 main-map texels, about 10 cm there) against none, hard sun 0.198 -> 0.111,
 # interior 0.148 -> 0.087, overcast 0.079 -> 0.048, night 0.089 -> 0.046 rel. RMSE, FLIP lower on
 # all (the bench's contact_shadow_texels rows: 8 texels and 48 measure higher on the
 # shirt's worst maps). Fast and accurate keep the same distance in the scene (12 texels of 128^2

@@ -400,9 +400,9 @@ class Renderer:
         sharp_layer = plan.layer[plan.sharp]
         vp[plan.sharp] = vp[plan.sharp_lights[sharp_layer]]
         n_shadowed = int((layers >= 0).sum())
+        texels = texel_sizes(vp, sizes)
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
-                             sigma, plan.layer, disc_radius, plan.sharp,
-                             texel_sizes(vp, sizes))
+                             sigma, plan.layer, disc_radius, plan.sharp, texels)
         lights_buf = self._buffer("lights", lights.tobytes())
         # The main array (casters at caster_detail; a proxy is made only when one is drawn: a large
         # mesh's takes seconds), then the small lights' array (casters at full detail).
@@ -474,18 +474,19 @@ class Renderer:
             contact = settings.contact_shadow_texels > 0 and n_shadowed > 0
             p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE, settings.glossy,
                                          contact)
+            contact_radius = 0.0
             if "u_contact_radius" in p:
                 # In main-map texels (the maps whose bias hides the contact), else the sharp maps'.
-                texel = lights["shadow"][:, 2][lights["shadow"][:, 0] >= 0]
-                main = texel[lights["shadow"][:, 1][lights["shadow"][:, 0] >= 0] < 0.5]
-                p["u_contact_radius"] = float(settings.contact_shadow_texels * np.median(main if len(main) else texel))
+                shadowed = layers >= 0
+                main = shadowed & ~plan.sharp
+                contact_radius = settings.contact_shadow_texels * float(np.median(texels[main if main.any() else shadowed, 0]))
+                p["u_contact_radius"] = contact_radius
                 p["u_view_proj"].write(vp_bytes)
                 # Per light, what contact_visibility needs of it alone: its direction in clip space
                 # (x, y, w) and 1 / (2 x its angular radius), the radius being the half width of its
                 # visibility's ramp across a horizon (at least 0.01 rad, so that the ramp has a width).
-                lc = np.einsum("ij,nj->ni", view_proj[:, :3], lights["dir_scale"][:, :3].astype(np.float64))
-                radius = np.maximum(np.arcsin(np.clip(lights["params"][:, 3], 0, 1)), 0.01)
-                screen = np.stack([lc[:, 0], lc[:, 1], lc[:, 3], 0.5 / radius], axis=1)
+                lc = np.einsum("ij,nj->ni", view_proj[:, :3], regions.directions)
+                screen = np.stack([lc[:, 0], lc[:, 1], lc[:, 3], 0.5 / np.clip(disc_radius, 0.01, np.pi / 2)], axis=1)
                 self._buffer("light_screen", screen.astype(np.float32).tobytes()).bind_to_storage_buffer(5)
                 p["u_image_size"] = (float(w), float(h))
                 p["u_focal_px"] = 0.5 * h / float(np.tan(np.radians(camera.fov_y_deg) / 2.0))
@@ -533,7 +534,9 @@ class Renderer:
         info = {"frame": settings.as_dict(), "pems": pems.summary(),
                 "camera": {"eye": list(camera.eye), "target": list(camera.target), "fov_y_deg": camera.fov_y_deg},
                 "shadow_bytes": sum(a.nbytes for a in arrays.values()) if n_shadowed else 0,
-                "shadowed_lights": n_shadowed}
+                "shadowed_lights": n_shadowed,
+                # The contact search's distance in world units (0: none this frame).
+                "contact_radius": contact_radius}
         return Frame(image, timings, info)
 
     def release(self) -> None:

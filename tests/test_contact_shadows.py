@@ -101,6 +101,10 @@ def test_a_convex_body_does_not_shadow_itself(renderer):
         # Every neighbour on a convex body lies below the pixel's own triangle plane: unchanged (to
         # float32 rounding: the two are different programs).
         np.testing.assert_allclose(on.image, off.image, rtol=1e-4, atol=1e-6)
+        # The frame reports the search's distance in world units: the knob times a main-map texel.
+        half = renderer.render(scene, pems, dataclasses.replace(fs, contact_shadow_texels=MAX_CONTACT_TEXELS / 2), FRONT)
+        assert off.settings["contact_radius"] == 0.0 and half.settings["contact_radius"] > 0.0
+        assert on.settings["contact_radius"] == pytest.approx(2.0 * half.settings["contact_radius"])
     finally:
         pems.release()
         scene.release()
