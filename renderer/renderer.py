@@ -71,6 +71,10 @@ MAX_BIAS_TEXELS = 16.0
 MAX_CONTACT_TEXELS = 64.0
 # Screen lines (slices) and steps per side of the contact-shadow search (lighting.frag).
 CONTACT_SLICES, CONTACT_STEPS = 4, 8
+# How far behind what the camera sees the contact search takes it to be solid, in units of its radius:
+# a garment's near layer at a silhouette does not shadow the far layer from a light behind both
+# (docs/benchmarks.md).
+CONTACT_THICKNESS = 0.5
 
 
 @dataclass(frozen=True)
@@ -481,12 +485,13 @@ class Renderer:
                 main = shadowed & ~plan.sharp
                 contact_radius = settings.contact_shadow_texels * float(np.median(texels[main if main.any() else shadowed, 0]))
                 p["u_contact_radius"] = contact_radius
+                p["u_contact_thickness"] = CONTACT_THICKNESS * contact_radius
                 p["u_view_proj"].write(vp_bytes)
                 # Per light, what contact_visibility needs of it alone: its direction in clip space
-                # (x, y, w) and 1 / (2 x its angular radius), the radius being the half width of its
-                # visibility's ramp across a horizon (at least 0.01 rad, so that the ramp has a width).
+                # (x, y, w) and its angular radius (at least 0.01 rad: the disc's width across the
+                # occluded sectors, half a sector at least in the shader).
                 lc = np.einsum("ij,nj->ni", view_proj[:, :3], regions.directions)
-                screen = np.stack([lc[:, 0], lc[:, 1], lc[:, 3], 0.5 / np.clip(disc_radius, 0.01, np.pi / 2)], axis=1)
+                screen = np.stack([lc[:, 0], lc[:, 1], lc[:, 3], np.clip(disc_radius, 0.01, np.pi / 2)], axis=1)
                 self._buffer("light_screen", screen.astype(np.float32).tobytes()).bind_to_storage_buffer(5)
                 p["u_image_size"] = (float(w), float(h))
                 p["u_focal_px"] = 0.5 * h / float(np.tan(np.radians(camera.fov_y_deg) / 2.0))

@@ -87,31 +87,43 @@ float visibility(int i, vec3 ws_pos, vec3 n, bool sharp) {
 // Contact shadows (full mode): occluders nearer than a shadow map resolves. A light's map sees
 // nothing closer than its normal offset and its variance floor, a few of its texels (millimetres on
 // a garment): a collar over the neck, a fold's lips. The geometry pass's positions do: per pixel, the
-// horizon within u_contact_radius (world units) along CONTACT_SLICES screen lines through the pixel,
-// each a plane through the eye, the pixel and the line (so it holds the view direction). A light lies
-// in the slice of its own screen direction; it is hidden there where it is farther from the view
-// direction than the horizon, linearly across its disc (its angular radius either side), and between
-// two slices the two visibilities are interpolated. VIS_i takes the smaller
-// of this and the shadow map's. Only what the camera sees can occlude (what hides behind the visible
-// surface is the map's), within the radius only (a sheet seen in front is taken as solid).
+// neighbours within u_contact_radius (world units) along CONTACT_SLICES screen lines through the
+// pixel, each line with the eye a plane that holds the view direction (a slice). Each neighbour that
+// rises above the pixel's own plane is solid from its front (what the camera sees) to
+// u_contact_thickness behind it, and hides that range of angles from the view direction in its
+// slice: a mask of 32 sectors per half-slice (visibility bitmasks, after Therrien et al. 2023, here
+// uniform in the cosine so that no angle needs an acos). A light lies in the half-slice of its own
+// screen direction; the occluded share of its disc (its angular radius either side of its own
+// sector, half a sector at least) is read from the masks of the two neighbouring half-slices and
+// interpolated. VIS_i takes the smaller of this and the shadow map's. Only what the camera sees can
+// occlude (what hides behind the visible surface is the map's), within the radius only; a finite
+// thickness keeps a garment's near layer at a silhouette from shadowing the far layer from a light
+// behind both, which a horizon (a height field: everything behind the front is solid) did.
 uniform mat4 u_view_proj;        // the camera's
 uniform vec2 u_image_size;       // pixels
 uniform float u_focal_px;        // pixels per unit of view-space slope: height / (2 tan(fov_y / 2))
 uniform float u_contact_radius;  // world units
+uniform float u_contact_thickness;  // world units (renderer.py, CONTACT_THICKNESS)
 // Sine of the least elevation above the triangle's plane at which a neighbour occludes: a mesh's
 // facets bend by a few degrees between neighbouring pixels on a smooth surface.
 const float CONTACT_MIN_ELEVATION = 0.1;
 const int CONTACT_DIRS = 2 * CONTACT_SLICES;   // screen direction k at angle k pi / CONTACT_SLICES
-// Per direction: the cosine of the horizon's angle from the view direction (-3: none, below any
-// light), and 1 / its sine (the ramp across a light's disc, linearized in the cosine).
-float g_horizon_cos[CONTACT_DIRS];
-float g_horizon_inv_sin[CONTACT_DIRS];
-// Per light: xyz = x, y, w of the camera's view_proj times (direction, 0); w: 1 / (2 x its angular
-// radius), the radius at least 0.01 radians.
+// Per direction: the occluded sectors of its half-plane, 32 bits uniform in (1 - cos) / 2 of the
+// angle from the view direction (bit 0 along it, bit 31 opposite).
+uint g_sectors[CONTACT_DIRS];
+// Per light: xyz = x, y, w of the camera's view_proj times (direction, 0); w: its angular radius,
+// at least 0.01 radians.
 layout(std430, binding = 5) readonly buffer LightScreen { vec4 light_screen[]; };
 vec4 g_clip;                     // the pixel's clip-space position
 
-void contact_horizons(vec3 p, vec3 v, vec3 plane, ivec2 px) {
+// Bits [a, b) of a 32-bit mask (a, b in 0..32).
+uint bit_range(int a, int b) {
+    if (b <= a) return 0u;
+    uint hi = b >= 32 ? 0xffffffffu : (1u << uint(b)) - 1u;
+    return hi & ~((1u << uint(a)) - 1u);
+}
+
+void contact_sectors(vec3 p, vec3 v, vec3 plane, ivec2 px) {
     g_clip = u_view_proj * vec4(p, 1.0);
     ivec2 size = ivec2(u_image_size);
     float radius_px = u_contact_radius * u_focal_px / max(g_clip.w, 1e-30);
@@ -121,7 +133,7 @@ void contact_horizons(vec3 p, vec3 v, vec3 plane, ivec2 px) {
         float phi = float(k) * (PI / float(CONTACT_SLICES));
         vec2 d = vec2(cos(phi), sin(phi));
         d /= max(abs(d.x), abs(d.y));   // whole pixels along the major axis
-        float h = -1.0;
+        uint mask = 0u;
         for (int j = 1; j <= steps; ++j) {
             // Denser near the pixel (the nearest occluders are the ones the maps miss), a pixel apart at least.
             float t = float(j) / float(steps);
@@ -134,16 +146,26 @@ void contact_horizons(vec3 p, vec3 v, vec3 plane, ivec2 px) {
             // Only what rises above the surface's own plane: the plane itself is the terminator's and
             // the PEMs' (a flat or convex neighbourhood hides nothing more).
             if (!(dot(e, plane) > CONTACT_MIN_ELEVATION * len)) continue;
-            // Fades out over the radius' outer half, so that an occluder crossing it does not flicker.
+            // Solid from its front (what the camera sees) to u_contact_thickness behind it (along the
+            // pixel's view direction, near enough to the sample's own within the radius); over the
+            // radius' outer half the range shrinks to its front, so that an occluder crossing the
+            // radius does not flicker.
             float w = 1.0 - smoothstep(0.5 * u_contact_radius, u_contact_radius, len);
-            h = max(h, mix(-1.0, dot(e, v) / len, w));
+            vec3 b = e - u_contact_thickness * v;
+            float front = 16.0 * (1.0 - dot(e, v) / len);
+            float back = 16.0 * (1.0 - dot(b, v) / max(length(b), 1e-30));
+            mask |= bit_range(int(round(front)), int(round(mix(front, back, w))));
         }
-        // Nothing above the plane: below any light, so that even one behind the pixel (near pi from
-        // the view direction at a silhouette) keeps its whole disc.
-        h = min(h, 1.0);
-        g_horizon_cos[k] = h > -1.0 ? h : -3.0;
-        g_horizon_inv_sin[k] = h > -1.0 ? inversesqrt(max(1.0 - h * h, 0.01)) : 1.0;
+        g_sectors[k] = mask;
     }
+}
+
+// The occluded sectors of a mask up to x (in sectors, 0..32), the last partly.
+float sectors_below(uint mask, float x) {
+    if (x <= 0.0) return 0.0;
+    if (x >= 32.0) return float(bitCount(mask));
+    int i = int(x);
+    return float(bitCount(mask & bit_range(0, i))) + fract(x) * float((mask >> uint(i)) & 1u);
 }
 
 float contact_visibility(int i, vec3 v) {
@@ -160,12 +182,14 @@ float contact_visibility(int i, vec3 v) {
     int k0 = min(int(x), CONTACT_DIRS - 1);
     int k1 = (k0 + 1) % CONTACT_DIRS;
     float c = dot(lights[i].dir_scale.xyz, v);
-    // Per slice, the light's disc beyond that slice's horizon (the angle between them is the cosines'
-    // difference over the horizon's sine); then between the two slices (the horizons themselves are
-    // not interpolated: a slice without an occluder has none to interpolate).
-    vec2 vis = clamp(0.5 + (c - vec2(g_horizon_cos[k0], g_horizon_cos[k1]))
-                     * vec2(g_horizon_inv_sin[k0], g_horizon_inv_sin[k1]) * ls.w, 0.0, 1.0);
-    return mix(vis.x, vis.y, x - float(k0));
+    // The light's disc as an interval of sectors around its own (half a sector at least), the
+    // occluded share of it per slice, then between the two slices.
+    float centre = 16.0 * (1.0 - c);
+    float half_width = max(16.0 * sqrt(max(1.0 - c * c, 0.0)) * ls.w, 0.5);
+    float lo = centre - half_width, hi = centre + half_width;
+    float occ0 = sectors_below(g_sectors[k0], hi) - sectors_below(g_sectors[k0], lo);
+    float occ1 = sectors_below(g_sectors[k1], hi) - sectors_below(g_sectors[k1], lo);
+    return 1.0 - clamp(mix(occ0, occ1, x - float(k0)) / (2.0 * half_width), 0.0, 1.0);
 }
 #endif
 
@@ -390,7 +414,7 @@ void main() {
     g_reflect = r;
     g_to_eye = to_eye;
 #ifdef CONTACT_SHADOWS
-    contact_horizons(ws_position, to_eye, g_geometric_normal, px);
+    contact_sectors(ws_position, to_eye, g_geometric_normal, px);
 #endif
     g_gloss = material.y;
     float specular = material.x;
