@@ -35,9 +35,10 @@ def write_markdown(path: Path, rows, machine: dict, cfg) -> None:
     lines = [f"# Benchmark ({'quick' if cfg.quick else 'full'})", "",
              f"Machine: {machine['cpu']}, OpenGL: {machine['gl_renderer']} ({machine['gl_version']}), "
              f"date {machine['date']}. Image {cfg.size}x{cfg.size}; frame time = median of {cfg.frames} frames "
-             f"after a warm-up frame; reference {cfg.ref_spp} spp.", "",
+             f"after a warm-up frame; reference: the mean of two independent renders of {cfg.ref_spp} spp.", "",
              "Errors are in linear HDR over the garment and body pixels against the Monte Carlo reference; the "
-             "reference's own noise floor (two independent renders compared) is given per scene.", ""]
+             "reference's noise floor (its two renders against each other: what a perfect renderer would score "
+             "against one of them; the mean's own rel. RMSE is about half of it) is given per scene.", ""]
     for scene in dict.fromkeys(r.scene for r in rows):
         rs = [r for r in rows if r.scene == scene]
         lines += [f"## {scene} ({rs[0].env})", "",
