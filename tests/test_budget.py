@@ -40,7 +40,7 @@ def test_presets_follow_the_error_targets():
     assert (p["fast"]["lights"], p["balanced"]["lights"], p["accurate"]["lights"]) == (24, 48, 96)
 
 
-def test_a_preset_is_never_slower_than_the_one_above_it():
+def test_a_preset_is_clearly_faster_than_the_one_above_it():
     # Only the slow settings are within 10 %: none of them is a fast preset. Balanced is then the
     # default's entry (48 lights, 60 ms): a 10 % setting must beat that too.
     rows = [_row("a", 6, 10, 0.20), _row("a", 48, 60, 0.12), _row("a", 192, 300, 0.09), _row("a", 384, 600, 0.08)]
@@ -50,9 +50,12 @@ def test_a_preset_is_never_slower_than_the_one_above_it():
     assert p["accurate"]["lights"] == 384 and "balanced" not in p and "fast" not in p
     # Without the default's entry nothing is shown to be faster than balanced: no measured fast preset.
     assert set(presets(table)) == {"accurate"}
-    # With a measured balanced, a 10 % setting faster than it is the fast preset.
+    # With a measured balanced, a 10 % setting clearly faster than it is the fast preset ...
     rows.append(_row("a", 24, 30, 0.095))
     assert presets(summarize({**BENCH, "rows": rows}), {"balanced": default})["fast"]["lights"] == 24
+    # ... and one within the bench's timing noise of it (PRESET_SPEEDUP) is not.
+    rows[-1] = _row("a", 24, 50, 0.095)
+    assert "fast" not in presets(summarize({**BENCH, "rows": rows}), {"balanced": default})
 
 
 def test_a_budget_sets_every_measured_knob_unless_a_flag_says_otherwise(monkeypatch):
