@@ -140,10 +140,7 @@ def resolve_quality(args) -> dict:
     """Quality knobs: a budget (chosen from the measured table), else the preset, over the
     defaults; explicit flags override all (`merge_knobs`). The result says where they came from,
     and which PEM filter: --filter, else the budget's measured one, else sqrt-cosine."""
-    budget = args.frame_budget_ms is not None or args.error_budget is not None
-    table_presets, source = presets() if not budget else ({}, None)
-    base, measured_filter, where = base_knobs(args.preset, table_presets, source, args.frame_budget_ms,
-                                              args.error_budget)
+    base, measured_filter, where = base_knobs(args.preset, *presets(), args.frame_budget_ms, args.error_budget)
     knobs = merge_knobs(base, {k: getattr(args, k) for k in (*PRESET_KNOBS, *knob_defaults())})
     return {**knobs, "filter": args.filter or measured_filter or "sqrt-cosine", "source": where}
 

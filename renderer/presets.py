@@ -66,6 +66,11 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
     return pem
 
 
+# `table=STORED`: read the package's measured table now (renderer/bench/measured.json); a long-running
+# caller passes the table it read at start-up (None: none was stored), so that its presets and budgets agree.
+STORED = "stored"
+
+
 # A preset may also set any knob of knob_defaults() (its value wins over the default), chosen from the
 # benchmark (docs/benchmarks.md; numbers from the bench at 62464aa unless a side run or an older bench
 # is named). Blur 0: the paper's blur changed the error by -4 to +8 % at 48 lights, +88 % on the hard
@@ -109,10 +114,10 @@ DEFAULT_PRESETS = {
 }
 
 
-def presets(table: dict | None | str = "stored") -> tuple[dict, str]:
+def presets(table: dict | None | str = STORED) -> tuple[dict, str]:
     """The presets and where they come from: the measured table's when there is one (by default the
     package's stored table, read now; or the table given, None for none), else the defaults."""
-    from .bench.budget import PRESET_SPEEDUP, STORED, load_table
+    from .bench.budget import PRESET_SPEEDUP, load_table
     from .bench.budget import presets as measured_presets
 
     if table == STORED:
@@ -134,7 +139,7 @@ def presets(table: dict | None | str = "stored") -> tuple[dict, str]:
 
 
 def base_knobs(preset: str, preset_knobs: dict, preset_source: str | None, frame_budget_ms: float | None,
-               error_budget: float | None, table: dict | None | str = "stored") -> tuple[dict, str | None, str]:
+               error_budget: float | None, table: dict | None | str = STORED) -> tuple[dict, str | None, str]:
     """What a request's knobs go over (`merge_knobs`): the measured setting that meets its budgets
     when it names one (`budget_knobs`, chosen from `table`), else its preset's knobs (from
     `preset_knobs`, the presets in use). Returns (knobs, the measured PEM filter, or None when the

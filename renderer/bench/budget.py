@@ -12,7 +12,7 @@ from pathlib import Path
 
 from ..atomic import atomic_file
 from ..errors import InvalidInputError
-from ..presets import PRESET_KNOBS, knob_defaults
+from ..presets import PRESET_KNOBS, STORED, knob_defaults
 
 MEASURED = Path(__file__).with_name("measured.json")
 
@@ -82,11 +82,6 @@ def choose(table: dict, frame_budget_ms: float | None = None, error_budget: floa
     if error_budget is not None and frame_budget_ms is None:
         return min(entries, key=lambda e: e["median_frame_ms"])
     return min(entries, key=lambda e: (e["worst_rel_rmse"], e["median_frame_ms"]))
-
-
-# `budget_knobs(table=STORED)`: read the package's table now (the command line); a long-running caller
-# passes the table it read at start-up (None: none was stored), so that its presets and budgets agree.
-STORED = "stored"
 
 
 def budget_knobs(frame_budget_ms: float | None, error_budget: float | None,
