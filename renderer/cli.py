@@ -69,6 +69,9 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--needed-levels", action=argparse.BooleanOptionalAction,
                    help="store only the PEM levels the materials' glossiness reads (the same image, less memory "
                         "and faster lookups; default on)")
+    q.add_argument("--whole-sources", action=argparse.BooleanOptionalAction,
+                   help="median cut: no cut through a compact bright source such as a sun, which keeps it in one "
+                        "region (default on; --no-whole-sources: the paper's plain median cut)")
     q.add_argument("--shadow-size", type=int, help="shadow-map size per light")
     q.add_argument("--blur-scale", type=float, help="scale of the per-light shadow blur (0: hard shadows)")
     q.add_argument("--bleed-reduction", type=float, default=0.2)

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 # The knobs every preset names; the others (knob_defaults) a preset or budget may also set.
 PRESET_KNOBS = ("lights", "face_size", "shadow_size", "blur_scale")
+# Knobs of knob_defaults() that change the PEM set, not the frame (pem_settings).
+PEM_KNOBS = ("needed_levels", "whole_sources")
 
 
 def knob_defaults() -> dict:
@@ -17,7 +19,7 @@ def knob_defaults() -> dict:
     f = FrameSettings()
     return {"calibration": f.calibration.value, "diffuse": f.diffuse, "glossy_horizon": f.glossy_horizon,
             "terminator": f.terminator, "horizon": f.horizon, "shadow_threshold": f.shadow_threshold,
-            "sh_unshadowed": f.sh_unshadowed, "needed_levels": True, "glossy": f.glossy,
+            "sh_unshadowed": f.sh_unshadowed, "needed_levels": True, "whole_sources": True, "glossy": f.glossy,
             "caster_detail": f.caster_detail, "small_light_scale": f.small_light_scale,
             "small_light_min_energy": f.small_light_min_energy, "sharp_large_lights": f.sharp_large_lights,
             "sharp_share_deg": f.sharp_share_deg, "sharp_max_maps": f.sharp_max_maps,
@@ -48,7 +50,7 @@ def frame_settings(knobs: dict, width: int, height: int, **output):
     the settings no preset chooses (mode, background, bleed_reduction)."""
     from .renderer import FrameSettings
 
-    frame_knobs = {k: knobs[k] for k in knob_defaults() if k != "needed_levels"}
+    frame_knobs = {k: knobs[k] for k in knob_defaults() if k not in PEM_KNOBS}
     return FrameSettings(width=width, height=height, shadow_size=int(knobs["shadow_size"]),
                          blur_scale=float(knobs["blur_scale"]), **frame_knobs, **output)
 
@@ -60,7 +62,7 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
     from .lighting.filters import Filter
     from .lighting.pem import PEMSettings
 
-    pem = PEMSettings(int(knobs["lights"]), Filter.parse(filter), levels)
+    pem = PEMSettings(int(knobs["lights"]), Filter.parse(filter), levels, whole_sources=bool(knobs["whole_sources"]))
     if knobs["needed_levels"] and materials is not None:
         pem = pem.for_materials(int(knobs["face_size"]), materials, knobs["calibration"])
     return pem

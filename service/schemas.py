@@ -99,6 +99,8 @@ class QualitySpec(_Strict):
     horizon: bool = Field(_KNOB["horizon"], description="the shading normal's tangent plane blocks every light, both terms")
     needed_levels: bool = Field(_KNOB["needed_levels"], description="store only the PEM levels the scene's glossiness reads "
                                 "(the same image, less memory)")
+    whole_sources: bool = Field(_KNOB["whole_sources"], description="median cut: no cut through a compact bright source "
+                                "(a sun), which keeps it in one region (false: the paper's plain median cut)")
     caster_detail: float = Field(_KNOB["caster_detail"], gt=0.0, le=1.0, description="share of the casters' triangles the shadow "
                                  "maps draw (a proxy over the same vertices; 1: the meshes themselves)")
     small_light_scale: int = Field(_KNOB["small_light_scale"], ge=1, le=8, strict=True, description="small lights (a sun, under ~6 degrees) get shadow "

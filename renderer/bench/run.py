@@ -47,6 +47,7 @@ SWEEPS = {
     "glossy_horizon": ["off", "lobe", "lights", "both"],
     "terminator": [False],
     "needed_levels": [False],
+    "whole_sources": [False],   # the paper's plain median cut
     "shadow_threshold": [0.002, 0.01, 0.03],
     "sh_unshadowed": DIM_LIGHTS,
     "caster_detail": [1.0, 0.5, 0.25, 0.1],

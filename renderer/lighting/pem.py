@@ -59,9 +59,12 @@ class PEMSettings:
     # Finest level stored: the levels above it are computed on the way down but not kept, since no
     # lookup of the scene needs them (`finest_level_needed`). 0: the whole chain, mirror included.
     base_level: int = 0
+    # The median cut keeps compact bright sources (a sun) whole (lighting/median_cut.py); off: the
+    # paper's plain median cut. The presets turn it on (presets.knob_defaults).
+    whole_sources: bool = False
 
     def key(self) -> tuple:
-        return (self.n_lights, self.filter.value, self.levels, self.base_level)
+        return (self.n_lights, self.filter.value, self.levels, self.base_level, self.whole_sources)
 
     def for_materials(self, face_size: int, materials, calibration: Calibration | str = Calibration.L2) -> "PEMSettings":
         """These settings storing only the levels the materials' glossiest lookup reads
@@ -100,7 +103,7 @@ class PEMSet:
 
         t0 = time.perf_counter()
         if stored is None:
-            self.regions: RegionSet = median_cut(cube[..., :3], settings.n_lights)
+            self.regions: RegionSet = median_cut(cube[..., :3], settings.n_lights, settings.whole_sources)
             # Per-region scale: the brightest channel of the region's texels (1 for a black region).
             flat = cube[..., :3].reshape(-1, 3).max(axis=1)
             peak = np.zeros(self.regions.n_regions)
