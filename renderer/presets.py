@@ -74,13 +74,14 @@ STORED = "stored"
 
 
 # A preset may also set any knob of knob_defaults() (its value wins over the default), chosen from the
-# benchmark (docs/benchmarks.md; numbers from the bench at 62464aa unless a side run or an older bench
-# is named). Blur 0: the paper's blur changed the error by -4 to +8 % at 48 lights, +88 % on the hard
-# sun (the lights' many hard shadows already add up to soft ones) for more time a frame. Caster detail
-# 0.25: -1 to +1 % of error for 36-46 % less frame time. The sun's shadow edges are the
+# benchmark (docs/benchmarks.md; numbers from the bench at 794b9ba unless a side run or an older bench
+# is named). Blur 0: the paper's blur changed the error by -3 to +12 % at 48 lights (the lights' many
+# hard shadows already add up to soft ones) for more time a frame. Caster detail 0.25: -1 to +2 % of
+# error for 41-48 % less frame time. The median cut keeps compact sources whole (whole_sources):
+# against the paper's plain cut the hard sun 0.106 -> 0.079, the interior 0.079 -> 0.059. The sun's shadow edges are the
 # largest error left in sunlit scenes: balanced draws the maps of small lights with at least 2.4x the
-# mean light's energy (5 % of it at 48 lights: a sun) at four times the size (hard sun 0.149 ->
-# 0.106 against twice); the regions of one sun (a degree apart) share one map (sharp_share_deg 2: the
+# mean light's energy (5 % of it at 48 lights: a sun) at four times the size (hard sun 0.132 ->
+# 0.079 against twice); the regions of one sun (a degree apart) share one map (sharp_share_deg 2: the
 # same error for 18-20 % less time on the hard sun side by side at a921258; the bench's sharp_share_deg rows); and it leaves
 # the dim ones (an interior's ten lamps and windows) to the main maps, where sharp maps for all of
 # them cost 1.6x the frame time for less gain. Small lights' diffuse and glossy terms
@@ -89,20 +90,20 @@ STORED = "stored"
 # lobes below), no scene worse by more than 2 %; not in fast,
 # whose hard sun measured worse with them in a side run (not a bench row). The large lights' glossy
 # terms too where the lobe is wider than their disc (glossy "wide"): against "mixed" the studio
-# dress 0.056 -> 0.026, hard sun 0.106 -> 0.106, interior 0.082 -> 0.079, overcast 0.056 -> 0.041,
+# dress 0.056 -> 0.023, hard sun 0.083 -> 0.079, interior 0.063 -> 0.059, overcast 0.056 -> 0.041,
 # night 0.063 -> 0.040 (the bench's glossy rows); no worse at g = 0.5, 0.95 and 0.99 in a side run
-# (before the contact shadows). Lights beyond 48 cost linear time (96 lights: 2.0-2.3x) for -3 to 24 %
+# (before the contact shadows). Lights beyond 48 cost linear time (96 lights: 2.0-2.5x) for -5 to 17 %
 # less error; the default accurate preset spends time on shadow maps instead. Contact shadows (contact_shadow_texels) find the occluders the maps' bias skips and
 # the near ones a proxy's 256^2 map blurs (the collar over the dress form's neck, the lips of folds):
-# at balanced (24 main-map texels, about 10 cm there) against none, hard sun 0.195 -> 0.106,
-# interior 0.147 -> 0.079, overcast 0.077 -> 0.041, night 0.087 -> 0.040 rel. RMSE, FLIP lower on
+# at balanced (24 main-map texels, about 10 cm there) against none, hard sun 0.159 -> 0.079,
+# interior 0.114 -> 0.059, overcast 0.077 -> 0.041, night 0.087 -> 0.040 rel. RMSE, FLIP lower on
 # all (the bench's contact_shadow_texels rows: 8 texels and 48 measure higher on the
 # shirt's worst maps). Fast and accurate keep the same distance in the scene (12 texels of 128^2
 # maps, 48 of 512^2: side runs at f3dc2e1 put fast's hard sun at 0.211 with 12 against 0.233 with 5,
 # and accurate lowest at that distance). With them the large lights' diffuse term from their disc too
 # (diffuse "lights", balanced and accurate) against "mixed" (from the PEMs): studio dress 0.049 ->
-# 0.026, hard sun 0.113 -> 0.106, interior 0.081 -> 0.079, overcast 0.076 -> 0.041, night 0.066 ->
-# 0.040, FLIP lower on all five (worst 0.110 -> 0.079), and no diffuse PEM lookups (the bench's
+# 0.023, hard sun 0.086 -> 0.079, interior 0.063 -> 0.059, overcast 0.076 -> 0.041, night 0.066 ->
+# 0.040, FLIP lower on all five (worst 0.110 -> 0.073), and no diffuse PEM lookups (the bench's
 # diffuse rows).
 DEFAULT_PRESETS = {
     "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 0.0, "caster_detail": 0.1,
