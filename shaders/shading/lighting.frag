@@ -182,11 +182,13 @@ float contact_visibility(int i, vec3 v) {
     int k0 = min(int(x), CONTACT_DIRS - 1);
     int k1 = (k0 + 1) % CONTACT_DIRS;
     float c = dot(lights[i].dir_scale.xyz, v);
-    // The light's disc as an interval of sectors around its own (half a sector at least), the
-    // occluded share of it per slice, then between the two slices.
+    // The light's disc as an interval of sectors around its own (half a sector at least), moved
+    // inside [0, 32] where it would reach past the view direction or its opposite (there the cosine
+    // folds back: no part of the disc lies beyond), the occluded share of it per slice, then between
+    // the two slices.
     float centre = 16.0 * (1.0 - c);
-    float half_width = max(16.0 * sqrt(max(1.0 - c * c, 0.0)) * ls.w, 0.5);
-    float lo = centre - half_width, hi = centre + half_width;
+    float half_width = clamp(16.0 * sqrt(max(1.0 - c * c, 0.0)) * ls.w, 0.5, 16.0);
+    float lo = clamp(centre - half_width, 0.0, 32.0 - 2.0 * half_width), hi = lo + 2.0 * half_width;
     float occ0 = sectors_below(g_sectors[k0], hi) - sectors_below(g_sectors[k0], lo);
     float occ1 = sectors_below(g_sectors[k1], hi) - sectors_below(g_sectors[k1], lo);
     return 1.0 - clamp(mix(occ0, occ1, x - float(k0)) / (2.0 * half_width), 0.0, 1.0);
