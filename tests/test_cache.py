@@ -16,8 +16,9 @@ def test_key_changes_with_every_parameter():
     assert base == cache_key("abc", 16, PEMSettings(24))
     others = [cache_key("abd", 16, PEMSettings(24)), cache_key("abc", 32, PEMSettings(24)),
               cache_key("abc", 16, PEMSettings(48)), cache_key("abc", 16, PEMSettings(24, Filter.BOX)),
-              cache_key("abc", 16, PEMSettings(24, levels=3))]
-    assert len({base, *others}) == 6
+              cache_key("abc", 16, PEMSettings(24, levels=3)), cache_key("abc", 16, PEMSettings(24, base_level=1)),
+              cache_key("abc", 16, PEMSettings(24, whole_sources=True))]
+    assert len({base, *others}) == 8
 
 
 def test_memory_hits_lru_eviction_and_release(gl):

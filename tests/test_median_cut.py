@@ -96,6 +96,41 @@ def test_whole_sources_leaves_no_part_of_a_sun_to_a_distant_light():
     assert max(far[True]) < 0.05 < max(far[False])
 
 
+def _moved(profile, split):
+    from renderer.lighting.median_cut import _beside_source
+
+    p = np.asarray(profile, np.float64)
+    return _beside_source(p, np.cumsum(p), split)
+
+
+def test_a_cut_through_a_compact_source_moves_to_its_nearer_edge_and_only_then():
+    sky = np.ones(32)
+    spike = sky.copy()
+    spike[15:17] = 60.0                  # two rows, 80 % of the energy: the median cut passes between them
+    assert _moved(spike, 16) in (15, 17)
+    off_centre = sky.copy()
+    off_centre[20:22] = 60.0
+    assert _moved(off_centre, 21) == 20  # the nearer edge in energy: rows 0..19 hold less than half
+    wide = sky.copy()
+    wide[11:21] = 12.0                   # ten rows (more than an eighth of 32): a bright area, not a source
+    assert _moved(wide, 16) == 16
+    weak = sky.copy()
+    weak[15:17] = 6.0                    # compact but under half the region's energy
+    assert _moved(weak, 16) == 16
+    beside = sky.copy()
+    beside[3:5] = 60.0                   # a source away from the cut line is not the cut's business
+    assert _moved(beside, 16) == 16
+
+
+@settings(max_examples=200, deadline=None)
+@given(profile=st.lists(st.floats(0.0, 1e6), min_size=2, max_size=40), frac=st.floats(0.0, 1.0))
+def test_a_moved_cut_never_empties_a_side(profile, frac):
+    if sum(profile) <= 0:
+        return
+    split = min(max(int(frac * len(profile)), 1), len(profile) - 1)
+    assert 1 <= _moved(profile, split) <= len(profile) - 1
+
+
 def test_whole_sources_leaves_a_map_without_compact_sources_alone():
     from renderer.envmap.cube import texel_directions
 

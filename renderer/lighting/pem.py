@@ -112,10 +112,12 @@ class PEMSet:
         else:
             self.regions = RegionSet(**{k: np.asarray(stored["regions_" + k]) for k in RegionSet.__dataclass_fields__})
             self.scale = np.asarray(stored["scale"], np.float64)
-            have = (self.regions.n_regions, int(stored["levels"]), int(stored.get("base_level", 0)))
-            want = (settings.n_lights, self.levels, self.base_level)
+            have = (self.regions.n_regions, int(stored["levels"]), int(stored.get("base_level", 0)),
+                    bool(stored.get("whole_sources", False)))
+            want = (settings.n_lights, self.levels, self.base_level, settings.whole_sources)
             if have != want:
-                raise InvalidInputError(f"stored PEM set has (lights, levels, base level) {have}, the request {want}: "
+                raise InvalidInputError(f"stored PEM set has (lights, levels, base level, whole sources) {have}, the "
+                                        f"request {want}: "
                                         "build it anew (omit `stored`) or pass the settings it was built with")
         self.median_cut_ms = (time.perf_counter() - t0) * 1e3
         self._cube = cube  # float32, kept for the SH9 coefficients, computed on first use
@@ -239,6 +241,7 @@ class PEMSet:
         out["scale"] = self.scale
         out["levels"] = np.int64(self.levels)
         out["base_level"] = np.int64(self.base_level)
+        out["whole_sources"] = np.bool_(self.settings.whole_sources)
         return out
 
     # -- queries ----------------------------------------------------------------------------
