@@ -8,9 +8,9 @@ corners (smaller texels) are not over-weighted. Every texel belongs to exactly o
 (Knuth et al. Eq. 1): the partition is stored as a label per texel.
 
 With `whole_sources` (our addition, PEMSettings.whole_sources), a cut that would pass through a
-compact bright source (a sun, a lamp: a run of rows or columns at most an eighth of the side wide,
-each with at least SOURCE_PEAK of the brightest one's energy, together holding at least
-SOURCE_SHARE of the region's) moves to the source's edge nearer the energy median, so that the
+compact bright source (a sun, a lamp: a run of rows or columns at most an eighth of the region's
+side wide, or two rows, each with at least SOURCE_PEAK of the brightest one's energy, together
+holding at least SOURCE_SHARE of the region's) moves to the source's edge nearer the energy median, so that the
 source stays in one region. Plain median cut halves the energy through the sun's disc at every
 level: with 2^k regions a face, the last cuts leave parts of the sun in large regions whose single
 light sits at their energy centroid, degrees away from the sun, with a wide disc.
