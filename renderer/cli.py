@@ -361,15 +361,21 @@ def cmd_error_split(args) -> int:
 
 
 def cmd_speed(args) -> int:
-    from .bench.speed import markdown, run_speed
+    from .bench.speed import LARGE_VARIANTS, markdown, run_speed
 
     size = args.size if args.size is not None else (1024 if args.large else 256)
     if args.rounds < 1 or size < 1 or args.min_triangles < 1:
         raise InvalidInputError(f"--rounds, --size and --min-triangles must be positive, got {args.rounds}, "
                                 f"{size} and {args.min_triangles}")
-    variants = ["balanced", "fast", "accurate"] if args.large else None
+    variants = LARGE_VARIANTS if args.large else None
+    if args.equal_error and not args.large:
+        raise InvalidInputError("--equal-error needs --large")
+    if args.truth_spp < 1 or (args.workers is not None and args.workers < 2):
+        raise InvalidInputError(f"--truth-spp must be positive and --workers at least 2, got {args.truth_spp} "
+                                f"and {args.workers}")
+    equal = {"truth_spp": args.truth_spp, "workers": args.workers} if args.equal_error else None
     result = run_speed(args.out, args.rounds, size, shared=not args.no_shared, large=args.large,
-                       min_triangles=args.min_triangles, variants=variants)
+                       min_triangles=args.min_triangles, variants=variants, equal_error=equal)
     what = f", {result['triangles']} triangles ({result['garment_triangles']} in the garment)" if args.large else ""
     print(f"{result['device']}, {size}x{size}{what}, median of {args.rounds} frames per setting, "
           "settings taking turns (10th-90th percentile in brackets; GPU: GL timer queries, where meaningful):")
@@ -449,6 +455,11 @@ def build_parser() -> argparse.ArgumentParser:
                          "on its dress form under the hard sun, positions uploaded every frame, balanced, fast and "
                          "accurate, with the PEM set's build time (needs ../shared/assets)")
     sp.add_argument("--min-triangles", type=int, default=100_000, help="the --large garment's least triangle count")
+    sp.add_argument("--equal-error", action="store_true",
+                    help="with --large: the reference's samples and time to match each preset's error (a truth of "
+                         "--workers renders of --truth-spp samples, one process per core; minutes at 1024x1024)")
+    sp.add_argument("--truth-spp", type=int, default=128, help="samples per technique of each truth render")
+    sp.add_argument("--workers", type=int, help="reference processes (default: one per core)")
     sp.add_argument("--out", type=Path, help="write the medians and ratios as JSON")
     sp.set_defaults(func=cmd_speed)
     es = sub.add_parser("error-split", help="where a preset's error comes from: lighting alone, the worst pixels, "

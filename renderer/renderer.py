@@ -8,6 +8,7 @@ the driver's are meaningful).
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import asdict, dataclass, field
 from enum import Enum
@@ -18,7 +19,7 @@ import numpy as np
 from .camera import Camera, bounds_sphere, default_camera
 from .errors import InvalidInputError
 from .gpu.context import GLContext, StageTimer
-from .gpu.shaders import program
+from .gpu.shaders import compute_shader, program
 from .lighting.glossiness import Calibration
 from .lighting.sh import irradiance_coefficients
 from .lighting.pem import REGIONS_PER_TEXTURE, PEMSet, PEMSettings
@@ -258,13 +259,67 @@ def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
     return order, kind_end
 
 
+LIGHTING_PASSES = ("fragment", "compute")
+
+
+def default_lighting_pass(gl_renderer: str) -> str:
+    """The lighting pass a GL renderer runs fastest: $GARMENT_RENDER_LIGHTING_PASS when set, else
+    the fragment pass on llvmpipe (its early depth test skips uncovered blocks: the compute pass took
+    1.45x the shading time at 256x256 on the hard-sun scene) and the compute pass on a GPU (an H100
+    runs fragment shaders on the few multiprocessors that can rasterize; docs/benchmarks.md).
+    Both give the same image (bit for bit on llvmpipe; tests/test_render.py)."""
+    chosen = os.environ.get("GARMENT_RENDER_LIGHTING_PASS")
+    if chosen:
+        if chosen not in LIGHTING_PASSES:
+            raise InvalidInputError(f"$GARMENT_RENDER_LIGHTING_PASS must be one of {LIGHTING_PASSES}, got {chosen!r}")
+        return chosen
+    return "fragment" if _software_renderer(gl_renderer) else "compute"
+
+
+def _software_renderer(gl_renderer: str) -> bool:
+    """Mesa's llvmpipe (the CPU): every pass shares the cores with Python and numpy."""
+    return "llvmpipe" in gl_renderer.lower()
+
+
+NORMALS = ("cpu", "gpu")
+
+
+def default_normals(gl_renderer: str) -> str:
+    """Where a frame's new positions get their vertex normals: $GARMENT_RENDER_NORMALS when set,
+    else numpy on llvmpipe (the compute pass, which shares the CPU with it, took 13 ms against numpy's
+    8 ms for the 204k-triangle garment of `speed --large`) and the compute pass on a GPU (numpy took
+    about 18 ms there, most of a frame; docs/benchmarks.md). Both give the same normals up to float32
+    rounding (tests/test_render.py)."""
+    chosen = os.environ.get("GARMENT_RENDER_NORMALS")
+    if chosen:
+        if chosen not in NORMALS:
+            raise InvalidInputError(f"$GARMENT_RENDER_NORMALS must be one of {NORMALS}, got {chosen!r}")
+        return chosen
+    return "cpu" if _software_renderer(gl_renderer) else "gpu"
+
+
 class Renderer:
     """Owns the GL context (or borrows one) and the per-size GPU resources reused across frames."""
 
-    def __init__(self, gl: GLContext | None = None):
+    def __init__(self, gl: GLContext | None = None, lighting_pass: str | None = None, normals: str | None = None):
+        """`lighting_pass`: "fragment" (a full-screen triangle) or "compute"; `normals`: where a frame's
+        new positions get their vertex normals, "cpu" (numpy) or "gpu" (a compute pass). None: what
+        this GL renderer runs fastest (default_lighting_pass, default_normals)."""
+        self.lighting_pass = lighting_pass
         self._owns_gl = gl is None
+        if lighting_pass is not None and lighting_pass not in LIGHTING_PASSES:
+            raise InvalidInputError(f"lighting_pass must be one of {LIGHTING_PASSES}, got {lighting_pass!r}")
+        if normals is not None and normals not in NORMALS:
+            raise InvalidInputError(f"normals must be one of {NORMALS}, got {normals!r}")
         self.gl = gl or GLContext()
         ctx = self.gl.ctx
+        try:
+            self.lighting_pass = lighting_pass or default_lighting_pass(self.gl.renderer_name)
+            self.normals = normals or default_normals(self.gl.renderer_name)
+        except InvalidInputError:
+            if self._owns_gl:
+                self.gl.release()
+            raise
         defines = {"GLOSS_TABLE_SIZE": PEMSet.GLOSS_TABLE_SIZE, "REGIONS_PER_TEXTURE": REGIONS_PER_TEXTURE,
                    "HORIZON_N_MU": float(HORIZON_N_MU), "HORIZON_N_G": float(HORIZON_N_G),
                    "SMALL_LIGHT_MAX_SIN": float(SMALL_LIGHT_MAX_SIN)}
@@ -283,9 +338,12 @@ class Renderer:
         self._shadow_prog = program(ctx, "shadows/moments.vert", "shadows/moments.frag")
         self.gbuffer_prog = program(ctx, "shading/surface.vert", "shading/gbuffer.frag")
         self._programs = {"moments": self._shadow_prog, "gbuffer": self.gbuffer_prog}
+        if self.normals == "gpu":
+            self._programs["normals"] = compute_shader(ctx, "mesh/normals.comp")
 
     def _shade_variant(self, mode: ShadingMode, diffuse: str, two_textures: bool,
-                       glossy: str = "pem", contact: bool = False) -> tuple[moderngl.Program, moderngl.VertexArray]:
+                       glossy: str = "pem", contact: bool = False
+                       ) -> tuple[moderngl.Program | moderngl.ComputeShader, moderngl.VertexArray | None]:
         """The lighting program of a mode and diffuse source (a full-screen pass over the geometry
         pass's targets), compiled on first use (one variant each; the diffuse source matters to the
         full and no-occlusion modes only); `two_textures`: the PEM set spans two textures (more than
@@ -293,7 +351,8 @@ class Renderer:
         closed = _no_diffuse_pems(mode, diffuse)
         wide = glossy == "wide" and mode in _CLOSED_FORM_MODES
         contact = contact and mode is ShadingMode.FULL
-        key = (mode, diffuse if closed else "pem", two_textures, wide, contact)
+        compute = self.lighting_pass == "compute"
+        key = (mode, diffuse if closed else "pem", two_textures, wide, contact, compute)
         if key not in self._shade_progs:
             defines = {**self._defines, "MODE": _MODE_INDEX[mode], "TWO_PEM_TEXTURES": int(two_textures)}
             if wide:
@@ -304,8 +363,12 @@ class Renderer:
                 defines["DIFFUSE_SH"] = 1
             if contact:
                 defines.update(CONTACT_SHADOWS=1, CONTACT_SLICES=CONTACT_SLICES, CONTACT_STEPS=CONTACT_STEPS)
-            prog = program(self.gl.ctx, "shading/background.vert", "shading/lighting.frag", defines)
-            self._shade_progs[key] = (prog, self.gl.ctx.vertex_array(prog, []))
+            if compute:
+                defines["LIGHTING_COMPUTE"] = 1
+                self._shade_progs[key] = (compute_shader(self.gl.ctx, "shading/lighting.frag", defines), None)
+            else:
+                prog = program(self.gl.ctx, "shading/background.vert", "shading/lighting.frag", defines)
+                self._shade_progs[key] = (prog, self.gl.ctx.vertex_array(prog, []))
         return self._shade_progs[key]
 
     # -- resources --------------------------------------------------------------------------
@@ -340,7 +403,8 @@ class Renderer:
                 for obj in self._target[1]:
                     obj.release()
             ctx = self.gl.ctx
-            color = ctx.renderbuffer((w, h), 4, dtype="f4")
+            # A texture, so that the compute lighting pass can store into it (Renderer.lighting_pass).
+            color = ctx.texture((w, h), 4, dtype="f4")
             depth = ctx.depth_renderbuffer((w, h))
             # position + specular, normal + glossiness, geometric normal, albedo: 32-bit floats, so
             # that g = 1 - 1e-7 and positions far from the origin keep their precision.
@@ -352,6 +416,9 @@ class Renderer:
             self._target = ((w, h), (image_fbo, gbuf_fbo, color, depth, *gbuf))
         objs = self._target[1]
         return objs[0], objs[1], list(objs[4:])
+
+    def _color_target(self) -> moderngl.Texture:
+        return self._target[1][2]
 
     def _buffer(self, name: str, data: bytes) -> moderngl.Buffer:
         """A per-frame storage buffer, re-created only when its size changes."""
@@ -513,7 +580,14 @@ class Renderer:
                 coeffs = irradiance_coefficients(pems.region_sh[layers < 0].sum(axis=0))
                 _set_uniform(p, "u_sh", coeffs.astype(np.float32).tobytes())
             _set_uniform(p, "u_glossy_horizon", GLOSSY_HORIZONS.index(settings.glossy_horizon))
-            vao.render(moderngl.TRIANGLES, vertices=3)
+            if vao is None:   # the compute pass: every pixel, uncovered ones left as drawn
+                _set_uniform(p, "u_pixels", (w, h))
+                ctx.memory_barrier()
+                self._color_target().bind_to_image(0, read=False, write=True)
+                p.run((w + 7) // 8, (h + 7) // 8)
+                ctx.memory_barrier()
+            else:
+                vao.render(moderngl.TRIANGLES, vertices=3)
             fbo.depth_mask = True
             ctx.depth_func = "<"
             ctx.disable(moderngl.DEPTH_TEST)
@@ -536,6 +610,8 @@ class Renderer:
                   if len(plan.main_lights) else 0)
         timings["shadow_triangles"] = len(plan.sharp_lights) * full + len(plan.main_lights) * coarse
         timings["device"] = gl.renderer_name
+        timings["lighting_pass"] = self.lighting_pass
+        timings["normals"] = self.normals if positions is not None else None
         info = {"frame": settings.as_dict(), "pems": pems.summary(),
                 "camera": {"eye": list(camera.eye), "target": list(camera.target), "fov_y_deg": camera.fov_y_deg},
                 "shadow_bytes": sum(a.nbytes for a in arrays.values()) if n_shadowed else 0,
@@ -556,8 +632,9 @@ class Renderer:
             buf.release()
         self._gloss_buf.release()
         self._horizon_tex.release()
-        variants = [obj for pair in self._shade_progs.values() for obj in pair[::-1]]
-        for obj in (self.bg_vao, self.bg_prog, *variants, self._shadow_prog, self.gbuffer_prog):
+        variants = [obj for pair in self._shade_progs.values() for obj in pair[::-1] if obj is not None]
+        for obj in (self.bg_vao, self.bg_prog, *variants, self._shadow_prog, self.gbuffer_prog,
+                    *([self._programs["normals"]] if "normals" in self._programs else [])):
             obj.release()
         if self._owns_gl:
             self.gl.release()

@@ -9,7 +9,7 @@ import numpy as np
 
 from .errors import MeshError
 from .gpu.context import GLContext
-from .mesh import Mesh, box, vertex_normals
+from .mesh import FALLBACK_NORMAL, Mesh, box, vertex_normals
 from .shading.material import Material
 from .shadows.proxy import caster_proxy
 
@@ -43,6 +43,10 @@ class SceneMesh:
         self.vbo_mat = ctx.buffer(mat.tobytes())
         self.vbo_uv = ctx.buffer(np.ascontiguousarray(uvs, np.float32).tobytes())
         self.ibo = ctx.buffer(np.ascontiguousarray(mesh.faces, np.int32).tobytes())
+        # New positions' normals on the GPU (programs["normals"], Renderer's `normals`): the faces
+        # around each vertex, made on the first frame that needs them.
+        self._normals_prog = programs.get("normals")
+        self._adjacency: tuple[moderngl.Buffer, moderngl.Buffer] | None = None
         self.textures = []
         self.albedo_tex = self._texture(ctx, albedo_map, 3, (1.0, 1.0, 1.0))
         self.gloss_tex = self._texture(ctx, gloss_map, 2, (0.0, 0.0))
@@ -92,15 +96,39 @@ class SceneMesh:
         return tex
 
     def set_positions(self, positions: np.ndarray, normals: np.ndarray | None = None) -> None:
-        """New frame: positions (V, 3) float32 (validated by the caller through Mesh.with_positions)."""
-        if normals is None:
+        """New frame: positions (V, 3) float32 (validated by the caller through Mesh.with_positions);
+        without `normals`, the area-weighted vertex normals are made from them, on the GPU when the
+        renderer has the normals program."""
+        gpu_normals = normals is None and self._normals_prog is not None
+        if normals is None and not gpu_normals:
             normals = vertex_normals(positions, self.mesh.faces)
         self.positions = positions
         self.box = box(positions)
         self.vbo_pos.write(np.ascontiguousarray(positions, np.float32).tobytes())
-        self.vbo_nrm.write(np.ascontiguousarray(normals, np.float32).tobytes())
+        if gpu_normals:
+            self._normals_on_gpu()
+        else:
+            self.vbo_nrm.write(np.ascontiguousarray(normals, np.float32).tobytes())
+
+    def _normals_on_gpu(self) -> None:
+        if self._adjacency is None:
+            corners = self.mesh.faces.ravel()   # corner c of face c // 3 at vertex corners[c]
+            order = np.argsort(corners, kind="stable")
+            start = np.zeros(self.n_vertices + 1, np.int32)
+            np.cumsum(np.bincount(corners, minlength=self.n_vertices), out=start[1:])
+            self._adjacency = (self._ctx.buffer(start.tobytes()), self._ctx.buffer((order // 3).astype(np.int32).tobytes()))
+        p = self._normals_prog
+        p["u_n_vertices"].value = self.n_vertices
+        p["u_fallback"].value = FALLBACK_NORMAL
+        for unit, buf in enumerate((self.vbo_pos, self.ibo, *self._adjacency, self.vbo_nrm)):
+            buf.bind_to_storage_buffer(unit)
+        p.run((self.n_vertices + 63) // 64)
+        self._ctx.memory_barrier()   # the normals are read as a vertex attribute next
 
     def release(self) -> None:
+        for buf in self._adjacency or ():
+            buf.release()
+        self._adjacency = None
         for ibo, vao, _ in self._proxies.values():
             vao.release()
             ibo.release()

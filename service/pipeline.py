@@ -114,7 +114,7 @@ def server_timing(timings: dict[str, float]) -> str:
 def render_info(frame: Frame, source: str) -> dict:
     t = frame.timings
     return {"n_lights": t["n_lights"], "shadowed_lights": t["shadowed_lights"], "n_triangles": t["n_triangles"],
-            "device": t["device"], "pem_source": source, "gpu_ms": t.get("gpu_ms", {}),
+            "device": t["device"], "lighting_pass": t["lighting_pass"], "pem_source": source, "gpu_ms": t.get("gpu_ms", {}),
             "settings": frame.settings.get("frame", {}), "pem_set": frame.settings.get("pems", {})}
 
 

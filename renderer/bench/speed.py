@@ -41,12 +41,24 @@ VARIANTS = {
     "balanced, large lights' diffuse term from the PEMs": {"diffuse": "mixed"},
     "fast": "fast",
     "accurate": "accurate",
+    # How balanced runs, not what it computes (the same image): renderer.py's default_lighting_pass
+    # and default_normals choose by these rows.
+    "balanced, fragment lighting pass": {"renderer": {"lighting_pass": "fragment"}},
+    "balanced, compute lighting pass": {"renderer": {"lighting_pass": "compute"}},
+    "balanced, normals on the CPU": {"renderer": {"normals": "cpu"}},
+    "balanced, normals on the GPU": {"renderer": {"normals": "gpu"}},
 }
+# The variants of a run: the normals rows only mean something where frames upload positions (--large).
+UPLOAD_VARIANTS = ("balanced, normals on the CPU", "balanced, normals on the GPU")
+LARGE_VARIANTS = ["balanced", "fast", "accurate", "balanced, fragment lighting pass",
+                  "balanced, compute lighting pass", *UPLOAD_VARIANTS]
 
 
 def _setting(variant, table: dict) -> dict:
     """A variant's knobs: a preset as the CLI and service apply it (the stored table's, else the
     default), or balanced with some knobs changed."""
+    if isinstance(variant, dict):
+        variant = {k: v for k, v in variant.items() if k != "renderer"}
     knobs = merge_knobs(table[variant], {}) if isinstance(variant, str) else merge_knobs(table["balanced"], variant)
     return {**knobs, "filter": "sqrt-cosine"}
 
@@ -59,10 +71,12 @@ def _median_gpu_ms(frames: list) -> float | None:
 
 def run_speed(out: Path | None, rounds: int = 15, size: int = 256, shared: bool = True, log=print,
               large: bool = False, min_triangles: int = LARGE_GARMENT_TRIANGLES,
-              variants: list[str] | None = None) -> dict:
+              variants: list[str] | None = None, equal_error: dict | None = None) -> dict:
     """`variants`: the names of VARIANTS to time (default all). `large`: the GPU target's scene
-    (`large_scene(min_triangles)`) instead of the target scenes, positions uploaded every frame."""
-    names = list(VARIANTS) if variants is None else list(variants)
+    (`large_scene(min_triangles)`) instead of the target scenes, positions uploaded every frame.
+    `equal_error` (with `large`): run_equal_error's keyword arguments, to set each setting's last
+    frame against the reference (result["equal_error"])."""
+    names = ([n for n in VARIANTS if large or n not in UPLOAD_VARIANTS] if variants is None else list(variants))
     unknown = [n for n in names if n not in VARIANTS]
     if unknown or "balanced" not in names:
         raise InvalidInputError(f"speed variants must include balanced and be among {list(VARIANTS)}, got {names}")
@@ -79,7 +93,8 @@ def run_speed(out: Path | None, rounds: int = 15, size: int = 256, shared: bool 
     # One renderer per setting on the one context: each keeps its own shadow maps and targets, as a
     # service rendering one scene at one setting does (a shared renderer would re-make them at
     # every change of size).
-    renderers = {name: Renderer(gl) for name in names}
+    renderers = {name: Renderer(gl, **(VARIANTS[name].get("renderer", {}) if isinstance(VARIANTS[name], dict) else {}))
+                 for name in names}
     try:
         result["device"] = gl.renderer_name
         result["gpu_timers"] = gl.gpu_timers_meaningful
@@ -118,6 +133,12 @@ def run_speed(out: Path | None, rounds: int = 15, size: int = 256, shared: bool 
                            "gpu_ms": _median_gpu_ms(frames[name])}
                     for name, t in times.items()}
             result["scenes"][bs.name] = rows
+            if large and equal_error is not None:
+                from .equal_error import run_equal_error
+
+                last = {name: {"image": fs_[-1].image, "median_ms": rows[name]["median_ms"],
+                               "gpu_ms": rows[name]["gpu_ms"]} for name, fs_ in frames.items()}
+                result["equal_error"] = run_equal_error(last, size, min_triangles, log=log, **equal_error)
             if large:
                 result["triangles"] = int(sum(len(m.faces) for m in bs.meshes))
                 result["garment_triangles"] = int(len(bs.meshes[0].faces))

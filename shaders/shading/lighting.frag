@@ -18,9 +18,18 @@
 // lookups and closed forms of another kind (renderer.py, light_kinds).
 #include "common/lights.glsl"
 
+#ifdef LIGHTING_COMPUTE
+// The same pass as a compute shader, one invocation per pixel (renderer.py, Renderer.lighting_pass):
+// GPUs built for compute (an H100 rasterizes on a few of its multiprocessors) run it on all of them.
+// Uncovered pixels (the geometry pass's position.w = -1) keep the background drawn before.
+layout(local_size_x = 8, local_size_y = 8) in;
+layout(rgba32f, binding = 0) writeonly uniform image2D o_image;
+uniform ivec2 u_pixels;
+#else
 // The full-screen triangle lies at the far plane and the depth test is GREATER against the geometry
 // pass's depth: only covered pixels pass, and blocks with none are skipped before shading.
 layout(early_fragment_tests) in;
+#endif
 
 layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
 layout(std430, binding = 1) readonly buffer GlossLevels { float level_of_g[]; };  // GLOSS_TABLE_SIZE
@@ -53,7 +62,9 @@ uniform int u_glossy_horizon;      // full mode: 0 off, 1 the lobe's share above
                                    // 2 each light's disc share above the triangle's plane, 3 both
                                    // (FrameSettings.glossy_horizon)
 
+#ifndef LIGHTING_COMPUTE
 out vec4 o_color;
+#endif
 
 const float PI = 3.14159265358979;
 
@@ -403,8 +414,15 @@ void shade_light(int i, bool pem_diffuse, bool pem_glossy, bool sharp, bool in_p
 }
 
 void main() {
+#ifdef LIGHTING_COMPUTE
+    ivec2 px = ivec2(gl_GlobalInvocationID.xy);
+    if (any(greaterThanEqual(px, u_pixels))) return;
+    vec4 g_pos = texelFetch(u_g_position, px, 0);
+    if (g_pos.w < 0.0) return;   // no surface: the depth test's job in the fragment pass
+#else
     ivec2 px = ivec2(gl_FragCoord.xy);
     vec4 g_pos = texelFetch(u_g_position, px, 0);
+#endif
     vec4 g_nrm = texelFetch(u_g_normal, px, 0);
     vec3 ws_position = g_pos.xyz;
     vec3 n = g_nrm.xyz;
@@ -485,5 +503,10 @@ void main() {
         g_diffuse *= ao;
         g_glossy *= ao;
     }
-    o_color = vec4(albedo * g_diffuse + specular * g_glossy, 1.0);
+    vec4 color = vec4(albedo * g_diffuse + specular * g_glossy, 1.0);
+#ifdef LIGHTING_COMPUTE
+    imageStore(o_image, px, color);
+#else
+    o_color = color;
+#endif
 }

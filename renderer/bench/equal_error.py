@@ -1,0 +1,80 @@
+"""`garment-render speed --large --equal-error`: the GPU target's "at equal error" half (issue 3,
+section 7): how many samples the Monte Carlo reference needs to be as close to the truth as each
+preset's frame on the large scene, and how long it takes them.
+
+The truth is the mean of `workers` independent reference renders (processes, one per core, each
+`truth_spp` samples per technique); its own noise floor is stated as the bench states it, one half
+of the renders' mean against the other's. The ladder renders the reference at each sample count in
+a process of its own, all at once after the truth; each one's time is its own process's wall clock
+(the reference runs on one core: its times are what one core takes, and a reference split across
+every core would be up to `workers` times faster, which the report states beside the ratio).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing
+import os
+import time
+
+import numpy as np
+
+from ..camera import frame_meshes
+from ..reference import mean_flip, relative_rmse, render_reference
+from .scenes import large_scene
+
+TRUTH_FACE_SIZE = 256   # the bench's reference cube: twice balanced's PEM faces
+
+
+def _reference_job(min_triangles: int, size: int, spp: int, seed: int) -> tuple[np.ndarray, float]:
+    """One reference render of the large scene in a worker process: (image, wall seconds)."""
+    bs = large_scene(min_triangles)
+    camera = frame_meshes(bs.meshes, 1.0)
+    cube = bs.cube(TRUTH_FACE_SIZE)
+    t0 = time.perf_counter()
+    ref = render_reference(bs.meshes, bs.materials, cube, camera, size, size, spp, seed=seed)
+    return np.array(ref.image), time.perf_counter() - t0
+
+
+def run_equal_error(frames: dict[str, dict], size: int, min_triangles: int, truth_spp: int = 128,
+                    workers: int | None = None, ladder: tuple = (1, 2, 4, 8, 16, 32, 64, 128),
+                    log=print) -> dict:
+    """`frames`: {preset: {"image": (H, W, 4), "median_ms": wall, "gpu_ms": GPU or None}} rendered
+    by `run_speed(..., keep_images=True)` on the same scene and camera."""
+    workers = max(2, workers or os.cpu_count() or 2)
+    ctx = multiprocessing.get_context("spawn")   # the parent holds a GL context: no fork
+    with cf.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+        t0 = time.perf_counter()
+        jobs = [pool.submit(_reference_job, min_triangles, size, truth_spp, 1000 + k) for k in range(workers)]
+        renders = [j.result()[0] for j in jobs]
+        truth_s = time.perf_counter() - t0
+        half = len(renders) // 2
+        a, b = np.mean(renders[:half], axis=0), np.mean(renders[half:], axis=0)
+        truth = np.mean(renders, axis=0)
+        mask = truth[..., 3] > 0.5
+        floor_rmse, floor_flip = relative_rmse(a, b, mask), mean_flip(a, b, mask)
+        log(f"  truth: {workers} x {truth_spp} spp in {truth_s:.0f} s; noise floor (half against half, "
+            f"{half * truth_spp} spp each) rel. RMSE {floor_rmse:.4f}, FLIP {floor_flip:.4f}")
+        del renders
+        steps = {spp: pool.submit(_reference_job, min_triangles, size, spp, 100 + spp) for spp in ladder}
+        rungs = []
+        for spp, job in steps.items():
+            image, wall = job.result()
+            rungs.append({"spp": spp, "ms": wall * 1e3, "rel_rmse": relative_rmse(image, truth, mask)})
+    log("  reference ladder (one process each, run side by side): "
+        + ", ".join(f"{r['spp']} spp {r['ms'] / 1e3:.1f} s err {r['rel_rmse']:.3f}" for r in rungs))
+    presets = {}
+    for name, f in frames.items():
+        err, flip = relative_rmse(f["image"], truth, mask), mean_flip(f["image"], truth, mask)
+        rung = next((r for r in rungs if r["rel_rmse"] <= err), None)
+        row = {"rel_rmse": err, "flip": flip, "frame_ms": f["median_ms"], "gpu_ms": f["gpu_ms"],
+               "ref_spp": rung["spp"] if rung else None, "ref_ms": rung["ms"] if rung else None,
+               "speedup": rung["ms"] / f["median_ms"] if rung else None,
+               "speedup_all_cores": rung["ms"] / workers / f["median_ms"] if rung else None}
+        presets[name] = row
+        log(f"  {name}: rel. RMSE {err:.4f}, FLIP {flip:.4f}; "
+            + (f"the reference needs {rung['spp']} spp ({rung['ms'] / 1e3:.1f} s on one core): "
+               f"{row['speedup']:.0f}x the frame's {f['median_ms']:.1f} ms ({row['speedup_all_cores']:.0f}x "
+               f"against {workers} cores)" if rung else "the ladder never gets this close"))
+    return {"size": size, "workers": workers, "truth_spp": truth_spp * workers, "truth_s": truth_s,
+            "noise_floor_rel_rmse": floor_rmse, "noise_floor_flip": floor_flip, "ladder": rungs, "presets": presets}
