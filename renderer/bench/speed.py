@@ -69,6 +69,12 @@ def _median_gpu_ms(frames: list) -> float | None:
     return float(np.median(totals)) if totals else None
 
 
+def _median_stages(frames: list, kind: str) -> dict:
+    """Median per stage of the frames' wall ("wall_ms") or GPU ("gpu_ms") times ({} without them)."""
+    names = frames[0].timings[kind]
+    return {k: float(np.median([f.timings[kind].get(k, 0.0) for f in frames])) for k in names}
+
+
 def run_speed(out: Path | None, rounds: int = 15, size: int = 256, shared: bool = True, log=print,
               large: bool = False, min_triangles: int = LARGE_GARMENT_TRIANGLES,
               variants: list[str] | None = None, equal_error: dict | None = None) -> dict:
@@ -130,7 +136,9 @@ def run_speed(out: Path | None, rounds: int = 15, size: int = 256, shared: bool 
             base = float(np.median(times["balanced"]))
             rows = {name: {"median_ms": float(np.median(t)), "p10_ms": float(np.percentile(t, 10)),
                            "p90_ms": float(np.percentile(t, 90)), "ratio_to_balanced": float(np.median(t)) / base,
-                           "gpu_ms": _median_gpu_ms(frames[name])}
+                           "gpu_ms": _median_gpu_ms(frames[name]),
+                           "stages_ms": _median_stages(frames[name], "wall_ms"),
+                           "gpu_stages_ms": _median_stages(frames[name], "gpu_ms")}
                     for name, t in times.items()}
             result["scenes"][bs.name] = rows
             if large and equal_error is not None:
