@@ -264,10 +264,10 @@ LIGHTING_PASSES = ("fragment", "compute")
 
 def default_lighting_pass(gl_renderer: str) -> str:
     """The lighting pass a GL renderer runs fastest: $GARMENT_RENDER_LIGHTING_PASS when set, else
-    the fragment pass on llvmpipe (its early depth test skips uncovered blocks: the compute pass took
-    1.45x the shading time at 256x256 on the hard-sun scene) and the compute pass on a GPU (an H100
-    runs fragment shaders on the few multiprocessors that can rasterize; docs/benchmarks.md).
-    Both give the same image (bit for bit on llvmpipe; tests/test_render.py)."""
+    the fragment pass on llvmpipe (its early depth test skips uncovered blocks) and the compute pass
+    on a GPU (an H100 runs fragment shaders on the few multiprocessors that can rasterize: 8.8 ms of
+    GPU time against 1.0 ms; docs/benchmarks.md). `garment-render speed` times both. They give the
+    same image (tests/test_render.py)."""
     chosen = os.environ.get("GARMENT_RENDER_LIGHTING_PASS")
     if chosen:
         if chosen not in LIGHTING_PASSES:
@@ -286,10 +286,10 @@ NORMALS = ("cpu", "gpu")
 
 def default_normals(gl_renderer: str) -> str:
     """Where a frame's new positions get their vertex normals: $GARMENT_RENDER_NORMALS when set,
-    else numpy on llvmpipe (the compute pass, which shares the CPU with it, took 13 ms against numpy's
-    8 ms for the 204k-triangle garment of `speed --large`) and the compute pass on a GPU (numpy took
-    about 18 ms there, most of a frame; docs/benchmarks.md). Both give the same normals up to float32
-    rounding (tests/test_render.py)."""
+    else numpy on llvmpipe (a compute pass there runs on the same CPU cores, through a shader
+    compiler's code instead of numpy's loops) and the compute pass on a GPU (on an H100 the upload
+    stage of `speed --large` went from 32 ms to 1.1 ms; docs/benchmarks.md). `garment-render speed
+    --large` times both. They give the same normals up to float32 rounding (tests/test_render.py)."""
     chosen = os.environ.get("GARMENT_RENDER_NORMALS")
     if chosen:
         if chosen not in NORMALS:
