@@ -22,6 +22,8 @@ World space is right-handed and Y-up. Directions are unit vectors pointing *away
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 FACE_NAMES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
@@ -75,11 +77,19 @@ def texel_centers_uv(n: int) -> np.ndarray:
 
 
 def texel_directions(n: int) -> np.ndarray:
-    """Unit directions of all texel centres of a cube of face size n: float64 (6, n, n, 3)."""
+    """Unit directions of all texel centres of a cube of face size n: float64 (6, n, n, 3), read-only
+    (made once per size: every PEM build's median cut reads them)."""
+    return _texel_directions(int(n))
+
+
+@lru_cache(maxsize=8)
+def _texel_directions(n: int) -> np.ndarray:
     c = texel_centers_uv(n)
     v, u = np.meshgrid(c, c, indexing="ij")  # v along rows (t), u along columns (s)
     d = face_uv_to_dir(np.arange(6)[:, None, None], u[None], v[None])
-    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    d.setflags(write=False)
+    return d
 
 
 def _area_element(x: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -61,6 +61,7 @@ class GLContext:
         # Timer queries report nonsense on llvmpipe (GL-NOTES); only trust them on real GPUs.
         self.gpu_timers_meaningful = "llvmpipe" not in self.renderer_name.lower()
         self._released = False
+        self._cached: dict = {}
 
     # -- threading --------------------------------------------------------------------------
     def check_thread(self) -> None:
@@ -97,6 +98,15 @@ class GLContext:
     def info(self) -> dict:
         return {"renderer": self.renderer_name, "version": self.version,
                 "context_create_ms": round(self.create_ms, 2)}
+
+    def cached(self, key: tuple, make):
+        """A GL object made once per context by `make()` and kept until the context is released
+        (compute programs that every PEM build uses: compiling them is most of a build's wall clock
+        on a GPU driver)."""
+        self.check_thread()
+        if key not in self._cached:
+            self._cached[key] = make()
+        return self._cached[key]
 
     def release(self) -> None:
         if not self._released:

@@ -184,10 +184,10 @@ class PEMSet:
         try:
             for i, b in enumerate(buffers):
                 b.bind_to_storage_buffer(i)
-            progs["level0"] = compute_shader(ctx, "pem/level0.comp")
-            progs["down_env"] = compute_shader(ctx, "pem/downsample.comp", {"FROM_ENV": 1})
-            progs["down"] = compute_shader(ctx, "pem/downsample.comp")
-            progs["filter"] = compute_shader(ctx, "pem/filter.comp")
+            for name, file, defines in (("level0", "pem/level0.comp", None),
+                                        ("down_env", "pem/downsample.comp", {"FROM_ENV": 1}),
+                                        ("down", "pem/downsample.comp", None), ("filter", "pem/filter.comp", None)):
+                progs[name] = self.gl.cached(("pem", name), lambda f=file, d=defines: compute_shader(ctx, f, d))
             progs["filter"]["u_taps"].value = tuple(float(t) for t in taps_1d(self.settings.filter))
 
             for first in range(0, n_regions, batch):
@@ -220,9 +220,7 @@ class PEMSet:
                     p.run(*groups(size))
             ctx.memory_barrier()
         finally:
-            for p in progs.values():
-                p.release()
-            for b in buffers:
+            for b in buffers:   # the programs stay with the context (GLContext.cached)
                 b.release()
 
     def _upload(self, stored: dict) -> None:
