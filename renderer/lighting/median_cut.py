@@ -174,29 +174,34 @@ def median_cut(cube: np.ndarray, n_lights: int, whole_sources: bool = False) -> 
     dirs = texel_directions(n)
 
     labels = np.empty((6, n, n), np.int32)
-    out_dirs = np.empty((n_lights, 3))
-    out_omega = np.empty(n_lights)
-    out_energy = np.empty((n_lights, 3))
     out_rects = np.empty((n_lights, 5), np.int32)
-    out_spread = np.empty(n_lights)
-    out_mean_cos = np.empty(n_lights)
     for face in range(6):
         for j, (r0, r1, c0, c1) in enumerate(_cut_face(energy[face], cuts, whole_sources)):
             rid = face * per_face + j
             labels[face, r0:r1, c0:c1] = rid
-            e = energy[face, r0:r1, c0:c1]
-            w = omega[face, r0:r1, c0:c1]
-            d = dirs[face, r0:r1, c0:c1]
-            # Light at the energy centroid; a black region falls back to its solid-angle centroid.
-            weights = e if e.sum() > 0 else w
-            c = (weights[..., None] * d).sum(axis=(0, 1))
-            out_dirs[rid] = c / np.linalg.norm(c)
-            cos_t = np.clip(d @ out_dirs[rid], -1.0, 1.0)
-            out_spread[rid] = np.sqrt(2.0 * (weights * np.arccos(cos_t) ** 2).sum() / weights.sum())
-            out_mean_cos[rid] = (weights * cos_t).sum() / weights.sum()
-            out_omega[rid] = w.sum()
-            out_energy[rid] = (rgb[face, r0:r1, c0:c1] * w[..., None]).sum(axis=(0, 1))
             out_rects[rid] = (face, r0, r1, c0, c1)
+
+    # Per-region sums over the texels, all regions at once (bincount over the labels).
+    lab = labels.reshape(-1)
+
+    def per_region(values: np.ndarray) -> np.ndarray:
+        return np.bincount(lab, weights=values.reshape(-1), minlength=n_lights)
+
+    w = np.broadcast_to(omega, (6, n, n)).reshape(-1)
+    e = energy.reshape(-1)
+    d = dirs.reshape(-1, 3)
+    out_omega = per_region(w)
+    # Light at the energy centroid; a black region falls back to its solid-angle centroid.
+    black = per_region(e) <= 0.0
+    weights = np.where(black[lab], w, e)
+    c = np.stack([per_region(weights * d[:, k]) for k in range(3)], axis=1)
+    out_dirs = c / np.linalg.norm(c, axis=1, keepdims=True)
+    cos_t = np.clip(np.einsum("ij,ij->i", d, out_dirs[lab]), -1.0, 1.0)
+    total = per_region(weights)
+    out_spread = np.sqrt(2.0 * per_region(weights * np.arccos(cos_t) ** 2) / total)
+    out_mean_cos = per_region(weights * cos_t) / total
+    rgb_flat = rgb.reshape(-1, 3)
+    out_energy = np.stack([per_region(rgb_flat[:, k] * w) for k in range(3)], axis=1)
     for arr in (labels, out_dirs, out_omega, out_energy, out_rects, out_spread, out_mean_cos):
         arr.setflags(write=False)
     return RegionSet(labels, out_dirs, out_omega, out_energy, out_rects, out_spread, out_mean_cos)

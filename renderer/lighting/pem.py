@@ -105,9 +105,8 @@ class PEMSet:
         if stored is None:
             self.regions: RegionSet = median_cut(cube[..., :3], settings.n_lights, settings.whole_sources)
             # Per-region scale: the brightest channel of the region's texels (1 for a black region).
-            flat = cube[..., :3].reshape(-1, 3).max(axis=1)
-            peak = np.zeros(self.regions.n_regions)
-            np.maximum.at(peak, self.regions.labels.reshape(-1), flat)
+            brightest = cube[..., :3].max(axis=-1)
+            peak = np.array([brightest[f, r0:r1, c0:c1].max() for f, r0, r1, c0, c1 in self.regions.rects], np.float64)
             self.scale = np.where(peak > 0, peak, 1.0).astype(np.float64)
         else:
             self.regions = RegionSet(**{k: np.asarray(stored["regions_" + k]) for k in RegionSet.__dataclass_fields__})
