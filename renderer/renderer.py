@@ -329,6 +329,7 @@ class Renderer:
         self.bg_vao = ctx.vertex_array(self.bg_prog, [])
         self._shadow_maps: dict[str, ShadowMaps] = {}
         self._target = None
+        self._readback: np.ndarray | None = None
         self._buffers: dict[str, moderngl.Buffer] = {}
         self._gloss_buf = ctx.buffer(reserve=4 * PEMSet.GLOSS_TABLE_SIZE)
         table = horizon_table()
@@ -593,8 +594,12 @@ class Renderer:
             ctx.disable(moderngl.DEPTH_TEST)
 
         t0 = time.perf_counter()
-        raw = fbo.read(components=4, dtype="f4")
-        image = np.frombuffer(raw, np.float32).reshape(h, w, 4)[::-1].copy()  # GL rows start at the bottom
+        # Into a host array kept with the targets (no 16 MB allocation per frame at 1024x1024), then
+        # one copy that turns the rows over (GL rows start at the bottom): the caller owns the image.
+        if self._readback is None or self._readback.shape != (h, w, 4):
+            self._readback = np.empty((h, w, 4), np.float32)
+        fbo.read_into(self._readback, components=4, dtype="f4")
+        image = self._readback[::-1].copy()
         timer.wall_ms["readback"] = (time.perf_counter() - t0) * 1e3
 
         timings = timer.as_dict()
