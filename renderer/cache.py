@@ -1,4 +1,5 @@
-"""The PEM-set cache: bounded in GPU memory with LRU eviction, persisted on disk.
+"""The PEM-set cache: bounded in GPU memory with LRU eviction, persisted on disk within a byte
+budget (the least recently used files go first: a hit renews its file's time).
 
 Key: the environment map's content hash, the cube face size, every PEM setting (light count, filter,
 levels) and a format version, so a change to any of them, or to the build code's output format,
@@ -10,6 +11,8 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import os
+import re
 import time
 from collections import OrderedDict
 from dataclasses import asdict, dataclass
@@ -34,6 +37,7 @@ class CacheStats:
     disk_hits: int = 0
     disk_errors: int = 0
     evictions: int = 0
+    disk_evictions: int = 0
     builds: int = 0
     build_ms_total: float = 0.0
     entries: int = 0
@@ -43,6 +47,10 @@ class CacheStats:
         return asdict(self)
 
 
+# The cache's own files (cache_key's names): eviction never touches anything else in the directory.
+_ENTRY_NAME = re.compile(r"^[0-9a-f]{32}\.npz$")
+
+
 def cache_key(content_hash: str, face_size: int, settings: PEMSettings) -> str:
     raw = f"v{FORMAT_VERSION}|{content_hash}|{face_size}|{settings.key()}"
     return hashlib.sha256(raw.encode()).hexdigest()[:32]
@@ -50,11 +58,14 @@ def cache_key(content_hash: str, face_size: int, settings: PEMSettings) -> str:
 
 class PEMCache:
     """name: shown in statistics; max_bytes: GPU bytes of PEMs kept resident; disk_dir: None for
-    memory only. Used from the GL thread only, like everything holding GPU objects."""
+    memory only; disk_max_bytes: bytes of entries kept in disk_dir (entries of older formats count
+    too, and go first as they are never used). Used from the GL thread only, like everything
+    holding GPU objects."""
 
     def __init__(self, gl: GLContext, max_bytes: int = 1 << 30, disk_dir: str | Path | None = None,
-                 name: str = "pem-sets"):
+                 name: str = "pem-sets", disk_max_bytes: int = 4 << 30):
         self.gl, self.max_bytes, self.name = gl, int(max_bytes), name
+        self.disk_max_bytes = int(disk_max_bytes)
         self.disk_dir = Path(disk_dir) if disk_dir else None
         if self.disk_dir:
             self.disk_dir.mkdir(parents=True, exist_ok=True)
@@ -103,6 +114,10 @@ class PEMCache:
             self.stats.disk_errors += 1
             return None
         self.stats.disk_hits += 1
+        try:
+            os.utime(path)   # recently used: the last to be evicted
+        except OSError:
+            pass
         return pems
 
     def _store(self, key: str, pems: PEMSet) -> None:
@@ -115,6 +130,37 @@ class PEMCache:
         except OSError as exc:
             log.warning("could not write PEM cache entry %s: %s", path, exc)
             self.stats.disk_errors += 1
+            return
+        self._evict_disk(keep=path)
+
+    def _evict_disk(self, keep: Path) -> None:
+        """Delete the least recently used entries until the directory's entries fit disk_max_bytes
+        (never `keep`, the entry just written). Another process may delete or use them meanwhile: a
+        file gone is skipped, and a reader that still holds one open keeps its data."""
+        entries = []
+        for path in self.disk_dir.iterdir():
+            if not _ENTRY_NAME.match(path.name):
+                continue
+            try:
+                st = path.stat()
+            except OSError:
+                continue
+            entries.append((st.st_mtime, st.st_size, path))
+        total = sum(size for _, size, _ in entries)
+        for _, size, path in sorted(entries, key=lambda e: e[0]):
+            if total <= self.disk_max_bytes:
+                break
+            if path == keep:
+                continue
+            try:
+                path.unlink()
+            except FileNotFoundError:
+                pass
+            except OSError as exc:
+                log.warning("could not evict PEM cache entry %s: %s", path, exc)
+                continue
+            total -= size
+            self.stats.disk_evictions += 1
 
     def _evict(self, keep: str) -> None:
         while self._resident_bytes() > self.max_bytes and len(self._entries) > 1:

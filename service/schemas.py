@@ -210,6 +210,9 @@ class PemSetInfo(BaseModel):
     n_lights: int
     filter: str
     levels: int
+    base_level: int = Field(description="the first MIP level kept (0 unless only the levels the scene's "
+                                         "glossiness reads were built)")
+    whole_sources: bool = Field(description="the median cut kept compact bright sources whole")
     source: str = Field(description="where the first request for it found it: built, disk or memory")
     build_ms: float
     median_cut_ms: float

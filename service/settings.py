@@ -41,6 +41,8 @@ class ServiceSettings(BaseSettings):
 
     pem_cache_bytes: int = Field(1 << 30, ge=0, description="GPU memory of PEM sets kept resident (LRU)")
     pem_cache_dir: Path | None = Field(None, description="PEM sets persisted here; None: memory only")
+    pem_cache_disk_bytes: int = Field(4 << 30, ge=0, description="bytes of PEM sets kept in pem_cache_dir "
+                                                                  "(least recently used deleted first)")
 
     state_dir: Path | None = Field(
         None, description="environments and scenes kept here, so every worker process (and a restarted service) "

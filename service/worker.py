@@ -191,7 +191,7 @@ class RenderWorker:
         try:
             renderer = Renderer()
             cache = PEMCache(renderer.gl, self.settings.pem_cache_bytes, self.settings.pem_cache_dir,
-                             name="pem-sets")
+                             name="pem-sets", disk_max_bytes=self.settings.pem_cache_disk_bytes)
         except Exception as exc:  # GLContextError, or an unwritable cache dir
             self.startup_error = exc
             self._ready.set()

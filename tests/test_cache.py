@@ -63,3 +63,42 @@ def test_disk_cache_survives_a_restart_and_ignores_corrupt_entries(gl, tmp_path)
     fourth.get("map", cube, PEMSettings(12))
     assert fourth.stats.disk_hits == 1
     fourth.clear()
+
+
+def test_disk_cache_keeps_within_its_bytes_least_recently_used_first(gl, tmp_path):
+    import os
+
+    foreign = tmp_path / "notes.npz"                   # not the cache's: never evicted
+    foreign.write_bytes(b"x" * 10)
+    probe = PEMCache(gl, disk_dir=tmp_path / "probe")
+    probe.get("p", _cube(0), PEMSettings(6))
+    size = next((tmp_path / "probe").glob("*.npz")).stat().st_size
+    probe.clear()
+
+    cache = PEMCache(gl, disk_dir=tmp_path, disk_max_bytes=2 * size + size // 2)
+    keys = {}
+    for t, name in enumerate("abc"):
+        cache.get(name, _cube(t + 1), PEMSettings(6))
+        keys[name] = cache_key(name, 16, PEMSettings(6))
+        os.utime(tmp_path / f"{keys[name]}.npz", (1000 + t, 1000 + t))   # distinct times, a before b before c
+        cache.clear()                                  # the next get reads the disk, not GPU memory
+    # Three entries of 2.5 allowed: writing c evicted a, the least recently used.
+    assert cache.stats.disk_evictions == 1
+    assert not (tmp_path / f"{keys['a']}.npz").exists() and foreign.exists()
+    cache.get("b", _cube(2), PEMSettings(6))           # a disk hit renews b's time
+    assert cache.stats.disk_hits == 1
+    cache.clear()
+    cache.get("d", _cube(4), PEMSettings(6))           # so writing d evicts c, not b
+    cache.clear()
+    left = {p.name for p in tmp_path.glob("*.npz")}
+    assert left == {"notes.npz", f"{keys['b']}.npz", f"{cache_key('d', 16, PEMSettings(6))}.npz"}
+    assert cache.stats.disk_evictions == 2
+
+
+def test_an_entry_larger_than_the_disk_budget_is_still_written(gl, tmp_path):
+    cache = PEMCache(gl, disk_dir=tmp_path, disk_max_bytes=0)
+    cache.get("a", _cube(1), PEMSettings(6))
+    cache.get("b", _cube(2), PEMSettings(6))
+    # Only the newest stays: the set just built is what the next restart needs.
+    assert [p.stem for p in tmp_path.glob("*.npz")] == [cache_key("b", 16, PEMSettings(6))]
+    cache.clear()

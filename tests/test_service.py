@@ -228,6 +228,11 @@ def test_environment_details_and_preview(http, env_upload):
     # their materials read.
     pem = d["pem_sets"][0]
     assert pem["n_lights"] == 12 and pem["face_size"] == 32 and pem["build_ms"] > 0
+    # What tells the sets apart besides the key: the levels kept and the cut.
+    assert pem["base_level"] == 0 and pem["whole_sources"] is True
+    described = {(p["n_lights"], p["face_size"], p["filter"], p["levels"], p["base_level"], p["whole_sources"])
+                 for p in d["pem_sets"]}
+    assert len(described) == len({p["key"] for p in d["pem_sets"]})
     dirs = np.array([light["direction"] for light in pem["lights"]])
     assert dirs.shape == (12, 3) and np.allclose(np.linalg.norm(dirs, axis=1), 1.0, atol=1e-6)
     assert sum(light["energy_share"] for light in pem["lights"]) == pytest.approx(1.0, abs=1e-6)

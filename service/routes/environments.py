@@ -42,7 +42,8 @@ def pem_set_info(env: EnvironmentRecord, info: PemInfo, with_lights: bool) -> Pe
                             energy_share=float(l / total), solid_angle_sr=float(sa))
                   for d, e, l, sa in zip(info.directions, info.energy_rgb, lum, info.solid_angle_sr)]
     return PemSetInfo(key=info.key, face_size=info.face_size, n_lights=info.settings.n_lights,
-                      filter=info.settings.filter.value, levels=s["levels"], source=info.source,
+                      filter=info.settings.filter.value, levels=s["levels"], base_level=s["base_level"],
+                      whole_sources=info.settings.whole_sources, source=info.source,
                       build_ms=s["build_ms"], median_cut_ms=s["median_cut_ms"], bytes=s["bytes"], lights=lights,
                       preview_url=f"/environments/{env.id}/preview.png?pem={info.key}")
 
