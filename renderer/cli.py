@@ -92,6 +92,10 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
                    help="sharp lights within this many degrees (at most 30) of a brighter one whose disc theirs "
                         "overlaps share its map, drawn along their energy-weighted direction (a sun split into a "
                         "few regions); 0: one map each (default: the preset's)")
+    q.add_argument("--sharp-full-detail-deg", type=float,
+                   help="sharp maps of lights whose disc is at most this many degrees in radius (a sun) draw the "
+                        "casters at full detail, larger ones' at --caster-detail; 90: every sharp map at full "
+                        "detail (default: the preset's)")
     q.add_argument("--sharp-max-maps", type=int,
                    help="at most this many sharp maps, the brightest lights' first; the others go to the main maps "
                         "(0: no cap; default: the preset's)")

@@ -123,6 +123,11 @@ class FrameSettings:
     # At most this many sharp maps (the brightest lights' groups); the other lights go back to the main
     # maps. 0: no cap.
     sharp_max_maps: int = 0
+    # Sharp maps of lights whose disc is at most this many degrees in radius (a sun) draw the casters
+    # at full detail; larger sharp lights' maps (an interior's lamps, whole since the median cut keeps
+    # compact sources whole: penumbrae wide enough that the proxy's facets do not show) draw them at
+    # caster_detail. 90: every sharp map at full detail.
+    sharp_full_detail_deg: float = 90.0
     horizon: bool = False          # VIS_i includes the tangent plane (see lighting.frag); off: the paper
     # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level),
     # "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups) or
@@ -173,6 +178,9 @@ class FrameSettings:
                                     f"{self.sharp_share_deg!r}")   # also refuses NaN
         if not (_whole(self.sharp_max_maps) and 0 <= self.sharp_max_maps <= 4096):
             raise InvalidInputError(f"sharp_max_maps is a whole number in 0..4096 (0: no cap), got {self.sharp_max_maps!r}")
+        if isinstance(self.sharp_full_detail_deg, bool) or not (0.0 <= self.sharp_full_detail_deg <= 90.0):
+            raise InvalidInputError(f"sharp_full_detail_deg is a disc radius in [0, 90] degrees, got "
+                                    f"{self.sharp_full_detail_deg!r}")   # also refuses NaN
         if not (0.0 < self.caster_detail <= 1.0):
             raise InvalidInputError(f"caster detail is the share of triangles kept, in (0, 1], got {self.caster_detail}")
         if not (0.0 <= self.shadow_threshold <= 1.0):
@@ -482,12 +490,23 @@ class Renderer:
         shadow_maps = self._shadow_maps_for("main", settings.shadow_size, max(len(plan.main_lights), 1))
         arrays = {"main": shadow_maps}
         if len(plan.main_lights):
-            shadow_maps.render([sm.shadow_vao(settings.caster_detail) for sm in casters], lights_buf,
+            shadow_maps.render([([sm.shadow_vao(settings.caster_detail) for sm in casters], -1)], lights_buf,
                                self._buffer("shadow_lights_main", plan.main_lights.tobytes()), timer)
+        sharp_coarse = np.zeros(len(plan.sharp_lights), bool)
         if len(plan.sharp_lights):
             arrays["sharp"] = self._shadow_maps_for("sharp", settings.shadow_size * k, len(plan.sharp_lights))
-            arrays["sharp"].render([sm.vao_shadow for sm in casters], lights_buf,
-                                   self._buffer("shadow_lights_sharp", plan.sharp_lights.tobytes()), timer)
+            # Each sharp map at full caster detail or, for a light with a larger disc, at caster_detail
+            # (sharp_full_detail_deg): one pass per detail, each drawing only its own layers.
+            coarse_min_sin = float(np.sin(np.radians(settings.sharp_full_detail_deg)))
+            if settings.sharp_full_detail_deg < 90.0 and settings.caster_detail < 1.0:
+                sharp_coarse = np.sin(disc_radius[plan.sharp_lights]) > coarse_min_sin
+            passes = [([sm.vao_shadow for sm in casters], 0)] if not sharp_coarse.all() else []
+            if sharp_coarse.any():
+                passes.append(([sm.shadow_vao(settings.caster_detail) for sm in casters], 1))
+            if len(passes) == 1:
+                passes = [(passes[0][0], -1)]   # one detail for every layer: no layer is skipped
+            arrays["sharp"].render(passes, lights_buf, self._buffer("shadow_lights_sharp", plan.sharp_lights.tobytes()),
+                                   timer, coarse_min_sin=coarse_min_sin)
         elif "sharp" in self._shadow_maps:   # no small light now: give its memory back
             self._shadow_maps.pop("sharp").release()
 
@@ -613,7 +632,9 @@ class Renderer:
         full = sum(sm.shadow_triangles(1.0) for sm in scene.meshes if sm.caster)
         coarse = (sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster)
                   if len(plan.main_lights) else 0)
-        timings["shadow_triangles"] = len(plan.sharp_lights) * full + len(plan.main_lights) * coarse
+        coarse_all = sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster)
+        timings["shadow_triangles"] = (int((~sharp_coarse).sum()) * full + int(sharp_coarse.sum()) * coarse_all
+                                       + len(plan.main_lights) * coarse)
         timings["device"] = gl.renderer_name
         timings["lighting_pass"] = self.lighting_pass
         timings["normals"] = self.normals if positions is not None else None

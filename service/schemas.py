@@ -112,6 +112,9 @@ class QualitySpec(_Strict):
                                    "theirs overlaps share its map (a sun split into a few regions)")
     sharp_max_maps: int = Field(_KNOB["sharp_max_maps"], ge=0, le=4096, strict=True, description="at most this many "
                                 "sharp maps, the brightest lights' first (0: no cap)")
+    sharp_full_detail_deg: float = Field(_KNOB["sharp_full_detail_deg"], ge=0.0, le=90.0, strict=True,
+                                         description="sharp maps of lights whose disc is at most this many degrees "
+                                         "in radius draw the casters at full detail, larger ones' at caster_detail")
     normal_offset_texels: float = Field(_KNOB["normal_offset_texels"], ge=0.0, le=MAX_BIAS_TEXELS, strict=True,
                                         description="shadow lookups pushed off the surface along the normal by "
                                         "this many of the main maps' texels")

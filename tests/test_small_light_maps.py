@@ -14,7 +14,7 @@ from renderer.errors import InvalidInputError
 from renderer.lighting.pem import PEMSettings
 from renderer.renderer import Background, FrameSettings
 from renderer.shading.material import Material
-from renderer.shadows.lights import plan_layers
+from renderer.shadows.lights import SMALL_LIGHT_MAX_SIN, plan_layers
 
 
 def test_small_lights_get_layers_of_the_sharp_array():
@@ -253,3 +253,48 @@ def test_shadow_size_is_a_whole_number_of_texels_from_16():
         with pytest.raises(InvalidInputError, match="shadow_size"):
             FrameSettings(shadow_size=bad)
 
+
+
+def test_sharp_maps_of_larger_discs_draw_the_proxy_and_a_suns_the_full_meshes(renderer):
+    """sharp_full_detail_deg: a sun's sharp map (a 1-degree disc) from the full meshes, a lamp's (a
+    4-degree disc) from the caster proxy; each layer drawn by exactly one of the two passes."""
+    from renderer.envmap.cube import texel_directions
+
+    d = texel_directions(64)
+    cube = np.where(d[..., 1:2] > 0, 0.02, 0.0).astype(np.float32) * np.ones(3, np.float32)
+    for direction, radius, radiance in (((0.4, 1.0, 0.3), 1.0, 2e4), ((-0.5, 1.0, -0.2), 4.0, 1e3)):
+        s = np.asarray(direction) / np.linalg.norm(direction)
+        cube[(d @ s) > np.cos(np.radians(radius))] = radiance
+    scene = renderer.create_scene([sphere(0.4, centre=(0.0, 0.8, 0.0), subdivisions=5), plane(3.0)],
+                                  [Material((0.5, 0.5, 0.5)), Material((0.8, 0.8, 0.8))])
+    pems = renderer.build_pems(cube, PEMSettings(48, whole_sources=True))
+    cam = Camera((0.0, 3.0, 2.5), (0.0, 0.2, 0.0), fov_y_deg=50.0)
+    try:
+        def frame(limit_deg):
+            fs = FrameSettings(48, 48, shadow_size=32, small_light_scale=2, small_light_min_energy=1.0,
+                               caster_detail=0.25, sharp_full_detail_deg=limit_deg)
+            f = renderer.render(scene, pems, fs, cam)
+            return f, renderer._shadow_maps["sharp"].read().copy()
+
+        (full, m_full), (coarse, m_coarse), (mixed, m_mixed) = frame(90.0), frame(0.0), frame(2.0)
+    finally:
+        pems.release()
+        scene.release()
+    radius = np.degrees(pems.regions.disc_radius_rad())
+    relative = pems.regions.energy_luminance / pems.regions.energy_luminance.mean()
+    sharp = (np.sin(np.radians(radius)) <= SMALL_LIGHT_MAX_SIN) & (relative >= 1.0)
+    assert (sharp & (radius <= 2.0)).any() and (sharp & (radius > 2.0)).any()   # the sun's and the lamp's
+    n_layers = full.timings["sharp_layers"]
+    assert n_layers == coarse.timings["sharp_layers"] == mixed.timings["sharp_layers"] == m_full.shape[0] >= 2
+    # Every layer of the mixed frame is the full-detail frame's or the proxy's, bit for bit: one of each
+    # at least, and none left empty or drawn twice.
+    from_full = [np.array_equal(m_mixed[k], m_full[k]) for k in range(n_layers)]
+    from_proxy = [np.array_equal(m_mixed[k], m_coarse[k]) for k in range(n_layers)]
+    differ = [not np.array_equal(m_full[k], m_coarse[k]) for k in range(n_layers)]
+    assert all(a or b for a, b in zip(from_full, from_proxy)) and all(differ)
+    assert any(from_full) and any(from_proxy)
+    t = [f.timings["shadow_triangles"] for f in (coarse, mixed, full)]
+    assert t[0] < t[1] < t[2], t
+    for bad in (-1.0, 91.0, float("nan"), True):
+        with pytest.raises(InvalidInputError, match="sharp_full_detail_deg"):
+            FrameSettings(sharp_full_detail_deg=bad)

@@ -38,6 +38,7 @@ VARIANTS = {
     "balanced, bright large lights' maps at scale 4 too": {"sharp_large_lights": True},
     "balanced, bright large lights too, at most 2 sharp maps": {"sharp_large_lights": True, "sharp_max_maps": 2},
     "balanced, no contact shadows": {"contact_shadow_texels": 0.0},
+    "balanced, every sharp map at full caster detail": {"sharp_full_detail_deg": 90.0},
     "balanced, large lights' diffuse term from the PEMs": {"diffuse": "mixed"},
     "fast": "fast",
     "accurate": "accurate",

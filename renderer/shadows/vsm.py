@@ -54,10 +54,12 @@ class ShadowMaps:
         layers = 2 * self.n_lights + (0 if self.target is self.moments else self.batch_layers)
         return self.size * self.size * 8 * layers
 
-    def render(self, vaos: list[moderngl.VertexArray], lights_buffer: moderngl.Buffer,
-               shadow_lights_buffer: moderngl.Buffer, timer: StageTimer | None = None, enabled: bool = True) -> None:
+    def render(self, passes: list[tuple[list[moderngl.VertexArray], int]], lights_buffer: moderngl.Buffer,
+               shadow_lights_buffer: moderngl.Buffer, timer: StageTimer | None = None, enabled: bool = True,
+               coarse_min_sin: float = 1.0) -> None:
         """Render and blur the moments of every shadowed light (layer k: light shadow_lights[k]).
-        `vaos` draw the casters with `self.prog`."""
+        `passes`: (vertex arrays drawing the casters with `self.prog`, which layers they draw): -1
+        every layer; 0 the layers of lights whose disc's sine is at most `coarse_min_sin`; 1 the others."""
         gl, ctx = self.gl, self.gl.ctx
         gl.check_thread()
         lights_buffer.bind_to_storage_buffer(0)
@@ -74,8 +76,12 @@ class ShadowMaps:
                     ctx.enable(moderngl.BLEND)
                     ctx.blend_equation = moderngl.MIN
                     self.prog["u_first_light"].value = first
-                    for vao in vaos:
-                        vao.render(moderngl.TRIANGLES, instances=count)
+                    for vaos, which in passes:
+                        self.prog["u_detail_pass"].value = which
+                        if "u_coarse_min_sin" in self.prog:
+                            self.prog["u_coarse_min_sin"].value = coarse_min_sin
+                        for vao in vaos:
+                            vao.render(moderngl.TRIANGLES, instances=count)
                     ctx.blend_equation = moderngl.FUNC_ADD
                     ctx.disable(moderngl.BLEND)
             with gl.stage(timer, "blur"):
