@@ -654,6 +654,7 @@ class Renderer:
         if self._target is not None:
             for obj in self._target[1]:
                 obj.release()
+        self._target, self._readback = None, None
         for buf in self._buffers.values():
             buf.release()
         self._gloss_buf.release()

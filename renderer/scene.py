@@ -14,6 +14,11 @@ from .shading.material import Material
 from .shadows.proxy import caster_proxy
 
 
+# Work groups per dispatch dimension that every GL 4.5 driver takes (llvmpipe's limit): larger meshes'
+# normals pass dispatches a second dimension.
+MAX_GROUPS_X = 65535
+
+
 class SceneMesh:
     """One mesh's buffers, vertex arrays and material textures; owned by its `Scene`."""
 
@@ -122,7 +127,8 @@ class SceneMesh:
         p["u_fallback"].value = FALLBACK_NORMAL
         for unit, buf in enumerate((self.vbo_pos, self.ibo, *self._adjacency, self.vbo_nrm)):
             buf.bind_to_storage_buffer(unit)
-        p.run((self.n_vertices + 63) // 64)
+        groups = (self.n_vertices + 63) // 64
+        p.run(min(groups, MAX_GROUPS_X), (groups + MAX_GROUPS_X - 1) // MAX_GROUPS_X)
         self._ctx.memory_barrier()   # the normals are read as a vertex attribute next
 
     def release(self) -> None:

@@ -110,3 +110,25 @@ def test_the_assets_folder_can_be_named(monkeypatch, tmp_path):
     assert [s.name for s in found] == [f"newton-shirt/{k}" for k in scenes.TARGET_PROBES]
     monkeypatch.delenv(scenes.ASSETS_VARIABLE)
     assert scenes.shared_assets() == scenes.SHARED_ASSETS
+
+
+def test_speed_large_equal_error_sets_each_setting_against_a_reference_ladder():
+    from conftest import asset
+    from renderer.bench.speed import run_speed
+
+    asset("sim", "newton_shirt_drape_f060.obj")
+    logged = []
+    result = run_speed(None, rounds=1, size=8, large=True, min_triangles=20_000, variants=["balanced", "fast"],
+                       equal_error={"truth_spp": 4, "workers": 2, "ladder": (1, 2, 4)}, log=logged.append)
+    e = result["equal_error"]
+    assert e["workers"] == 2 and e["truth_spp"] == 8 and e["truth_rel_rmse"] == pytest.approx(e["noise_floor_rel_rmse"] / 2)
+    # 4 spp would be half the truth's 8: the ladder stops at a quarter.
+    assert [r["spp"] for r in e["ladder"]] == [1, 2] and any("stops at 2 spp" in line for line in logged)
+    assert all(r["ms"] > 0 and r["rel_rmse"] > 0 for r in e["ladder"])
+    for name in ("balanced", "fast"):
+        row = e["presets"][name]
+        assert row["rel_rmse"] > 0 and row["frame_ms"] > 0
+        if row["ref_spp"] is not None:   # the first rung at least as close as the setting
+            rung = next(r for r in e["ladder"] if r["spp"] == row["ref_spp"])
+            assert row["resolved"] and rung["rel_rmse"] <= row["rel_rmse"]
+            assert row["speedup"] == pytest.approx(rung["ms"] / row["frame_ms"])

@@ -419,28 +419,30 @@ def test_compute_lighting_pass_gives_the_fragment_pass_image(renderer, mode):
     """The lighting pass as a compute shader (what a GPU runs) shades every pixel as the
     full-screen triangle does, in every mode, with contact shadows, small and large lights, the
     background left where no surface is, and PEMs in two textures (384 lights)."""
-    compute = Renderer(renderer.gl, "compute")
+    # Both passes named (the fixture's default is the compute pass on a GPU); a size that is not a
+    # multiple of the 8x8 work groups, so that the compute pass's bounds check runs.
+    fragment, compute = Renderer(renderer.gl, "fragment"), Renderer(renderer.gl, "compute")
     meshes, mats = [sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)], [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()]
     cube = sun_sky_cube(32, (0.4, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3)
     frames = {}
     try:
-        for r in (renderer, compute):
+        for r in (fragment, compute):
             scene = r.create_scene(meshes, mats)
             images = []
             try:
                 for n_lights in (48, 384):
                     pems = r.build_pems(cube, PEMSettings(n_lights))
                     try:
-                        images.append(r.render(scene, pems, FrameSettings(48, 40, mode=mode), CAM))
+                        images.append(r.render(scene, pems, FrameSettings(45, 37, mode=mode), CAM))
                     finally:
                         pems.release()
             finally:
                 scene.release()
             frames[r.lighting_pass] = images
     finally:
+        fragment.release()
         compute.release()
-    assert renderer.lighting_pass == "fragment" or renderer.lighting_pass == "compute"
-    for frag, comp in zip(frames[renderer.lighting_pass], frames["compute"]):
+    for frag, comp in zip(frames["fragment"], frames["compute"]):
         assert comp.timings["lighting_pass"] == "compute"
         assert np.isfinite(comp.image).all() and covered(comp).sum() > 100
         np.testing.assert_array_equal(frag.image[..., 3], comp.image[..., 3])
@@ -470,7 +472,8 @@ def test_an_unknown_lighting_pass_or_normals_place_is_refused(renderer):
         Renderer(renderer.gl, normals="tpu")
 
 
-def test_normals_made_on_the_gpu_match_numpys(renderer):
+@pytest.mark.parametrize("groups_x", [65535, 7])
+def test_normals_made_on_the_gpu_match_numpys(renderer, monkeypatch, groups_x):
     """A frame's new positions get the normals of renderer/mesh.py vertex_normals from the compute
     pass: area-weighted, and the fallback where the faces cancel, are degenerate or there are none."""
     from renderer.mesh import FALLBACK_NORMAL, vertex_normals
@@ -484,6 +487,8 @@ def test_normals_made_on_the_gpu_match_numpys(renderer):
     mesh = Mesh.from_arrays(np.vstack([s.positions, extra]), faces, name="odd")
     moved = (mesh.positions + rng.normal(0, 0.01, mesh.positions.shape)).astype(np.float32)
     moved[n0:] = extra   # keep the odd vertices odd
+    # 7 groups a row: the two-dimensional dispatch that meshes of over 4M vertices need.
+    monkeypatch.setattr("renderer.scene.MAX_GROUPS_X", groups_x)
     with Renderer(renderer.gl, normals="gpu") as r:   # the fixture's context: one current context per thread
         scene = r.create_scene([mesh], [Material()])
         pems = r.build_pems(np.full((6, 8, 8, 3), 1.0, np.float32), PEMSettings(6))

@@ -72,7 +72,7 @@ def _median_gpu_ms(frames: list) -> float | None:
 
 def _median_stages(frames: list, kind: str) -> dict:
     """Median per stage of the frames' wall ("wall_ms") or GPU ("gpu_ms") times ({} without them)."""
-    names = frames[0].timings[kind]
+    names = dict.fromkeys(k for f in frames for k in f.timings[kind])
     return {k: float(np.median([f.timings[kind].get(k, 0.0) for f in frames])) for k in names}
 
 

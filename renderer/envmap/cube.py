@@ -82,7 +82,7 @@ def texel_directions(n: int) -> np.ndarray:
     return _texel_directions(int(n))
 
 
-@lru_cache(maxsize=8)
+@lru_cache(maxsize=3)   # 151 MB at 1024^2 faces: the few sizes a process uses
 def _texel_directions(n: int) -> np.ndarray:
     c = texel_centers_uv(n)
     v, u = np.meshgrid(c, c, indexing="ij")  # v along rows (t), u along columns (s)

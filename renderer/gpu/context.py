@@ -111,5 +111,8 @@ class GLContext:
     def release(self) -> None:
         if not self._released:
             self.check_thread()
+            for obj in self._cached.values():
+                obj.release()
+            self._cached.clear()
             self.ctx.release()
             self._released = True

@@ -18,7 +18,8 @@ vec3 position(int v) {
 }
 
 void main() {
-    int v = int(gl_GlobalInvocationID.x);
+    // Two-dimensional dispatch past 65535 groups (the least GL guarantees per dimension).
+    int v = int(gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x);
     if (v >= u_n_vertices) return;
     vec3 sum = vec3(0.0);
     float area_sum = 0.0;
