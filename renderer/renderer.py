@@ -276,17 +276,18 @@ def default_lighting_pass(gl_renderer: str) -> str:
     on a GPU (an H100 runs fragment shaders on the few multiprocessors that can rasterize: 8.8 ms of
     GPU time against 1.0 ms; docs/benchmarks.md). `garment-render speed` times both. They give the
     same image (tests/test_render.py)."""
-    chosen = os.environ.get("GARMENT_RENDER_LIGHTING_PASS")
+    return _by_renderer("GARMENT_RENDER_LIGHTING_PASS", LIGHTING_PASSES, gl_renderer)
+
+
+def _by_renderer(variable: str, choices: tuple[str, str], gl_renderer: str) -> str:
+    """$variable when set (one of `choices`), else choices[0] on Mesa's llvmpipe (the CPU: every pass
+    shares the cores with Python and numpy) and choices[1] on a GPU."""
+    chosen = os.environ.get(variable)
     if chosen:
-        if chosen not in LIGHTING_PASSES:
-            raise InvalidInputError(f"$GARMENT_RENDER_LIGHTING_PASS must be one of {LIGHTING_PASSES}, got {chosen!r}")
+        if chosen not in choices:
+            raise InvalidInputError(f"${variable} must be one of {choices}, got {chosen!r}")
         return chosen
-    return "fragment" if _software_renderer(gl_renderer) else "compute"
-
-
-def _software_renderer(gl_renderer: str) -> bool:
-    """Mesa's llvmpipe (the CPU): every pass shares the cores with Python and numpy."""
-    return "llvmpipe" in gl_renderer.lower()
+    return choices[0] if "llvmpipe" in gl_renderer.lower() else choices[1]
 
 
 NORMALS = ("cpu", "gpu")
@@ -298,12 +299,7 @@ def default_normals(gl_renderer: str) -> str:
     compiler's code instead of numpy's loops) and the compute pass on a GPU (on an H100 the upload
     stage of `speed --large` went from 32 ms to 1.1 ms; docs/benchmarks.md). `garment-render speed
     --large` times both. They give the same normals up to float32 rounding (tests/test_render.py)."""
-    chosen = os.environ.get("GARMENT_RENDER_NORMALS")
-    if chosen:
-        if chosen not in NORMALS:
-            raise InvalidInputError(f"$GARMENT_RENDER_NORMALS must be one of {NORMALS}, got {chosen!r}")
-        return chosen
-    return "cpu" if _software_renderer(gl_renderer) else "gpu"
+    return _by_renderer("GARMENT_RENDER_NORMALS", NORMALS, gl_renderer)
 
 
 class Renderer:
