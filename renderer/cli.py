@@ -456,8 +456,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--no-shared", action="store_true", help="bundled scene only (skip ../shared/assets)")
     sp.add_argument("--large", action="store_true",
                     help="the GPU target's scene instead: the newton shirt subdivided to at least --min-triangles "
-                         "on its dress form under the hard sun, positions uploaded every frame, balanced, fast and "
-                         "accurate, with the PEM set's build time (needs ../shared/assets)")
+                         "on its dress form under the hard sun, positions uploaded every frame: balanced, fast, "
+                         "accurate and balanced with either lighting pass and either place for the normals, with the "
+                         "PEM set's build time (needs ../shared/assets)")
     sp.add_argument("--min-triangles", type=int, default=100_000, help="the --large garment's least triangle count")
     sp.add_argument("--equal-error", action="store_true",
                     help="with --large: the reference's samples and time to match each preset's error (a truth of "

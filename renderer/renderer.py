@@ -279,13 +279,15 @@ def default_lighting_pass(gl_renderer: str) -> str:
     return _by_renderer("GARMENT_RENDER_LIGHTING_PASS", LIGHTING_PASSES, gl_renderer)
 
 
-def _by_renderer(variable: str, choices: tuple[str, str], gl_renderer: str) -> str:
-    """$variable when set (one of `choices`), else choices[0] on Mesa's llvmpipe (the CPU: every pass
-    shares the cores with Python and numpy) and choices[1] on a GPU."""
-    chosen = os.environ.get(variable)
+def _by_renderer(variable: str, choices: tuple[str, str], gl_renderer: str, given: str | None = None,
+                 what: str = "") -> str:
+    """`given` (the argument `what`) when not None, else $variable when set, each one of `choices`;
+    else choices[0] on Mesa's llvmpipe (the CPU: every pass shares the cores with Python and numpy)
+    and choices[1] on a GPU."""
+    name, chosen = (what, given) if given is not None else (f"${variable}", os.environ.get(variable))
     if chosen:
         if chosen not in choices:
-            raise InvalidInputError(f"${variable} must be one of {choices}, got {chosen!r}")
+            raise InvalidInputError(f"{name} must be one of {choices}, got {chosen!r}")
         return chosen
     return choices[0] if "llvmpipe" in gl_renderer.lower() else choices[1]
 
@@ -309,17 +311,14 @@ class Renderer:
         """`lighting_pass`: "fragment" (a full-screen triangle) or "compute"; `normals`: where a frame's
         new positions get their vertex normals, "cpu" (numpy) or "gpu" (a compute pass). None: what
         this GL renderer runs fastest (default_lighting_pass, default_normals)."""
-        self.lighting_pass = lighting_pass
         self._owns_gl = gl is None
-        if lighting_pass is not None and lighting_pass not in LIGHTING_PASSES:
-            raise InvalidInputError(f"lighting_pass must be one of {LIGHTING_PASSES}, got {lighting_pass!r}")
-        if normals is not None and normals not in NORMALS:
-            raise InvalidInputError(f"normals must be one of {NORMALS}, got {normals!r}")
         self.gl = gl or GLContext()
         ctx = self.gl.ctx
         try:
-            self.lighting_pass = lighting_pass or default_lighting_pass(self.gl.renderer_name)
-            self.normals = normals or default_normals(self.gl.renderer_name)
+            name = self.gl.renderer_name
+            self.lighting_pass = _by_renderer("GARMENT_RENDER_LIGHTING_PASS", LIGHTING_PASSES, name, lighting_pass,
+                                              "lighting_pass")
+            self.normals = _by_renderer("GARMENT_RENDER_NORMALS", NORMALS, name, normals, "normals")
         except InvalidInputError:
             if self._owns_gl:
                 self.gl.release()
@@ -422,9 +421,6 @@ class Renderer:
         objs = self._target[1]
         return objs[0], objs[1], list(objs[4:])
 
-    def _color_target(self) -> moderngl.Texture:
-        return self._target[1][2]
-
     def _buffer(self, name: str, data: bytes) -> moderngl.Buffer:
         """A per-frame storage buffer, re-created only when its size changes."""
         buf = self._buffers.get(name)
@@ -492,15 +488,14 @@ class Renderer:
         if len(plan.sharp_lights):
             arrays["sharp"] = self._shadow_maps_for("sharp", settings.shadow_size * k, len(plan.sharp_lights))
             # Each sharp map at full caster detail or, for a light with a larger disc, at caster_detail
-            # (sharp_full_detail_deg): one pass per detail, each drawing only its own layers.
+            # (sharp_full_detail_deg): one pass per detail, each drawing only its own layers (-1: all).
             coarse_min_sin = float(np.sin(np.radians(settings.sharp_full_detail_deg)))
             if settings.sharp_full_detail_deg < 90.0 and settings.caster_detail < 1.0:
                 sharp_coarse = np.sin(disc_radius[plan.sharp_lights]) > coarse_min_sin
-            passes = [([sm.vao_shadow for sm in casters], 0)] if not sharp_coarse.all() else []
-            if sharp_coarse.any():
-                passes.append(([sm.shadow_vao(settings.caster_detail) for sm in casters], 1))
-            if len(passes) == 1:
-                passes = [(passes[0][0], -1)]   # one detail for every layer: no layer is skipped
+            full_vaos = [sm.vao_shadow for sm in casters]
+            proxy_vaos = [sm.shadow_vao(settings.caster_detail) for sm in casters] if sharp_coarse.any() else []
+            passes = ([(proxy_vaos, -1)] if sharp_coarse.all() else [(full_vaos, 0), (proxy_vaos, 1)]
+                      if sharp_coarse.any() else [(full_vaos, -1)])
             arrays["sharp"].render(passes, lights_buf, self._buffer("shadow_lights_sharp", plan.sharp_lights.tobytes()),
                                    timer, coarse_min_sin=coarse_min_sin)
         elif "sharp" in self._shadow_maps:   # no small light now: give its memory back
@@ -597,9 +592,8 @@ class Renderer:
                 _set_uniform(p, "u_sh", coeffs.astype(np.float32).tobytes())
             _set_uniform(p, "u_glossy_horizon", GLOSSY_HORIZONS.index(settings.glossy_horizon))
             if vao is None:   # the compute pass: every pixel, uncovered ones left as drawn
-                _set_uniform(p, "u_pixels", (w, h))
                 ctx.memory_barrier()
-                self._color_target().bind_to_image(0, read=False, write=True)
+                fbo.color_attachments[0].bind_to_image(0, read=False, write=True)
                 p.run((w + 7) // 8, (h + 7) // 8)
                 ctx.memory_barrier()
             else:
@@ -625,12 +619,11 @@ class Renderer:
         timings["sharp_layers"] = len(plan.sharp_lights) if n_shadowed else 0
         timings["n_triangles"] = scene.n_triangles
         # Triangles the shadow pass drew: the small lights' maps at full detail, the others' at caster_detail.
+        # The proxy's count only where one was drawn (counting makes it: seconds for a large mesh).
+        n_coarse = len(plan.main_lights) + int(sharp_coarse.sum())
         full = sum(sm.shadow_triangles(1.0) for sm in scene.meshes if sm.caster)
-        coarse = (sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster)
-                  if len(plan.main_lights) else 0)
-        coarse_all = sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster)
-        timings["shadow_triangles"] = (int((~sharp_coarse).sum()) * full + int(sharp_coarse.sum()) * coarse_all
-                                       + len(plan.main_lights) * coarse)
+        coarse = sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster) if n_coarse else 0
+        timings["shadow_triangles"] = (len(plan.sharp_lights) - int(sharp_coarse.sum())) * full + n_coarse * coarse
         timings["device"] = gl.renderer_name
         timings["lighting_pass"] = self.lighting_pass
         timings["normals"] = self.normals if positions is not None else None
@@ -656,8 +649,7 @@ class Renderer:
         self._gloss_buf.release()
         self._horizon_tex.release()
         variants = [obj for pair in self._shade_progs.values() for obj in pair[::-1] if obj is not None]
-        for obj in (self.bg_vao, self.bg_prog, *variants, self._shadow_prog, self.gbuffer_prog,
-                    *([self._programs["normals"]] if "normals" in self._programs else [])):
+        for obj in (self.bg_vao, self.bg_prog, *variants, *self._programs.values()):
             obj.release()
         if self._owns_gl:
             self.gl.release()

@@ -104,13 +104,12 @@ class SceneMesh:
         """New frame: positions (V, 3) float32 (validated by the caller through Mesh.with_positions);
         without `normals`, the area-weighted vertex normals are made from them, on the GPU when the
         renderer has the normals program."""
-        gpu_normals = normals is None and self._normals_prog is not None
-        if normals is None and not gpu_normals:
+        if normals is None and self._normals_prog is None:
             normals = vertex_normals(positions, self.mesh.faces)
         self.positions = positions
         self.box = box(positions)
         self.vbo_pos.write(np.ascontiguousarray(positions, np.float32).tobytes())
-        if gpu_normals:
+        if normals is None:
             self._normals_on_gpu()
         else:
             self.vbo_nrm.write(np.ascontiguousarray(normals, np.float32).tobytes())

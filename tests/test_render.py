@@ -198,7 +198,7 @@ def test_lights_below_the_energy_threshold_get_no_shadow_map(renderer):
     assert 0 < some.timings["shadowed_lights"] < 48
     assert none_.timings["shadowed_lights"] == 0 and "shadow_maps" not in none_.timings["wall_ms"]
     # Two program variants: equal up to the last bit a GPU's compiler may round differently (an
-    # NVIDIA driver gave 1-ulp differences in 41 of 4096 pixels; llvmpipe gives none).
+    # NVIDIA driver's did in a few pixels; llvmpipe's do not).
     np.testing.assert_allclose(none_.image, unshadowed.image, rtol=1e-6, atol=0)
     # Dropping the dim lights' shadows changes the image by far less than dropping all shadows.
     err_some = np.abs(some.image - full.image)[..., :3].mean()
@@ -480,7 +480,7 @@ def test_normals_made_on_the_gpu_match_numpys(renderer, monkeypatch, groups_x):
 
     rng = np.random.default_rng(3)
     s = sphere(0.4)
-    # Extra vertices: one on no face, three on a zero-area face only, two pairs of faces that cancel.
+    # Extra vertices: one on no face, three on a zero-area face only, three on two faces that cancel.
     n0 = len(s.positions)
     extra = np.float32([[5, 5, 5], [1, 1, 1], [1, 1, 1], [2, 2, 2], [3, 0, 0], [3, 1, 0], [3, 0, 1]])
     faces = np.vstack([s.faces, [[n0 + 1, n0 + 2, n0 + 3]], [[n0 + 4, n0 + 5, n0 + 6], [n0 + 4, n0 + 6, n0 + 5]]])

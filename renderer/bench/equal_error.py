@@ -45,8 +45,8 @@ def _reference_job(min_triangles: int, size: int, spp: int, seed: int) -> tuple[
 def run_equal_error(frames: dict[str, dict], size: int, min_triangles: int, truth_spp: int = 128,
                     workers: int | None = None, ladder: tuple = (1, 2, 4, 8, 16, 32, 64, 128),
                     log=print) -> dict:
-    """`frames`: {preset: {"image": (H, W, 4), "median_ms": wall, "gpu_ms": GPU or None}} rendered
-    by `run_speed(..., keep_images=True)` on the same scene and camera."""
+    """`frames`: {setting: {"image": (H, W, 4), "median_ms": wall, "gpu_ms": GPU or None}}, each
+    setting's last frame of `run_speed(..., large=True, equal_error=...)` on the same scene and camera."""
     workers = max(2, workers or len(os.sched_getaffinity(0)))
     kept = tuple(s for s in ladder if 4 * s <= truth_spp * workers)
     if not kept:

@@ -55,6 +55,11 @@ LARGE_VARIANTS = ["balanced", "fast", "accurate", "balanced, fragment lighting p
                   "balanced, compute lighting pass", *UPLOAD_VARIANTS]
 
 
+def _renderer_args(variant) -> dict:
+    """A variant's Renderer arguments (its "renderer" entry: how it runs, not what it computes)."""
+    return variant.get("renderer", {}) if isinstance(variant, dict) else {}
+
+
 def _setting(variant, table: dict) -> dict:
     """A variant's knobs: a preset as the CLI and service apply it (the stored table's, else the
     default), or balanced with some knobs changed."""
@@ -100,8 +105,7 @@ def run_speed(out: Path | None, rounds: int = 15, size: int = 256, shared: bool 
     # One renderer per setting on the one context: each keeps its own shadow maps and targets, as a
     # service rendering one scene at one setting does (a shared renderer would re-make them at
     # every change of size).
-    renderers = {name: Renderer(gl, **(VARIANTS[name].get("renderer", {}) if isinstance(VARIANTS[name], dict) else {}))
-                 for name in names}
+    renderers = {name: Renderer(gl, **_renderer_args(VARIANTS[name])) for name in names}
     try:
         result["device"] = gl.renderer_name
         result["gpu_timers"] = gl.gpu_timers_meaningful

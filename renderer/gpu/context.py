@@ -101,8 +101,7 @@ class GLContext:
 
     def cached(self, key: tuple, make):
         """A GL object made once per context by `make()` and kept until the context is released
-        (compute programs that every PEM build uses: compiling them is most of a build's wall clock
-        on a GPU driver)."""
+        (the compute programs every PEM build uses, instead of compiling them anew for each build)."""
         self.check_thread()
         if key not in self._cached:
             self._cached[key] = make()

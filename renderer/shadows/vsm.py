@@ -64,6 +64,7 @@ class ShadowMaps:
         gl.check_thread()
         lights_buffer.bind_to_storage_buffer(0)
         shadow_lights_buffer.bind_to_storage_buffer(2)
+        self.prog["u_coarse_min_sin"].value = coarse_min_sin
         groups = ((self.size + 7) // 8, (self.size + 7) // 8)
         for first in range(0, self.n_lights, self.batch_layers):
             count = min(self.batch_layers, self.n_lights - first)
@@ -78,8 +79,6 @@ class ShadowMaps:
                     self.prog["u_first_light"].value = first
                     for vaos, which in passes:
                         self.prog["u_detail_pass"].value = which
-                        if "u_coarse_min_sin" in self.prog:
-                            self.prog["u_coarse_min_sin"].value = coarse_min_sin
                         for vao in vaos:
                             vao.render(moderngl.TRIANGLES, instances=count)
                     ctx.blend_equation = moderngl.FUNC_ADD

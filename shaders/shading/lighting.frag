@@ -24,7 +24,6 @@
 // Uncovered pixels (the geometry pass's position.w = -1) keep the background drawn before.
 layout(local_size_x = 8, local_size_y = 8) in;
 layout(rgba32f, binding = 0) writeonly uniform image2D o_image;
-uniform ivec2 u_pixels;
 #else
 // The full-screen triangle lies at the far plane and the depth test is GREATER against the geometry
 // pass's depth: only covered pixels pass, and blocks with none are skipped before shading.
@@ -416,7 +415,7 @@ void shade_light(int i, bool pem_diffuse, bool pem_glossy, bool sharp, bool in_p
 void main() {
 #ifdef LIGHTING_COMPUTE
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);
-    if (any(greaterThanEqual(px, u_pixels))) return;
+    if (any(greaterThanEqual(px, imageSize(o_image)))) return;
     vec4 g_pos = texelFetch(u_g_position, px, 0);
     if (g_pos.w < 0.0) return;   // no surface: the depth test's job in the fragment pass
 #else
