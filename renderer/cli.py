@@ -96,6 +96,10 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
                    help="sharp maps of lights whose disc is at most this many degrees in radius (a sun) draw the "
                         "casters at full detail, larger ones' at --caster-detail; 90: every sharp map at full "
                         "detail (default: the preset's)")
+    q.add_argument("--sub-lights", type=int,
+                   help="each region's glossy term in closed form from this many discs (its texels cut further by "
+                        "the same median cut; 1, 2, 4, 8 or 16; its shadow map and diffuse term stay the region's; "
+                        "default: the preset's)")
     q.add_argument("--sharp-max-maps", type=int,
                    help="at most this many sharp maps, the brightest lights' first; the others go to the main maps "
                         "(0: no cap; default: the preset's)")

@@ -23,7 +23,7 @@ def knob_defaults() -> dict:
             "caster_detail": f.caster_detail, "small_light_scale": f.small_light_scale,
             "small_light_min_energy": f.small_light_min_energy, "sharp_large_lights": f.sharp_large_lights,
             "sharp_share_deg": f.sharp_share_deg, "sharp_max_maps": f.sharp_max_maps,
-            "sharp_full_detail_deg": f.sharp_full_detail_deg,
+            "sharp_full_detail_deg": f.sharp_full_detail_deg, "sub_lights": f.sub_lights,
             "normal_offset_texels": f.normal_offset_texels, "sharp_normal_offset_texels": f.sharp_normal_offset_texels,
             "min_sigma_texels": f.min_sigma_texels, "contact_shadow_texels": f.contact_shadow_texels}
 
@@ -111,10 +111,10 @@ DEFAULT_PRESETS = {
              "contact_shadow_texels": 12.0},
     "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.0, "caster_detail": 0.25,
                  "small_light_scale": 4, "small_light_min_energy": 2.4, "sharp_share_deg": 2.0,
-                 "sharp_full_detail_deg": 2.0, "diffuse": "lights", "glossy": "wide"},
+                 "sharp_full_detail_deg": 2.0, "diffuse": "lights", "glossy": "wide", "sub_lights": 2},
     "accurate": {"lights": 48, "face_size": 128, "shadow_size": 512, "blur_scale": 0.0, "caster_detail": 1.0,
                  "small_light_scale": 2, "sharp_share_deg": 2.0, "diffuse": "lights", "glossy": "wide",
-                 "contact_shadow_texels": 48.0},
+                 "contact_shadow_texels": 48.0, "sub_lights": 2},
 }
 
 

@@ -128,6 +128,12 @@ class FrameSettings:
     # compact sources whole: penumbrae wide enough that the proxy's facets do not show) draw them at
     # caster_detail. 90: every sharp map at full detail.
     sharp_full_detail_deg: float = 90.0
+    # Each region's glossy term in closed form (full and no-occlusion modes; glossy "mixed" or "wide")
+    # summed over this many discs: its texels cut further by the same median cut
+    # (lighting/median_cut.py, SubLights), its visibility, diffuse term and PEMs still the region's.
+    # 1: one disc per region (the paper's one light per region). A power of two, at most
+    # MAX_SUB_LIGHTS. Chosen on the benchmark scenes (docs/benchmarks.md, the sub_lights rows).
+    sub_lights: int = 1
     horizon: bool = False          # VIS_i includes the tangent plane (see lighting.frag); off: the paper
     # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level),
     # "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups) or
@@ -181,6 +187,10 @@ class FrameSettings:
         if isinstance(self.sharp_full_detail_deg, bool) or not (0.0 <= self.sharp_full_detail_deg <= 90.0):
             raise InvalidInputError(f"sharp_full_detail_deg is a disc radius in [0, 90] degrees, got "
                                     f"{self.sharp_full_detail_deg!r}")   # also refuses NaN
+        if not (_whole(self.sub_lights) and 1 <= self.sub_lights <= MAX_SUB_LIGHTS
+                and not self.sub_lights & (self.sub_lights - 1)):
+            raise InvalidInputError(f"sub_lights is a power of two in 1..{MAX_SUB_LIGHTS} (discs per region in the "
+                                    f"closed-form glossy term), got {self.sub_lights!r}")
         if not (0.0 < self.caster_detail <= 1.0):
             raise InvalidInputError(f"caster detail is the share of triangles kept, in (0, 1], got {self.caster_detail}")
         if not (0.0 <= self.shadow_threshold <= 1.0):
@@ -231,6 +241,7 @@ def _set_uniform(prog: moderngl.Program, name: str, value) -> None:
 N_LIGHT_KINDS = 16   # lighting.frag's kinds: 4 bits
 # The modes whose lighting pass has closed-form terms (the others read every PEM).
 _CLOSED_FORM_MODES = (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
+MAX_SUB_LIGHTS = 16
 
 
 def _no_diffuse_pems(mode: ShadingMode, diffuse: str) -> bool:
@@ -346,17 +357,19 @@ class Renderer:
             self._programs["normals"] = compute_shader(ctx, "mesh/normals.comp")
 
     def _shade_variant(self, mode: ShadingMode, diffuse: str, two_textures: bool,
-                       glossy: str = "pem", contact: bool = False
+                       glossy: str = "pem", contact: bool = False, sub_lights: int = 1
                        ) -> tuple[moderngl.Program | moderngl.ComputeShader, moderngl.VertexArray | None]:
         """The lighting program of a mode and diffuse source (a full-screen pass over the geometry
         pass's targets), compiled on first use (one variant each; the diffuse source matters to the
         full and no-occlusion modes only); `two_textures`: the PEM set spans two textures (more than
-        REGIONS_PER_TEXTURE regions), whose second needs loops of its own."""
+        REGIONS_PER_TEXTURE regions), whose second needs loops of its own; `sub_lights`: discs per
+        region in the closed forms (FrameSettings.sub_lights)."""
         closed = _no_diffuse_pems(mode, diffuse)
         wide = glossy == "wide" and mode in _CLOSED_FORM_MODES
         contact = contact and mode is ShadingMode.FULL
         compute = self.lighting_pass == "compute"
-        key = (mode, diffuse if closed else "pem", two_textures, wide, contact, compute)
+        sub_lights = sub_lights if mode in _CLOSED_FORM_MODES else 1
+        key = (mode, diffuse if closed else "pem", two_textures, wide, contact, compute, sub_lights)
         if key not in self._shade_progs:
             defines = {**self._defines, "MODE": _MODE_INDEX[mode], "TWO_PEM_TEXTURES": int(two_textures)}
             if wide:
@@ -365,6 +378,8 @@ class Renderer:
                 defines["DIFFUSE_LIGHTS"] = 1   # no diffuse PEM lookups
             if closed and diffuse == "sh":
                 defines["DIFFUSE_SH"] = 1
+            if sub_lights > 1:
+                defines["SUB_LIGHTS"] = sub_lights
             if contact:
                 defines.update(CONTACT_SHADOWS=1, CONTACT_SLICES=CONTACT_SLICES, CONTACT_STEPS=CONTACT_STEPS)
             if compute:
@@ -535,6 +550,8 @@ class Renderer:
             lights_buf.bind_to_storage_buffer(0)
             if settings.diffuse == "sh":   # per light, its region's irradiance coefficients
                 self._buffer("light_sh", pems.light_sh).bind_to_storage_buffer(3)
+            if settings.sub_lights > 1 and settings.mode in _CLOSED_FORM_MODES:
+                self._buffer("sub_lights", pems.sub_lights_bytes(settings.sub_lights)).bind_to_storage_buffer(6)
             self._gloss_buf.write(pems.gloss_table(settings.calibration).tobytes())
             self._gloss_buf.bind_to_storage_buffer(1)
             self._horizon_tex.use(location=7)
@@ -555,7 +572,7 @@ class Renderer:
             sh_on = settings.sh_unshadowed and settings.diffuse in ("pem", "mixed") and bool((layers < 0).any())
             contact = settings.contact_shadow_texels > 0 and n_shadowed > 0
             p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE, settings.glossy,
-                                         contact)
+                                         contact, settings.sub_lights)
             contact_radius = 0.0
             if "u_contact_radius" in p:
                 # In main-map texels (the maps whose bias hides the contact), else the sharp maps'.

@@ -9,7 +9,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from renderer.presets import knob_defaults
-from renderer.renderer import MAX_BIAS_TEXELS, MAX_CONTACT_TEXELS, MAX_SHARP_SHARE_DEG
+from renderer.renderer import MAX_BIAS_TEXELS, MAX_CONTACT_TEXELS, MAX_SHARP_SHARE_DEG, MAX_SUB_LIGHTS
 
 
 class Preset(str, Enum):
@@ -115,6 +115,9 @@ class QualitySpec(_Strict):
     sharp_full_detail_deg: float = Field(_KNOB["sharp_full_detail_deg"], ge=0.0, le=90.0, strict=True,
                                          description="sharp maps of lights whose disc is at most this many degrees "
                                          "in radius draw the casters at full detail, larger ones' at caster_detail")
+    sub_lights: int = Field(_KNOB["sub_lights"], ge=1, le=MAX_SUB_LIGHTS, strict=True,
+                            description="each region's glossy term in closed form from this many discs (a power "
+                            "of two: its texels cut further by the same median cut)")
     normal_offset_texels: float = Field(_KNOB["normal_offset_texels"], ge=0.0, le=MAX_BIAS_TEXELS, strict=True,
                                         description="shadow lookups pushed off the surface along the normal by "
                                         "this many of the main maps' texels")
@@ -132,6 +135,12 @@ class QualitySpec(_Strict):
                                           "those maps (0: every small light)")
     sh_unshadowed: bool = Field(_KNOB["sh_unshadowed"], description="the diffuse term of the lights below shadow_threshold "
                                 "from SH9 irradiance")
+
+    @model_validator(mode="after")
+    def _sub_lights_power_of_two(self) -> QualitySpec:
+        if self.sub_lights & (self.sub_lights - 1):
+            raise ValueError(f"sub_lights must be a power of two (1, 2, 4, 8, 16), got {self.sub_lights}")
+        return self
 
 
 class OutputSpec(_Strict):

@@ -5,7 +5,7 @@ from hypothesis import strategies as st
 
 from renderer.envmap.cube import cube_solid_angles, dir_to_texel
 from renderer.errors import InvalidInputError
-from renderer.lighting.median_cut import LUMINANCE_RGB, median_cut
+from renderer.lighting.median_cut import LUMINANCE_RGB, median_cut, sub_lights
 
 from conftest import sun_sky_cube
 
@@ -167,3 +167,46 @@ def test_light_spread_follows_the_energy_not_the_region_outline():
     sun = int(np.argmax(rs.energy_luminance))
     assert rs.angular_radius_rad()[sun] > np.radians(30)
     assert rs.light_radius_rad()[sun] == pytest.approx(np.radians(2), rel=0.25)
+
+
+@settings(max_examples=20, deadline=None)
+@given(k=st.integers(0, 3), per=st.sampled_from([1, 2, 4, 8]), n=st.sampled_from([4, 8, 16]), seed=st.integers(0, 2**31),
+       power=st.floats(0, 12), whole_sources=st.booleans())
+def test_sub_lights_split_each_region_and_keep_its_energy(k, per, n, seed, power, whole_sources):
+    cube = (np.random.default_rng(seed).random((6, n, n, 3)) ** power).astype(np.float32)
+    rs = median_cut(cube, 6 * 2**k, whole_sources)
+    sub = sub_lights(cube, rs, per, whole_sources)
+    assert sub.directions.shape == (rs.n_regions * per, 3) and sub.energy_rgb.shape == (rs.n_regions * per, 3)
+    np.testing.assert_allclose(np.linalg.norm(sub.directions, axis=1), 1.0, rtol=1e-12)
+    assert np.isfinite(sub.disc_radius_rad).all() and (sub.disc_radius_rad >= 0).all()
+    # A region's discs carry its energy between them, whatever the padding of a one-texel region.
+    np.testing.assert_allclose(sub.energy_rgb.reshape(rs.n_regions, per, 3).sum(axis=1), rs.energy_rgb,
+                               rtol=1e-9, atol=1e-12 * max(rs.energy_rgb.max(), 1e-300))
+    if per == 1:   # one disc per region: the region's own light
+        np.testing.assert_allclose(sub.directions, rs.directions, atol=1e-12)
+        np.testing.assert_allclose(sub.disc_radius_rad, rs.disc_radius_rad(), atol=1e-9)
+
+
+def test_sub_lights_sit_where_their_part_of_the_region_is():
+    # A region lit blue in one half and green in the other (the same luminance): its two discs take
+    # the colours apart, and together they keep the region's energy-weighted direction.
+    n = 16
+    cube = np.zeros((6, n, n, 3), np.float32)
+    cube[:, : n // 2] = (0.0, 0.0, 1.0 / LUMINANCE_RGB[2])
+    cube[:, n // 2:] = (0.0, 1.0 / LUMINANCE_RGB[1], 0.0)
+    rs = median_cut(cube, 6)
+    sub = sub_lights(cube, rs, 2)
+    for face in range(6):
+        a, b = sub.energy_rgb[2 * face], sub.energy_rgb[2 * face + 1]
+        assert (a[2] > 4 * a[1] and b[1] > 4 * b[2]) or (b[2] > 4 * b[1] and a[1] > 4 * a[2])
+        mean = (sub.directions[2 * face:2 * face + 2] * (sub.energy_rgb[2 * face:2 * face + 2] @ LUMINANCE_RGB)[:, None]).sum(0)
+        assert np.degrees(np.arccos(np.clip(mean / np.linalg.norm(mean) @ rs.directions[face], -1, 1))) < 3.0
+    assert (sub.disc_radius_rad < rs.disc_radius_rad().repeat(2)).all()   # each half is the narrower disc
+
+
+@pytest.mark.parametrize("bad", [0, 3, 6, -2])
+def test_sub_lights_per_region_must_be_a_power_of_two(bad):
+    cube = np.ones((6, 8, 8, 3), np.float32)
+    with pytest.raises(InvalidInputError, match="power of two"):
+        sub_lights(cube, median_cut(cube, 6), bad)
+

@@ -161,6 +161,9 @@ def test_invalid_frame_settings_are_rejected():
         FrameSettings(0, 10)
     with pytest.raises(InvalidInputError, match="bleed"):
         FrameSettings(bleed_reduction=1.5)
+    for bad in (0, 3, 32, 2.5, True):
+        with pytest.raises(InvalidInputError, match="sub_lights"):
+            FrameSettings(sub_lights=bad)
 
 
 def test_new_positions_reuse_gpu_objects_and_move_the_image(renderer):

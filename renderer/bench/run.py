@@ -57,6 +57,7 @@ SWEEPS = {
                            {"sharp_large_lights": True, "small_light_min_energy": 4.8}],
     "sharp_share_deg": [0.0, 1.0, 4.0],
     "sharp_full_detail_deg": [90.0, 0.0],   # every sharp map from the full meshes; every one from the proxy
+    "sub_lights": [1, 4, 8],   # discs per region in the glossy closed form (1: the paper's one light)
     # Shadow bias in each map's texels (renderer.FrameSettings): the normal offsets and the variance
     # floor; shadow_bias: the bias before it was stated in texels.
     "normal_offset_texels": [1.0, 3.3],
@@ -71,7 +72,7 @@ SWEEPS = {
 QUICK_SWEEPS = {**SWEEPS, "lights": [6, 24, 48, 96], "face_size": [64, 128], "shadow_size": [128, 256],
                 "blur_scale": [0.0, 0.1, 1.0], "filter": ["none", "sqrt-cosine"], "shadow_threshold": [0.01],
                 "caster_detail": [1.0], "small_light_scale": [1, 2], "small_light_min_energy": [0.0],
-                "contact_shadow_texels": [0.0], "sharp_full_detail_deg": [90.0]}
+                "contact_shadow_texels": [0.0], "sharp_full_detail_deg": [90.0], "sub_lights": [1]}
 BASELINE_MODES = [ShadingMode.NO_OCCLUSION, ShadingMode.MANY_LIGHTS, ShadingMode.AO_GREY, ShadingMode.AO_COLOUR]
 
 

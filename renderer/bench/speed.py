@@ -40,6 +40,8 @@ VARIANTS = {
     "balanced, no contact shadows": {"contact_shadow_texels": 0.0},
     "balanced, every sharp map at full caster detail": {"sharp_full_detail_deg": 90.0},
     "balanced, large lights' diffuse term from the PEMs": {"diffuse": "mixed"},
+    "balanced, one glossy disc per region": {"sub_lights": 1},
+    "balanced, 4 glossy discs per region": {"sub_lights": 4},
     "fast": "fast",
     "accurate": "accurate",
     # How balanced runs, not what it computes (the same image): renderer.py's default_lighting_pass

@@ -171,7 +171,6 @@ def median_cut(cube: np.ndarray, n_lights: int, whole_sources: bool = False) -> 
     rgb = np.asarray(cube, np.float64)
     lum = np.maximum(rgb @ LUMINANCE_RGB, 0.0)
     energy = lum * omega
-    dirs = texel_directions(n)
 
     labels = np.empty((6, n, n), np.int32)
     out_rects = np.empty((n_lights, 5), np.int32)
@@ -181,11 +180,80 @@ def median_cut(cube: np.ndarray, n_lights: int, whole_sources: bool = False) -> 
             labels[face, r0:r1, c0:c1] = rid
             out_rects[rid] = (face, r0, r1, c0, c1)
 
-    # Per-region sums over the texels, all regions at once (bincount over the labels).
+    out_dirs, out_omega, out_energy, out_spread, out_mean_cos = _region_stats(rgb, energy, labels, n_lights)
+    for arr in (labels, out_dirs, out_omega, out_energy, out_rects, out_spread, out_mean_cos):
+        arr.setflags(write=False)
+    return RegionSet(labels, out_dirs, out_omega, out_energy, out_rects, out_spread, out_mean_cos)
+
+
+@dataclass(frozen=True)
+class SubLights:
+    """Each region cut into `per_region` sub-regions (the same median cut within its rectangle),
+    each a light for the glossy term in closed form only (FrameSettings.sub_lights): region i's are
+    i * per_region ... i * per_region + per_region - 1. One disc per region is exact for the
+    diffuse term of a region above the horizon, but a glossy lobe about as wide as the region sees
+    where in it the light comes from (a blue sky above green grass). Visibility stays the region's
+    (one shadow map per region).
+
+    directions: float64 (N * per_region, 3); disc_radius_rad: float64 (N * per_region,), the
+    uniform disc with the sub-region's mean cosine; energy_rgb: float64 (N * per_region, 3), zero
+    for the padding of a region too small to cut (one texel)."""
+
+    per_region: int
+    directions: np.ndarray
+    disc_radius_rad: np.ndarray
+    energy_rgb: np.ndarray
+
+
+def sub_lights(cube: np.ndarray, regions: RegionSet, per_region: int, whole_sources: bool = False) -> SubLights:
+    """Cut every region of `regions` (the median cut of `cube`, (6, F, F, 3)) into `per_region`
+    (a power of two) sub-regions by the same rule (`_split`, whole_sources as the regions were
+    cut), each one light (see SubLights)."""
+    if per_region < 1 or per_region & (per_region - 1):
+        raise InvalidInputError(f"sub-lights per region must be a power of two, got {per_region}")
+    n = cube.shape[1]
+    rgb = np.asarray(cube[..., :3], np.float64)
+    energy = np.maximum(rgb @ LUMINANCE_RGB, 0.0) * cube_solid_angles(n)
+    labels = np.empty((6, n, n), np.int32)
+    n_sub = regions.n_regions * per_region
+    for rid, (face, r0, r1, c0, c1) in enumerate(regions.rects):
+        rects = [(r0, r1, c0, c1)]
+        while len(rects) < per_region:
+            rects = [half for rect in rects for half in _halves(energy[face], rect, whole_sources)]
+        for j, rect in enumerate(rects):
+            if rect is not None:
+                labels[face, rect[0]:rect[1], rect[2]:rect[3]] = rid * per_region + j
+    with np.errstate(invalid="ignore", divide="ignore"):   # the padding's empty sums, replaced below
+        dirs, _, energy_rgb, _, mean_cos = _region_stats(rgb, energy, labels, n_sub)
+    # Padding (a one-texel region cannot be cut): no texels, no energy, any direction.
+    empty = np.bincount(labels.reshape(-1), minlength=n_sub) == 0
+    dirs[empty] = regions.directions[np.nonzero(empty)[0] // per_region]
+    mean_cos[empty] = 1.0
+    energy_rgb[empty] = 0.0
+    radius = np.arccos(np.clip(2.0 * mean_cos - 1.0, -1.0, 1.0))
+    for arr in (dirs, radius, energy_rgb):
+        arr.setflags(write=False)
+    return SubLights(per_region, dirs, radius, energy_rgb)
+
+
+def _halves(energy: np.ndarray, rect, whole_sources: bool):
+    """`_split` of a rectangle, or (rect, None) for one that cannot be cut (one texel; None: nothing)."""
+    if rect is None or (rect[1] - rect[0]) * (rect[3] - rect[2]) <= 1:
+        return rect, None
+    return _split(energy, rect, whole_sources)
+
+
+def _region_stats(rgb: np.ndarray, energy: np.ndarray, labels: np.ndarray, n_regions: int):
+    """Per region of `labels` (6, F, F; ids 0..n_regions-1): unit light direction (energy centroid,
+    a black region's solid-angle centroid), solid angle, RGB energy, spread and mean cosine (the
+    RegionSet fields of the same names); all regions at once (bincount over the labels)."""
+    n = labels.shape[1]
+    omega = cube_solid_angles(n)
+    dirs = texel_directions(n)
     lab = labels.reshape(-1)
 
     def per_region(values: np.ndarray) -> np.ndarray:
-        return np.bincount(lab, weights=values.reshape(-1), minlength=n_lights)
+        return np.bincount(lab, weights=values.reshape(-1), minlength=n_regions)
 
     w = np.broadcast_to(omega, (6, n, n)).reshape(-1)
     e = energy.reshape(-1)
@@ -202,6 +270,4 @@ def median_cut(cube: np.ndarray, n_lights: int, whole_sources: bool = False) -> 
     out_mean_cos = per_region(weights * cos_t) / total
     rgb_flat = rgb.reshape(-1, 3)
     out_energy = np.stack([per_region(rgb_flat[:, k] * w) for k in range(3)], axis=1)
-    for arr in (labels, out_dirs, out_omega, out_energy, out_rects, out_spread, out_mean_cos):
-        arr.setflags(write=False)
-    return RegionSet(labels, out_dirs, out_omega, out_energy, out_rects, out_spread, out_mean_cos)
+    return out_dirs, out_omega, out_energy, out_spread, out_mean_cos

@@ -23,7 +23,7 @@ from ..gpu.rawgl import GL_RGBA16F, GL_RGBA32F, CubeMapArray
 from ..gpu.shaders import compute_shader
 from .filters import Filter, taps_1d
 from .glossiness import Calibration, LobeTable, lobe_table
-from .median_cut import RegionSet, median_cut
+from .median_cut import RegionSet, median_cut, sub_lights
 from .sh import region_sh
 
 
@@ -122,6 +122,7 @@ class PEMSet:
         self._cube = cube  # float32, kept for the SH9 coefficients, computed on first use
         self._region_sh: np.ndarray | None = None
         self._light_sh: bytes | None = None
+        self._sub_lights: dict[int, bytes] = {}
         n_regions = self.regions.n_regions
 
         if n_regions > REGIONS_PER_TEXTURE * MAX_TEXTURES:
@@ -249,6 +250,19 @@ class PEMSet:
         if self._region_sh is None:
             self._region_sh = region_sh(self._cube[..., :3], self.regions.labels, self.regions.n_regions)
         return self._region_sh
+
+    def sub_lights_bytes(self, per_region: int) -> bytes:
+        """Every region cut into `per_region` discs for the closed-form terms (median_cut.SubLights)
+        as the shading pass reads them: per disc (unit direction, sine of its radius; rgb energy, 0),
+        float32; computed once per count."""
+        if per_region not in self._sub_lights:
+            sub = sub_lights(self._cube[..., :3], self.regions, per_region, self.settings.whole_sources)
+            out = np.zeros((len(sub.energy_rgb), 2, 4), np.float32)
+            out[:, 0, :3] = sub.directions
+            out[:, 0, 3] = np.sin(np.clip(sub.disc_radius_rad, 1e-3, np.pi / 2))
+            out[:, 1, :3] = sub.energy_rgb
+            self._sub_lights[per_region] = out.tobytes()
+        return self._sub_lights[per_region]
 
     @property
     def light_sh(self) -> bytes:

@@ -266,6 +266,14 @@ vec3 diffuse_from_light(int i, vec3 n) {
     return lights[i].energy.rgb * (integral / (PI * max(omega, 1e-30)));
 }
 
+#ifdef SUB_LIGHTS
+// FrameSettings.sub_lights: a region's glossy term in closed form summed over SUB_LIGHTS discs, its
+// texels cut further by the same median cut (renderer/lighting/median_cut.py, SubLights); its
+// visibility, diffuse term and PEMs stay the region's.
+struct SubLight { vec4 dir_sin; vec4 energy; };   // unit direction, sine of the disc's radius; rgb
+layout(std430, binding = 6) readonly buffer SubLights { SubLight sub_lights[]; };
+#endif
+
 // A light without a shadow map whose diffuse term the summed SH9 irradiance carries (full mode).
 bool sh_skip(int i) { return MODE == 0 && u_sh_unshadowed && lights[i].shadow.x < 0.0; }
 vec3 g_diffuse_exact = vec3(0.0);   // the closed-form terms, added after the PEM terms' normalization
@@ -278,12 +286,22 @@ bool g_has_glossy = false;          // specular > 0
 // spread widens the lobe: in the small-angle (Gaussian) picture cos^s has variance 1 / s per axis and
 // a uniform disc a^2 / 4, which add, so the lobe of exponent s' = 1 / (1 / s + a^2 / 4) carries E.
 // Finite at g = 1 (the mirror): s' is then bounded by the disc's own size.
-vec3 glossy_from_light(int i, vec3 r) {
-    float sin_a = lights[i].params.w;
+vec3 glossy_disc(vec3 l, float sin_a, vec3 energy, vec3 r) {
     float inv_s = max(1.0 - g_gloss, 0.0);
     float s = 1.0 / max(inv_s + 0.25 * sin_a * sin_a, 1e-6);
-    float c = clamp(dot(r, lights[i].dir_scale.xyz), 0.0, 1.0);   // float32 can reach 1 + 1e-7; s' up to ~4e6
-    return lights[i].energy.rgb * ((s + 1.0) / (2.0 * PI) * pow(c, s));
+    float c = clamp(dot(r, l), 0.0, 1.0);   // float32 can reach 1 + 1e-7; s' up to ~4e6
+    return energy * ((s + 1.0) / (2.0 * PI) * pow(c, s));
+}
+
+vec3 glossy_from_light(int i, vec3 r) {
+#ifdef SUB_LIGHTS
+    vec3 sum = vec3(0.0);
+    for (int k = i * SUB_LIGHTS; k < (i + 1) * SUB_LIGHTS; ++k)
+        sum += glossy_disc(sub_lights[k].dir_sin.xyz, sub_lights[k].dir_sin.w, sub_lights[k].energy.rgb, r);
+    return sum;
+#else
+    return glossy_disc(lights[i].dir_scale.xyz, lights[i].params.w, lights[i].energy.rgb, r);
+#endif
 }
 
 #ifdef DIFFUSE_SH
