@@ -241,6 +241,9 @@ def _set_uniform(prog: moderngl.Program, name: str, value) -> None:
 N_LIGHT_KINDS = 16   # lighting.frag's kinds: 4 bits
 # The modes whose lighting pass has closed-form terms (the others read every PEM).
 _CLOSED_FORM_MODES = (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
+# light_kinds: a large light counts as wide at every pixel only by this margin in 1 - g (a pixel's g is
+# interpolated in float32 between vertices or texels).
+WIDE_LOBE_MARGIN = 1e-3
 MAX_SUB_LIGHTS = 16
 
 
@@ -251,14 +254,18 @@ def _no_diffuse_pems(mode: ShadingMode, diffuse: str) -> bool:
 
 
 def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
-                sh_unshadowed: bool) -> tuple[np.ndarray, np.ndarray]:
+                sh_unshadowed: bool, max_glossiness: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """The lighting pass's order of the lights and the end of each kind in it (int32 arrays: the
     light_order buffer and u_kind_end of lighting.frag). A light's kind: bit 0 it reads its diffuse
     PEM, bit 1 its glossy PEM, bit 2 its map is in the sharp array, bit 3 its region is in the second
     PEM texture. Whether a term comes from the PEM follows the shader's modes: in the full and
     no-occlusion modes small lights (angular radius <= ~6 degrees) have their diffuse term in closed
     form with diffuse "mixed" (every light with "lights" or "sh"), their glossy term with glossy
-    "mixed"; lights without a shadow map get their diffuse term from SH9 when `sh_unshadowed`."""
+    "mixed"; lights without a shadow map get their diffuse term from SH9 when `sh_unshadowed`. With
+    glossy "wide", a large light whose disc is narrower than the lobe at every pixel (at the scene's
+    `max_glossiness`, the widest lobe being the least glossy) has its glossy term in closed form
+    everywhere: its glossy PEM is not read (the shader's wide_lobe would discard the lookup at every
+    pixel; a CPU rasterizer runs it anyway)."""
     n = len(lights)
     exact_modes = settings.mode in _CLOSED_FORM_MODES
     # The shader compares the packed float32 sine with the float32 define.
@@ -270,6 +277,10 @@ def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
     if settings.mode is ShadingMode.FULL and sh_unshadowed:
         pem_diffuse &= lights["shadow"][:, 0] >= 0
     pem_glossy = ~(small & exact_modes & (settings.glossy in ("mixed", "wide")))
+    if exact_modes and settings.glossy == "wide":
+        # wide_lobe in lighting.frag at the glossiest pixel, with a margin for the interpolated g.
+        sin_a = lights["params"][:, 3].astype(np.float64)
+        pem_glossy &= ~(max(1.0 - max_glossiness, 0.0) - WIDE_LOBE_MARGIN >= 0.25 * sin_a * sin_a)
     second = np.arange(n) >= REGIONS_PER_TEXTURE
     kind = (pem_diffuse.astype(np.int32) | pem_glossy.astype(np.int32) << 1 | np.asarray(sharp, np.int32) << 2
             | second.astype(np.int32) << 3)
@@ -590,7 +601,7 @@ class Renderer:
                 self._buffer("light_screen", screen.astype(np.float32).tobytes()).bind_to_storage_buffer(5)
                 p["u_image_size"] = (float(w), float(h))
                 p["u_focal_px"] = 0.5 * h / float(np.tan(np.radians(camera.fov_y_deg) / 2.0))
-            order, kind_end = light_kinds(lights, plan.sharp, settings, sh_on)
+            order, kind_end = light_kinds(lights, plan.sharp, settings, sh_on, scene.max_glossiness)
             self._buffer("light_order", order.tobytes()).bind_to_storage_buffer(4)
             if "u_kind_end" in p:   # the compiler keeps the entries up to the last kind this variant loops over
                 p["u_kind_end"].write(kind_end[:p["u_kind_end"].array_length].tobytes())

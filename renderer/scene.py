@@ -166,6 +166,8 @@ class Scene:
             for k, (m, mat, c) in enumerate(zip(meshes, materials, casters)):
                 given = {d: faces[k] for d, faces in (proxies or {}).items() if faces[k] is not None}
                 self.meshes.append(SceneMesh(gl, m, mat, programs, c, given))
+            # The glossiest lookup any pixel can make (Material.max_glossiness; 0: no glossy lobe).
+            self.max_glossiness = max(mat.max_glossiness() for mat in materials)
             # The length the shadow maps' footprint sizes are stepped against (fit_light_view_projs):
             # the casters' box diagonal at creation, fixed so that the steps do not follow the cloth,
             # and proportional to the scene so that its scale does not change the image.

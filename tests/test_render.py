@@ -524,3 +524,24 @@ def test_normals_on_the_gpu_give_the_image_of_normals_on_the_cpu(renderer):
     finally:
         other.release()
     np.testing.assert_allclose(images[0], images[1], rtol=1e-4, atol=1e-5)
+
+
+def test_lights_wide_at_every_pixel_skip_their_glossy_pem_for_the_same_image(renderer):
+    # glossy "wide": a large light whose disc is narrower than the lobe at the scene's glossiest pixel
+    # has its glossy term in closed form everywhere (renderer.py, light_kinds), so its glossy PEM is
+    # not read; the image is the one where the shader decides per pixel.
+    scene = renderer.create_scene([sphere(0.4, centre=(0, 0.5, 0)), plane(4.0)],
+                                  [Material((0.5, 0.4, 0.3), 0.6, 0.8), Material((0.6, 0.6, 0.6), 0.2, 0.3)])
+    pems = renderer.build_pems(sun_sky_cube(32, (1, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3), PEMSettings(48))
+    settings = FrameSettings(64, 64, diffuse="lights", glossy="wide", sub_lights=2)
+    try:
+        assert scene.max_glossiness == pytest.approx(0.8)
+        skipping = renderer.render(scene, pems, settings, CAM).image
+        scene.max_glossiness = 1.0   # a mirror somewhere: every large light reads its glossy PEM
+        per_pixel = renderer.render(scene, pems, settings, CAM).image
+    finally:
+        pems.release()
+        scene.release()
+    assert (skipping[..., 3] > 0.5).mean() > 0.3
+    np.testing.assert_allclose(skipping, per_pixel, rtol=1e-5, atol=1e-6)
+
