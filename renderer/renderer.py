@@ -128,8 +128,8 @@ class FrameSettings:
     # compact sources whole: penumbrae wide enough that the proxy's facets do not show) draw them at
     # caster_detail. 90: every sharp map at full detail.
     sharp_full_detail_deg: float = 90.0
-    # Each region's glossy term in closed form (full and no-occlusion modes; glossy "mixed" or "wide")
-    # summed over this many discs: its texels cut further by the same median cut
+    # Each region's glossy term in closed form (full and no-occlusion modes; glossy "mixed" or "wide";
+    # with "pem" no glossy term is in closed form and this does nothing) summed over this many discs: its texels cut further by the same median cut
     # (lighting/median_cut.py, SubLights), its visibility, diffuse term and PEMs still the region's.
     # 1: one disc per region (the paper's one light per region). A power of two, at most
     # MAX_SUB_LIGHTS. Chosen on the benchmark scenes (docs/benchmarks.md, the sub_lights rows).
@@ -379,7 +379,7 @@ class Renderer:
         wide = glossy == "wide" and mode in _CLOSED_FORM_MODES
         contact = contact and mode is ShadingMode.FULL
         compute = self.lighting_pass == "compute"
-        sub_lights = sub_lights if mode in _CLOSED_FORM_MODES else 1
+        sub_lights = sub_lights if mode in _CLOSED_FORM_MODES and glossy in ("mixed", "wide") else 1
         key = (mode, diffuse if closed else "pem", two_textures, wide, contact, compute, sub_lights)
         if key not in self._shade_progs:
             defines = {**self._defines, "MODE": _MODE_INDEX[mode], "TWO_PEM_TEXTURES": int(two_textures)}
@@ -561,7 +561,7 @@ class Renderer:
             lights_buf.bind_to_storage_buffer(0)
             if settings.diffuse == "sh":   # per light, its region's irradiance coefficients
                 self._buffer("light_sh", pems.light_sh).bind_to_storage_buffer(3)
-            if settings.sub_lights > 1 and settings.mode in _CLOSED_FORM_MODES:
+            if settings.sub_lights > 1 and settings.mode in _CLOSED_FORM_MODES and settings.glossy in ("mixed", "wide"):
                 self._buffer("sub_lights", pems.sub_lights_bytes(settings.sub_lights)).bind_to_storage_buffer(6)
             self._gloss_buf.write(pems.gloss_table(settings.calibration).tobytes())
             self._gloss_buf.bind_to_storage_buffer(1)

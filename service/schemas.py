@@ -6,7 +6,7 @@ from __future__ import annotations
 from enum import Enum
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from renderer.presets import knob_defaults
 from renderer.renderer import MAX_BIAS_TEXELS, MAX_CONTACT_TEXELS, MAX_SHARP_SHARE_DEG, MAX_SUB_LIGHTS
@@ -136,11 +136,12 @@ class QualitySpec(_Strict):
     sh_unshadowed: bool = Field(_KNOB["sh_unshadowed"], description="the diffuse term of the lights below shadow_threshold "
                                 "from SH9 irradiance")
 
-    @model_validator(mode="after")
-    def _sub_lights_power_of_two(self) -> QualitySpec:
-        if self.sub_lights & (self.sub_lights - 1):
-            raise ValueError(f"sub_lights must be a power of two (1, 2, 4, 8, 16), got {self.sub_lights}")
-        return self
+    @field_validator("sub_lights")
+    @classmethod
+    def _sub_lights_power_of_two(cls, value: int) -> int:
+        if value & (value - 1):
+            raise ValueError(f"sub_lights must be a power of two (1, 2, 4, 8, 16), got {value}")
+        return value
 
 
 class OutputSpec(_Strict):

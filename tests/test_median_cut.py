@@ -170,7 +170,7 @@ def test_light_spread_follows_the_energy_not_the_region_outline():
 
 
 @settings(max_examples=20, deadline=None)
-@given(k=st.integers(0, 3), per=st.sampled_from([1, 2, 4, 8]), n=st.sampled_from([4, 8, 16]), seed=st.integers(0, 2**31),
+@given(k=st.integers(0, 3), per=st.sampled_from([1, 2, 4, 8, 16]), n=st.sampled_from([4, 8, 16]), seed=st.integers(0, 2**31),
        power=st.floats(0, 12), whole_sources=st.booleans())
 def test_sub_lights_split_each_region_and_keep_its_energy(k, per, n, seed, power, whole_sources):
     cube = (np.random.default_rng(seed).random((6, n, n, 3)) ** power).astype(np.float32)

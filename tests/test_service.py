@@ -585,6 +585,15 @@ def test_accuracy_knobs_reach_the_renderer_and_are_reported(http, env_upload, me
                       ("sub_lights", 3), ("sub_lights", 32), ("sub_lights", 0)):
         body["quality"] = {**good, knob: bad}   # one bad knob at a time: the error names it
         assert_error(http.post("/render", json=body), 422, knob)
+    # sub_lights reaches the renderer where glossy terms are in closed form (glossy "wide").
+    images = []
+    for k in (1, 4):
+        body["quality"] = {**good, "glossy": "wide", "diffuse": "lights", "sub_lights": k}
+        r = http.post("/render", json=body, params={"format": "json"})
+        assert r.status_code == 200, r.text
+        assert r.json()["render"]["settings"]["sub_lights"] == k
+        images.append(r.json()["image"]["base64"])
+    assert images[0] != images[1]
 
 
 def test_a_per_request_budget_chooses_a_measured_setting_and_says_so(http, env_upload, mesh):
