@@ -47,6 +47,28 @@ def test_sun_far_beyond_half_float_range(renderer, source):
     np.testing.assert_allclose(images[1], 10.0 * images[0], rtol=5e-3, atol=1e-3 * images[1].max())
 
 
+def test_glossy_discs_at_the_extremes(renderer):
+    # sub_lights (each region's glossy term from up to 16 discs of its texels): a sun of 1e5 and 1e6
+    # scales the image linearly; a black map stays black; a map of one-texel regions (4x4 faces, 96
+    # lights) pads every region's extra discs with no energy, and the image is the one disc's.
+    meshes = [uv_sphere(0.5, 16, 32, (0, 0.6, 0)), ground_plane(3.0)]
+    wide = dict(background=Background.BLACK, diffuse="lights", glossy="wide")
+    images = []
+    for sun in (1e5, 1e6):
+        cube = sun_sky_cube(32, (0.3, 1.0, 0.4), sun_radiance=sun, sun_radius_deg=3, sky=(0, 0, 0), ground=(0, 0, 0))
+        frame = _frame(renderer, meshes, cube, settings=FrameSettings(48, 48, shadow_size=64, sub_lights=16, **wide))
+        images.append(_ok(frame)[..., :3])
+    np.testing.assert_allclose(images[1], 10.0 * images[0], rtol=5e-3, atol=1e-3 * images[1].max())
+    black = _frame(renderer, meshes, np.zeros((6, 16, 16, 3), np.float32),
+                   settings=FrameSettings(48, 48, shadow_size=64, sub_lights=4, **wide))
+    assert _ok(black)[..., :3].max() == 0.0
+    tiny = np.random.default_rng(3).random((6, 4, 4, 3)).astype(np.float32)
+    one, sixteen = (_ok(_frame(renderer, meshes, tiny, n_lights=96,
+                               settings=FrameSettings(48, 48, shadow_size=64, sub_lights=k, **wide)))
+                    for k in (1, 16))
+    np.testing.assert_allclose(sixteen, one, rtol=1e-5, atol=1e-7)
+
+
 def test_all_black_map_renders_black(renderer):
     img = _ok(_frame(renderer, [uv_sphere(0.5, 16, 32)], np.zeros((6, 16, 16, 3), np.float32)))
     assert img[..., :3].max() == 0.0
