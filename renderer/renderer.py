@@ -129,8 +129,9 @@ class FrameSettings:
     # caster_detail. 90: every sharp map at full detail.
     sharp_full_detail_deg: float = 90.0
     # Each region's glossy term in closed form (full and no-occlusion modes; glossy "mixed" or "wide";
-    # with "pem" no glossy term is in closed form and this does nothing) summed over this many discs: its texels cut further by the same median cut
-    # (lighting/median_cut.py, SubLights), its visibility, diffuse term and PEMs still the region's.
+    # with "pem" no glossy term is in closed form and this does nothing) summed over this many discs:
+    # its texels cut further by the same median cut (lighting/median_cut.py, SubLights), its
+    # visibility, diffuse term and PEMs still the region's.
     # 1: one disc per region (the paper's one light per region). A power of two, at most
     # MAX_SUB_LIGHTS. Chosen on the benchmark scenes (docs/benchmarks.md, the sub_lights rows).
     sub_lights: int = 1
@@ -247,6 +248,12 @@ WIDE_LOBE_MARGIN = 1e-3
 MAX_SUB_LIGHTS = 16
 
 
+def _glossy_closed_form(mode: ShadingMode, glossy: str) -> bool:
+    """Whether some light's glossy term is in closed form (small lights with "mixed", large ones too
+    where the lobe is wide with "wide"): what FrameSettings.sub_lights applies to."""
+    return mode in _CLOSED_FORM_MODES and glossy in ("mixed", "wide")
+
+
 def _no_diffuse_pems(mode: ShadingMode, diffuse: str) -> bool:
     """Every light's diffuse term without PEM lookups: the DIFFUSE_LIGHTS program variant, whose
     loops are compiled only for the kinds light_kinds then gives (one rule for both)."""
@@ -276,7 +283,7 @@ def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
         pem_diffuse = ~(small & exact_modes & (settings.diffuse == "mixed"))
     if settings.mode is ShadingMode.FULL and sh_unshadowed:
         pem_diffuse &= lights["shadow"][:, 0] >= 0
-    pem_glossy = ~(small & exact_modes & (settings.glossy in ("mixed", "wide")))
+    pem_glossy = ~(small & _glossy_closed_form(settings.mode, settings.glossy))
     if exact_modes and settings.glossy == "wide":
         # wide_lobe in lighting.frag at the glossiest pixel, with a margin for the interpolated g.
         sin_a = lights["params"][:, 3].astype(np.float64)
@@ -374,12 +381,12 @@ class Renderer:
         pass's targets), compiled on first use (one variant each; the diffuse source matters to the
         full and no-occlusion modes only); `two_textures`: the PEM set spans two textures (more than
         REGIONS_PER_TEXTURE regions), whose second needs loops of its own; `sub_lights`: discs per
-        region in the closed forms (FrameSettings.sub_lights)."""
+        region in the glossy closed form (FrameSettings.sub_lights; 1 where no glossy term is in
+        closed form, `_glossy_closed_form`)."""
         closed = _no_diffuse_pems(mode, diffuse)
         wide = glossy == "wide" and mode in _CLOSED_FORM_MODES
         contact = contact and mode is ShadingMode.FULL
         compute = self.lighting_pass == "compute"
-        sub_lights = sub_lights if mode in _CLOSED_FORM_MODES and glossy in ("mixed", "wide") else 1
         key = (mode, diffuse if closed else "pem", two_textures, wide, contact, compute, sub_lights)
         if key not in self._shade_progs:
             defines = {**self._defines, "MODE": _MODE_INDEX[mode], "TWO_PEM_TEXTURES": int(two_textures)}
@@ -561,8 +568,9 @@ class Renderer:
             lights_buf.bind_to_storage_buffer(0)
             if settings.diffuse == "sh":   # per light, its region's irradiance coefficients
                 self._buffer("light_sh", pems.light_sh).bind_to_storage_buffer(3)
-            if settings.sub_lights > 1 and settings.mode in _CLOSED_FORM_MODES and settings.glossy in ("mixed", "wide"):
-                self._buffer("sub_lights", pems.sub_lights_bytes(settings.sub_lights)).bind_to_storage_buffer(6)
+            discs = settings.sub_lights if _glossy_closed_form(settings.mode, settings.glossy) else 1
+            if discs > 1:
+                self._buffer("sub_lights", pems.sub_lights_bytes(discs)).bind_to_storage_buffer(6)
             self._gloss_buf.write(pems.gloss_table(settings.calibration).tobytes())
             self._gloss_buf.bind_to_storage_buffer(1)
             self._horizon_tex.use(location=7)
@@ -583,7 +591,7 @@ class Renderer:
             sh_on = settings.sh_unshadowed and settings.diffuse in ("pem", "mixed") and bool((layers < 0).any())
             contact = settings.contact_shadow_texels > 0 and n_shadowed > 0
             p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE, settings.glossy,
-                                         contact, settings.sub_lights)
+                                         contact, discs)
             contact_radius = 0.0
             if "u_contact_radius" in p:
                 # In main-map texels (the maps whose bias hides the contact), else the sharp maps'.

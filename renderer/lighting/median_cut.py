@@ -224,9 +224,9 @@ def sub_lights(cube: np.ndarray, regions: RegionSet, per_region: int, whole_sour
             if rect is not None:
                 labels[face, rect[0]:rect[1], rect[2]:rect[3]] = rid * per_region + j
     with np.errstate(invalid="ignore", divide="ignore"):   # the padding's empty sums, replaced below
-        dirs, _, energy_rgb, _, mean_cos = _region_stats(rgb, energy, labels, n_sub)
+        dirs, omega, energy_rgb, _, mean_cos = _region_stats(rgb, energy, labels, n_sub)
     # Padding (a one-texel region cannot be cut): no texels, no energy, any direction.
-    empty = np.bincount(labels.reshape(-1), minlength=n_sub) == 0
+    empty = omega == 0.0
     dirs[empty] = regions.directions[np.nonzero(empty)[0] // per_region]
     mean_cos[empty] = 1.0
     energy_rgb[empty] = 0.0

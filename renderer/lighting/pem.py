@@ -21,6 +21,7 @@ from ..errors import InvalidInputError
 from ..gpu.context import GLContext, StageTimer
 from ..gpu.rawgl import GL_RGBA16F, GL_RGBA32F, CubeMapArray
 from ..gpu.shaders import compute_shader
+from ..shadows.lights import disc_sine
 from .filters import Filter, taps_1d
 from .glossiness import Calibration, LobeTable, lobe_table
 from .median_cut import RegionSet, median_cut, sub_lights
@@ -259,7 +260,7 @@ class PEMSet:
             sub = sub_lights(self._cube[..., :3], self.regions, per_region, self.settings.whole_sources)
             out = np.zeros((len(sub.energy_rgb), 2, 4), np.float32)
             out[:, 0, :3] = sub.directions
-            out[:, 0, 3] = np.sin(np.clip(sub.disc_radius_rad, 1e-3, np.pi / 2))
+            out[:, 0, 3] = disc_sine(sub.disc_radius_rad)
             out[:, 1, :3] = sub.energy_rgb
             self._sub_lights[per_region] = out.tobytes()
         return self._sub_lights[per_region]

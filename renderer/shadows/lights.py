@@ -205,6 +205,12 @@ def texel_sizes(view_proj: np.ndarray, shadow_size) -> np.ndarray:
     return np.stack([width, width * np.linalg.norm(vp[:, 2, :3], axis=1)], axis=1)
 
 
+def disc_sine(radius_rad) -> np.ndarray:
+    """Sine of a light's angular radius as the shading pass reads it (params.w, a glossy disc's):
+    clamped to [1e-3 rad, 90 degrees], so that a point-like light keeps a finite lobe exponent."""
+    return np.sin(np.clip(np.asarray(radius_rad, np.float64), 1e-3, np.pi / 2))
+
+
 def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma, shadow_layer,
                 radius_rad=None, sharp=None, texel=None) -> np.ndarray:
     """Build the std430 array of `struct Light` for n lights; shadow_layer[i] = -1: no shadow map
@@ -218,7 +224,7 @@ def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma
     arr["dir_scale"][:, 3] = scales
     arr["params"][:, 0] = sigma
     arr["params"][:, 2] = solid_angle_sr
-    arr["params"][:, 3] = np.sin(np.clip(np.asarray(radius_rad if radius_rad is not None else np.zeros(n)), 1e-3, np.pi / 2))
+    arr["params"][:, 3] = disc_sine(radius_rad if radius_rad is not None else np.zeros(n))
     arr["energy"][:, :3] = energy_rgb
     arr["energy"][:, 3] = np.asarray(energy_rgb) @ np.array([0.2126, 0.7152, 0.0722])
     arr["shadow"][:, 0] = shadow_layer
