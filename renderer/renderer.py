@@ -541,6 +541,12 @@ class Renderer:
         view_proj = camera.view_proj(w / h, centre, radius)
         fbo, gbuf_fbo, gbuf = self._target_for(w, h)
         vp_bytes = view_proj.T.astype(np.float32).tobytes()
+        # The PEM set's tables the shading pass reads (the glossy discs, the lights' SH), made once per
+        # set when a frame first asks for them: that frame reports them as their own stage.
+        discs = settings.sub_lights if _glossy_closed_form(settings.mode, settings.glossy) else 1
+        t0 = time.perf_counter()
+        if pems.prepare_tables(discs, sh=settings.diffuse == "sh"):
+            timer.wall_ms["light_tables"] = (time.perf_counter() - t0) * 1e3
         with gl.stage(timer, "geometry"):
             # Geometry pass: nearest surface's position, normals and material per pixel.
             gbuf_fbo.use()
@@ -568,7 +574,6 @@ class Renderer:
             lights_buf.bind_to_storage_buffer(0)
             if settings.diffuse == "sh":   # per light, its region's irradiance coefficients
                 self._buffer("light_sh", pems.light_sh).bind_to_storage_buffer(3)
-            discs = settings.sub_lights if _glossy_closed_form(settings.mode, settings.glossy) else 1
             if discs > 1:
                 self._buffer("sub_lights", pems.sub_lights_bytes(discs)).bind_to_storage_buffer(6)
             self._gloss_buf.write(pems.gloss_table(settings.calibration).tobytes())

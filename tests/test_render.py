@@ -552,17 +552,25 @@ def test_each_light_sums_its_own_glossy_discs(renderer):
     # horizon share. Two discs a region change the image of a sphere over a plane under a sun and sky
     # by little (the same energy from nearly the same directions); discs read from other lights' slots
     # change it by much (measured: 0.006 rel. RMSE, and 0.12 with discs indexed across the lights).
-    # With glossy "pem" no term is in closed form and the knob does nothing.
+    # With glossy "pem" no term is in closed form and the knob does nothing. The discs are cut once per
+    # PEM set and count, by the first frame that asks, which reports them as its "light_tables" stage.
     scene = renderer.create_scene([sphere(0.4, centre=(0, 0.5, 0)), plane(4.0)],
                                   [Material((0.1, 0.1, 0.1), 1.0, 0.8), Material((0.2, 0.2, 0.2), 0.5, 0.6)])
     pems = renderer.build_pems(sun_sky_cube(32, (1, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3), PEMSettings(48))
     try:
-        img = {(g, k): renderer.render(scene, pems, FrameSettings(64, 64, diffuse="lights", glossy=g, sub_lights=k),
-                                       CAM).image
-               for g in ("wide", "pem") for k in (1, 2)}
+        frames = {(g, k): renderer.render(scene, pems, FrameSettings(64, 64, diffuse="lights", glossy=g, sub_lights=k),
+                                          CAM)
+                  for g in ("wide", "pem") for k in (1, 2)}
+        again = renderer.render(scene, pems, FrameSettings(64, 64, diffuse="lights", glossy="wide", sub_lights=2), CAM)
     finally:
         pems.release()
         scene.release()
+    made = {key: "light_tables" in f.timings["wall_ms"] for key, f in frames.items()}
+    assert made == {("wide", 1): False, ("wide", 2): True, ("pem", 1): False, ("pem", 2): False}, made
+    assert frames["wide", 2].timings["wall_ms"]["light_tables"] > 0
+    assert "light_tables" not in again.timings["wall_ms"]
+    np.testing.assert_array_equal(again.image, frames["wide", 2].image)
+    img = {key: f.image for key, f in frames.items()}
     m = img["wide", 1][..., 3] > 0.5
     assert m.mean() > 0.3
     change = relative_rmse(img["wide", 2], img["wide", 1], m)

@@ -86,11 +86,14 @@ def test_diffuse_sh_renders_a_band_limited_map_exactly(renderer):
     pems = renderer.build_pems(cube, PEMSettings(24))
     try:
         frame = renderer.render(scene, pems, FrameSettings(64, 64, diffuse="sh", mode=ShadingMode.NO_OCCLUSION), CAM)
+        again = renderer.render(scene, pems, FrameSettings(64, 64, diffuse="sh", mode=ShadingMode.NO_OCCLUSION), CAM)
         small = int((np.sin(pems.regions.disc_radius_rad()) <= 0.1).sum())
     finally:
         pems.release()
         scene.release()
     assert small == 0   # every light here is large: all of them go through SH9
+    # The lights' coefficients are made once per PEM set, in the first frame's own stage.
+    assert "light_tables" in frame.timings["wall_ms"] and "light_tables" not in again.timings["wall_ms"]
     c = irradiance_coefficients(region_sh(cube.astype(np.float64), np.zeros((6, n, n), int), 1)[0])
     img, cov = frame.image, frame.image[..., 3] > 0.5
     assert cov.sum() > 1000
