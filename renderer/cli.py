@@ -119,7 +119,8 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
                    help="only small lights carrying at least this many times the mean light's energy get those "
                         "maps; 0: every small light (default: the preset's)")
     q.add_argument("--sh-unshadowed", action=argparse.BooleanOptionalAction,
-                   help="the diffuse term of the unshadowed lights from SH9 irradiance (one lookup less per light)")
+                   help="the diffuse term of the unshadowed lights from their summed SH9 irradiance (in a scene "
+                        "without a glossy lobe the lighting pass then skips them)")
     q.add_argument("--glossy-horizon", choices=["off", "lobe", "lights", "both"],
                    help="drop the glossy lobe's part below the surface: per light (default), by the lobe's share, "
                         "both, or not (the paper)")

@@ -155,8 +155,9 @@ class FrameSettings:
     # from the diffuse term too: the terminator a shadow map cannot resolve (lighting.frag).
     terminator: bool = True
     # Full mode: the diffuse term of the lights that get no shadow map (below shadow_threshold) from
-    # their summed SH9 irradiance (lighting/sh.py) instead of one PEM lookup (or disc) each; with
-    # diffuse "pem" or "mixed".
+    # their summed SH9 irradiance (lighting/sh.py) instead of one PEM lookup (or disc, or SH9) each,
+    # whatever the diffuse source; in a scene without a glossy lobe those lights then cost nothing
+    # per pixel (light_kinds). The frame's timings count them (sh_lights, sh_skipped_lights).
     sh_unshadowed: bool = False
     # g -> MIP level: "l2" (closest normalized kernel, the default: lower error in every target scene)
     # or "volume" (the paper's section 5); lighting/glossiness.py.
@@ -261,7 +262,8 @@ def _no_diffuse_pems(mode: ShadingMode, diffuse: str) -> bool:
 
 
 def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
-                sh_unshadowed: bool, max_glossiness: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+                sh_unshadowed: bool, max_glossiness: float = 1.0,
+                glossy_scene: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """The lighting pass's order of the lights and the end of each kind in it (int32 arrays: the
     light_order buffer and u_kind_end of lighting.frag). A light's kind: bit 0 it reads its diffuse
     PEM, bit 1 its glossy PEM, bit 2 its map is in the sharp array, bit 3 its region is in the second
@@ -272,7 +274,9 @@ def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
     glossy "wide", a large light whose disc is narrower than the lobe at every pixel (at the scene's
     `max_glossiness`, the widest lobe being the least glossy) has its glossy term in closed form
     everywhere: its glossy PEM is not read (the shader's wide_lobe would discard the lookup at every
-    pixel; a CPU rasterizer runs it anyway)."""
+    pixel; a CPU rasterizer runs it anyway). In a scene without a glossy lobe (`glossy_scene` False)
+    the lights whose diffuse term SH9 carries add nothing of their own: they get kind N_LIGHT_KINDS,
+    after every loop's end, and the shader never visits them."""
     n = len(lights)
     exact_modes = settings.mode in _CLOSED_FORM_MODES
     # The shader compares the packed float32 sine with the float32 define.
@@ -291,6 +295,8 @@ def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
     second = np.arange(n) >= REGIONS_PER_TEXTURE
     kind = (pem_diffuse.astype(np.int32) | pem_glossy.astype(np.int32) << 1 | np.asarray(sharp, np.int32) << 2
             | second.astype(np.int32) << 3)
+    if settings.mode is ShadingMode.FULL and sh_unshadowed and not glossy_scene:
+        kind[lights["shadow"][:, 0] < 0] = N_LIGHT_KINDS
     order = np.argsort(kind, kind="stable").astype(np.int32)
     kind_end = np.searchsorted(kind[order], np.arange(1, N_LIGHT_KINDS + 1)).astype(np.int32)
     return order, kind_end
@@ -593,7 +599,7 @@ class Renderer:
             # depth is nearer (covered pixels only; the depth buffer is not written).
             ctx.enable(moderngl.DEPTH_TEST)
             ctx.depth_func = ">"
-            sh_on = settings.sh_unshadowed and settings.diffuse in ("pem", "mixed") and bool((layers < 0).any())
+            sh_on = settings.sh_unshadowed and settings.mode is ShadingMode.FULL and bool((layers < 0).any())
             contact = settings.contact_shadow_texels > 0 and n_shadowed > 0
             p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE, settings.glossy,
                                          contact, discs)
@@ -614,7 +620,7 @@ class Renderer:
                 self._buffer("light_screen", screen.astype(np.float32).tobytes()).bind_to_storage_buffer(5)
                 p["u_image_size"] = (float(w), float(h))
                 p["u_focal_px"] = 0.5 * h / float(np.tan(np.radians(camera.fov_y_deg) / 2.0))
-            order, kind_end = light_kinds(lights, plan.sharp, settings, sh_on, scene.max_glossiness)
+            order, kind_end = light_kinds(lights, plan.sharp, settings, sh_on, scene.max_glossiness, scene.glossy)
             self._buffer("light_order", order.tobytes()).bind_to_storage_buffer(4)
             if "u_kind_end" in p:   # the compiler keeps the entries up to the last kind this variant loops over
                 p["u_kind_end"].write(kind_end[:p["u_kind_end"].array_length].tobytes())
@@ -656,6 +662,10 @@ class Renderer:
         timings["frame_wall_ms"] = (time.perf_counter() - t_frame) * 1e3
         timings["n_lights"] = n
         timings["shadowed_lights"] = n_shadowed
+        # Lights whose diffuse term came from the summed SH9 irradiance (sh_unshadowed), and of them
+        # those the lighting pass did not visit at all (no glossy lobe in the scene).
+        timings["sh_lights"] = int((layers < 0).sum()) if sh_on else 0
+        timings["sh_skipped_lights"] = int(n - kind_end[-1]) if sh_on else 0
         timings["shadow_layers"] = plan.n_layers if n_shadowed else 0
         timings["sharp_layers"] = len(plan.sharp_lights) if n_shadowed else 0
         timings["n_triangles"] = scene.n_triangles

@@ -134,7 +134,7 @@ class QualitySpec(_Strict):
                                           "lights carrying at least this many times the mean light's energy get "
                                           "those maps (0: every small light)")
     sh_unshadowed: bool = Field(_KNOB["sh_unshadowed"], description="the diffuse term of the lights below shadow_threshold "
-                                "from SH9 irradiance")
+                                "from their summed SH9 irradiance (a scene without a glossy lobe then skips those lights)")
 
     @field_validator("sub_lights")
     @classmethod

@@ -1,6 +1,7 @@
 """SH9 irradiance (renderer/lighting/sh.py) and its use for the lights without a shadow map."""
 
 import numpy as np
+import pytest
 
 from renderer.envmap.cube import cube_solid_angles, texel_directions
 from renderer.lighting.pem import PEMSettings
@@ -38,38 +39,72 @@ def test_band_limited_map_is_exact():
     np.testing.assert_allclose(irradiance(c, normals), exact, rtol=2e-3)
 
 
-def test_renderer_furnace_with_every_light_unshadowed_and_sh(renderer):
+@pytest.mark.parametrize("diffuse", ["pem", "lights", "mixed", "sh"])
+def test_renderer_furnace_with_every_light_unshadowed_and_sh(renderer, diffuse):
+    # Whatever the diffuse source, SH9 carries the unshadowed lights' diffuse term; the sphere has no
+    # glossy lobe, so the lighting pass visits none of the 48 lights.
     scene = renderer.create_scene([sphere()], [Material((1.0, 1.0, 1.0), 0.0, 0.0)])
     pems = renderer.build_pems(np.full((6, 32, 32, 3), 2.5, np.float32), PEMSettings(48))
     try:
-        frame = renderer.render(scene, pems, FrameSettings(64, 64, shadow_threshold=1.0, sh_unshadowed=True), CAM)
+        frame = renderer.render(scene, pems, FrameSettings(64, 64, shadow_threshold=1.0, sh_unshadowed=True,
+                                                           diffuse=diffuse), CAM)
     finally:
         pems.release()
         scene.release()
     assert frame.timings["shadowed_lights"] == 0
+    assert frame.timings["sh_lights"] == 48 and frame.timings["sh_skipped_lights"] == 48
     px = frame.image[frame.image[..., 3] > 0.5][:, :3]
     assert px.size > 1000
     np.testing.assert_allclose(px, 2.5, rtol=1e-4)
 
 
-def test_sh_for_dim_lights_changes_the_image_a_little(renderer):
+@pytest.mark.parametrize("diffuse", ["pem", "lights"])
+def test_sh_for_dim_lights_changes_the_image_a_little(renderer, diffuse):
     cube = sun_sky_cube(32, (1, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3)
     scene = renderer.create_scene([sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)],
                                   [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
     pems = renderer.build_pems(cube, PEMSettings(48))
+    d = {"diffuse": diffuse}
     try:
-        a = renderer.render(scene, pems, FrameSettings(64, 64, shadow_threshold=0.01), CAM)
-        b = renderer.render(scene, pems, FrameSettings(64, 64, shadow_threshold=0.01, sh_unshadowed=True), CAM)
-        full = renderer.render(scene, pems, FrameSettings(64, 64), CAM)
-        ignored = renderer.render(scene, pems, FrameSettings(64, 64, sh_unshadowed=True), CAM)
+        a = renderer.render(scene, pems, FrameSettings(64, 64, shadow_threshold=0.01, **d), CAM)
+        b = renderer.render(scene, pems, FrameSettings(64, 64, shadow_threshold=0.01, sh_unshadowed=True, **d), CAM)
+        full = renderer.render(scene, pems, FrameSettings(64, 64, **d), CAM)
+        ignored = renderer.render(scene, pems, FrameSettings(64, 64, sh_unshadowed=True, **d), CAM)
     finally:
         pems.release()
         scene.release()
     assert 0 < b.timings["shadowed_lights"] < 48
+    # The sphere is glossy: every light is still visited (for its glossy term).
+    assert b.timings["sh_lights"] == 48 - b.timings["shadowed_lights"] and b.timings["sh_skipped_lights"] == 0
+    assert a.timings["sh_lights"] == 0 and ignored.timings["sh_lights"] == 0
     m = a.image[..., 3] > 0.5
     change = np.abs(a.image - b.image)[m][:, :3].mean() / a.image[m][:, :3].mean()
-    assert 0.0 < change < 0.01, change                # measured 0.2 %
+    assert 0.0 < change < 0.01, change                # measured 0.3 % (pem), 0.016 % (lights)
     np.testing.assert_array_equal(ignored.image, full.image)  # no unshadowed light: nothing to replace
+
+
+@pytest.mark.parametrize("diffuse", ["pem", "lights"])
+def test_diffuse_only_scene_skips_the_sh_lights_for_the_same_image(renderer, diffuse):
+    # No glossy lobe anywhere: the lights SH9 carries add nothing of their own, so the lighting pass
+    # leaves them out (renderer.light_kinds); the image is the one where it visits them.
+    cube = sun_sky_cube(32, (1, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3)
+    scene = renderer.create_scene([sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)],
+                                  [Material((0.8, 0.3, 0.3), 0.0, 0.8), Material()])
+    pems = renderer.build_pems(cube, PEMSettings(48))
+    settings = FrameSettings(64, 64, shadow_threshold=0.01, sh_unshadowed=True, diffuse=diffuse)
+    try:
+        assert scene.glossy is False
+        skipping = renderer.render(scene, pems, settings, CAM)
+        scene.glossy = True   # as if some pixel had a glossy lobe: every light is visited
+        visiting = renderer.render(scene, pems, settings, CAM)
+    finally:
+        pems.release()
+        scene.release()
+    n_sh = 48 - skipping.timings["shadowed_lights"]
+    assert 0 < n_sh < 48
+    assert skipping.timings["sh_skipped_lights"] == n_sh and visiting.timings["sh_skipped_lights"] == 0
+    assert (skipping.image[..., 3] > 0.5).mean() > 0.3
+    np.testing.assert_allclose(skipping.image, visiting.image, rtol=1e-5, atol=1e-6)
 
 
 def test_diffuse_sh_renders_a_band_limited_map_exactly(renderer):

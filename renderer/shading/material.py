@@ -33,16 +33,21 @@ class Material:
     albedo_map: np.ndarray | None = None
     gloss_map: np.ndarray | None = None
 
+    def has_glossy_lobe(self) -> bool:
+        """Whether any fragment can have a specular weight above 0 (from the values or the gloss map)."""
+        if self.gloss_map is not None:
+            return bool((np.asarray(self.gloss_map, np.float64)[..., 0] > 0).any())
+        return bool((np.asarray(self.specular, np.float64) > 0).any())
+
     def max_glossiness(self) -> float:
         """The glossiest lookup this material can make (0 when it has no glossy lobe anywhere): what
         decides the finest PEM level a scene needs. Specular and glossiness are interpolated (between
         vertices, between texels), so a fragment can pair any g with a nonzero specular weight: the
         maximum is over all of g as soon as any specular weight is positive."""
-        if self.gloss_map is not None:
-            gm = np.asarray(self.gloss_map, np.float64)
-            return float(gm[..., 1].max()) if (gm[..., 0] > 0).any() else 0.0
-        if not (np.asarray(self.specular, np.float64) > 0).any():
+        if not self.has_glossy_lobe():
             return 0.0
+        if self.gloss_map is not None:
+            return float(np.asarray(self.gloss_map, np.float64)[..., 1].max())
         return float(np.max(np.asarray(self.glossiness, np.float64)))
 
     def vertex_arrays(self, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:

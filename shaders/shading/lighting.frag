@@ -498,9 +498,9 @@ void main() {
 #endif
 #ifndef DIFFUSE_LIGHTS
     g_diffuse /= textureLod(u_pem_norm, vec4(n, 0.0), u_diffuse_level).r;
+#endif
 #if MODE == 0
     if (u_sh_unshadowed) g_diffuse += sh_irradiance(n) / PI;
-#endif
 #endif
     g_diffuse += max(g_diffuse_exact, vec3(0.0));
 #if MODE == 0
