@@ -140,3 +140,126 @@ def test_two_million_triangles(renderer):
     img = _ok(_frame(renderer, [s, ground_plane(3.0)], sun_sky_cube(16, (0.3, 1, 0.2)),
                      settings=FrameSettings(64, 64, shadow_size=64), n_lights=6))
     assert (img[..., 3] > 0.5).sum() > 500
+
+
+def _balanced(size, **output):
+    from renderer.presets import DEFAULT_PRESETS, frame_settings, merge_knobs, pem_settings
+
+    knobs = merge_knobs(DEFAULT_PRESETS["balanced"], {})
+    return frame_settings(knobs, size, size, **output), pem_settings(knobs, "sqrt-cosine", None)
+
+
+def test_balanced_glossiness_at_and_beside_its_ends(renderer):
+    # The balanced preset's path (closed-form diffuse, glossy "wide" with two discs a region, contact
+    # shadows, sharp maps) at g = 0, 1 and 1e-7 beside each, under a sun of 1e6: finite, lit, and a
+    # neighbour 1e-7 away gives nearly its end's image (no jump where the lobe's exponent s = 1 / (1 - g)
+    # leaves float range).
+    from conftest import CAM, plane, sphere
+
+    cube = sun_sky_cube(32, (0.3, 1, 0.2), sun_radiance=1e6, sun_radius_deg=1)
+    settings, pem = _balanced(64)
+    assert settings.sub_lights > 1 and settings.glossy == "wide" and settings.diffuse == "lights"
+    pems = renderer.build_pems(cube, pem)
+    images = {}
+    try:
+        for g in (0.0, 1e-7, 1.0 - 1e-7, 1.0):
+            scene = renderer.create_scene([sphere(), plane(y=-0.6)], [Material((0.8, 0.2, 0.2), 0.5, g), Material()])
+            try:
+                images[g] = _ok(renderer.render(scene, pems, settings, CAM))
+            finally:
+                scene.release()
+    finally:
+        pems.release()
+    cov = images[0.0][..., 3] > 0.5
+    assert cov.mean() > 0.3
+    for end, beside in ((0.0, 1e-7), (1.0, 1.0 - 1e-7)):
+        a, b = images[end][cov][:, :3], images[beside][cov][:, :3]
+        assert a.max() > 0
+        assert np.abs(a - b).mean() <= 1e-3 * a.mean(), (end, np.abs(a - b).mean() / a.mean())
+
+
+def test_balanced_sun_1e5_and_1e6_times_its_sky(renderer):
+    # A sun 1e5 and 1e6 times brighter than the sky (the sky's brightest channel is 0.5, the sun's
+    # radiance 5e4 and 5e5): every stage at balanced stays finite (the PEMs' half floats end at 65504), the
+    # image is dominated by the sun and grows with it (between 9x and 10x: the sky's share stays), and
+    # the Monte Carlo reference of the same scene is finite and agrees with it in the mean.
+    from conftest import CAM, plane, sphere
+    from renderer.reference import render_reference
+
+    meshes = [sphere(), plane(y=-0.6)]
+    materials = [Material((0.8, 0.2, 0.2), 0.5, 0.8), Material()]
+    settings, pem = _balanced(48)
+    scene = renderer.create_scene(meshes, materials)
+    means = {}
+    try:
+        for ratio in (1e5, 1e6):
+            cube = sun_sky_cube(32, (0.3, 1, 0.2), sun_radiance=ratio * 0.5, sun_radius_deg=2)
+            pems = renderer.build_pems(cube, pem)
+            try:
+                img = _ok(renderer.render(scene, pems, settings, CAM))
+            finally:
+                pems.release()
+            cov = img[..., 3] > 0.5
+            means[ratio] = float(img[cov][:, :3].mean())
+            if ratio == 1e6:
+                ref = render_reference(meshes, materials, cube, CAM, 48, 48, spp=16)
+                assert np.isfinite(ref.image).all() and np.isfinite(ref.noise_floor_rel())
+                ref_cov = ref.image[..., 3] > 0.5
+                assert abs(float(ref.image[ref_cov][:, :3].mean()) / means[ratio] - 1.0) < 0.1
+    finally:
+        scene.release()
+    assert 9.0 < means[1e6] / means[1e5] <= 10.0 + 1e-3, means
+
+
+def _sky_with_sun(h: int) -> np.ndarray:
+    """An h x 2h lat-long map: a blue sky brightening towards the poles, and a sun of 5e4 covering the
+    same solid angle at every resolution (a block of h / 200 x h / 200 texels)."""
+    img = np.empty((h, 2 * h, 3), np.float32)
+    theta = (np.arange(h, dtype=np.float32) + 0.5) / h * np.float32(np.pi)
+    img[:] = (0.2 + 0.8 * np.cos(theta) ** 2)[:, None, None] * np.array([0.3, 0.5, 1.0], np.float32)
+    k = h // 1024
+    img[125 * k:130 * k, 625 * k:630 * k] = 5e4
+    return img
+
+
+def test_16k_map_gives_the_image_of_its_2k_version(renderer):
+    # A 16384 x 8192 lat-long map (1.5 GiB of float32; the conversion adds at most 0.6 GiB) becomes the
+    # same 128^2 cube as the same sky at 2048 x 1024: the same power, and at balanced the same image.
+    from conftest import CAM, plane, sphere
+
+    import tracemalloc
+
+    cubes = {}
+    for h in (1024, 8192):
+        img = _sky_with_sun(h)
+        tracemalloc.start()
+        try:
+            cubes[h] = environment_from_array(img, "latlong", 128, f"{2 * h}x{h}").cube
+            extra = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        del img
+    assert extra < 0.6 * 2**30, extra / 2**30   # beyond the input's 1.5 GiB; measured 0.50 GiB
+    big, small = cubes[8192], cubes[1024]
+    assert np.isfinite(big).all() and big.max() > 1e3
+    from renderer.envmap.cube import cube_solid_angles
+
+    w = cube_solid_angles(128)[..., None]
+    assert (big * w).sum() == pytest.approx((small * w).sum(), rel=1e-5)   # measured 2e-7
+    np.testing.assert_allclose(big, small, rtol=1e-4, atol=1e-4)   # measured: 5e-4 at most on the 5e4 sun
+    settings, pem = _balanced(48)
+    scene = renderer.create_scene([sphere(), plane(y=-0.6)], [Material((0.8, 0.2, 0.2), 0.5, 0.8), Material()])
+    images = []
+    try:
+        for cube in (small, big):
+            pems = renderer.build_pems(cube, pem)
+            try:
+                images.append(_ok(renderer.render(scene, pems, settings, CAM)))
+            finally:
+                pems.release()
+    finally:
+        scene.release()
+    cov = images[0][..., 3] > 0.5
+    assert cov.mean() > 0.3
+    a, b = images[0][cov][:, :3], images[1][cov][:, :3]
+    assert np.abs(a - b).mean() < 1e-3 * a.mean(), np.abs(a - b).mean() / a.mean()

@@ -344,8 +344,9 @@ def test_1k_map_to_128_cube_is_fast():
 
 def test_memory_grows_by_a_fraction_of_the_input():
     """Level 0 is never copied unless sampled and the pyramid is built in bands, so memory beyond the input
-    is a quarter of it (level 1) plus a fixed ~70 MiB of sample buffers: a 16k map (1.5 GiB) measured
-    0.5 GiB extra. Checked here as the growth of tracemalloc's peak (numpy reports to it) from 1k to 4k."""
+    is a quarter of it (level 1) plus a fixed ~70 MiB of sample buffers (a 16k map: 0.5 GiB extra,
+    tests/test_extremes.py). Checked here as the growth of tracemalloc's peak (numpy reports to it)
+    from 1k to 4k."""
     peaks = []
     for h in (512, 2048):
         img = np.random.default_rng(0).random((h, 2 * h, 3), dtype=np.float32)
