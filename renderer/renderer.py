@@ -503,6 +503,7 @@ class Renderer:
         # Each light's map size; blur widths are in the light's own texels.
         sizes = np.where(plan.sharp, settings.shadow_size * k, settings.shadow_size)
         sigma = blur_sigma_texels(regions.light_radius_rad(), sizes, settings.blur_scale)
+        blur = bool((sigma > 0).any())   # blur scale 0 (every preset): the maps stay as drawn
         # Square texels: the blur's sigma is in texels, the same on both axes, so rectangular texels
         # would make penumbrae anisotropic (a side run fitting x and y separately gained 0-2.5 %).
         vp = fit_light_view_projs(shadow_dirs, lo, hi, sigma, sizes, scene.footprint_unit)
@@ -522,7 +523,7 @@ class Renderer:
         arrays = {"main": shadow_maps}
         if len(plan.main_lights):
             shadow_maps.render([([sm.shadow_vao(settings.caster_detail) for sm in casters], -1)], lights_buf,
-                               self._buffer("shadow_lights_main", plan.main_lights.tobytes()), timer)
+                               self._buffer("shadow_lights_main", plan.main_lights.tobytes()), timer, blur=blur)
         sharp_coarse = np.zeros(len(plan.sharp_lights), bool)
         if len(plan.sharp_lights):
             arrays["sharp"] = self._shadow_maps_for("sharp", settings.shadow_size * k, len(plan.sharp_lights))
@@ -536,7 +537,7 @@ class Renderer:
             passes = ([(proxy_vaos, -1)] if sharp_coarse.all() else [(full_vaos, 0), (proxy_vaos, 1)]
                       if sharp_coarse.any() else [(full_vaos, -1)])
             arrays["sharp"].render(passes, lights_buf, self._buffer("shadow_lights_sharp", plan.sharp_lights.tobytes()),
-                                   timer, coarse_min_sin=coarse_min_sin)
+                                   timer, coarse_min_sin=coarse_min_sin, blur=blur)
         elif "sharp" in self._shadow_maps:   # no small light now: give its memory back
             self._shadow_maps.pop("sharp").release()
 

@@ -132,3 +132,34 @@ def test_speed_large_equal_error_sets_each_setting_against_a_reference_ladder():
             rung = next(r for r in e["ladder"] if r["spp"] == row["ref_spp"])
             assert row["resolved"] and rung["rel_rmse"] <= row["rel_rmse"]
             assert row["speedup"] == pytest.approx(rung["ms"] / row["frame_ms"])
+
+
+def test_bench_end_to_end_writes_its_three_outputs(tmp_path):
+    # `garment-render bench --quick`'s sweep on the bundled scene, made small (24x24, one timed
+    # frame, a reference of 2 x 8 spp): every quick setting and the four baselines become rows with
+    # timings, memory and errors; bench.md names the machine, the metric's eps, the noise floor and
+    # the targets; pareto.png is an image.
+    import json
+
+    from renderer.bench.run import BASELINE_MODES, BenchConfig, run_bench
+
+    cfg = BenchConfig(quick=True, size=24, frames=1, ref_spp=8, ladder=(1, 4), shared=False)
+    rows = run_bench(tmp_path, cfg, log=lambda *a: None)
+    data = json.loads((tmp_path / "bench.json").read_text())
+    assert set(data) == {"machine", "config", "rows"} and data["machine"]["gl_renderer"]
+    assert len(data["rows"]) == len(rows) == len(_settings_list(QUICK_SWEEPS)) + len(BASELINE_MODES)
+    knobs = {r["knob"] for r in data["rows"]}
+    assert {"lights", "face_size", "shadow_size", "blur_scale", "filter", "baseline", "balanced"} <= knobs
+    assert {r["value"] for r in data["rows"] if r["knob"] == "baseline"} == {m.value for m in BASELINE_MODES}
+    for r in data["rows"]:
+        assert r["frame_ms"] > 0 and r["pem_build_ms"] > 0 and r["pem_bytes"] > 0, r["knob"]
+        assert {"geometry", "shading", "readback"} <= set(r["stages_ms"]), r["knob"]
+        assert np.isfinite(r["rel_rmse"]) and 0 < r["flip"] < 1, r["knob"]
+        assert np.isfinite(r["ref_noise_rel_rmse"]) and r["ref_noise_rel_rmse"] > 0
+        assert r["extra"]["ref_ladder_top_ms"] > 0
+    md = (tmp_path / "bench.md").read_text()
+    for text in ("Machine:", "eps = 0.01", "Reference noise floor", "## Targets at the balanced preset",
+                 "| balanced | balanced | full |"):
+        assert text in md, text
+    w, h = Image.open(tmp_path / "pareto.png").size
+    assert w > 100 and h > 100

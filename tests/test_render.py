@@ -342,6 +342,38 @@ def test_shadow_blur_matches_a_numpy_box_cascade_and_leaves_unblurred_lights_alo
         np.testing.assert_allclose(blurred[layer], expect, rtol=1e-5, atol=1e-6, err_msg=f"light {layer}, r {r}")
 
 
+@pytest.mark.parametrize("n_lights", [24, 96])   # 96: more than one batch of layers, then a copy
+def test_without_a_blur_the_maps_skip_the_blur_passes_and_their_scratch(renderer, monkeypatch, n_lights):
+    # Blur scale 0 (every preset): no light has a blur width, so the blur passes (which would leave
+    # every layer as drawn) do not run and their ping-pong array is not made: the maps take half the
+    # memory. The image is the one with the passes run; a frame that blurs makes the array.
+    from renderer.shadows.vsm import ShadowMaps
+
+    cube = sun_sky_cube(32, (1, 1, 0.5), sun_radiance=300.0, sun_radius_deg=8)
+    scene = renderer.create_scene([sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)], [Material(), Material()])
+    pems = renderer.build_pems(cube, PEMSettings(n_lights))
+    size = 48 if n_lights == 24 else 40   # sizes no other test uses: a new array, without a scratch yet
+    sharp = dict(small_light_scale=1)
+    try:
+        plain = renderer.render(scene, pems, FrameSettings(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
+        maps = renderer._shadow_maps["main"]
+        assert maps.scratch is None
+        assert plain.settings["shadow_bytes"] == size * size * 8 * (maps.n_lights + (
+            0 if maps.target is maps.moments else maps.batch_layers))
+        assert ("blur" in plain.timings["wall_ms"]) == (n_lights > 64)   # the batches' copy only
+        original = ShadowMaps.render
+        monkeypatch.setattr(ShadowMaps, "render", lambda self, *a, **k: original(self, *a, **{**k, "blur": True}))
+        passes = renderer.render(scene, pems, FrameSettings(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
+        monkeypatch.undo()
+        assert renderer._shadow_maps["main"] is maps and maps.scratch is not None
+        assert passes.settings["shadow_bytes"] > plain.settings["shadow_bytes"]
+    finally:
+        pems.release()
+        scene.release()
+    assert covered(plain).mean() > 0.3
+    np.testing.assert_array_equal(plain.image, passes.image)
+
+
 def test_a_receiver_that_casts_nothing_is_lit_outside_the_casters_shadow(renderer):
     # A floor that casts no shadow lies beyond the far plane of light projections fitted to the casters.
     # Compared at the far plane, it is lit where no caster is and shadowed under the sphere: the image

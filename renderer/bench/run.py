@@ -205,7 +205,7 @@ def bench_scene(r: Renderer, bs: BenchScene, cfg: BenchConfig, log=print) -> lis
             spp, ref_ms = equal_error(err)
             row = Row(bs.name, bs.env_name, knob, value, mode.value, s, frame_ms, stages, pems.build_ms, pems.nbytes,
                       frame.settings["shadow_bytes"], err, flip, noise_rmse, noise_flip, spp, ref_ms,
-                      (ref_ms / frame_ms) if ref_ms else None)
+                      (ref_ms / frame_ms) if ref_ms else None, extra={"ref_ladder_top_ms": ladder[-1][1]})
             rows.append(row)
             log(f"  {knob}={value} [{mode.value}]: {frame_ms:.0f} ms, rel. RMSE {err:.4f}, FLIP {flip:.4f}"
                 + (f", reference needs {spp} spp ({ref_ms:.0f} ms)" if spp else ", reference ladder never this good"))

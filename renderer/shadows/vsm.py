@@ -36,7 +36,9 @@ class ShadowMaps:
         self.moments = ctx.texture_array((size, size, n_lights), 2, dtype="f4")
         self.moments.filter = (moderngl.LINEAR, moderngl.LINEAR)
         self.moments.repeat_x = self.moments.repeat_y = False
-        self.scratch = ctx.texture_array((size, size, n_lights), 2, dtype="f4")
+        # The blur's ping-pong array, made by the first frame that blurs (every preset's blur scale is
+        # 0: no light is blurred and the array would double the maps' memory for nothing).
+        self.scratch: moderngl.TextureArray | None = None
         self._fbos = []
         # One framebuffer per batch of layers would need layer offsets that moderngl cannot set;
         # instead each batch renders into a batch-sized array that is then blurred into place.
@@ -50,16 +52,19 @@ class ShadowMaps:
 
     @property
     def nbytes(self) -> int:
-        # moments + blur scratch, plus the batch target when the lights need more than one draw
-        layers = 2 * self.n_lights + (0 if self.target is self.moments else self.batch_layers)
+        # moments, the blur's scratch once a frame has blurred, and the batch target when the lights
+        # need more than one draw
+        layers = (self.n_lights * (1 if self.scratch is None else 2)
+                  + (0 if self.target is self.moments else self.batch_layers))
         return self.size * self.size * 8 * layers
 
     def render(self, passes: list[tuple[list[moderngl.VertexArray], int]], lights_buffer: moderngl.Buffer,
                shadow_lights_buffer: moderngl.Buffer, timer: StageTimer | None = None, enabled: bool = True,
-               coarse_min_sin: float = 1.0) -> None:
+               coarse_min_sin: float = 1.0, blur: bool = True) -> None:
         """Render and blur the moments of every shadowed light (layer k: light shadow_lights[k]).
         `passes`: (vertex arrays drawing the casters with `self.prog`, which layers they draw): -1
-        every layer; 0 the layers of lights whose disc's sine is at most `coarse_min_sin`; 1 the others."""
+        every layer; 0 the layers of lights whose disc's sine is at most `coarse_min_sin`; 1 the others.
+        `blur` False: no light has a blur width (the blur passes would leave every layer as drawn)."""
         gl, ctx = self.gl, self.gl.ctx
         gl.check_thread()
         lights_buffer.bind_to_storage_buffer(0)
@@ -83,33 +88,43 @@ class ShadowMaps:
                             vao.render(moderngl.TRIANGLES, instances=count)
                     ctx.blend_equation = moderngl.FUNC_ADD
                     ctx.disable(moderngl.BLEND)
+            if not blur and self.copy is None:
+                continue
             with gl.stage(timer, "blur"):
-                self.blur["u_first_light"].value = first
-                self.blur["u_max_radius"].value = MAX_BLUR_RADIUS
-                # Three box passes per axis, ping-ponging target <-> scratch: ends in target.
-                src, dst = self.target, self.scratch
-                for axis in ((1, 0), (0, 1)):
-                    self.blur["u_axis"].value = axis
-                    for _ in range(3):
-                        ctx.memory_barrier()
-                        src.bind_to_image(1, read=True, write=False)
-                        dst.bind_to_image(2, read=False, write=True)
-                        self.blur.run((self.size + 63) // 64, 1, count)
-                        src, dst = dst, src
-                ctx.memory_barrier()
+                if blur:
+                    self._blur_batch(first, count)
                 if self.copy is not None:
+                    ctx.memory_barrier()
                     self.target.bind_to_image(1, read=True, write=False)
                     self.moments.bind_to_image(2, read=False, write=True)
                     self.copy["u_first_layer"].value = first
                     self.copy.run(*groups, count)
                     ctx.memory_barrier()
 
+    def _blur_batch(self, first: int, count: int) -> None:
+        ctx = self.gl.ctx
+        if self.scratch is None:
+            self.scratch = ctx.texture_array((self.size, self.size, self.n_lights), 2, dtype="f4")
+        self.blur["u_first_light"].value = first
+        self.blur["u_max_radius"].value = MAX_BLUR_RADIUS
+        # Three box passes per axis, ping-ponging target <-> scratch: ends in target.
+        src, dst = self.target, self.scratch
+        for axis in ((1, 0), (0, 1)):
+            self.blur["u_axis"].value = axis
+            for _ in range(3):
+                ctx.memory_barrier()
+                src.bind_to_image(1, read=True, write=False)
+                dst.bind_to_image(2, read=False, write=True)
+                self.blur.run((self.size + 63) // 64, 1, count)
+                src, dst = dst, src
+        ctx.memory_barrier()
+
     def read(self) -> np.ndarray:
         """Blurred moments, float32 (n_lights, size, size, 2); row 0 is the bottom of light space."""
         return np.frombuffer(self.moments.read(), np.float32).reshape(self.n_lights, self.size, self.size, 2)
 
     def release(self) -> None:
-        for obj in {id(o): o for o in (self.fbo, self.target, self.moments, self.scratch)}.values():
+        for obj in {id(o): o for o in (self.fbo, self.target, self.moments, self.scratch) if o is not None}.values():
             obj.release()
         self.blur.release()
         if self.copy is not None:
