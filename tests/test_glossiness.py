@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from renderer.errors import InvalidInputError
@@ -183,3 +183,39 @@ def test_l2_level_is_closer_to_the_normalized_phong_lobe_than_the_volume_level(g
 def test_unknown_calibration_is_a_clear_error():
     with pytest.raises(InvalidInputError, match="calibration must be one of"):
         lobe_table(32, Filter.SQRT_COSINE).level_for_glossiness(0.5, "peak")
+
+
+def _l2_distance(table, level: float, g: float) -> float:
+    """||K / |K| - T_s||^2 of the kernel at a fractional level against the normalized Phong lobe."""
+    s = 1.0 / (1.0 - g)
+    target = (s + 1.0) / (2.0 * np.pi) * np.clip(table.eval_dirs @ table.impulse_dir, 0.0, 1.0) ** s
+    lo = int(np.floor(level))
+    hi = min(lo + 1, table.n_levels - 1)
+    k = (1.0 - (level - lo)) * table.responses[lo] + (level - lo) * table.responses[hi]
+    k = k / (k * table.eval_omega).sum()
+    return float(((k - target) ** 2 * table.eval_omega).sum())
+
+
+@settings(max_examples=60, deadline=None)
+@given(g=st.floats(min_value=0.0, max_value=0.9), kind=filters, face=st.sampled_from((32, 64)))
+def test_volume_calibration_gives_the_lobe_its_volume(g, kind, face):
+    # Property of the paper's calibration: wherever the level is not clamped to the chain's ends, the
+    # impulse response at the level of g has the target lobe's volume.
+    table = lobe_table(face, kind)
+    level = table.level_for_glossiness(g, "volume")
+    assume(0.05 < level < table.n_levels - 1.05)   # else clamped: no kernel of the chain is that narrow / wide
+    assert lobe_volume(table, level) == pytest.approx(float(target_volume(g)), rel=0.03)
+
+
+@settings(max_examples=60, deadline=None)
+@given(g=st.floats(min_value=0.0, max_value=0.9), kind=filters)
+def test_l2_calibration_is_the_nearest_kernel_among_its_neighbours(g, kind):
+    # Property of the l2 calibration: the kernel at the level of g is at least as close to the
+    # normalized Phong lobe as the kernels a quarter level finer and coarser (a local minimum of the
+    # distance it minimizes; the tabulated s and level grids interpolate, hence the 1 % slack).
+    table = lobe_table(32, kind)
+    level = table.level_for_glossiness(g, "l2")
+    here = _l2_distance(table, level, g)
+    for other in (level - 0.25, level + 0.25):
+        if 0.0 <= other <= table.n_levels - 1:
+            assert here <= _l2_distance(table, other, g) * 1.01 + 1e-12, (level, other)
