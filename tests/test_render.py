@@ -346,7 +346,8 @@ def test_shadow_blur_matches_a_numpy_box_cascade_and_leaves_unblurred_lights_alo
 def test_without_a_blur_the_maps_skip_the_blur_passes_and_their_scratch(renderer, monkeypatch, n_lights):
     # Blur scale 0 (every preset): no light has a blur width, so the blur passes (which would leave
     # every layer as drawn) do not run and their ping-pong array is not made: the maps take half the
-    # memory. The image is the one with the passes run; a frame that blurs makes the array.
+    # memory. The image is the one with the passes run; a frame that blurs makes the array, the next
+    # one that does not gives it back.
     from renderer.shadows.vsm import ShadowMaps
 
     cube = sun_sky_cube(32, (1, 1, 0.5), sun_radiance=300.0, sun_radius_deg=8)
@@ -367,6 +368,9 @@ def test_without_a_blur_the_maps_skip_the_blur_passes_and_their_scratch(renderer
         monkeypatch.undo()
         assert renderer._shadow_maps["main"] is maps and maps.scratch is not None
         assert passes.settings["shadow_bytes"] > plain.settings["shadow_bytes"]
+        # The next frame without a blur gives the array back and reports the maps alone again.
+        again = renderer.render(scene, pems, FrameSettings(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
+        assert maps.scratch is None and again.settings["shadow_bytes"] == plain.settings["shadow_bytes"]
     finally:
         pems.release()
         scene.release()

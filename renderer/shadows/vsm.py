@@ -36,8 +36,8 @@ class ShadowMaps:
         self.moments = ctx.texture_array((size, size, n_lights), 2, dtype="f4")
         self.moments.filter = (moderngl.LINEAR, moderngl.LINEAR)
         self.moments.repeat_x = self.moments.repeat_y = False
-        # The blur's ping-pong array, made by the first frame that blurs (every preset's blur scale is
-        # 0: no light is blurred and the array would double the maps' memory for nothing).
+        # The blur's ping-pong array, made by a frame that blurs and given back by one that does not
+        # (every preset's blur scale is 0: the array would double the maps' memory for nothing).
         self.scratch: moderngl.TextureArray | None = None
         self._fbos = []
         # One framebuffer per batch of layers would need layer offsets that moderngl cannot set;
@@ -71,6 +71,11 @@ class ShadowMaps:
         shadow_lights_buffer.bind_to_storage_buffer(2)
         self.prog["u_coarse_min_sin"].value = coarse_min_sin
         groups = ((self.size + 7) // 8, (self.size + 7) // 8)
+        if not blur and self.scratch is not None:
+            # A frame without a blur gives back the array an earlier frame's blur made: the memory a
+            # frame reports (nbytes) is what its own settings need.
+            self.scratch.release()
+            self.scratch = None
         for first in range(0, self.n_lights, self.batch_layers):
             count = min(self.batch_layers, self.n_lights - first)
             with gl.stage(timer, "shadow_maps"):
