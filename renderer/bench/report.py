@@ -59,7 +59,8 @@ def target_lines(rows) -> list[str]:
     if not balanced:
         return []
     lines = ["## Targets at the balanced preset", "",
-             "| scene | " + " | ".join(f"{name} ({sense} {bound:g})" for name, _, bound, sense in TARGETS) + " |",
+             "| scene | " + " | ".join(f"{name} ({'beside the paper' if sense == 'report' else f'{sense} {bound:g}'})"
+                                         for name, _, bound, sense in TARGETS) + " |",
              "|---|" + "---|" * len(TARGETS)]
     for r in balanced:
         top = r.extra.get("ref_ladder_top_ms")
