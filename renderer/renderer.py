@@ -562,8 +562,10 @@ class Renderer:
         # The PEM set's tables the shading pass reads (the glossy discs, the lights' SH), made once per
         # set when a frame first asks for them: that frame reports them as their own stage.
         discs = settings.sub_lights if _glossy_closed_form(settings.mode, settings.glossy) else 1
+        light_sh = settings.diffuse == "sh" and _no_diffuse_pems(settings.mode, settings.diffuse)
+        sh_on = settings.sh_unshadowed and settings.mode is ShadingMode.FULL and bool((layers < 0).any())
         t0 = time.perf_counter()
-        if pems.prepare_tables(discs, sh=settings.diffuse == "sh"):
+        if pems.prepare_tables(discs, light_sh=light_sh, region_sh=sh_on):
             timer.wall_ms["light_tables"] = (time.perf_counter() - t0) * 1e3
         with gl.stage(timer, "geometry"):
             # Geometry pass: nearest surface's position, normals and material per pixel.
@@ -590,7 +592,7 @@ class Renderer:
             fbo.depth_mask = False   # the depth buffer is the geometry pass's: clear the colour only
             fbo.clear(0.0, 0.0, 0.0, 0.0)
             lights_buf.bind_to_storage_buffer(0)
-            if settings.diffuse == "sh":   # per light, its region's irradiance coefficients
+            if light_sh:   # per light, its region's irradiance coefficients
                 self._buffer("light_sh", pems.light_sh).bind_to_storage_buffer(3)
             if discs > 1:
                 self._buffer("sub_lights", pems.sub_lights_bytes(discs)).bind_to_storage_buffer(6)
@@ -611,7 +613,6 @@ class Renderer:
             # depth is nearer (covered pixels only; the depth buffer is not written).
             ctx.enable(moderngl.DEPTH_TEST)
             ctx.depth_func = ">"
-            sh_on = settings.sh_unshadowed and settings.mode is ShadingMode.FULL and bool((layers < 0).any())
             contact = settings.contact_shadow_texels > 0 and n_shadowed > 0
             p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE, settings.glossy,
                                          contact, discs)
@@ -632,7 +633,8 @@ class Renderer:
                 self._buffer("light_screen", screen.astype(np.float32).tobytes()).bind_to_storage_buffer(5)
                 p["u_image_size"] = (float(w), float(h))
                 p["u_focal_px"] = 0.5 * h / float(np.tan(np.radians(camera.fov_y_deg) / 2.0))
-            order, kind_end = light_kinds(lights, plan.sharp, settings, sh_on, scene.max_glossiness, scene.glossy)
+            order, kind_end = light_kinds(lights, plan.sharp, settings, sh_on, scene.max_glossiness,
+                                          scene.has_glossy_lobe)
             self._buffer("light_order", order.tobytes()).bind_to_storage_buffer(4)
             if "u_kind_end" in p:   # the compiler keeps the entries up to the last kind this variant loops over
                 p["u_kind_end"].write(kind_end[:p["u_kind_end"].array_length].tobytes())

@@ -169,7 +169,7 @@ class Scene:
             # The glossiest lookup any pixel can make (Material.max_glossiness; 0: no glossy lobe).
             self.max_glossiness = max(mat.max_glossiness() for mat in materials)
             # Whether any pixel can have a glossy lobe at all (False: a diffuse-only scene).
-            self.glossy = any(mat.has_glossy_lobe() for mat in materials)
+            self.has_glossy_lobe = any(mat.has_glossy_lobe() for mat in materials)
             # The length the shadow maps' footprint sizes are stepped against (fit_light_view_projs):
             # the casters' box diagonal at creation, fixed so that the steps do not follow the cloth,
             # and proportional to the scene so that its scale does not change the image.

@@ -5,7 +5,8 @@
 
 Stage names in timings, Server-Timing and the Prometheus histogram: decode, normals, queue, the
 renderer's own stages (upload, shadow_maps, blur, geometry, shading, readback; light_tables in the first
-frame that needs a PEM set's glossy discs or SH coefficients), render (the renderer's frame wall time), gl_job (the whole job on the GL thread), encode, and total (handler start to answer).
+frame that needs a PEM set's glossy discs or SH coefficients), render (the renderer's frame wall
+time), gl_job (the whole job on the GL thread), encode, and total (handler start to answer).
 """
 
 from __future__ import annotations

@@ -77,31 +77,34 @@ def test_sh_for_dim_lights_changes_the_image_a_little(renderer, diffuse):
     # The sphere is glossy: every light is still visited (for its glossy term).
     assert b.timings["sh_lights"] == 48 - b.timings["shadowed_lights"] and b.timings["sh_skipped_lights"] == 0
     assert a.timings["sh_lights"] == 0 and ignored.timings["sh_lights"] == 0
+    # The regions' SH9 is made by the first frame that sums it, in its own stage.
+    assert "light_tables" in b.timings["wall_ms"] and "light_tables" not in a.timings["wall_ms"]
     m = a.image[..., 3] > 0.5
     change = np.abs(a.image - b.image)[m][:, :3].mean() / a.image[m][:, :3].mean()
     assert 0.0 < change < 0.01, change                # measured 0.3 % (pem), 0.016 % (lights)
     np.testing.assert_array_equal(ignored.image, full.image)  # no unshadowed light: nothing to replace
 
 
-@pytest.mark.parametrize("diffuse", ["pem", "lights"])
-def test_diffuse_only_scene_skips_the_sh_lights_for_the_same_image(renderer, diffuse):
+@pytest.mark.parametrize("diffuse, n_lights", [("pem", 48), ("lights", 48), ("lights", 384)])
+def test_diffuse_only_scene_skips_the_sh_lights_for_the_same_image(renderer, diffuse, n_lights):
+    # 384 lights: two PEM textures, whose loops are the shader's kinds 8-15.
     # No glossy lobe anywhere: the lights SH9 carries add nothing of their own, so the lighting pass
     # leaves them out (renderer.light_kinds); the image is the one where it visits them.
     cube = sun_sky_cube(32, (1, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3)
     scene = renderer.create_scene([sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)],
                                   [Material((0.8, 0.3, 0.3), 0.0, 0.8), Material()])
-    pems = renderer.build_pems(cube, PEMSettings(48))
-    settings = FrameSettings(64, 64, shadow_threshold=0.01, sh_unshadowed=True, diffuse=diffuse)
+    pems = renderer.build_pems(cube, PEMSettings(n_lights))
+    settings = FrameSettings(64, 64, shadow_threshold=0.01 * 48 / n_lights, sh_unshadowed=True, diffuse=diffuse)
     try:
-        assert scene.glossy is False
+        assert scene.has_glossy_lobe is False
         skipping = renderer.render(scene, pems, settings, CAM)
-        scene.glossy = True   # as if some pixel had a glossy lobe: every light is visited
+        scene.has_glossy_lobe = True   # as if some pixel had a glossy lobe: every light is visited
         visiting = renderer.render(scene, pems, settings, CAM)
     finally:
         pems.release()
         scene.release()
-    n_sh = 48 - skipping.timings["shadowed_lights"]
-    assert 0 < n_sh < 48
+    n_sh = n_lights - skipping.timings["shadowed_lights"]
+    assert 0 < n_sh < n_lights
     assert skipping.timings["sh_skipped_lights"] == n_sh and visiting.timings["sh_skipped_lights"] == 0
     assert (skipping.image[..., 3] > 0.5).mean() > 0.3
     np.testing.assert_allclose(skipping.image, visiting.image, rtol=1e-5, atol=1e-6)

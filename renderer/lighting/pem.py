@@ -252,15 +252,19 @@ class PEMSet:
             self._region_sh = region_sh(self._cube[..., :3], self.regions.labels, self.regions.n_regions)
         return self._region_sh
 
-    def prepare_tables(self, sub_lights: int = 1, sh: bool = False) -> bool:
+    def prepare_tables(self, sub_lights: int = 1, light_sh: bool = False, region_sh: bool = False) -> bool:
         """Make the per-set tables a frame will read (`sub_lights_bytes(sub_lights)` when it is > 1,
-        `light_sh` when `sh`) if they are not made yet; True when something was made, so that a
-        renderer can time it as its own stage rather than inside the shading pass."""
+        `light_sh` when `light_sh`, `region_sh` when `region_sh`) if they are not made yet; True when
+        something was made, so that a renderer can time it as its own stage rather than inside the
+        shading pass."""
         made = False
         if sub_lights > 1 and sub_lights not in self._sub_lights:
             self.sub_lights_bytes(sub_lights)
             made = True
-        if sh and self._light_sh is None:
+        if (light_sh or region_sh) and self._region_sh is None:
+            _ = self.region_sh
+            made = True
+        if light_sh and self._light_sh is None:
             _ = self.light_sh
             made = True
         return made

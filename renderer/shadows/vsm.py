@@ -54,7 +54,7 @@ class ShadowMaps:
     def nbytes(self) -> int:
         # moments, the blur's scratch once a frame has blurred, and the batch target when the lights
         # need more than one draw
-        layers = (self.n_lights * (1 if self.scratch is None else 2)
+        layers = (self.n_lights + (0 if self.scratch is None else self.batch_layers)
                   + (0 if self.target is self.moments else self.batch_layers))
         return self.size * self.size * 8 * layers
 
@@ -93,13 +93,14 @@ class ShadowMaps:
                             vao.render(moderngl.TRIANGLES, instances=count)
                     ctx.blend_equation = moderngl.FUNC_ADD
                     ctx.disable(moderngl.BLEND)
-            if not blur and self.copy is None:
-                continue
-            with gl.stage(timer, "blur"):
-                if blur:
-                    self._blur_batch(first, count)
-                if self.copy is not None:
-                    ctx.memory_barrier()
+            if blur:
+                with gl.stage(timer, "blur"):
+                    self._blur_batch(first, count)   # ends with a barrier
+            if self.copy is not None:
+                # The batch's layers into place: part of making the maps, whether blurred or not.
+                with gl.stage(timer, "shadow_maps"):
+                    if not blur:
+                        ctx.memory_barrier()
                     self.target.bind_to_image(1, read=True, write=False)
                     self.moments.bind_to_image(2, read=False, write=True)
                     self.copy["u_first_layer"].value = first
@@ -109,7 +110,7 @@ class ShadowMaps:
     def _blur_batch(self, first: int, count: int) -> None:
         ctx = self.gl.ctx
         if self.scratch is None:
-            self.scratch = ctx.texture_array((self.size, self.size, self.n_lights), 2, dtype="f4")
+            self.scratch = ctx.texture_array((self.size, self.size, self.batch_layers), 2, dtype="f4")
         self.blur["u_first_light"].value = first
         self.blur["u_max_radius"].value = MAX_BLUR_RADIUS
         # Three box passes per axis, ping-ponging target <-> scratch: ends in target.
