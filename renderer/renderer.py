@@ -159,9 +159,9 @@ class FrameSettings:
     # Full mode: small lights (angular radius <= ~6 degrees) below the triangle's own plane are removed
     # from the diffuse term too: the terminator a shadow map cannot resolve (lighting.frag).
     terminator: bool = True
-    # Full mode: the diffuse term of the lights that get no shadow map (below shadow_threshold) from
-    # their summed SH9 irradiance (lighting/sh.py) instead of one PEM lookup (or disc, or SH9) each,
-    # whatever the diffuse source; in a scene without a glossy lobe those lights then cost nothing
+    # Full mode: the diffuse term of the large lights that get no shadow map (below shadow_threshold)
+    # from their summed SH9 irradiance (lighting/sh.py) instead of one PEM lookup (or disc, or SH9)
+    # each, whatever the diffuse source (small ones, a sun's shape, keep their own); in a scene without a glossy lobe those lights then cost nothing
     # per pixel (light_kinds). The frame's timings count them (sh_lights, sh_skipped_lights).
     sh_unshadowed: bool = False
     # g -> MIP level: "l2" (closest normalized kernel, the default: lower error in every target scene)
@@ -277,7 +277,7 @@ def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
     PEM texture. Whether a term comes from the PEM follows the shader's modes: in the full and
     no-occlusion modes small lights (angular radius <= ~6 degrees) have their diffuse term in closed
     form with diffuse "mixed" (every light with "lights" or "sh"), their glossy term with glossy
-    "mixed"; lights without a shadow map get their diffuse term from SH9 when `sh_unshadowed`. With
+    "mixed"; large lights without a shadow map get their diffuse term from SH9 when `sh_unshadowed`. With
     glossy "wide", a large light whose disc is narrower than the lobe at every pixel (at the scene's
     `max_glossiness`, the widest lobe being the least glossy) has its glossy term in closed form
     everywhere: its glossy PEM is not read (the shader's wide_lobe would discard the lookup at every
@@ -292,8 +292,10 @@ def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
         pem_diffuse = np.zeros(n, bool)
     else:
         pem_diffuse = ~(small & exact_modes & (settings.diffuse == "mixed"))
-    if settings.mode is ShadingMode.FULL and sh_unshadowed:
-        pem_diffuse &= lights["shadow"][:, 0] >= 0
+    # sh_unshadowed: the large lights without a shadow map (the renderer's sh_carried, the shader's sh_skip).
+    sh_carried = (lights["shadow"][:, 0] < 0) & ~small if settings.mode is ShadingMode.FULL and sh_unshadowed \
+        else np.zeros(n, bool)
+    pem_diffuse &= ~sh_carried
     pem_glossy = ~(small & _glossy_closed_form(settings.mode, settings.glossy))
     if exact_modes and settings.glossy == "wide":
         # wide_lobe in lighting.frag at the glossiest pixel, with a margin for the interpolated g.
@@ -302,8 +304,8 @@ def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
     second = np.arange(n) >= REGIONS_PER_TEXTURE
     kind = (pem_diffuse.astype(np.int32) | pem_glossy.astype(np.int32) << 1 | np.asarray(sharp, np.int32) << 2
             | second.astype(np.int32) << 3)
-    if settings.mode is ShadingMode.FULL and sh_unshadowed and not glossy_scene:
-        kind[lights["shadow"][:, 0] < 0] = N_LIGHT_KINDS
+    if not glossy_scene:
+        kind[sh_carried] = N_LIGHT_KINDS
     order = np.argsort(kind, kind="stable").astype(np.int32)
     kind_end = np.searchsorted(kind[order], np.arange(1, N_LIGHT_KINDS + 1)).astype(np.int32)
     return order, kind_end
@@ -563,7 +565,10 @@ class Renderer:
         # set when a frame first asks for them: that frame reports them as their own stage.
         discs = settings.sub_lights if _glossy_closed_form(settings.mode, settings.glossy) else 1
         light_sh = settings.diffuse == "sh" and _no_diffuse_pems(settings.mode, settings.diffuse)
-        sh_on = settings.sh_unshadowed and settings.mode is ShadingMode.FULL and bool((layers < 0).any())
+        # sh_unshadowed: the large lights without a shadow map have their diffuse term from their summed
+        # SH9 (small ones, which order 2 cannot hold, keep theirs; the shader's sh_skip, light_kinds).
+        sh_carried = (layers < 0) & (lights["params"][:, 3] > np.float32(SMALL_LIGHT_MAX_SIN))
+        sh_on = settings.sh_unshadowed and settings.mode is ShadingMode.FULL and bool(sh_carried.any())
         t0 = time.perf_counter()
         if pems.prepare_tables(discs, light_sh=light_sh, region_sh=sh_on):
             timer.wall_ms["light_tables"] = (time.perf_counter() - t0) * 1e3
@@ -649,7 +654,7 @@ class Renderer:
             _set_uniform(p, "u_terminator", settings.terminator)
             _set_uniform(p, "u_sh_unshadowed", sh_on)
             if sh_on:
-                coeffs = irradiance_coefficients(pems.region_sh[layers < 0].sum(axis=0))
+                coeffs = irradiance_coefficients(pems.region_sh[sh_carried].sum(axis=0))
                 _set_uniform(p, "u_sh", coeffs.astype(np.float32).tobytes())
             _set_uniform(p, "u_glossy_horizon", GLOSSY_HORIZONS.index(settings.glossy_horizon))
             if vao is None:   # the compute pass: every pixel, uncovered ones left as drawn
@@ -678,7 +683,7 @@ class Renderer:
         timings["shadowed_lights"] = n_shadowed
         # Lights whose diffuse term came from the summed SH9 irradiance (sh_unshadowed), and of them
         # those the lighting pass did not visit at all (no glossy lobe in the scene).
-        timings["sh_lights"] = int((layers < 0).sum()) if sh_on else 0
+        timings["sh_lights"] = int(sh_carried.sum()) if sh_on else 0
         timings["sh_skipped_lights"] = int(n - kind_end[-1]) if sh_on else 0
         timings["shadow_layers"] = plan.n_layers if n_shadowed else 0
         timings["sharp_layers"] = len(plan.sharp_lights) if n_shadowed else 0

@@ -75,7 +75,7 @@ def test_sh_for_dim_lights_changes_the_image_a_little(renderer, diffuse):
         scene.release()
     assert 0 < b.timings["shadowed_lights"] < 48
     # The sphere is glossy: every light is still visited (for its glossy term).
-    assert b.timings["sh_lights"] == 48 - b.timings["shadowed_lights"] and b.timings["sh_skipped_lights"] == 0
+    assert 0 < b.timings["sh_lights"] <= 48 - b.timings["shadowed_lights"] and b.timings["sh_skipped_lights"] == 0
     assert a.timings["sh_lights"] == 0 and ignored.timings["sh_lights"] == 0
     # The regions' SH9 is made by the first frame that sums it, in its own stage.
     assert "light_tables" in b.timings["wall_ms"] and "light_tables" not in a.timings["wall_ms"]
@@ -103,8 +103,9 @@ def test_diffuse_only_scene_skips_the_sh_lights_for_the_same_image(renderer, dif
     finally:
         pems.release()
         scene.release()
-    n_sh = n_lights - skipping.timings["shadowed_lights"]
-    assert 0 < n_sh < n_lights
+    # The large lights without a map (at 384 lights many regions are small and keep their own term).
+    n_sh = skipping.timings["sh_lights"]
+    assert 0 < n_sh <= n_lights - skipping.timings["shadowed_lights"]
     assert skipping.timings["sh_skipped_lights"] == n_sh and visiting.timings["sh_skipped_lights"] == 0
     assert (skipping.image[..., 3] > 0.5).mean() > 0.3
     np.testing.assert_allclose(skipping.image, visiting.image, rtol=1e-5, atol=1e-6)
@@ -150,3 +151,25 @@ def test_diffuse_sh_renders_a_band_limited_map_exactly(renderer):
     want = irradiance(c, nrm[facing]) / np.pi
     rel = np.abs(px - want).max(axis=1) / want.max(axis=1)
     assert rel.max() < 0.01, rel.max()   # measured: 0.2 %
+
+
+@pytest.mark.parametrize("diffuse", ["pem", "lights"])
+def test_small_unshadowed_lights_keep_their_own_diffuse_term(renderer, diffuse):
+    # Order 2 cannot hold a sun's shape (its SH9 irradiance rings): under a lone small sun with every
+    # light unshadowed, sh_unshadowed leaves the sun's diffuse term as it was; the large regions it
+    # carries are black. Measured with the sun in the sum: 15 % (pem) and 9 % (lights) of the mean apart.
+    cube = sun_sky_cube(32, (1, 1, 0.3), sun_radiance=50.0, sun_radius_deg=3, sky=(0, 0, 0), ground=(0, 0, 0))
+    scene = renderer.create_scene([sphere()], [Material((0.8, 0.8, 0.8), 0.0, 0.0)])
+    pems = renderer.build_pems(cube, PEMSettings(48, whole_sources=True))
+    try:
+        plain, sh = (renderer.render(scene, pems, FrameSettings(64, 64, shadow_threshold=1.0, sh_unshadowed=on,
+                                                                diffuse=diffuse), CAM)
+                     for on in (False, True))
+        small = int((np.sin(pems.regions.disc_radius_rad()) <= 0.1).sum())
+    finally:
+        pems.release()
+        scene.release()
+    assert small >= 1 and sh.timings["sh_lights"] == 48 - small
+    m = plain.image[..., 3] > 0.5
+    assert plain.image[m][:, :3].max() > 0
+    np.testing.assert_allclose(sh.image, plain.image, rtol=1e-4, atol=1e-5 * plain.image[m][:, :3].max())

@@ -274,8 +274,11 @@ struct SubLight { vec4 dir_sin; vec4 energy; };   // unit direction, sine of the
 layout(std430, binding = 6) readonly buffer SubLights { SubLight sub_lights[]; };
 #endif
 
-// A light without a shadow map whose diffuse term the summed SH9 irradiance carries (full mode).
-bool sh_skip(int i) { return MODE == 0 && u_sh_unshadowed && lights[i].shadow.x < 0.0; }
+// A large light without a shadow map, whose diffuse term the summed SH9 irradiance carries (full
+// mode; a small one keeps its own: order 2 cannot hold a sun's shape).
+bool sh_skip(int i) {
+    return MODE == 0 && u_sh_unshadowed && lights[i].shadow.x < 0.0 && lights[i].params.w > SMALL_LIGHT_MAX_SIN;
+}
 vec3 g_diffuse_exact = vec3(0.0);   // the closed-form terms, added after the PEM terms' normalization
 vec3 g_glossy_exact = vec3(0.0);
 float g_gloss = 0.0;                // the pixel's glossiness g
