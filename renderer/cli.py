@@ -122,8 +122,8 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
                    help="what each light's shadow map covers: the casters' box as the light sees it (default) or "
                         "the cube around the scene's bounding sphere, the same for every light")
     q.add_argument("--sh-unshadowed", action=argparse.BooleanOptionalAction,
-                   help="the diffuse term of the unshadowed lights from their summed SH9 irradiance (in a scene "
-                        "without a glossy lobe the lighting pass then skips them)")
+                   help="the diffuse term of the large unshadowed lights from their summed SH9 irradiance (small ones "
+                        "keep their own; in a scene without a glossy lobe the lighting pass then skips them)")
     q.add_argument("--glossy-horizon", choices=["off", "lobe", "lights", "both"],
                    help="drop the glossy lobe's part below the surface: per light (default), by the lobe's share, "
                         "both, or not (the paper)")

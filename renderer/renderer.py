@@ -161,8 +161,9 @@ class FrameSettings:
     terminator: bool = True
     # Full mode: the diffuse term of the large lights that get no shadow map (below shadow_threshold)
     # from their summed SH9 irradiance (lighting/sh.py) instead of one PEM lookup (or disc, or SH9)
-    # each, whatever the diffuse source (small ones, a sun's shape, keep their own); in a scene without a glossy lobe those lights then cost nothing
-    # per pixel (light_kinds). The frame's timings count them (sh_lights, sh_skipped_lights).
+    # each, whatever the diffuse source (small ones, a sun's shape, keep their own); in a scene
+    # without a glossy lobe those lights then cost nothing per pixel (light_kinds). The frame's
+    # timings count them (sh_lights, sh_skipped_lights).
     sh_unshadowed: bool = False
     # g -> MIP level: "l2" (closest normalized kernel, the default: lower error in every target scene)
     # or "volume" (the paper's section 5); lighting/glossiness.py.
@@ -268,6 +269,15 @@ def _no_diffuse_pems(mode: ShadingMode, diffuse: str) -> bool:
     return diffuse in ("lights", "sh") and mode in _CLOSED_FORM_MODES
 
 
+def _sh_carried(lights: np.ndarray, mode: ShadingMode, sh_unshadowed: bool) -> np.ndarray:
+    """The lights whose diffuse term the summed SH9 irradiance carries (FrameSettings.sh_unshadowed,
+    full mode): the large ones without a shadow map, as the shader's sh_skip decides (the packed
+    float32 sine against the float32 define); small ones keep their own (order 2 cannot hold a sun)."""
+    if not (sh_unshadowed and mode is ShadingMode.FULL):
+        return np.zeros(len(lights), bool)
+    return (lights["shadow"][:, 0] < 0) & (lights["params"][:, 3] > np.float32(SMALL_LIGHT_MAX_SIN))
+
+
 def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
                 sh_unshadowed: bool, max_glossiness: float = 1.0,
                 glossy_scene: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -292,9 +302,7 @@ def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
         pem_diffuse = np.zeros(n, bool)
     else:
         pem_diffuse = ~(small & exact_modes & (settings.diffuse == "mixed"))
-    # sh_unshadowed: the large lights without a shadow map (the renderer's sh_carried, the shader's sh_skip).
-    sh_carried = (lights["shadow"][:, 0] < 0) & ~small if settings.mode is ShadingMode.FULL and sh_unshadowed \
-        else np.zeros(n, bool)
+    sh_carried = _sh_carried(lights, settings.mode, sh_unshadowed)
     pem_diffuse &= ~sh_carried
     pem_glossy = ~(small & _glossy_closed_form(settings.mode, settings.glossy))
     if exact_modes and settings.glossy == "wide":
@@ -565,10 +573,8 @@ class Renderer:
         # set when a frame first asks for them: that frame reports them as their own stage.
         discs = settings.sub_lights if _glossy_closed_form(settings.mode, settings.glossy) else 1
         light_sh = settings.diffuse == "sh" and _no_diffuse_pems(settings.mode, settings.diffuse)
-        # sh_unshadowed: the large lights without a shadow map have their diffuse term from their summed
-        # SH9 (small ones, which order 2 cannot hold, keep theirs; the shader's sh_skip, light_kinds).
-        sh_carried = (layers < 0) & (lights["params"][:, 3] > np.float32(SMALL_LIGHT_MAX_SIN))
-        sh_on = settings.sh_unshadowed and settings.mode is ShadingMode.FULL and bool(sh_carried.any())
+        sh_carried = _sh_carried(lights, settings.mode, settings.sh_unshadowed)
+        sh_on = bool(sh_carried.any())
         t0 = time.perf_counter()
         if pems.prepare_tables(discs, light_sh=light_sh, region_sh=sh_on):
             timer.wall_ms["light_tables"] = (time.perf_counter() - t0) * 1e3
@@ -683,8 +689,8 @@ class Renderer:
         timings["shadowed_lights"] = n_shadowed
         # Lights whose diffuse term came from the summed SH9 irradiance (sh_unshadowed), and of them
         # those the lighting pass did not visit at all (no glossy lobe in the scene).
-        timings["sh_lights"] = int(sh_carried.sum()) if sh_on else 0
-        timings["sh_skipped_lights"] = int(n - kind_end[-1]) if sh_on else 0
+        timings["sh_lights"] = int(sh_carried.sum())
+        timings["sh_skipped_lights"] = int(n - kind_end[-1])   # kind N_LIGHT_KINDS: after every loop's end
         timings["shadow_layers"] = plan.n_layers if n_shadowed else 0
         timings["sharp_layers"] = len(plan.sharp_lights) if n_shadowed else 0
         # The maps' fit (FrameSettings.shadow_fit) and the median main-map texel it gave, in world units.

@@ -136,8 +136,9 @@ class QualitySpec(_Strict):
     shadow_fit: Literal["casters", "scene"] = Field(_KNOB["shadow_fit"], description="what each light's shadow map "
                                                     "covers: the casters' box as the light sees it, or the cube around "
                                                     "the scene's bounding sphere")
-    sh_unshadowed: bool = Field(_KNOB["sh_unshadowed"], description="the diffuse term of the lights below shadow_threshold "
-                                "from their summed SH9 irradiance (a scene without a glossy lobe then skips those lights)")
+    sh_unshadowed: bool = Field(_KNOB["sh_unshadowed"], description="the diffuse term of the large lights below "
+                                "shadow_threshold from their summed SH9 irradiance (small ones keep their own; a "
+                                "scene without a glossy lobe then skips those lights)")
 
     @field_validator("sub_lights")
     @classmethod

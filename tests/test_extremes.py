@@ -16,11 +16,13 @@ from conftest import sun_sky_cube
 SMALL = FrameSettings(48, 48, shadow_size=64)
 
 
-def _frame(renderer, meshes, cube, materials=None, settings=SMALL, n_lights=24):
+def _frame(renderer, meshes, cube, materials=None, settings=SMALL, n_lights=24, pem=None, camera=None):
+    """One frame of a scene made for it: PEMs of `pem` (else n_lights with the defaults), `camera`
+    (else the default framing)."""
     scene = renderer.create_scene(meshes, materials or [Material((0.8, 0.4, 0.3), 0.5, 0.8)] * len(meshes))
-    pems = renderer.build_pems(cube, PEMSettings(n_lights))
+    pems = renderer.build_pems(cube, pem or PEMSettings(n_lights))
     try:
-        return renderer.render(scene, pems, settings)
+        return renderer.render(scene, pems, settings, camera)
     finally:
         pems.release()
         scene.release()
@@ -159,17 +161,9 @@ def test_balanced_glossiness_at_and_beside_its_ends(renderer):
     cube = sun_sky_cube(32, (0.3, 1, 0.2), sun_radiance=1e6, sun_radius_deg=1)
     settings, pem = _balanced(64)
     assert settings.sub_lights > 1 and settings.glossy == "wide" and settings.diffuse == "lights"
-    pems = renderer.build_pems(cube, pem)
-    images = {}
-    try:
-        for g in (0.0, 1e-7, 1.0 - 1e-7, 1.0):
-            scene = renderer.create_scene([sphere(), plane(y=-0.6)], [Material((0.8, 0.2, 0.2), 0.5, g), Material()])
-            try:
-                images[g] = _ok(renderer.render(scene, pems, settings, CAM))
-            finally:
-                scene.release()
-    finally:
-        pems.release()
+    images = {g: _ok(_frame(renderer, [sphere(), plane(y=-0.6)], cube, [Material((0.8, 0.2, 0.2), 0.5, g), Material()],
+                            settings, pem=pem, camera=CAM))
+              for g in (0.0, 1e-7, 1.0 - 1e-7, 1.0)}
     cov = images[0.0][..., 3] > 0.5
     assert cov.mean() > 0.3
     for end, beside in ((0.0, 1e-7), (1.0, 1.0 - 1e-7)):
@@ -189,25 +183,17 @@ def test_balanced_sun_1e5_and_1e6_times_its_sky(renderer):
     meshes = [sphere(), plane(y=-0.6)]
     materials = [Material((0.8, 0.2, 0.2), 0.5, 0.8), Material()]
     settings, pem = _balanced(48)
-    scene = renderer.create_scene(meshes, materials)
     means = {}
-    try:
-        for ratio in (1e5, 1e6):
-            cube = sun_sky_cube(32, (0.3, 1, 0.2), sun_radiance=ratio * 0.5, sun_radius_deg=2)
-            pems = renderer.build_pems(cube, pem)
-            try:
-                img = _ok(renderer.render(scene, pems, settings, CAM))
-            finally:
-                pems.release()
-            cov = img[..., 3] > 0.5
-            means[ratio] = float(img[cov][:, :3].mean())
-            if ratio == 1e6:
-                ref = render_reference(meshes, materials, cube, CAM, 48, 48, spp=16)
-                assert np.isfinite(ref.image).all() and np.isfinite(ref.noise_floor_rel())
-                ref_cov = ref.image[..., 3] > 0.5
-                assert abs(float(ref.image[ref_cov][:, :3].mean()) / means[ratio] - 1.0) < 0.1
-    finally:
-        scene.release()
+    for ratio in (1e5, 1e6):
+        cube = sun_sky_cube(32, (0.3, 1, 0.2), sun_radiance=ratio * 0.5, sun_radius_deg=2)
+        img = _ok(_frame(renderer, meshes, cube, materials, settings, pem=pem, camera=CAM))
+        cov = img[..., 3] > 0.5
+        means[ratio] = float(img[cov][:, :3].mean())
+        if ratio == 1e6:
+            ref = render_reference(meshes, materials, cube, CAM, 48, 48, spp=16)
+            assert np.isfinite(ref.image).all() and np.isfinite(ref.noise_floor_rel())
+            ref_cov = ref.image[..., 3] > 0.5
+            assert abs(float(ref.image[ref_cov][:, :3].mean()) / means[ratio] - 1.0) < 0.1
     assert 9.0 < means[1e6] / means[1e5] <= 10.0 + 1e-3, means
 
 
@@ -265,17 +251,9 @@ def test_16k_map_gives_the_image_of_its_2k_version(renderer):
     assert (big * w).sum() == pytest.approx((small * w).sum(), rel=1e-5)   # measured 2e-7
     np.testing.assert_allclose(big, small, rtol=1e-4, atol=1e-4)   # measured: 5e-4 at most on the 5e4 sun
     settings, pem = _balanced(48)
-    scene = renderer.create_scene([sphere(), plane(y=-0.6)], [Material((0.8, 0.2, 0.2), 0.5, 0.8), Material()])
-    images = []
-    try:
-        for cube in (small, big):
-            pems = renderer.build_pems(cube, pem)
-            try:
-                images.append(_ok(renderer.render(scene, pems, settings, CAM)))
-            finally:
-                pems.release()
-    finally:
-        scene.release()
+    images = [_ok(_frame(renderer, [sphere(), plane(y=-0.6)], cube, [Material((0.8, 0.2, 0.2), 0.5, 0.8), Material()],
+                         settings, pem=pem, camera=CAM))
+              for cube in (small, big)]
     cov = images[0][..., 3] > 0.5
     assert cov.mean() > 0.3
     a, b = images[0][cov][:, :3], images[1][cov][:, :3]

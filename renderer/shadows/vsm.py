@@ -95,12 +95,11 @@ class ShadowMaps:
                     ctx.disable(moderngl.BLEND)
             if blur:
                 with gl.stage(timer, "blur"):
-                    self._blur_batch(first, count)   # ends with a barrier
+                    self._blur_batch(first, count)
             if self.copy is not None:
                 # The batch's layers into place: part of making the maps, whether blurred or not.
                 with gl.stage(timer, "shadow_maps"):
-                    if not blur:
-                        ctx.memory_barrier()
+                    ctx.memory_barrier()
                     self.target.bind_to_image(1, read=True, write=False)
                     self.moments.bind_to_image(2, read=False, write=True)
                     self.copy["u_first_layer"].value = first
