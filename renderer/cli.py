@@ -346,13 +346,16 @@ def cmd_reference(args) -> int:
     ref = render_reference(meshes, materials, env.cube, camera, w, h, args.spp, seed=args.seed)
     wall = time.perf_counter() - t0
     img = ref.image
+    if args.background == "black":   # as the renderer draws it: nothing behind the object
+        img = np.where(img[..., 3:] > 0.5, img, 0.0).astype(np.float32)
     if args.exr:
         write_exr(args.exr, img)
     exposure = args.exposure if args.exposure is not None else auto_exposure_ev(img[..., :3], img[..., 3])
     if args.out:
-        write_png(args.out, png_image(img, True), exposure, ToneCurve(args.tone))
+        write_png(args.out, png_image(img, args.background == "env"), exposure, ToneCurve(args.tone))
     report = {"spp": args.spp, "seed": args.seed, "wall_s": wall, "rays_cast": int(ref.rays_cast),
               "noise_floor_rel": float(ref.noise_floor_rel()), "environment": env.name, "face_size": face,
+              "background": args.background,
               "camera": {"eye": list(camera.eye), "target": list(camera.target), "fov_y_deg": camera.fov_y_deg}}
     if args.timings:
         args.timings.write_text(json.dumps(report, indent=2))

@@ -10,7 +10,7 @@ from renderer.envmap.cube import cube_solid_angles, texel_directions
 from renderer.errors import InvalidInputError
 from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
-from renderer.reference import (EnvironmentSampler, ReferenceFrame, mean_flip, noise_floor, relative_rmse,
+from renderer.reference import (EnvironmentSampler, artefact_share, ReferenceFrame, mean_flip, noise_floor, relative_rmse,
                                 relative_squared_errors,
                                 render_reference)
 from renderer.renderer import FrameSettings, ShadingMode
@@ -383,6 +383,56 @@ def test_noise_floor_of_two_seeds_is_small_but_not_zero():
     assert floor.relative_rmse == pytest.approx(np.sqrt(2) * a.noise_floor_rel(), rel=0.25)
 
 
+def _grey(values, alpha=None) -> np.ndarray:
+    v = np.asarray(values, np.float64)
+    img = np.zeros((*v.shape, 4))
+    img[..., :3] = v[..., None]
+    img[..., 3] = 1.0 if alpha is None else alpha
+    return img
+
+
+def test_artefact_share_counts_pixels_beyond_twice_or_half_the_truth():
+    truth = _grey(np.ones((10, 10)))
+    test = truth.copy()
+    test[0, :3, :3] = 2.5    # three too bright
+    test[1, :2, :3] = 0.3    # two too dark
+    test[2, :, :3] = 1.9     # within 2x: not counted
+    test[3, :, :3] = 0.55    # within 0.5x: not counted
+    found = artefact_share(test, truth, truth)
+    assert (found.too_bright, found.too_dark, found.judged_pixels) == (3, 2, 100)
+    assert found.share == pytest.approx(0.05)
+    assert found.judged == 1.0
+    # RMSE spreads the same five pixels over the image; the share does not depend on the rest.
+    assert artefact_share(truth, truth, truth).share == 0.0
+
+
+def test_artefact_share_sees_a_leak_into_a_black_fold_but_not_dark_noise():
+    values = np.ones((10, 10))
+    values[5:, :] = 0.0   # half the object is black in truth: the floor is 2 % of the mean 0.5 = 0.01
+    truth = _grey(values)
+    test = truth.copy()
+    test[5, :4, :3] = 0.05    # a leak of 10 % of the mean into the black half: counted
+    test[6, :4, :3] = 0.005   # half the floor: invisible, not counted
+    found = artefact_share(test, truth, truth)
+    assert (found.too_bright, found.too_dark) == (4, 0)
+
+
+def test_artefact_share_skips_pixels_where_the_two_references_disagree():
+    a = _grey(np.ones((4, 4)))
+    b = a.copy()
+    b[0, :, :3] = 2.0          # the reference's own noise: these four pixels are not judged
+    test = a.copy()
+    test[0, :, :3] = 10.0      # wrong there, and wrong in one judged pixel
+    test[1, 0, :3] = 10.0
+    found = artefact_share(test, a, b)
+    assert found.judged_pixels == 12 and found.judged == pytest.approx(0.75)
+    assert found.too_bright == 1 and found.share == pytest.approx(1 / 12)
+    # Only object pixels count: the background (alpha 0) is judged on its own.
+    a[..., 3] = 0.0
+    a[1, 0, 3] = 1.0
+    assert artefact_share(test, a, a).judged_pixels == 1
+
+
 # --- against the GPU renderer -----------------------------------------------------------------
 
 
@@ -521,3 +571,31 @@ def test_gpu_sub_lights_bring_the_glossy_term_closer_to_the_reference(renderer):
     # measured: 0.079 and 0.024, the reference's own noise (one half against the other) 0.010
     assert err[4] < 0.05 and err[4] < 0.6 * err[1], (err, ref.noise_floor_rel())
 
+
+
+def test_reference_command_draws_the_background_it_is_asked_for(tmp_path):
+    # `garment-render reference --background black` leaves nothing behind the object, as `render` does.
+    import OpenEXR
+    from PIL import Image
+
+    from renderer.cli import main
+
+    def read_rgba(path):
+        ch = OpenEXR.File(str(path), separate_channels=True).channels()
+        return np.stack([ch[c].pixels for c in "RGBA"], axis=-1).astype(np.float64)
+
+    images = {}
+    for background in ("env", "black"):
+        out = tmp_path / background
+        rc = main(["reference", "--size", "24x24", "--spp", "2", "--face-size", "16", "--background", background,
+                   "--exr", f"{out}.exr", "--out", f"{out}.png"])
+        assert rc == 0
+        images[background] = (read_rgba(f"{out}.exr"), np.asarray(Image.open(f"{out}.png")))
+    (env_exr, env_png), (black_exr, black_png) = images["env"], images["black"]
+    empty = env_exr[..., 3] < 0.5
+    assert empty.any() and (~empty).any()
+    assert env_exr[empty][:, :3].max() > 0 and black_exr[empty][:, :3].max() == 0
+    assert np.array_equal(env_exr[~empty], black_exr[~empty])
+    # The PNG is transparent where nothing is drawn, opaque over the map.
+    assert black_png.shape[2] == 4 and black_png[empty][:, 3].max() == 0
+    assert env_png.shape[2] == 3 or env_png[empty][:, 3].min() == 255

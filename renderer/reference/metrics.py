@@ -15,6 +15,15 @@ FLIP: NVIDIA's HDR-FLIP (Andersson et al. 2021), `flip_evaluator.evaluate(refere
 default 67 pixels per degree; it tone-maps both images at several exposures chosen from the reference.
 Pixels outside the mask are copied from the reference into the test image first, so only
 differences on the object count, and the error map is averaged over the mask.
+
+Artefact share: the share of judged object pixels whose luminance is more than 2x or less than 0.5x
+the truth's. Both averages above spread a light leak or a blotch of false shadow over the whole
+object; this counts them. Ratios are taken with a floor d = 2 % of the truth's mean luminance over
+the object added to both sides, (Y_test + d) / (Y_truth + d): where the truth is dark a ratio means
+nothing until the difference itself is visible, and a leak of 3 % of the mean into a black fold
+(ratio 2.5 against a black truth) still counts. A pixel is judged only where the reference's own
+noise is small: its two independent renders agree within 1.25x (the same floored ratio), so that
+noise in the truth is never counted as an artefact of the fast method.
 """
 
 from __future__ import annotations
@@ -26,6 +35,14 @@ import numpy as np
 from ..errors import InvalidInputError
 
 REL_MSE_EPS = 0.01
+# Artefact share (module doc): a pixel is visibly wrong beyond this luminance ratio either way...
+ARTEFACT_RATIO = 2.0
+# ...with this share of the truth's mean luminance over the object added to both sides...
+ARTEFACT_DARK_FLOOR = 0.02
+# ...and judged only where the reference's two renders agree within this ratio.
+ARTEFACT_AGREEMENT = 1.25
+# Rec. ITU-R BT.709 luminance weights (linear RGB).
+LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])
 
 
 def _rgb_pair(test, ref, mask) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -97,3 +114,42 @@ def noise_floor(ref_a, ref_b, mask: np.ndarray | None = None) -> NoiseFloor:
     a = getattr(ref_a, "image", ref_a)
     b = getattr(ref_b, "image", ref_b)
     return NoiseFloor(relative_rmse(b, a, mask), mean_flip(b, a, mask))
+
+
+@dataclass(frozen=True)
+class ArtefactShare:
+    """Visibly wrong pixels (module doc). share: wrong / judged pixels (NaN when none is judged);
+    judged: judged / object pixels; too_bright, too_dark: the wrong pixels by side."""
+
+    share: float
+    judged: float
+    too_bright: int
+    too_dark: int
+    judged_pixels: int
+
+    def as_dict(self) -> dict:
+        return {"share": self.share, "judged": self.judged, "too_bright": self.too_bright,
+                "too_dark": self.too_dark, "judged_pixels": self.judged_pixels}
+
+
+def artefact_share(test: np.ndarray, ref_a: np.ndarray, ref_b: np.ndarray | None = None,
+                   mask: np.ndarray | None = None) -> ArtefactShare:
+    """The artefact share of test against the truth, the mean of two independent reference renders
+    ref_a and ref_b (see the module doc); with ref_b None the truth is ref_a and every object pixel
+    is judged. Images (H, W, 3 or 4) linear RGB; mask default: ref_a's alpha > 0.5."""
+    t, a, mask = _rgb_pair(test, ref_a, mask)
+    b = a if ref_b is None else _rgb_pair(ref_b, ref_a, mask)[0]
+    y_t, y_a, y_b = (np.maximum(x[mask] @ LUMINANCE_RGB, 0.0) for x in (t, a, b))
+    if not y_a.size:
+        return ArtefactShare(float("nan"), float("nan"), 0, 0, 0)
+    truth = 0.5 * (y_a + y_b)
+    floor = ARTEFACT_DARK_FLOOR * float(truth.mean())
+    if floor <= 0:
+        floor = 1e-30   # a black truth: any light at all is a leak
+    judged = np.abs(np.log((y_a + floor) / (y_b + floor))) <= np.log(ARTEFACT_AGREEMENT)
+    ratio = (y_t + floor) / (truth + floor)
+    bright = judged & (ratio > ARTEFACT_RATIO)
+    dark = judged & (ratio < 1.0 / ARTEFACT_RATIO)
+    n = int(judged.sum())
+    share = float((bright.sum() + dark.sum()) / n) if n else float("nan")
+    return ArtefactShare(share, n / y_a.size, int(bright.sum()), int(dark.sum()), n)
