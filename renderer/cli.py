@@ -405,6 +405,15 @@ def cmd_speed(args) -> int:
 def cmd_bench(args) -> int:
     from .bench.run import BenchConfig, run_bench
 
+    if args.broad:
+        from .bench.broad import BroadConfig, run_broad
+
+        cfg = BroadConfig.quick_config() if args.quick else BroadConfig()
+        cfg.workers, cfg.cache = args.workers, str(args.reference_cache) if args.reference_cache else None
+        run_broad(args.out, cfg)
+        print(f"wrote {args.out}/broad.json, broad.md")
+        return 0
+
     cfg = BenchConfig.quick_config() if args.quick else BenchConfig()
     if args.no_shared:
         cfg.shared = False
@@ -458,6 +467,14 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--quick", action="store_true", help="a reduced sweep that finishes in minutes on 2 cores")
     b.add_argument("--no-shared", action="store_true", help="bundled scene only (skip ../shared/assets)")
     b.add_argument("--out", type=Path, default=Path("out/bench"))
+    b.add_argument("--broad", action="store_true",
+                   help="the presets on every shared map x 3 garments x 3 fabrics x 2 views, a tuning and a held-out "
+                        "set reported apart, with the artefact share (writes broad.json/md; about an hour here, "
+                        "minutes with --quick once the references are cached)")
+    b.add_argument("--workers", type=int, help="with --broad: reference processes (default: one per core)")
+    b.add_argument("--reference-cache", type=Path,
+                   help="with --broad: the references' folder (default: $GARMENT_RENDER_REFERENCE_CACHE, else "
+                        "~/.cache/garment-render/references)")
     b.add_argument("--store", action="store_true",
                    help="store the measured table in the package: presets and budgets are then chosen from it")
     b.set_defaults(func=cmd_bench)
