@@ -194,6 +194,19 @@ def load_scene_inputs(args, face_size: int):
     return env, meshes, [garment] + [body] * (len(meshes) - 1)
 
 
+def background_cube(args, env):
+    """The cube the background is drawn from (`shading.background`): the source resampled at twice
+    its own density; None without a background (--background black)."""
+    if args.background != "env":
+        return None
+    from .envmap import environment_from_array, read_hdr_image, studio_environment
+    from .shading.background import background_face_size
+
+    img = read_hdr_image(args.env) if args.env is not None else studio_environment(1024)
+    face = background_face_size(img.shape, env.layout)
+    return environment_from_array(img, env.layout, face, name=env.name, repair=args.repair).cube
+
+
 def camera_from_args(args, framed_meshes, aspect: float):
     """--camera-eye and --camera-target (both, with --fov), else the renderer's default framing of
     `framed_meshes` with --fov."""
@@ -227,10 +240,14 @@ def cmd_render(args) -> int:
     w, h = args.size
     settings = frame_settings(args, q)
     camera = camera_from_args(args, meshes, w / h)
+    bg_cube = background_cube(args, env)
     with Renderer() as r:
         pems = r.build_pems(env.cube, pem_settings(args, q, materials))
         scene = r.create_scene(meshes, materials)
-        frame = r.render(scene, pems, settings, camera)
+        background = r.background_map(bg_cube) if bg_cube is not None else None
+        frame = r.render(scene, pems, settings, camera, background=background)
+        if background is not None:
+            background.release()
         scene.release()
         pems.release()
         gl_info = r.gl.info()
@@ -288,12 +305,15 @@ def cmd_sequence(args) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     timings, previews = [], []
     exposure = args.exposure
+    bg_cube = background_cube(args, env)
     with Renderer() as r:
         pems = r.build_pems(env.cube, pem_settings(args, q, materials))
         scene = r.create_scene(meshes, materials)
+        background = r.background_map(bg_cube) if bg_cube is not None else None
         try:
             for k in range(seq.n_frames):
-                frame = r.render(scene, pems, settings, camera, positions=[positions[k]] + [None] * len(extra_meshes))
+                frame = r.render(scene, pems, settings, camera, positions=[positions[k]] + [None] * len(extra_meshes),
+                                 background=background)
                 img = frame.image
                 if exposure is None:  # fixed from the first frame, so the sequence does not flicker
                     exposure = auto_exposure_ev(img[..., :3], img[..., 3])
@@ -308,6 +328,8 @@ def cmd_sequence(args) -> int:
                       f"{frame.timings['frame_wall_ms']:.0f} ms", end="", file=sys.stderr, flush=True)
             print(file=sys.stderr)
         finally:
+            if background is not None:
+                background.release()
             scene.release()
             pems.release()
     _write_preview(args.out, seq.n_frames)

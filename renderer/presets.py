@@ -109,7 +109,7 @@ STORED = "stored"
 # diffuse rows).
 DEFAULT_PRESETS = {
     "fast": {"lights": 24, "face_size": 64, "shadow_size": 128, "blur_scale": 0.0, "caster_detail": 0.1,
-             "contact_shadow_texels": 12.0},
+             "contact_shadow_texels": 12.0, "diffuse": "lights", "glossy": "wide"},
     "balanced": {"lights": 48, "face_size": 128, "shadow_size": 256, "blur_scale": 0.0, "caster_detail": 0.25,
                  "small_light_scale": 4, "small_light_min_energy": 2.4, "sharp_share_deg": 2.0,
                  "sharp_full_detail_deg": 2.0, "diffuse": "lights", "glossy": "wide", "sub_lights": 2},

@@ -25,6 +25,7 @@ from .lighting.sh import irradiance_coefficients
 from .lighting.pem import REGIONS_PER_TEXTURE, PEMSet, PEMSettings
 from .mesh import Mesh
 from .scene import Scene
+from .shading.background import BackgroundMap
 from .shading.horizon import N_G as HORIZON_N_G, N_MU as HORIZON_N_MU, horizon_table
 from .shading.material import Material
 from .shadows.lights import (SMALL_LIGHT_MAX_SIN, blur_sigma_texels, fit_light_view_projs, pack_lights, plan_layers,
@@ -488,9 +489,17 @@ class Renderer:
         return buf
 
     # -- a frame ----------------------------------------------------------------------------
+    def background_map(self, cube: np.ndarray) -> BackgroundMap:
+        """The background of a map (`render(..., background=)`): `cube` resampled from the source at
+        its own resolution (`shading.background.background_face_size`), with its MIP chain."""
+        self.gl.check_thread()
+        return BackgroundMap(self.gl.ctx, cube)
+
     def render(self, scene: Scene, pems: PEMSet, settings: FrameSettings = FrameSettings(),
                camera: Camera | None = None, positions: list[np.ndarray | None] | None = None,
-               normals: list[np.ndarray | None] | None = None) -> Frame:
+               normals: list[np.ndarray | None] | None = None, background: BackgroundMap | None = None) -> Frame:
+        """One frame. background: the map seen behind the scene (`background_map`); None shows the
+        PEM set's own cube, as coarse as its faces."""
         gl, ctx = self.gl, self.gl.ctx
         gl.check_thread()
         timer = StageTimer()
@@ -617,7 +626,7 @@ class Renderer:
             arrays.get("sharp", shadow_maps).moments.use(location=12)
             if settings.background is Background.ENVIRONMENT:
                 ctx.disable(moderngl.DEPTH_TEST)
-                pems.env_texture.use(location=2)
+                (background.texture if background is not None else pems.env_texture).use(location=2)
                 self.bg_prog["u_inv_view_proj"].write(np.linalg.inv(view_proj).T.astype(np.float32).tobytes())
                 self.bg_vao.render(moderngl.TRIANGLES, vertices=3)
             # Lighting pass: a full-screen triangle at the far plane, drawn where the geometry pass's
