@@ -15,6 +15,7 @@ import numpy as np
 from renderer.cache import cache_key
 from renderer.envmap import environment_from_array
 from renderer.lighting.pem import PEMSettings
+from renderer.renderer import Background
 
 from .codecs import decode_hdr, sniff_hdr_kind
 from .errors import ConflictError, NotFoundError, PayloadTooLargeError, QueueFullError
@@ -142,6 +143,8 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
     q = prepared.quality
     pem = q.pem
     cube = await anyio.to_thread.run_sync(env.cube, q.face_size)
+    if q.frame.background is Background.ENVIRONMENT:   # resampled here, off the GL thread, once per map
+        await anyio.to_thread.run_sync(env.cube, env.background_face)
     key = cache_key(env.content_hash, q.face_size, pem)
     record = SceneRecord(
         id=scene_id or svc.scenes.new_id(), name=body.name, environment=env, face_size=q.face_size,

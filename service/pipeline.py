@@ -20,7 +20,7 @@ import anyio
 from fastapi import Request
 from fastapi.responses import JSONResponse, Response
 
-from renderer.renderer import Frame
+from renderer.renderer import Background, Frame
 
 from .codecs import FrameArrays, encode_exr, encode_png
 from .errors import NotAcceptableError, NotFoundError
@@ -57,9 +57,12 @@ def render_job(scene: SceneRecord, arrays: FrameArrays | None):
             raise NotFoundError(f"scene {scene.id} was deleted while this frame waited")
         env = scene.environment
         pems, source = gl.pem_set(env.content_hash, env.cubes[scene.face_size], scene.pem_settings)
+        background = None
+        if scene.frame_settings.background is Background.ENVIRONMENT:
+            background = gl.background(env.content_hash, env.cubes[env.background_face])
         frame = gl.renderer.render(scene.gpu, pems, scene.frame_settings, scene.camera,
                                    positions=arrays.positions if arrays else None,
-                                   normals=arrays.normals if arrays else None)
+                                   normals=arrays.normals if arrays else None, background=background)
         return frame, source
     return job
 

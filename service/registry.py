@@ -18,6 +18,7 @@ from renderer.envmap.io import TexelReport
 from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
 from renderer.renderer import FrameSettings
+from renderer.shading.background import background_face_size
 from renderer.scene import Scene
 
 from .errors import ConflictError, NotFoundError
@@ -67,6 +68,11 @@ class EnvironmentRecord:
                 env = self._resample(face_size)
                 cube = self.cubes[face_size] = env.cube
             return cube
+
+    @property
+    def background_face(self) -> int:
+        """The face size of the cube the background is drawn from (twice the source's density)."""
+        return background_face_size(self.source_shape, self.layout)
 
     def note_pem_set(self, key: str, face_size: int, settings: PEMSettings, pems, source: str) -> None:
         """Remember what the service shows of a PEM set (on the GL thread, where `pems` may be read)."""

@@ -19,6 +19,7 @@ import logging
 import queue
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass, field
@@ -28,6 +29,7 @@ from renderer.cache import CacheStats, PEMCache
 from renderer.errors import GLContextError
 from renderer.lighting.pem import PEMSet, PEMSettings
 from renderer.renderer import Renderer
+from renderer.shading.background import BackgroundMap
 
 from .errors import NotReadyError, QueueFullError, RenderTimeoutError
 from .settings import ServiceSettings
@@ -37,12 +39,33 @@ log = logging.getLogger("service.worker")
 T = TypeVar("T")
 
 
+# Background maps kept on the GL thread (least recently used first out): one per environment in use.
+BACKGROUND_MAPS_KEPT = 4
+
+
 @dataclass
 class GLResources:
     """What a job may use; only ever touched on the worker's thread."""
 
     renderer: Renderer
     cache: PEMCache
+    backgrounds: OrderedDict = field(default_factory=OrderedDict)
+
+    def background(self, content_hash: str, cube) -> BackgroundMap:
+        """The background map of an environment (`renderer.shading.background`), made on first use
+        from `cube` (the source at twice its density) and kept for the next frames."""
+        bg = self.backgrounds.pop(content_hash, None)
+        if bg is None:
+            bg = self.renderer.background_map(cube)
+            while len(self.backgrounds) >= BACKGROUND_MAPS_KEPT:
+                self.backgrounds.popitem(last=False)[1].release()
+        self.backgrounds[content_hash] = bg
+        return bg
+
+    def release_backgrounds(self) -> None:
+        for bg in self.backgrounds.values():
+            bg.release()
+        self.backgrounds.clear()
 
     def pem_set(self, content_hash: str, cube, settings: PEMSettings) -> tuple[PEMSet, str]:
         """The PEM set from the cache and where it came from: "memory", "disk" or "built".
@@ -231,5 +254,6 @@ class RenderWorker:
                 except Exception:  # pragma: no cover
                     log.exception("cleanup on the GL thread failed")
             cache.clear()
+            self._gl.release_backgrounds()
             renderer.release()
             self._gl = None

@@ -41,6 +41,7 @@ from ..atomic import atomic_file
 from ..reference import artefact_share, mean_flip, relative_rmse, render_reference
 from .catalogue import (EQUAL_ERROR_TARGET, PRESETS, REFERENCE_FACE_SIZE, TARGETS, Scene, environment_cube,
                         map_digest, scenes, split)
+from ..shading.background import background_truth
 from .scenes import shared_assets
 
 # --- references, cached -------------------------------------------------------------------------
@@ -177,7 +178,9 @@ def _luminance_mean(img: np.ndarray, mask: np.ndarray) -> float:
 
 
 def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, ref_a: dict, ref_b: dict,
-            spp: int, sets: dict) -> BroadRow:
+            spp: int, sets: dict, bg_truth: np.ndarray | None = None) -> BroadRow:
+    """One preset's row. bg_truth: the background's truth (`background_truth`), else the reference's
+    own background (the texel of its cube along the pixel's centre ray)."""
     a, b = ref_a["image"], ref_b["image"]
     truth = 0.5 * (a + b)
     mask = a[..., 3] > 0.5
@@ -185,7 +188,8 @@ def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, ref_a
     err = relative_rmse(image, truth, mask)
     art = artefact_share(image, a, b, mask)
     background = ~mask
-    bg_err = relative_rmse(image, truth, background) if background.any() else float("nan")
+    bg_ref = truth if bg_truth is None else bg_truth
+    bg_err = relative_rmse(image[..., :3], bg_ref[..., :3], background) if background.any() else float("nan")
     # Equal error (module doc): one render of spp samples is off by floor / sqrt(2); the truth, the
     # mean of two, by half the floor.
     one = floor / np.sqrt(2.0)
@@ -200,10 +204,44 @@ def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, ref_a
                     mean_flip(b, a, mask), spp, ms_per_spp, speedup)
 
 
-def render_presets(r, scene: Scene, knobs_of: dict, frames: int, pem_cache: dict) -> dict[str, tuple[np.ndarray, float]]:
+class MapResources:
+    """One map's GPU objects for the scenes that use it (the scenes come map by map): its PEM sets per
+    setting, its background map, and its source image (for the background's truth)."""
+
+    def __init__(self, r, name: str):
+        from ..envmap import environment_from_array, read_hdr_image
+        from ..envmap.layouts import detect_layout
+        from ..shading.background import background_face_size
+
+        self.r, self.name = r, name
+        self.raw = read_hdr_image(shared_assets() / "hdri" / name)   # cubes from it, repaired as the reference's
+        self.image = np.maximum(np.nan_to_num(self.raw), 0.0)          # the background's truth
+        self.layout = detect_layout(*self.image.shape[:2])
+        self.pems: dict = {}
+        fine = environment_from_array(self.raw, self.layout, background_face_size(self.image.shape, self.layout),
+                                      name=name, repair=True)
+        self.background = r.background_map(fine.cube)
+
+    def pem_set(self, knobs: dict, materials):
+        from .. import presets as presets_mod
+        from ..envmap import environment_from_array
+
+        pem = presets_mod.pem_settings(knobs, knobs["filter"], None, materials)
+        key = (knobs["face_size"], pem.key())
+        if key not in self.pems:
+            env = environment_from_array(self.raw, self.layout, int(knobs["face_size"]), name=self.name, repair=True)
+            self.pems[key] = self.r.build_pems(env.cube, pem)
+        return self.pems[key]
+
+    def release(self) -> None:
+        for p in self.pems.values():
+            p.release()
+        self.background.release()
+
+
+def render_presets(r, scene: Scene, knobs_of: dict, frames: int, res: MapResources) -> dict[str, tuple[np.ndarray, float]]:
     """Each preset's image of the scene and its median frame time (after one warm-up frame)."""
     from .. import presets as presets_mod
-    from ..envmap import load_environment
 
     meshes, materials = scene.meshes(), scene.materials()
     gl_scene = r.create_scene(meshes, materials)
@@ -211,19 +249,11 @@ def render_presets(r, scene: Scene, knobs_of: dict, frames: int, pem_cache: dict
     try:
         for preset in PRESETS:
             knobs = knobs_of[preset]
-            pem = presets_mod.pem_settings(knobs, knobs["filter"], None, materials)
-            key = (scene.map, knobs["face_size"], pem.key())
-            if key not in pem_cache:
-                if any(k[0] != scene.map for k in pem_cache):   # one map's sets at a time: scenes come map by map
-                    for old in pem_cache.values():
-                        old.release()
-                    pem_cache.clear()
-                env = load_environment(shared_assets() / "hdri" / scene.map, face_size=knobs["face_size"], repair=True)
-                pem_cache[key] = r.build_pems(env.cube, pem)
+            pems = res.pem_set(knobs, materials)
             fs = presets_mod.frame_settings(knobs, scene.size, scene.size)
             cam = scene.camera()
-            r.render(gl_scene, pem_cache[key], fs, cam)
-            timed = [r.render(gl_scene, pem_cache[key], fs, cam) for _ in range(frames)]
+            r.render(gl_scene, pems, fs, cam, background=res.background)
+            timed = [r.render(gl_scene, pems, fs, cam, background=res.background) for _ in range(frames)]
             out[preset] = (np.array(timed[-1].image), float(np.median([f.timings["frame_wall_ms"] for f in timed])))
     finally:
         gl_scene.release()
@@ -268,21 +298,26 @@ def run_broad(out_dir: Path, cfg: BroadConfig, log=print, only: list[Scene] | No
     gl = GLContext()
     machine = {"gl_renderer": gl.renderer_name, "gl_version": gl.version, "cpu": platform.processor() or platform.machine(),
                "cores": len(os.sched_getaffinity(0)), "python": platform.python_version(), "date": time.strftime("%Y-%m-%d")}
-    pem_cache: dict = {}
+    res: MapResources | None = None
     with Renderer(gl) as r:
         for k, scene in enumerate(sorted(todo, key=lambda s: (s.map, s.garment, s.size))):
             spp = cfg.spp_of(scene)
             ref_a, ref_b = (cache.get(scene, spp, seed) for seed in SEEDS)
-            images = render_presets(r, scene, knobs_of, cfg.frames, pem_cache)
+            if res is None or res.name != scene.map:
+                if res is not None:
+                    res.release()
+                res = MapResources(r, scene.map)
+            images = render_presets(r, scene, knobs_of, cfg.frames, res)
+            bg_truth = background_truth(res.image, res.layout, scene.camera(), scene.size, scene.size)
             for preset, (image, ms) in images.items():
-                rows.append(measure(scene, preset, image, ms, ref_a, ref_b, spp, sets))
+                rows.append(measure(scene, preset, image, ms, ref_a, ref_b, spp, sets, bg_truth))
             b = next(x for x in rows[-3:] if x.preset == "balanced")
             log(f"[{k + 1}/{len(todo)}] {scene.name} ({b.set}): balanced rel. RMSE {b.rel_rmse:.3f}, FLIP {b.flip:.3f}, "
                 f"artefacts {100 * b.artefact_share:.2f} %, {b.frame_ms:.0f} ms; floor {b.ref_noise_rel_rmse:.3f}")
             if (k + 1) % 20 == 0:
                 write(out_dir, rows, machine, cfg, source, ref_s)
-        for p in pem_cache.values():
-            p.release()
+        if res is not None:
+            res.release()
     gl.release()
     write(out_dir, rows, machine, cfg, source, ref_s)
     return rows
@@ -333,6 +368,10 @@ def write(out_dir: Path, rows: list[BroadRow], machine: dict, cfg: BroadConfig, 
     (out_dir / "broad.md").write_text(markdown(data))
 
 
+def _times(x: float) -> str:
+    return f"{x:.0f}x" if x >= 10 else f"{x:.1f}x"
+
+
 def _pct(x: float) -> str:
     return f"{100 * x:.2f} %"
 
@@ -353,7 +392,7 @@ def markdown(data: dict) -> str:
              "ref. floor | equal error (min) | worst scene |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for s in data["summary"].values():
-        ee = f"{s['equal_error_min']:.0f}x" if s["equal_error_min"] is not None else "-"
+        ee = _times(s["equal_error_min"]) if s["equal_error_min"] is not None else "-"
         if s["unresolved"]:
             ee += f" ({s['unresolved']} unresolved)"
         lines.append(f"| {s['set']} | {s['size']} | {s['preset']} | {s['scenes']} | {s['rel_rmse_median']:.3f} / "
@@ -387,7 +426,7 @@ def markdown(data: dict) -> str:
               "| scene | set | preset | rel. RMSE | FLIP | artefacts | too bright / dark | mean ratio | background | "
               "frame ms | ref. floor | equal error |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in sorted(rows, key=lambda r: (r["set"], r["size"], r["scene"], PRESETS.index(r["preset"]))):
-        ee = f"{r['equal_error_speedup']:.0f}x" if r["equal_error_speedup"] is not None else "unresolved"
+        ee = _times(r["equal_error_speedup"]) if r["equal_error_speedup"] is not None else "unresolved"
         lines.append(f"| {r['scene']} | {r['set']} | {r['preset']} | {r['rel_rmse']:.3f} | {r['flip']:.3f} | "
                      f"{_pct(r['artefact_share'])} | {r['too_bright']} / {r['too_dark']} | {r['mean_ratio']:.3f} | "
                      f"{r['background_rel_rmse']:.3f} | {r['frame_ms']:.0f} | {r['ref_noise_rel_rmse']:.3f} | {ee} |")
