@@ -1,0 +1,141 @@
+"""The broad benchmark (`garment-render bench --broad`): its fixed split, its scenes, the reference
+cache and its report."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from conftest import HDRI, needs_assets
+from renderer.bench import broad, catalogue
+from renderer.bench.catalogue import MAPS, Scene, fit_body_inside, scenes, split
+from renderer.bench.scenes import TARGET_PROBES
+
+
+def test_the_split_is_a_rule_not_a_choice():
+    sets = split()
+    assert set(sets) == set(MAPS) and len(MAPS) == 17
+    # The maps the presets were tuned on before the benchmark existed are never held out.
+    assert all(sets[m] == "tuning" for m in TARGET_PROBES.values())
+    assert sum(v == "tuning" for v in sets.values()) == 8 and sum(v == "held-out" for v in sets.values()) == 9
+    assert split(tuple(reversed(MAPS))) == sets          # the order the maps are listed in does not matter
+
+
+@needs_assets
+def test_every_shared_map_is_in_the_benchmark():
+    on_disk = {p.name for p in HDRI.iterdir() if p.suffix in (".hdr", ".exr")}
+    assert on_disk == set(MAPS)
+
+
+def test_the_sweep_covers_every_map_garment_fabric_and_view():
+    full = scenes()
+    small = [s for s in full if s.size == 128]
+    assert len(small) == 17 * 3 * 3 * 2 and len({(s.map, s.garment, s.fabric, s.view) for s in small}) == len(small)
+    large = [s for s in full if s.size == 256]
+    assert len(large) == 17 * 3 and {s.map for s in large} == set(MAPS)
+    quick = scenes(quick=True)
+    assert {split()[s.map] for s in quick} == {"tuning", "held-out"} and len(quick) == 8
+
+
+def _cylinder(radius: float, y0: float, y1: float, n: int = 64) -> np.ndarray:
+    a = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    ys = np.linspace(y0, y1, 40)
+    return np.array([[radius * np.cos(t), y, radius * np.sin(t)] for y in ys for t in a], np.float32)
+
+
+def test_a_body_is_pulled_inside_its_garment_and_left_alone_elsewhere():
+    garment = _cylinder(0.20, 1.0, 1.5)
+    body = np.concatenate([_cylinder(0.25, 0.5, 1.8) + np.float32([0.03, 0.0, 0.0]),
+                           np.float32([[0.55, 1.2, 0.0]])])   # an arm's vertex far out beside the garment
+    fitted = fit_body_inside(body, garment, margin=0.01)
+    within = (body[:, 1] >= 1.0) & (body[:, 1] <= 1.5)
+    radius = np.hypot(fitted[:, 0], fitted[:, 2])
+    assert radius[within][:-1].max() <= 0.19 + 1e-5          # inside the cloth, the margin behind it
+    # Above and below the garment the body is only shifted across, centred as the garment is.
+    shift = fitted[~within] - body[~within]
+    assert np.allclose(shift[:, 1], 0.0) and np.allclose(shift, shift[0], atol=1e-6)
+    assert shift[0, 0] == pytest.approx(-0.03, abs=1e-3)
+    assert np.allclose(fitted[-1], body[-1] + shift[0])        # beyond reach: an arm, not the torso
+
+
+@needs_assets
+def test_the_shared_bodies_sit_inside_their_garments():
+    for garment in ("polo", "dress"):
+        cloth, body = catalogue.garment_meshes(garment)
+        g, b = cloth.positions, body.positions
+        lo, hi = g[:, 1].min(), g[:, 1].max()
+        inside = (b[:, 1] > lo) & (b[:, 1] < hi)
+        # The body's widest point inside the garment's height is inside the garment's widest.
+        assert np.abs(b[inside][:, 2] - g[:, 2].mean()).max() < np.abs(g[:, 2] - g[:, 2].mean()).max(), garment
+
+
+def test_references_are_cached_by_scene_samples_seed_and_code(tmp_path, monkeypatch):
+    monkeypatch.setattr(catalogue, "map_digest", lambda name: f"digest of {name}")
+    monkeypatch.setattr(broad, "map_digest", lambda name: f"digest of {name}")
+    cache = broad.ReferenceCache(tmp_path)
+    a, b = Scene("pisa.hdr", "shirt", "satin", "front", 128), Scene("pisa.hdr", "shirt", "satin", "front", 256)
+    keys = {cache.key(a, 64, 1), cache.key(a, 64, 2), cache.key(a, 128, 1), cache.key(b, 64, 1)}
+    assert len(keys) == 4
+    assert cache.get(a, 64, 1) is None
+    image = np.random.default_rng(0).random((8, 8, 4)).astype(np.float32)
+    cache.put(a, 64, 1, image, 1.5)
+    got = cache.get(a, 64, 1)
+    assert np.array_equal(got["image"], image) and got["wall_s"] == 1.5
+    # Other reference code: another key, the old entry is not found.
+    cache.code = "other code"
+    assert cache.get(a, 64, 1) is None
+    cache.code = broad.reference_code_digest()
+    # A damaged file is rendered again, never trusted.
+    cache.path(a, 64, 1).write_bytes(b"not an npz")
+    assert cache.get(a, 64, 1) is None
+
+
+def test_the_reference_code_digest_follows_the_files_that_make_a_reference():
+    from pathlib import Path
+
+    root = Path(broad.__file__).resolve().parents[1]
+    covered = {p for name in broad._REFERENCE_SOURCES for p in ((root / name).rglob("*.py") if (root / name).is_dir()
+                                                               else [root / name])}
+    assert root / "reference" / "montecarlo.py" in covered and root / "bench" / "catalogue.py" in covered
+    assert root / "bench" / "broad.py" not in covered     # the report may change without rendering anew
+
+
+def _row(scene, preset, size=256, **metrics):
+    values = {"rel_rmse": 0.01, "flip": 0.01, "artefact_share": 0.0, "frame_ms": 10.0, "equal_error_speedup": 100.0,
+              **metrics}
+    return broad.BroadRow(scene, "m", "held-out", "shirt", "satin", "front", size, preset, values["frame_ms"],
+                          values["rel_rmse"], values["flip"], values["artefact_share"], 1.0, 0, 0, 1.0, 0.1, 0.02,
+                          0.01, 64, 1.0, values["equal_error_speedup"])
+
+
+def test_misses_name_the_scene_the_target_and_the_factor():
+    rows = [_row("a", "balanced", rel_rmse=0.1), _row("b", "balanced", artefact_share=0.01),
+            _row("c", "fast", frame_ms=100.0, equal_error_speedup=5.0), _row("d", "balanced", size=128, rel_rmse=1.0),
+            _row("e", "accurate")]
+    misses = {(m["scene"], m["metric"]): m["factor"] for m in broad.target_misses(rows)}
+    assert misses == {("a", "rel_rmse"): pytest.approx(2.0), ("b", "artefact_share"): pytest.approx(2.0),
+                      ("c", "frame_ms"): pytest.approx(2.0), ("c", "equal_error_speedup"): pytest.approx(2.0)}
+
+
+@needs_assets
+def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path):
+    sets = split()
+    assert (sets["ennis.hdr"], sets["pisa.hdr"]) == ("tuning", "held-out")
+    only = [Scene("ennis.hdr", "shirt", "cotton", "three-quarter", 32), Scene("pisa.hdr", "polo", "satin", "front", 32)]
+    cfg = broad.BroadConfig(frames=1, spp_small=8, spp_large=8, workers=1, cache=str(tmp_path / "refs"))
+    rows = broad.run_broad(tmp_path / "out", cfg, log=lambda *_: None, only=only)
+    assert len(rows) == 2 * 3 and {r.preset for r in rows} == set(catalogue.PRESETS)
+    for r in rows:
+        assert np.isfinite([r.rel_rmse, r.flip, r.artefact_share, r.background_rel_rmse, r.ref_noise_rel_rmse]).all()
+        assert 0.5 < r.mean_ratio < 2.0 and r.frame_ms > 0
+    data = json.loads((tmp_path / "out" / "broad.json").read_text())
+    assert {s["set"] for s in data["summary"].values()} == {"tuning", "held-out"}
+    text = (tmp_path / "out" / "broad.md").read_text()
+    assert "Held-out maps:" in text and "No held-out scene at 256 x 256" in text
+    # A second run renders no reference: every one is in the cache.
+    assert len(list((tmp_path / "refs").glob("*.npz"))) == 4
+    logged = []
+    broad.run_broad(tmp_path / "out", cfg, log=logged.append, only=only)
+    assert not any("rendering" in line for line in logged)
