@@ -157,7 +157,11 @@ def test_bench_end_to_end_writes_its_three_outputs(tmp_path):
         assert np.isfinite(r["rel_rmse"]) and 0 < r["flip"] < 1, r["knob"]
         assert np.isfinite(r["ref_noise_rel_rmse"]) and r["ref_noise_rel_rmse"] > 0
         assert r["extra"]["ref_ladder_top_ms"] > 0
+        # The artefact share of every row (NaN only where no pixel could be judged).
+        share, judged = r["extra"]["artefact_share"], r["extra"]["artefact_judged"]
+        assert 0 < judged <= 1 and 0 <= share <= 1, r["knob"]
     md = (tmp_path / "bench.md").read_text()
+    assert "| artefacts |" in md
     for text in ("Machine:", "eps = 0.01", "Reference noise floor", "## Targets at the balanced preset",
                  "| balanced | balanced | full |"):
         assert text in md, text

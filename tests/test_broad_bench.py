@@ -124,7 +124,7 @@ def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path):
     sets = split()
     assert (sets["ennis.hdr"], sets["pisa.hdr"]) == ("tuning", "held-out")
     only = [Scene("ennis.hdr", "shirt", "cotton", "three-quarter", 32), Scene("pisa.hdr", "polo", "satin", "front", 32)]
-    cfg = broad.BroadConfig(frames=1, spp_small=8, spp_large=8, workers=1, cache=str(tmp_path / "refs"))
+    cfg = broad.BroadConfig(frames=1, frames_small=1, spp_small=8, spp_large=8, workers=1, cache=str(tmp_path / "refs"))
     rows = broad.run_broad(tmp_path / "out", cfg, log=lambda *_: None, only=only)
     assert len(rows) == 2 * 3 and {r.preset for r in rows} == set(catalogue.PRESETS)
     for r in rows:

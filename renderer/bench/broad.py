@@ -263,7 +263,8 @@ def render_presets(r, scene: Scene, knobs_of: dict, frames: int, res: MapResourc
 @dataclass
 class BroadConfig:
     quick: bool = False
-    frames: int = 3                  # timed frames per preset and scene (after one warm-up)
+    frames: int = 3                  # timed frames per preset at 256 x 256, where speed is judged (after one warm-up)
+    frames_small: int = 1            # ... at 128 x 128 (accuracy only)
     spp_small: int = 512             # samples per technique of each reference at 128 x 128
     spp_large: int = 1024            # ... at 256 x 256
     workers: int | None = None       # reference processes (default: one per core)
@@ -271,7 +272,7 @@ class BroadConfig:
 
     @classmethod
     def quick_config(cls) -> "BroadConfig":
-        return cls(quick=True, frames=2, spp_small=256, spp_large=512)
+        return cls(quick=True, frames=2, frames_small=2, spp_small=256, spp_large=512)
 
     def spp_of(self, scene: Scene) -> int:
         return self.spp_small if scene.size <= 128 else self.spp_large
@@ -307,7 +308,7 @@ def run_broad(out_dir: Path, cfg: BroadConfig, log=print, only: list[Scene] | No
                 if res is not None:
                     res.release()
                 res = MapResources(r, scene.map)
-            images = render_presets(r, scene, knobs_of, cfg.frames, res)
+            images = render_presets(r, scene, knobs_of, cfg.frames if scene.size > 128 else cfg.frames_small, res)
             bg_truth = background_truth(res.image, res.layout, scene.camera(), scene.size, scene.size)
             for preset, (image, ms) in images.items():
                 rows.append(measure(scene, preset, image, ms, ref_a, ref_b, spp, sets, bg_truth))

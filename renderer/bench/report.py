@@ -83,6 +83,13 @@ def pareto_front(times: np.ndarray, errors: np.ndarray) -> np.ndarray:
     return np.array(front, int)
 
 
+def _artefacts(r) -> str:
+    """The artefact share of a row (`reference.artefact_share`), kept in its extra (rows stored before
+    it was measured have none)."""
+    share = r.extra.get("artefact_share")
+    return "-" if share is None else f"{100 * share:.2f} %"
+
+
 def write_markdown(path: Path, rows, machine: dict, cfg) -> None:
     lines = [f"# Benchmark ({'quick' if cfg.quick else 'full'})", "",
              f"Machine: {machine['cpu']}, OpenGL: {machine['gl_renderer']} ({machine['gl_version']}), "
@@ -90,7 +97,8 @@ def write_markdown(path: Path, rows, machine: dict, cfg) -> None:
              f"after a warm-up frame; reference: the mean of two independent renders of {cfg.ref_spp} spp.", "",
              "Errors are in linear HDR over the garment and body pixels against the Monte Carlo reference "
              f"(rel. RMSE with eps = {REL_MSE_EPS:g} on images scaled to a mean of 1, renderer/reference/metrics.py; "
-             "mean HDR-FLIP); the reference's noise floor (its two renders against each other: what a perfect "
+             "mean HDR-FLIP; artefacts: the share of judged pixels more than 2x or under 0.5x the truth's luminance, "
+             "reference/metrics.py); the reference's noise floor (its two renders against each other: what a perfect "
              "renderer would score against one of them; the mean's own rel. RMSE is about half of it) is given "
              "per scene.", ""]
     for scene in dict.fromkeys(r.scene for r in rows):
@@ -98,8 +106,8 @@ def write_markdown(path: Path, rows, machine: dict, cfg) -> None:
         lines += [f"## {scene} ({rs[0].env})", "",
                   f"Reference noise floor: rel. RMSE {rs[0].ref_noise_rel_rmse:.4f}, mean HDR-FLIP {rs[0].ref_noise_flip:.4f}.", "",
                   "| knob | value | mode | frame ms | shadow | blur | geometry | shading | PEM build ms | PEM MB (paper) | VSM MB (paper) "
-                  "| rel. RMSE | FLIP | reference at equal error |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "| rel. RMSE | FLIP | artefacts | reference at equal error |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in rs:
             s = r.settings
             eq = (f"{r.ref_equal_error_spp} spp, {r.ref_equal_error_ms:.0f} ms ({r.speedup_vs_reference:.1f}x)"
@@ -109,7 +117,7 @@ def write_markdown(path: Path, rows, machine: dict, cfg) -> None:
                 f"{r.stages_ms.get('blur', 0):.1f} | {r.stages_ms.get('geometry', 0):.1f} | {r.stages_ms.get('shading', 0):.1f} | {r.pem_build_ms:.0f} | "
                 f"{r.pem_bytes / MB:.1f} ({paper_pem_mb(s['lights'], s['face_size']):.1f}) | "
                 f"{r.shadow_bytes / MB:.1f} ({paper_vsm_mb(s['lights'], s['shadow_size']):.1f}) | "
-                f"{r.rel_rmse:.4f} | {r.flip:.4f} | {eq} |")
+                f"{r.rel_rmse:.4f} | {r.flip:.4f} | {_artefacts(r)} | {eq} |")
         lines.append("")
     lines += target_lines(rows)
     lines += ["VSM memory: moments are 32-bit floats (RG32F), twice the paper's RG16F maps at the same size and "

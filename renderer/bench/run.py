@@ -21,7 +21,7 @@ import numpy as np
 from ..camera import frame_meshes
 from ..gpu.context import GLContext
 from ..lighting.filters import Filter
-from ..reference import mean_flip, relative_rmse, render_reference
+from ..reference import artefact_share, mean_flip, relative_rmse, render_reference
 from .. import presets
 from ..presets import DEFAULT_PRESETS, knob_defaults
 from ..renderer import FrameSettings, Renderer, ShadingMode
@@ -203,10 +203,13 @@ def bench_scene(r: Renderer, bs: BenchScene, cfg: BenchConfig, log=print) -> lis
             frame, frame_ms, stages = _time_frames(r, scene, pems, fs, camera, cfg.frames)
             err = relative_rmse(frame.image, truth, mask)
             flip = mean_flip(frame.image, truth, mask)
+            artefacts = artefact_share(frame.image, ref_a.image, ref_b.image, mask)
             spp, ref_ms = equal_error(err)
             row = Row(bs.name, bs.env_name, knob, value, mode.value, s, frame_ms, stages, pems.build_ms, pems.nbytes,
                       frame.settings["shadow_bytes"], err, flip, noise_rmse, noise_flip, spp, ref_ms,
-                      (ref_ms / frame_ms) if ref_ms else None, extra={"ref_ladder_top_ms": ladder[-1][1]})
+                      (ref_ms / frame_ms) if ref_ms else None,
+                      extra={"ref_ladder_top_ms": ladder[-1][1], "artefact_share": artefacts.share,
+                             "artefact_judged": artefacts.judged})
             rows.append(row)
             log(f"  {knob}={value} [{mode.value}]: {frame_ms:.0f} ms, rel. RMSE {err:.4f}, FLIP {flip:.4f}"
                 + (f", reference needs {spp} spp ({ref_ms:.0f} ms)" if spp else ", reference ladder never this good"))
