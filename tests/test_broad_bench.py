@@ -3,6 +3,7 @@ cache and its report."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -139,3 +140,17 @@ def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path):
     logged = []
     broad.run_broad(tmp_path / "out", cfg, log=logged.append, only=only)
     assert not any("rendering" in line for line in logged)
+
+
+def test_the_knob_table_sets_each_variant_against_balanced_on_the_same_scenes():
+    rows = [dataclasses.asdict(r) for r in (
+        _row("a", "balanced", rel_rmse=0.10, frame_ms=100.0), _row("b", "balanced", rel_rmse=0.20, frame_ms=100.0),
+        _row("a", "balanced:lights=96", rel_rmse=0.08, frame_ms=200.0),
+        _row("b", "balanced:lights=96", rel_rmse=0.22, frame_ms=180.0),
+        _row("a", "balanced:sub_lights=1", size=128, rel_rmse=0.5))]
+    (t,) = broad.knob_table(rows)
+    assert (t["knob"], t["set"], t["scenes"], t["better"]) == ("lights=96", "held-out", 2, 1)
+    assert t["d_rel_rmse"] == pytest.approx(0.0) and t["time_ratio"] == pytest.approx(1.9)
+    # Variants are rows of their own, never counted as presets.
+    assert {m["preset"] for m in broad.target_misses([broad.BroadRow(**r) for r in rows])} == {"balanced"}
+    assert "| lights=96 | held-out | 2 |" in "\n".join(broad.knob_lines(rows))

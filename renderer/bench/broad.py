@@ -204,6 +204,23 @@ def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, ref_a
                     mean_flip(b, a, mask), spp, ms_per_spp, speedup)
 
 
+# Balanced with one knob changed, on the 256 x 256 scenes of both sets: what each knob costs and buys
+# away from the scenes it was chosen on (the report's knob table).
+KNOB_VARIANTS = {
+    "lights=96": {"lights": 96},
+    "caster_detail=1": {"caster_detail": 1.0},
+    "sub_lights=1": {"sub_lights": 1},
+    "small_light_scale=1": {"small_light_scale": 1},
+    "sharp_full_detail_deg=90": {"sharp_full_detail_deg": 90.0},
+    "contact_shadow_texels=0": {"contact_shadow_texels": 0.0},
+    "terminator=off": {"terminator": False},
+    "glossy_horizon=off": {"glossy_horizon": "off"},
+    "whole_sources=off": {"whole_sources": False},
+    "calibration=volume": {"calibration": "volume"},
+    "shadow_fit=scene": {"shadow_fit": "scene"},
+}
+
+
 class MapResources:
     """One map's GPU objects for the scenes that use it (the scenes come map by map): its PEM sets per
     setting, its background map, and its source image (for the background's truth)."""
@@ -240,15 +257,15 @@ class MapResources:
 
 
 def render_presets(r, scene: Scene, knobs_of: dict, frames: int, res: MapResources) -> dict[str, tuple[np.ndarray, float]]:
-    """Each preset's image of the scene and its median frame time (after one warm-up frame)."""
+    """Each setting's image of the scene (`knobs_of`: name -> knobs) and its median frame time (after
+    one warm-up frame)."""
     from .. import presets as presets_mod
 
     meshes, materials = scene.meshes(), scene.materials()
     gl_scene = r.create_scene(meshes, materials)
     out = {}
     try:
-        for preset in PRESETS:
-            knobs = knobs_of[preset]
+        for preset, knobs in knobs_of.items():
             pems = res.pem_set(knobs, materials)
             fs = presets_mod.frame_settings(knobs, scene.size, scene.size)
             cam = scene.camera()
@@ -267,6 +284,7 @@ class BroadConfig:
     frames_small: int = 1            # ... at 128 x 128 (accuracy only)
     spp_small: int = 512             # samples per technique of each reference at 128 x 128
     spp_large: int = 1024            # ... at 256 x 256
+    knobs: bool = True               # balanced with each of KNOB_VARIANTS at 256 x 256 too
     workers: int | None = None       # reference processes (default: one per core)
     cache: str | None = None         # reference cache folder (default: default_cache_dir())
 
@@ -308,11 +326,14 @@ def run_broad(out_dir: Path, cfg: BroadConfig, log=print, only: list[Scene] | No
                 if res is not None:
                     res.release()
                 res = MapResources(r, scene.map)
-            images = render_presets(r, scene, knobs_of, cfg.frames if scene.size > 128 else cfg.frames_small, res)
+            settings = dict(knobs_of)
+            if scene.size > 128 and cfg.knobs:
+                settings.update({f"balanced:{name}": {**knobs_of["balanced"], **v} for name, v in KNOB_VARIANTS.items()})
+            images = render_presets(r, scene, settings, cfg.frames if scene.size > 128 else cfg.frames_small, res)
             bg_truth = background_truth(res.image, res.layout, scene.camera(), scene.size, scene.size)
             for preset, (image, ms) in images.items():
                 rows.append(measure(scene, preset, image, ms, ref_a, ref_b, spp, sets, bg_truth))
-            b = next(x for x in rows[-3:] if x.preset == "balanced")
+            b = next(x for x in rows[-len(images):] if x.preset == "balanced")
             log(f"[{k + 1}/{len(todo)}] {scene.name} ({b.set}): balanced rel. RMSE {b.rel_rmse:.3f}, FLIP {b.flip:.3f}, "
                 f"artefacts {100 * b.artefact_share:.2f} %, {b.frame_ms:.0f} ms; floor {b.ref_noise_rel_rmse:.3f}")
             if (k + 1) % 20 == 0:
@@ -329,7 +350,7 @@ def run_broad(out_dir: Path, cfg: BroadConfig, log=print, only: list[Scene] | No
 def summary(rows: list[BroadRow]) -> dict:
     """Per set, size and preset: medians and worst values, and the worst scene."""
     out = {}
-    for key in sorted({(r.set, r.size, r.preset) for r in rows}):
+    for key in sorted({(r.set, r.size, r.preset) for r in rows if r.preset in PRESETS}):
         sel = [r for r in rows if (r.set, r.size, r.preset) == key]
         worst = max(sel, key=lambda r: r.rel_rmse)
         speed = [r.equal_error_speedup for r in sel if r.equal_error_speedup is not None]
@@ -348,7 +369,7 @@ def target_misses(rows: list[BroadRow], size: int = 256) -> list[dict]:
     """Every held-out scene and preset beyond a target at `size`: which target, the value and its factor."""
     misses = []
     for r in rows:
-        if r.set != "held-out" or r.size != size:
+        if r.set != "held-out" or r.size != size or r.preset not in PRESETS:
             continue
         for metric, limit in TARGETS[r.preset].items():
             if limit is not None and getattr(r, metric) > limit:
@@ -367,6 +388,42 @@ def write(out_dir: Path, rows: list[BroadRow], machine: dict, cfg: BroadConfig, 
             "rows": [asdict(r) for r in rows]}
     (out_dir / "broad.json").write_text(json.dumps(data, indent=1, default=float))
     (out_dir / "broad.md").write_text(markdown(data))
+
+
+def knob_table(rows: list[dict]) -> list[dict]:
+    """Per knob variant and set (256 x 256): the medians over scenes of its change against balanced in
+    the same scene (rel. RMSE and FLIP as differences, artefact share in points, time as a ratio), and
+    on how many scenes its rel. RMSE is lower."""
+    base = {(r["scene"]): r for r in rows if r["preset"] == "balanced" and r["size"] == 256}
+    out = []
+    for name in KNOB_VARIANTS:
+        for part in ("tuning", "held-out"):
+            pairs = [(r, base[r["scene"]]) for r in rows if r["preset"] == f"balanced:{name}" and r["set"] == part
+                     and r["size"] == 256 and r["scene"] in base]
+            if not pairs:
+                continue
+            out.append({"knob": name, "set": part, "scenes": len(pairs),
+                        "d_rel_rmse": float(np.median([v["rel_rmse"] - b["rel_rmse"] for v, b in pairs])),
+                        "d_flip": float(np.median([v["flip"] - b["flip"] for v, b in pairs])),
+                        "d_artefacts": float(np.median([v["artefact_share"] - b["artefact_share"] for v, b in pairs])),
+                        "time_ratio": float(np.median([v["frame_ms"] / b["frame_ms"] for v, b in pairs])),
+                        "better": sum(v["rel_rmse"] < b["rel_rmse"] for v, b in pairs)})
+    return out
+
+
+def knob_lines(rows: list[dict]) -> list[str]:
+    table = knob_table(rows)
+    if not table:
+        return []
+    lines = ["", "## Knobs around balanced at 256 x 256", "",
+             "Balanced with one knob changed, against balanced on the same scenes (medians over the scenes; "
+             "time as the ratio of the two settings' medians in the same run; negative changes are better).", "",
+             "| variant | set | scenes | rel. RMSE change | FLIP change | artefact share change | time | lower rel. RMSE on |",
+             "|---|---|---|---|---|---|---|---|"]
+    for t in table:
+        lines.append(f"| {t['knob']} | {t['set']} | {t['scenes']} | {t['d_rel_rmse']:+.4f} | {t['d_flip']:+.4f} | "
+                     f"{100 * t['d_artefacts']:+.2f} pt | {t['time_ratio']:.2f}x | {t['better']} of {t['scenes']} |")
+    return lines
 
 
 def _times(x: float) -> str:
@@ -423,10 +480,12 @@ def markdown(data: dict) -> str:
                 parts.append(f"{metric} missed on {len(xs)} of {n} scenes (worst {worst['value']:.4g} against "
                              f"{worst['target']:g}, {worst['factor']:.2f}x, {worst['scene']})")
             lines.append(f"- **{preset}** ({named}): " + "; ".join(parts) + ".")
-    lines += ["", "## Every row", "",
+    lines += knob_lines(rows)
+    lines += ["", "## Every preset's row", "",
               "| scene | set | preset | rel. RMSE | FLIP | artefacts | too bright / dark | mean ratio | background | "
               "frame ms | ref. floor | equal error |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in sorted(rows, key=lambda r: (r["set"], r["size"], r["scene"], PRESETS.index(r["preset"]))):
+    for r in sorted((r for r in rows if r["preset"] in PRESETS),
+                    key=lambda r: (r["set"], r["size"], r["scene"], PRESETS.index(r["preset"]))):
         ee = _times(r["equal_error_speedup"]) if r["equal_error_speedup"] is not None else "unresolved"
         lines.append(f"| {r['scene']} | {r['set']} | {r['preset']} | {r['rel_rmse']:.3f} | {r['flip']:.3f} | "
                      f"{_pct(r['artefact_share'])} | {r['too_bright']} / {r['too_dark']} | {r['mean_ratio']:.3f} | "
