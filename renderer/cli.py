@@ -432,6 +432,8 @@ def cmd_bench(args) -> int:
 
         cfg = BroadConfig.quick_config() if args.quick else BroadConfig()
         cfg.workers, cfg.cache = args.workers, str(args.reference_cache) if args.reference_cache else None
+        if args.size is not None:
+            cfg.sizes = (args.size,)
         run_broad(args.out, cfg)
         print(f"wrote {args.out}/broad.json, broad.md")
         return 0
@@ -494,6 +496,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "set reported apart, with the artefact share (writes broad.json/md; about an hour here, "
                         "minutes with --quick once the references are cached)")
     b.add_argument("--workers", type=int, help="with --broad: reference processes (default: one per core)")
+    b.add_argument("--size", type=int, choices=[128, 256],
+                   help="with --broad: only the scenes of this size (default both: the 128x128 sweep and the 256x256 "
+                        "subset where the targets are judged)")
     b.add_argument("--reference-cache", type=Path,
                    help="with --broad: the references' folder (default: $GARMENT_RENDER_REFERENCE_CACHE, else "
                         "~/.cache/garment-render/references)")
