@@ -118,9 +118,6 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--small-light-min-energy", type=float,
                    help="only small lights carrying at least this many times the mean light's energy get those "
                         "maps; 0: every small light (default: the preset's)")
-    q.add_argument("--shadow-fit", choices=["casters", "scene"],
-                   help="what each light's shadow map covers: the casters' box as the light sees it (default) or "
-                        "the cube around the scene's bounding sphere, the same for every light")
     q.add_argument("--sh-unshadowed", action=argparse.BooleanOptionalAction,
                    help="the diffuse term of the large unshadowed lights from their summed SH9 irradiance (small ones "
                         "keep their own; in a scene without a glossy lobe the lighting pass then skips them)")

@@ -25,8 +25,7 @@ def knob_defaults() -> dict:
             "sharp_share_deg": f.sharp_share_deg, "sharp_max_maps": f.sharp_max_maps,
             "sharp_full_detail_deg": f.sharp_full_detail_deg, "sub_lights": f.sub_lights,
             "normal_offset_texels": f.normal_offset_texels, "sharp_normal_offset_texels": f.sharp_normal_offset_texels,
-            "min_sigma_texels": f.min_sigma_texels, "contact_shadow_texels": f.contact_shadow_texels,
-            "shadow_fit": f.shadow_fit}
+            "min_sigma_texels": f.min_sigma_texels, "contact_shadow_texels": f.contact_shadow_texels}
 
 
 def merge_knobs(base: dict, explicit: dict) -> dict:

@@ -51,7 +51,6 @@ _MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_
 DIFFUSE_SOURCES = ("pem", "lights", "mixed", "sh")
 GLOSSY_HORIZONS = ("off", "lobe", "lights", "both")
 GLOSSY_SOURCES = ("pem", "mixed", "wide")
-SHADOW_FITS = ("casters", "scene")
 MAX_SHADOW_SIDE = 8192   # the largest shadow map side, small lights' included (shadow_size x small_light_scale)
 # Lights within this of a group's brightest share its map: the group's mean direction then stays within it
 # of every member (its component along the brightest light's is at least cos 30 degrees of the total).
@@ -101,10 +100,6 @@ class FrameSettings:
     # lips). 0: off (the paper). Chosen on the benchmark scenes (docs/benchmarks.md).
     contact_shadow_texels: float = 24.0
     shadow_threshold: float = 0.0  # lights below this share of the energy get no shadow map
-    # What each light's map covers: "casters" (the casters' box as seen from the light, each frame:
-    # the finest texels the scene allows) or "scene" (the cube around the scene's bounding sphere,
-    # every mesh caster or not, the same whatever the direction: a map that does not follow the casters).
-    shadow_fit: str = "casters"
     # Share of the casters' triangles the shadow pass draws (shadows/proxy.py; 1: the meshes
     # themselves): the pass costs per triangle on a CPU rasterizer.
     caster_detail: float = 1.0
@@ -210,8 +205,6 @@ class FrameSettings:
                                     f"got {self.glossy_horizon!r}")
         if self.glossy not in GLOSSY_SOURCES:
             raise InvalidInputError(f"glossy must be one of {', '.join(GLOSSY_SOURCES)}, got {self.glossy!r}")
-        if self.shadow_fit not in SHADOW_FITS:
-            raise InvalidInputError(f"shadow_fit must be one of {', '.join(SHADOW_FITS)}, got {self.shadow_fit!r}")
         if self.diffuse not in DIFFUSE_SOURCES:
             raise InvalidInputError(f"diffuse must be one of {', '.join(DIFFUSE_SOURCES)}, got {self.diffuse!r}")
         if isinstance(self.contact_shadow_texels, bool) or not (0.0 <= self.contact_shadow_texels <= MAX_CONTACT_TEXELS):
@@ -513,11 +506,7 @@ class Renderer:
         # Lights: directions and energies from the PEM set, projections fitted to the casters now.
         regions = pems.regions
         n = regions.n_regions
-        if settings.shadow_fit == "casters":
-            lo, hi = scene.bounds(casters_only=True)
-        else:
-            fit_centre, fit_radius = bounds_sphere(*scene.bounds())
-            lo, hi = np.asarray(fit_centre) - fit_radius, np.asarray(fit_centre) + fit_radius
+        lo, hi = scene.bounds(casters_only=True)
         shadowed = settings.mode is not ShadingMode.NO_OCCLUSION
         layers = shadow_layers(regions.energy_luminance, settings.shadow_threshold if shadowed else 2.0)
         disc_radius = regions.disc_radius_rad()
@@ -702,8 +691,7 @@ class Renderer:
         timings["sh_skipped_lights"] = int(n - kind_end[-1])   # kind N_LIGHT_KINDS: after every loop's end
         timings["shadow_layers"] = plan.n_layers if n_shadowed else 0
         timings["sharp_layers"] = len(plan.sharp_lights) if n_shadowed else 0
-        # The maps' fit (FrameSettings.shadow_fit) and the median main-map texel it gave, in world units.
-        timings["shadow_fit"] = settings.shadow_fit
+        # The median main-map texel the casters' fit gave, in world units.
         main_texels = texels[(layers >= 0) & ~plan.sharp, 0]
         timings["shadow_texel"] = float(np.median(main_texels)) if len(main_texels) else None
         timings["n_triangles"] = scene.n_triangles

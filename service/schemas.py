@@ -133,9 +133,6 @@ class QualitySpec(_Strict):
     small_light_min_energy: float = Field(_KNOB["small_light_min_energy"], ge=0.0, le=1e6, description="only small "
                                           "lights carrying at least this many times the mean light's energy get "
                                           "those maps (0: every small light)")
-    shadow_fit: Literal["casters", "scene"] = Field(_KNOB["shadow_fit"], description="what each light's shadow map "
-                                                    "covers: the casters' box as the light sees it, or the cube around "
-                                                    "the scene's bounding sphere")
     sh_unshadowed: bool = Field(_KNOB["sh_unshadowed"], description="the diffuse term of the large lights below "
                                 "shadow_threshold from their summed SH9 irradiance (small ones keep their own; a "
                                 "scene without a glossy lobe then skips those lights)")

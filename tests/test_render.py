@@ -407,33 +407,26 @@ def test_a_receiver_that_casts_nothing_is_lit_outside_the_casters_shadow(rendere
     assert (b[covered] < 0.1 * np.median(b[covered])).sum() > 20     # and the shadow is there
 
 
-def test_maps_fitted_to_the_casters_have_finer_texels_than_maps_over_the_scene(renderer):
-    # shadow_fit "casters" (the default): each light's map covers the casters' box as the light sees
-    # it; "scene": the cube around the whole scene's bounding sphere (here a 4 m floor that casts
-    # nothing under a 0.8 m sphere). The frame reports the fit and the main maps' median texel; the
-    # floor's shadow is there either way, with a blurrier edge over the scene.
+def test_maps_are_fitted_to_the_casters_not_the_scene(renderer):
+    # Each light's map covers the casters' box as the light sees it (here a 0.8 m sphere over a 4 m
+    # floor that casts nothing); the frame reports the main maps' median texel. Maps over the whole
+    # scene (a knob until the broad bench: worse on 24 of 27 held-out scenes, rel. RMSE +0.056 on
+    # average, docs/broad-benchmark.md) would have texels at least 4 m / 256 across.
     cube = sun_sky_cube(32, (1.0, 1.0, 0.3), sun_radiance=2e3, sun_radius_deg=3)
     meshes, mats = [sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)], [Material((0.8, 0.8, 0.8)), Material((0.8, 0.8, 0.8))]
     cam = Camera((0.0, 4.0, 0.5), (0.0, 0.0, 0.0), fov_y_deg=50.0)
     pems = renderer.build_pems(cube, PEMSettings(24))
     scene = renderer.create_scene(meshes, mats, casters=[True, False])
     try:
-        frames = {fit: renderer.render(scene, pems, FrameSettings(64, 64, shadow_fit=fit, small_light_scale=1,
-                                                                  background=Background.BLACK), cam)
-                  for fit in ("casters", "scene")}
+        frame = renderer.render(scene, pems, FrameSettings(64, 64, small_light_scale=1, background=Background.BLACK), cam)
     finally:
         scene.release()
         pems.release()
-    assert {f.timings["shadow_fit"] for f in frames.values()} == {"casters", "scene"}
-    fitted, whole = frames["casters"].timings["shadow_texel"], frames["scene"].timings["shadow_texel"]
-    assert whole > 3.0 * fitted, (fitted, whole)    # a 0.8 m sphere against a scene 4 m across
-    for f in frames.values():
-        img = f.image[..., :3].mean(axis=-1)
-        cov = f.image[..., 3] > 0.5
-        assert np.isfinite(f.image).all() and (img[cov] < 0.1 * np.median(img[cov])).sum() > 20
-    assert not np.array_equal(frames["casters"].image, frames["scene"].image)
-    with pytest.raises(InvalidInputError, match="shadow_fit"):
-        FrameSettings(shadow_fit="box")
+    texel = frame.timings["shadow_texel"]
+    assert 0.8 / 256 * 0.9 < texel < 4.0 / 256 / 3.0, texel
+    img = frame.image[..., :3].mean(axis=-1)
+    cov = frame.image[..., 3] > 0.5
+    assert np.isfinite(frame.image).all() and (img[cov] < 0.1 * np.median(img[cov])).sum() > 20   # the shadow
 
 
 def test_mixed_diffuse_takes_small_lights_in_closed_form(renderer):

@@ -564,7 +564,7 @@ def test_accuracy_knobs_reach_the_renderer_and_are_reported(http, env_upload, me
     for knobs in ({}, {"calibration": "volume", "diffuse": "lights", "glossy_horizon": "off", "needed_levels": False,
                        "caster_detail": 0.5, "glossy": "pem", "small_light_min_energy": 10.0,
                        "normal_offset_texels": 3.0, "sharp_normal_offset_texels": 1.0, "min_sigma_texels": 1.0,
-                       "contact_shadow_texels": 3.0, "sub_lights": 4, "shadow_fit": "scene"}):
+                       "contact_shadow_texels": 3.0, "sub_lights": 4}):
         body["quality"] = {**body["quality"], **knobs}
         r = http.post("/render", json=body, params={"format": "json"})
         assert r.status_code == 200, r.text
@@ -582,7 +582,7 @@ def test_accuracy_knobs_reach_the_renderer_and_are_reported(http, env_upload, me
     for knob, bad in (("sharp_max_maps", True), ("sharp_share_deg", 45.0), ("small_light_scale", 2.5),
                       ("normal_offset_texels", 17.0), ("min_sigma_texels", -1.0), ("sharp_normal_offset_texels", True),
                       ("contact_shadow_texels", 64.5), ("contact_shadow_texels", "8"), ("sharp_full_detail_deg", 95.0),
-                      ("sub_lights", 3), ("sub_lights", 32), ("sub_lights", 0), ("shadow_fit", "box")):
+                      ("sub_lights", 3), ("sub_lights", 32), ("sub_lights", 0), ("shadow_fit", "scene")):
         body["quality"] = {**good, knob: bad}   # one bad knob at a time: the error names it
         assert_error(http.post("/render", json=body), 422, knob)
     # sub_lights reaches the renderer where glossy terms are in closed form (glossy "wide").

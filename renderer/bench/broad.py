@@ -217,7 +217,6 @@ KNOB_VARIANTS = {
     "glossy_horizon=off": {"glossy_horizon": "off"},
     "whole_sources=off": {"whole_sources": False},
     "calibration=volume": {"calibration": "volume"},
-    "shadow_fit=scene": {"shadow_fit": "scene"},
 }
 
 

@@ -35,7 +35,7 @@ KNOB_DEFAULTS = {"horizon": False, "calibration": "volume", "diffuse": "pem", "g
                 "caster_detail": 1.0, "small_light_scale": 1, "small_light_min_energy": 0.0, "glossy": "pem",
                 "sharp_large_lights": False, "sharp_share_deg": 0.0, "sharp_max_maps": 0, "sharp_full_detail_deg": 90.0,
                 "sub_lights": 1, **OLD_SHADOW_BIAS,
-                "contact_shadow_texels": 0.0, "whole_sources": False, "shadow_fit": "casters"}
+                "contact_shadow_texels": 0.0, "whole_sources": False}
 
 
 def summarize(bench: dict) -> dict:

@@ -49,7 +49,6 @@ SWEEPS = {
     "needed_levels": [False],
     "whole_sources": [False],   # the paper's plain median cut
     "shadow_threshold": [0.002, 0.01, 0.03],
-    "shadow_fit": ["scene"],   # maps over the scene's bounding sphere instead of fitted to the casters
     "sh_unshadowed": DIM_LIGHTS,
     "caster_detail": [1.0, 0.5, 0.25, 0.1],
     "small_light_scale": [1, 2, 4, {"small_light_scale": 2, "small_light_min_energy": 0.0}],
