@@ -426,6 +426,11 @@ def knob_lines(rows: list[dict]) -> list[str]:
     return lines
 
 
+def _size_flag(cfg: dict) -> str:
+    sizes = tuple(cfg.get("sizes", (128, 256)))
+    return f" --size {sizes[0]}" if len(sizes) == 1 else ""
+
+
 def _times(x: float) -> str:
     return f"{x:.0f}x" if x >= 10 else f"{x:.1f}x"
 
@@ -442,7 +447,7 @@ def markdown(data: dict) -> str:
              f"Machine: {m['gl_renderer']} (GL {m['gl_version']}), {m['cores']} cores, {m['date']}. Presets: {data['presets']}.",
              f"References: two per scene, {cfg['spp_small']} spp at 128 x 128 and {cfg['spp_large']} at 256 x 256 "
              f"(cached; {data['reference_s']:.0f} s rendering this run). Command: `garment-render bench --broad"
-             f"{' --quick' if cfg['quick'] else ''}`.", "",
+             f"{' --quick' if cfg['quick'] else ''}{_size_flag(cfg)}`.", "",
              "Tuning maps: " + ", ".join(k for k, v in sets.items() if v == "tuning") + ".",
              "Held-out maps: " + ", ".join(k for k, v in sets.items() if v == "held-out") + ".", "",
              "## Summary (median / worst over the scenes)", "",
