@@ -28,7 +28,6 @@ import concurrent.futures as cf
 import hashlib
 import io
 import json
-import multiprocessing
 import os
 import platform
 import time
@@ -42,6 +41,7 @@ from ..reference import artefact_share, mean_flip, relative_rmse, render_referen
 from .catalogue import (EQUAL_ERROR_TARGET, PRESETS, REFERENCE_FACE_SIZE, TARGETS, Scene, environment_cube,
                         map_digest, scenes, split)
 from ..shading.background import background_truth
+from .processes import one_thread_pool
 from .scenes import shared_assets
 
 # --- references, cached -------------------------------------------------------------------------
@@ -120,26 +120,15 @@ def ensure_references(todo: list[Scene], spp_of, cache: ReferenceCache, workers:
     if not missing:
         return
     log(f"rendering {len(missing)} references ({len(todo) * len(SEEDS) - len(missing)} cached) in {workers} processes")
-    ctx = multiprocessing.get_context("spawn")   # the parent may hold a GL context: no fork
-    one_thread = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
-    saved = {k: os.environ.get(k) for k in one_thread}
-    os.environ.update(one_thread)
     t0 = time.perf_counter()
-    try:
-        with cf.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-            jobs = {pool.submit(_reference_job, s, spp, seed): (s, spp, seed) for s, spp, seed in missing}
-            for k, job in enumerate(cf.as_completed(jobs), 1):
-                s, spp, seed = jobs[job]
-                image, wall = job.result()
-                cache.put(s, spp, seed, image, wall)
-                if k % 10 == 0 or k == len(jobs):
-                    log(f"  {k}/{len(jobs)} references, {time.perf_counter() - t0:.0f} s")
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+    with one_thread_pool(workers) as pool:
+        jobs = {pool.submit(_reference_job, s, spp, seed): (s, spp, seed) for s, spp, seed in missing}
+        for k, job in enumerate(cf.as_completed(jobs), 1):
+            s, spp, seed = jobs[job]
+            image, wall = job.result()
+            cache.put(s, spp, seed, image, wall)
+            if k % 10 == 0 or k == len(jobs):
+                log(f"  {k}/{len(jobs)} references, {time.perf_counter() - t0:.0f} s")
 
 
 # --- the fast method ------------------------------------------------------------------------------
@@ -177,31 +166,47 @@ def _luminance_mean(img: np.ndarray, mask: np.ndarray) -> float:
     return float((img[..., :3][mask].astype(np.float64) @ LUMINANCE_RGB).mean())
 
 
-def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, ref_a: dict, ref_b: dict,
-            spp: int, sets: dict, bg_truth: np.ndarray | None = None) -> BroadRow:
-    """One preset's row. bg_truth: the background's truth (`background_truth`), else the reference's
-    own background (the texel of its cube along the pixel's centre ray)."""
-    a, b = ref_a["image"], ref_b["image"]
-    truth = 0.5 * (a + b)
-    mask = a[..., 3] > 0.5
-    floor = relative_rmse(b, a, mask)
-    err = relative_rmse(image, truth, mask)
-    art = artefact_share(image, a, b, mask)
+@dataclass(frozen=True)
+class Truth:
+    """A scene's truth, made once for all its rows: the mean of the reference pair, their floor
+    (one against the other), the reference's time per sample, and the background's truth."""
+
+    a: np.ndarray
+    b: np.ndarray
+    image: np.ndarray
+    mask: np.ndarray
+    floor_rel_rmse: float
+    floor_flip: float
+    ms_per_spp: float
+    background: np.ndarray
+
+    @classmethod
+    def of(cls, ref_a: dict, ref_b: dict, spp: int, background: np.ndarray) -> "Truth":
+        a, b = ref_a["image"], ref_b["image"]
+        mask = a[..., 3] > 0.5
+        return cls(a, b, 0.5 * (a + b), mask, relative_rmse(b, a, mask), mean_flip(b, a, mask),
+                   1e3 * 0.5 * (ref_a["wall_s"] + ref_b["wall_s"]) / spp, background)
+
+
+def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, truth: Truth, spp: int,
+            sets: dict) -> BroadRow:
+    """One setting's row against the scene's truth."""
+    mask = truth.mask
+    err = relative_rmse(image, truth.image, mask)
+    art = artefact_share(image, truth.a, truth.b, mask)
     background = ~mask
-    bg_ref = truth if bg_truth is None else bg_truth
-    bg_err = relative_rmse(image[..., :3], bg_ref[..., :3], background) if background.any() else float("nan")
+    bg_err = relative_rmse(image[..., :3], truth.background, background) if background.any() else float("nan")
     # Equal error (module doc): one render of spp samples is off by floor / sqrt(2); the truth, the
     # mean of two, by half the floor.
-    one = floor / np.sqrt(2.0)
-    ms_per_spp = 1e3 * 0.5 * (ref_a["wall_s"] + ref_b["wall_s"]) / spp
+    floor = truth.floor_rel_rmse
     speedup = None
     if err > floor:   # twice the truth's own error
-        spp_equal = max(1.0, spp * (one / err) ** 2)
-        speedup = spp_equal * ms_per_spp / frame_ms
+        spp_equal = max(1.0, spp * (floor / np.sqrt(2.0) / err) ** 2)
+        speedup = spp_equal * truth.ms_per_spp / frame_ms
     return BroadRow(scene.name, scene.map, sets[scene.map], scene.garment, scene.fabric, scene.view, scene.size, preset,
-                    frame_ms, err, mean_flip(image, truth, mask), art.share, art.judged, art.too_bright, art.too_dark,
-                    _luminance_mean(image, mask) / max(_luminance_mean(truth, mask), 1e-30), bg_err, floor,
-                    mean_flip(b, a, mask), spp, ms_per_spp, speedup)
+                    frame_ms, err, mean_flip(image, truth.image, mask), art.share, art.judged, art.too_bright,
+                    art.too_dark, _luminance_mean(image, mask) / max(_luminance_mean(truth.image, mask), 1e-30), bg_err,
+                    floor, truth.floor_flip, spp, truth.ms_per_spp, speedup)
 
 
 # Balanced with one knob changed, on the held-out 256 x 256 scenes: what each knob costs and buys away
@@ -330,9 +335,10 @@ def run_broad(out_dir: Path, cfg: BroadConfig, log=print, only: list[Scene] | No
             if scene.size > 128 and cfg.knobs and sets[scene.map] == "held-out":
                 settings.update({f"balanced:{name}": {**knobs_of["balanced"], **v} for name, v in KNOB_VARIANTS.items()})
             images = render_presets(r, scene, settings, cfg.frames if scene.size > 128 else cfg.frames_small, res)
-            bg_truth = background_truth(res.image, res.layout, scene.camera(), scene.size, scene.size)
+            truth = Truth.of(ref_a, ref_b, spp,
+                             background_truth(res.image, res.layout, scene.camera(), scene.size, scene.size))
             for preset, (image, ms) in images.items():
-                rows.append(measure(scene, preset, image, ms, ref_a, ref_b, spp, sets, bg_truth))
+                rows.append(measure(scene, preset, image, ms, truth, spp, sets))
             b = next(x for x in rows[-len(images):] if x.preset == "balanced")
             log(f"[{k + 1}/{len(todo)}] {scene.name} ({b.set}): balanced rel. RMSE {b.rel_rmse:.3f}, FLIP {b.flip:.3f}, "
                 f"artefacts {100 * b.artefact_share:.2f} %, {b.frame_ms:.0f} ms; floor {b.ref_noise_rel_rmse:.3f}")

@@ -17,8 +17,6 @@ the truth's samples, past which its error would be mostly the truth's.
 
 from __future__ import annotations
 
-import concurrent.futures as cf
-import multiprocessing
 import os
 import time
 
@@ -27,6 +25,7 @@ import numpy as np
 from ..camera import frame_meshes
 from ..errors import InvalidInputError
 from ..reference import mean_flip, relative_rmse, render_reference
+from .processes import one_thread_pool
 from .scenes import large_scene
 
 TRUTH_FACE_SIZE = 256   # the bench's reference cube: twice balanced's PEM faces
@@ -55,41 +54,31 @@ def run_equal_error(frames: dict[str, dict], size: int, min_triangles: int, trut
     if kept != tuple(ladder):
         log(f"  the ladder stops at {max(kept)} spp: a quarter of the truth's {workers} x {truth_spp}")
     ladder = kept
-    ctx = multiprocessing.get_context("spawn")   # the parent holds a GL context: no fork
-    one_thread = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
-    saved = {k: os.environ.get(k) for k in one_thread}
-    os.environ.update(one_thread)   # inherited by the spawned workers: one core each
-    try:
-        return _run(frames, size, min_triangles, truth_spp, workers, ladder, log, ctx)
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+    with one_thread_pool(workers) as pool:   # one core each
+        return _run(frames, size, truth_spp, workers, ladder, log, pool, min_triangles)
 
 
-def _run(frames, size, min_triangles, truth_spp, workers, ladder, log, ctx) -> dict:
-    with cf.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-        t0 = time.perf_counter()
-        jobs = [pool.submit(_reference_job, min_triangles, size, truth_spp, 1000 + k) for k in range(workers)]
-        renders = [j.result()[0] for j in jobs]
-        truth_s = time.perf_counter() - t0
-        half = len(renders) // 2
-        a, b = np.mean(renders[:half], axis=0), np.mean(renders[half:], axis=0)
-        truth = np.mean(renders, axis=0)
-        mask = truth[..., 3] > 0.5
-        floor_rmse, floor_flip = relative_rmse(a, b, mask), mean_flip(a, b, mask)
-        truth_rmse = 0.5 * floor_rmse
-        log(f"  truth: {workers} x {truth_spp} spp in {truth_s:.0f} s; noise floor (half against half, "
-            f"{half * truth_spp} spp each) rel. RMSE {floor_rmse:.4f}, FLIP {floor_flip:.4f}; the truth's own "
-            f"rel. RMSE about {truth_rmse:.4f}")
-        del renders
-        steps = {spp: pool.submit(_reference_job, min_triangles, size, spp, 100 + spp) for spp in ladder}
-        rungs = []
-        for spp, job in steps.items():
-            image, wall = job.result()
-            rungs.append({"spp": spp, "ms": wall * 1e3, "rel_rmse": relative_rmse(image, truth, mask)})
+def _run(frames, size, truth_spp, workers, ladder, log, pool, min_triangles) -> dict:
+    """The truth, the ladder and each setting's equal error, with the reference renders in `pool`."""
+    t0 = time.perf_counter()
+    jobs = [pool.submit(_reference_job, min_triangles, size, truth_spp, 1000 + k) for k in range(workers)]
+    renders = [j.result()[0] for j in jobs]
+    truth_s = time.perf_counter() - t0
+    half = len(renders) // 2
+    a, b = np.mean(renders[:half], axis=0), np.mean(renders[half:], axis=0)
+    truth = np.mean(renders, axis=0)
+    mask = truth[..., 3] > 0.5
+    floor_rmse, floor_flip = relative_rmse(a, b, mask), mean_flip(a, b, mask)
+    truth_rmse = 0.5 * floor_rmse
+    log(f"  truth: {workers} x {truth_spp} spp in {truth_s:.0f} s; noise floor (half against half, "
+        f"{half * truth_spp} spp each) rel. RMSE {floor_rmse:.4f}, FLIP {floor_flip:.4f}; the truth's own "
+        f"rel. RMSE about {truth_rmse:.4f}")
+    del renders
+    steps = {spp: pool.submit(_reference_job, min_triangles, size, spp, 100 + spp) for spp in ladder}
+    rungs = []
+    for spp, job in steps.items():
+        image, wall = job.result()
+        rungs.append({"spp": spp, "ms": wall * 1e3, "rel_rmse": relative_rmse(image, truth, mask)})
     log("  reference ladder (one process each, run side by side): "
         + ", ".join(f"{r['spp']} spp {r['ms'] / 1e3:.1f} s err {r['rel_rmse']:.3f}" for r in rungs))
     presets = {}

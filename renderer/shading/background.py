@@ -61,7 +61,6 @@ class BackgroundMap:
         import moderngl
 
         self.texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-        self.nbytes = int(round(6 * n * n * 3 * 2 * 4 / 3))   # half floats, with the chain (a third more)
 
     def release(self) -> None:
         self.texture.release()
