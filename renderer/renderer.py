@@ -503,7 +503,14 @@ class Renderer:
             scene.set_positions(positions, normals)
         timer.wall_ms["upload"] = (time.perf_counter() - t0) * 1e3
 
-        # Lights: directions and energies from the PEM set, projections fitted to the casters now.
+        # The camera first: the shadow maps are fitted to what it sees.
+        w, h = settings.width, settings.height
+        centre, radius = bounds_sphere(*scene.bounds())
+        camera = camera or default_camera(centre, radius, w / h)
+        view_proj = camera.view_proj(w / h, centre, radius)
+
+        # Lights: directions and energies from the PEM set, projections fitted to the casters now,
+        # over the receivers in view.
         regions = pems.regions
         n = regions.n_regions
         lo, hi = scene.bounds(casters_only=True)
@@ -525,7 +532,8 @@ class Renderer:
         blur = bool((sigma > 0).any())   # blur scale 0 (every preset): the maps stay as drawn
         # Square texels: the blur's sigma is in texels, the same on both axes, so rectangular texels
         # would make penumbrae anisotropic (a side run fitting x and y separately gained 0-2.5 %).
-        vp = fit_light_view_projs(shadow_dirs, lo, hi, sigma, sizes, scene.footprint_unit)
+        vp = fit_light_view_projs(shadow_dirs, lo, hi, sigma, sizes, scene.footprint_unit,
+                                  scene.visible_bounds(view_proj))
         # Lights sharing a map look it up through the projection it was drawn with (its first light's:
         # with a blur the fit's margin follows each light's own width).
         sharp_layer = plan.layer[plan.sharp]
@@ -541,7 +549,7 @@ class Renderer:
         shadow_maps = self._shadow_maps_for("main", settings.shadow_size, max(len(plan.main_lights), 1))
         arrays = {"main": shadow_maps}
         if len(plan.main_lights):
-            shadow_maps.render([([sm.shadow_vao(settings.caster_detail) for sm in casters], -1)], lights_buf,
+            shadow_maps.render([([(sm.shadow_vao(settings.caster_detail), sm.group) for sm in casters], -1)], lights_buf,
                                self._buffer("shadow_lights_main", plan.main_lights.tobytes()), timer, blur=blur)
         sharp_coarse = np.zeros(len(plan.sharp_lights), bool)
         if len(plan.sharp_lights):
@@ -551,8 +559,8 @@ class Renderer:
             coarse_min_sin = float(np.sin(np.radians(settings.sharp_full_detail_deg)))
             if settings.sharp_full_detail_deg < 90.0 and settings.caster_detail < 1.0:
                 sharp_coarse = np.sin(disc_radius[plan.sharp_lights]) > coarse_min_sin
-            full_vaos = [sm.vao_shadow for sm in casters]
-            proxy_vaos = [sm.shadow_vao(settings.caster_detail) for sm in casters] if sharp_coarse.any() else []
+            full_vaos = [(sm.vao_shadow, sm.group) for sm in casters]
+            proxy_vaos = [(sm.shadow_vao(settings.caster_detail), sm.group) for sm in casters] if sharp_coarse.any() else []
             passes = ([(proxy_vaos, -1)] if sharp_coarse.all() else [(full_vaos, 0), (proxy_vaos, 1)]
                       if sharp_coarse.any() else [(full_vaos, -1)])
             arrays["sharp"].render(passes, lights_buf, self._buffer("shadow_lights_sharp", plan.sharp_lights.tobytes()),
@@ -561,10 +569,6 @@ class Renderer:
             self._shadow_maps.pop("sharp").release()
 
         # Shading.
-        w, h = settings.width, settings.height
-        centre, radius = bounds_sphere(*scene.bounds())
-        camera = camera or default_camera(centre, radius, w / h)
-        view_proj = camera.view_proj(w / h, centre, radius)
         fbo, gbuf_fbo, gbuf = self._target_for(w, h)
         vp_bytes = view_proj.T.astype(np.float32).tobytes()
         # The PEM set's tables the shading pass reads (the glossy discs, the lights' SH), made once per
@@ -594,6 +598,7 @@ class Renderer:
                 sm.gloss_tex.use(location=4)
                 _set_uniform(g, "u_use_albedo_map", sm.use_maps[0])
                 _set_uniform(g, "u_use_gloss_map", sm.use_maps[1])
+                _set_uniform(g, "u_shadow_group", float(sm.group))
                 sm.vao_gbuffer.render(moderngl.TRIANGLES)
         with gl.stage(timer, "shading"):
             fbo.use()

@@ -14,6 +14,91 @@ from .shading.material import Material
 from .shadows.proxy import caster_proxy
 
 
+# Shadow groups (Scene): each caster's moments go to its group's pair of the shadow maps; a receiver
+# compares against its own group's pair with the bias that keeps a surface from shadowing itself and
+# against the other's without it. A mesh that casts nothing is in neither (RECEIVER_ONLY: no bias on both).
+SHADOW_GROUPS = 2
+RECEIVER_ONLY = 2
+
+
+def shadow_groups(casters: list[bool]) -> list[int]:
+    """Each mesh's shadow group: the first caster (the garment of a garment-and-body scene) alone in
+    group 0, every other caster in group 1, a mesh that casts nothing RECEIVER_ONLY. A group's own
+    surfaces shadow each other through the bias; between the groups no bias hides a near occluder."""
+    groups, first = [], True
+    for c in casters:
+        groups.append(RECEIVER_ONLY if not c else 0 if first else 1)
+        first = first and not c
+    return groups
+
+
+def frustum_planes(view_proj: np.ndarray) -> np.ndarray | None:
+    """The six planes (6, 4) of a world -> clip matrix's frustum, normalized so that
+    p @ planes[:, :3].T + planes[:, 3] is each plane's signed distance in world units, >= 0 inside
+    (None for a degenerate matrix)."""
+    vp = np.asarray(view_proj, np.float64)
+    planes = np.stack([vp[3] + vp[0], vp[3] - vp[0], vp[3] + vp[1], vp[3] - vp[1], vp[3] + vp[2], vp[3] - vp[2]])
+    norms = np.linalg.norm(planes[:, :3], axis=1)
+    if not np.all(norms > 0):
+        return None
+    return planes / norms[:, None]
+
+
+_BOX_EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]   # 12
+
+
+def box_in_frustum(lo, hi, view_proj: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The axis-aligned box around the part of box (lo, hi) inside the frustum of `view_proj`, or
+    None if none is. The intersection is a convex polytope whose corners are the box's corners in
+    the frustum, the frustum's corners in the box, and where the edges of either cross the other's faces."""
+    planes = frustum_planes(view_proj)
+    if planes is None:
+        return None
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    size = float(np.linalg.norm(hi - lo))
+    tol = 1e-9 * max(size, 1.0)
+    box = np.array([[(lo, hi)[(k >> 2) & 1][0], (lo, hi)[(k >> 1) & 1][1], (lo, hi)[k & 1][2]] for k in range(8)])
+    ndc = np.array([[x, y, z, 1.0] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+    try:
+        f = ndc @ np.linalg.inv(np.asarray(view_proj, np.float64)).T
+    except np.linalg.LinAlgError:
+        return None
+    frustum = f[:, :3] / f[:, 3:]
+    in_frustum = lambda q: (q @ planes[:, :3].T + planes[:, 3] >= -tol).all(axis=1)
+    in_box = lambda q: ((q >= lo - tol) & (q <= hi + tol)).all(axis=1)
+    points = [box[in_frustum(box)], frustum[in_box(frustum)]]
+    # Box edges against the frustum's planes.
+    a, b = box[[e[0] for e in _BOX_EDGES]], box[[e[1] for e in _BOX_EDGES]]
+    da, db = a @ planes[:, :3].T + planes[:, 3], b @ planes[:, :3].T + planes[:, 3]    # (12, 6)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = da / (da - db)
+    ok = np.isfinite(t) & (t >= 0.0) & (t <= 1.0)
+    edge, plane = np.nonzero(ok)
+    q = a[edge] + t[edge, plane][:, None] * (b - a)[edge]
+    points.append(q[in_frustum(q)])
+    # Frustum edges against the box's faces.
+    a, b = frustum[[e[0] for e in _BOX_EDGES]], frustum[[e[1] for e in _BOX_EDGES]]
+    for axis in range(3):
+        for value in (lo[axis], hi[axis]):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (value - a[:, axis]) / (b[:, axis] - a[:, axis])
+            ok = np.isfinite(t) & (t >= 0.0) & (t <= 1.0)
+            q = a[ok] + t[ok, None] * (b - a)[ok]
+            points.append(q[in_box(q)])
+    points = np.concatenate(points)
+    if not len(points):
+        return None
+    return points.min(axis=0), points.max(axis=0)
+
+
+def longest_edge(positions: np.ndarray, faces: np.ndarray) -> float:
+    """The longest edge of a triangle mesh (0 without faces)."""
+    if len(faces) == 0:
+        return 0.0
+    tri = np.asarray(positions, np.float64)[faces]                      # (F, 3, 3)
+    return float(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max())
+
+
 # Work groups per dispatch dimension that every GL 4.5 driver takes (llvmpipe's limit): larger meshes'
 # normals pass dispatches a second dimension.
 MAX_GROUPS_X = 65535
@@ -23,9 +108,10 @@ class SceneMesh:
     """One mesh's buffers, vertex arrays and material textures; owned by its `Scene`."""
 
     def __init__(self, gl: GLContext, mesh: Mesh, material: Material, programs: dict, caster: bool,
-                 proxy_faces: dict[float, np.ndarray] | None = None):
+                 proxy_faces: dict[float, np.ndarray] | None = None, group: int = 0):
+        """`group`: the mesh's shadow group (Scene), 0 or 1 for a caster, RECEIVER_ONLY otherwise."""
         ctx = gl.ctx
-        self.mesh, self.material, self.caster = mesh, material, caster
+        self.mesh, self.material, self.caster, self.group = mesh, material, caster, group
         self.n_vertices = mesh.positions.shape[0]
         albedo, mat = material.vertex_arrays(self.n_vertices)
         albedo_map, gloss_map = material.maps()
@@ -41,6 +127,9 @@ class SceneMesh:
             self._proxy_faces[float(detail)] = np.ascontiguousarray(faces, np.int32)
         self.positions = mesh.positions
         self.box = box(mesh.positions)   # (lo, hi), kept with the positions: read every frame
+        # Twice the longest edge as registered (cloth stretches by far less): how far outside the
+        # camera's frustum a vertex of a triangle that crosses it can lie (Scene.visible_bounds).
+        self.reach = 2.0 * longest_edge(mesh.positions, mesh.faces)
         normals = vertex_normals(mesh.positions, mesh.faces)
         self.vbo_pos = ctx.buffer(np.ascontiguousarray(mesh.positions, np.float32).tobytes(), dynamic=True)
         self.vbo_nrm = ctx.buffer(normals.astype(np.float32).tobytes(), dynamic=True)
@@ -156,6 +245,7 @@ class Scene:
         if len(materials) != len(meshes):
             raise MeshError(f"got {len(meshes)} meshes but {len(materials)} materials")
         casters = casters or [True] * len(meshes)
+        groups = shadow_groups(casters)
         self.gl = gl
         self.meshes: list[SceneMesh] = []
         try:
@@ -165,7 +255,7 @@ class Scene:
                                     f"{len(meshes)} meshes")
             for k, (m, mat, c) in enumerate(zip(meshes, materials, casters)):
                 given = {d: faces[k] for d, faces in (proxies or {}).items() if faces[k] is not None}
-                self.meshes.append(SceneMesh(gl, m, mat, programs, c, given))
+                self.meshes.append(SceneMesh(gl, m, mat, programs, c, given, groups[k]))
             # The glossiest lookup any pixel can make (Material.max_glossiness; 0: no glossy lobe).
             self.max_glossiness = max(mat.max_glossiness() for mat in materials)
             # Whether any pixel can have a glossy lobe at all (False: a diffuse-only scene).
@@ -198,6 +288,30 @@ class Scene:
             his.append(sm.box[1])
         if not los:
             return self.bounds(False)
+        return np.min(los, axis=0), np.max(his, axis=0)
+
+    def visible_bounds(self, view_proj: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The box of every mesh's vertices the camera (`view_proj`, world -> clip) can see, each
+        frustum plane moved out by the mesh's longest edge so that a triangle crossing the frame with
+        its corners outside still counts (None: nothing in view). What the shadow maps are fitted to
+        (shadows.lights.fit_light_view_projs' receivers)."""
+        planes = frustum_planes(view_proj)
+        if planes is None:
+            return None
+        los, his = [], []
+        for sm in self.meshes:
+            # The part of the mesh's box in the frustum (a floor of two triangles), and within it the
+            # box of the vertices in view (a body whose head and legs are out of the frame).
+            clipped = box_in_frustum(*sm.box, view_proj)
+            if clipped is None:
+                continue
+            p = np.asarray(sm.positions, np.float64)
+            inside = (p @ planes[:, :3].T + planes[:, 3] >= -sm.reach).all(axis=1)
+            if inside.any():
+                los.append(np.maximum(p[inside].min(axis=0), clipped[0]))
+                his.append(np.minimum(p[inside].max(axis=0), clipped[1]))
+        if not los:
+            return None
         return np.min(los, axis=0), np.max(his, axis=0)
 
     @property

@@ -28,8 +28,9 @@ class ServiceSettings(BaseSettings):
     max_faces: int = Field(4_000_000, ge=1, description="per mesh")
     max_image_side: int = Field(4096, ge=16, le=8192, description="largest rendered width or height, pixels")
     max_shadow_map_bytes: int = Field(4 << 30, ge=1 << 20, description="largest shadow-map memory a quality may "
-                                      "ask for: lights x (shadow_size x small_light_scale)^2 x 16 bytes (moments "
-                                      "and blur scratch, RG32F; every light counted at the small lights' size)")
+                                      "ask for: lights x (shadow_size x small_light_scale)^2 x 32 bytes (moments "
+                                      "and blur scratch, two shadow groups' RGBA32F; every light counted at the "
+                                      "small lights' size)")
     max_env_pixels: int = Field(64 << 20, ge=64, description="largest uploaded environment map, width x height")
     max_batch_frames: int = Field(1000, ge=1)
     max_scenes: int = Field(64, ge=1)

@@ -15,6 +15,7 @@ from renderer.errors import MeshError
 from renderer.mesh import Mesh, z_up_to_y_up
 from renderer.presets import PRESET_KNOBS, base_knobs, frame_settings, knob_defaults, merge_knobs, pem_settings
 from renderer.renderer import Background, FrameSettings, ShadingMode
+from renderer.shadows.vsm import MOMENT_BYTES
 from renderer.shading.material import Material
 from renderer.shadows.proxy import caster_proxy_isolated
 
@@ -72,11 +73,11 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: di
     if frame.sharp_max_maps > 0:
         n_sharp = min(n_sharp, frame.sharp_max_maps)
     side = frame.shadow_size * frame.small_light_scale
-    worst = (n_sharp * side * side + (n - n_sharp) * frame.shadow_size ** 2) * 16
+    worst = (n_sharp * side * side + (n - n_sharp) * frame.shadow_size ** 2) * 2 * MOMENT_BYTES
     if worst > settings.max_shadow_map_bytes:
         raise InvalidRequestError(
             f"quality asks for up to {worst / 2**30:.1f} GiB of shadow maps ({n_sharp} of {n} lights at "
-            f"({frame.shadow_size} x {frame.small_light_scale})^2, the others at {frame.shadow_size}^2, x 16 "
+            f"({frame.shadow_size} x {frame.small_light_scale})^2, the others at {frame.shadow_size}^2, x {2 * MOMENT_BYTES} "
             f"bytes), over the limit of {settings.max_shadow_map_bytes / 2**30:.1f} GiB "
             "(GARMENT_RENDER_MAX_SHADOW_MAP_BYTES): use fewer lights, a smaller shadow_size or "
             "small_light_scale, a larger small_light_min_energy, or a sharp_max_maps")

@@ -5,7 +5,7 @@ import threading
 import numpy as np
 import pytest
 
-from renderer.camera import Camera
+from renderer.camera import Camera, bounds_sphere
 from renderer.errors import GLContextError, InvalidInputError
 from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
@@ -359,7 +359,7 @@ def test_without_a_blur_the_maps_skip_the_blur_passes_and_their_scratch(renderer
         plain = renderer.render(scene, pems, FrameSettings(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
         maps = renderer._shadow_maps["main"]
         assert maps.scratch is None
-        assert plain.settings["shadow_bytes"] == size * size * 8 * (maps.n_lights + (
+        assert plain.settings["shadow_bytes"] == size * size * 16 * (maps.n_lights + (
             0 if maps.target is maps.moments else maps.batch_layers))
         assert "blur" not in plain.timings["wall_ms"]   # the batches' copy is part of the shadow_maps stage
         original = ShadowMaps.render
@@ -427,6 +427,60 @@ def test_maps_are_fitted_to_the_casters_not_the_scene(renderer):
     img = frame.image[..., :3].mean(axis=-1)
     cov = frame.image[..., 3] > 0.5
     assert np.isfinite(frame.image).all() and (img[cov] < 0.1 * np.median(img[cov])).sum() > 20   # the shadow
+
+
+def test_maps_are_fitted_to_what_the_camera_sees(renderer):
+    # Two spheres 4 m apart over a floor; the camera frames one. A directional light's shadow falls
+    # along its depth axis, so the maps need only the casters over what is in view: the texel is that
+    # of the framed part, not of both spheres (4.8 m across).
+    cube = sun_sky_cube(32, (0.3, 1.0, 0.2), sun_radiance=2e3, sun_radius_deg=3)
+    meshes = [sphere(0.4, centre=(0, 0.5, 0)), sphere(0.4, centre=(4.0, 0.5, 0)), plane(10.0)]
+    mats = [Material((0.8, 0.8, 0.8))] * 3
+    framed = Camera((0.0, 2.5, 0.2), (0.0, 0.3, 0.0), fov_y_deg=30.0)
+    both = Camera((2.0, 4.0, 6.0), (2.0, 0.3, 0.0), fov_y_deg=50.0)
+    pems = renderer.build_pems(cube, PEMSettings(24))
+    scene = renderer.create_scene(meshes, mats, casters=[True, True, False])
+    try:
+        fs = FrameSettings(64, 64, small_light_scale=1, background=Background.BLACK)
+        near, wide = (renderer.render(scene, pems, fs, cam) for cam in (framed, both))
+        # A caster above the frame still shadows the floor in it: the maps' depth range is the casters'.
+        high = renderer.create_scene([sphere(0.3, centre=(0.0, 1.6, 0.0)), plane(10.0)], mats[:2], casters=[True, False])
+        try:
+            low = Camera((0.0, 0.5, 2.5), (0.0, 0.0, 0.0), fov_y_deg=25.0)
+            sun_above = renderer.build_pems(sun_sky_cube(32, (0.0, 1.0, 0.0), sun_radiance=2e3, sun_radius_deg=3),
+                                            PEMSettings(24))
+            try:
+                below = renderer.render(high, sun_above, fs, low)
+            finally:
+                sun_above.release()
+            assert high.visible_bounds(low.view_proj(1.0, *bounds_sphere(*high.bounds())))[1][1] < 1.3   # out of view
+        finally:
+            high.release()
+    finally:
+        scene.release()
+        pems.release()
+    assert near.timings["shadow_texel"] < 0.6 * wide.timings["shadow_texel"]
+    assert wide.timings["shadow_texel"] > 4.0 / 256
+    lum = below.image[..., :3].mean(axis=-1)
+    dark = lum < 0.2 * np.median(lum[covered(below)])
+    # The shadow: an ellipse of the floor about the image's centre (measured 38 pixels), nothing else.
+    assert np.isfinite(below.image).all() and dark[24:40, 16:48].sum() > 20 and dark[covered(below)].mean() < 0.05
+
+
+def test_the_box_in_view_is_the_frustum_cut_of_a_box():
+    from renderer.scene import box_in_frustum
+
+    cam = Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), fov_y_deg=40.0)
+    vp = cam.view_proj(1.0, np.zeros(3), 2.0)
+    # A box around the camera's axis, far wider than the view: cut to the frustum's width at its far side.
+    lo, hi = box_in_frustum((-50.0, -50.0, -1.0), (50.0, 50.0, 1.0), vp)
+    half = 6.0 * np.tan(np.radians(20.0))   # the frustum's half-width 6 m from the eye
+    np.testing.assert_allclose([lo[0], hi[0], lo[1], hi[1]], [-half, half, -half, half], rtol=1e-6)
+    np.testing.assert_allclose([lo[2], hi[2]], [-1.0, 1.0])
+    # Inside the view: itself; beside it: nothing.
+    np.testing.assert_allclose(np.concatenate(box_in_frustum((-0.1, -0.1, -0.1), (0.1, 0.1, 0.1), vp)),
+                               [-0.1, -0.1, -0.1, 0.1, 0.1, 0.1], atol=1e-9)
+    assert box_in_frustum((20.0, 0.0, 0.0), (21.0, 1.0, 1.0), vp) is None
 
 
 def test_mixed_diffuse_takes_small_lights_in_closed_form(renderer):

@@ -12,6 +12,7 @@ from conftest import plane, sphere, sun_sky_cube
 from renderer.camera import Camera
 from renderer.errors import InvalidInputError
 from renderer.lighting.pem import PEMSettings
+from renderer.mesh import Mesh
 from renderer.renderer import Background, FrameSettings
 from renderer.shading.material import Material
 from renderer.shadows.lights import SMALL_LIGHT_MAX_SIN, plan_layers
@@ -47,6 +48,14 @@ def sun_scene(renderer):
     yield scene, pems
     pems.release()
     scene.release()
+
+
+def _ball_and_ground() -> Mesh:
+    """The sun scene's sphere and plane as one mesh: one shadow group (renderer/scene.py), so that the
+    ball's shadow on the ground goes through the maps' bias as a surface's shadow on itself does."""
+    ball, ground = sphere(0.4, centre=(0.0, 0.8, 0.0)), plane(3.0)
+    return Mesh.from_arrays(np.concatenate([ball.positions, ground.positions]),
+                            np.concatenate([ball.faces, ground.faces + len(ball.positions)]), name="ball-and-ground")
 
 
 def test_a_small_lights_map_at_k_times_the_size_matches_a_map_of_that_size(renderer, sun_scene):
@@ -170,10 +179,14 @@ def test_sharp_lights_close_together_share_one_map():
     np.testing.assert_array_equal(dirs, directions)
 
 
-def test_a_suns_regions_sharing_one_map_shade_as_with_their_own(renderer, sun_scene):
+def test_a_suns_regions_sharing_one_map_shade_as_with_their_own(renderer, sun_scene, request):
     from renderer.shadows.lights import SMALL_LIGHT_MAX_SIN
 
-    scene, pems = sun_scene
+    _, pems = sun_scene
+    # One mesh: the capped lights' coarse maps blur the shadow's edge through their bias (texels of
+    # the 32^2 maps) as well as their resolution.
+    scene = renderer.create_scene([_ball_and_ground()], [Material((0.8, 0.8, 0.8))])
+    request.addfinalizer(scene.release)
     cam = Camera((0.0, 3.0, 2.5), (0.0, 0.2, 0.0), fov_y_deg=50.0)
     small = np.sin(pems.regions.disc_radius_rad()) <= SMALL_LIGHT_MAX_SIN
 
@@ -237,15 +250,20 @@ def test_shadow_bias_is_a_bounded_number_of_texels():
 
 
 def test_each_shadow_bias_knob_reaches_the_shadow_test(renderer, sun_scene):
-    scene, pems = sun_scene
+    _, pems = sun_scene
+    # One shadow group, whose shadow on itself the bias decides (between two meshes' groups no bias applies).
+    scene = renderer.create_scene([_ball_and_ground()], [Material((0.8, 0.8, 0.8))])
     cam = Camera((0.0, 3.0, 2.5), (0.0, 0.2, 0.0), fov_y_deg=50.0)
-    # The sun's map is a main map at scale 1 and a sharp one at scale 4.
-    for name, value, scale in (("normal_offset_texels", 8.0, 1), ("min_sigma_texels", 12.0, 1),
-                               ("sharp_normal_offset_texels", 8.0, 4)):
-        base = FrameSettings(64, 64, shadow_size=64, small_light_scale=scale)
-        ref = renderer.render(scene, pems, base, cam).image
-        img = renderer.render(scene, pems, dataclasses.replace(base, **{name: value}), cam).image
-        assert np.abs(img - ref)[..., :3].max() > 1e-3, name
+    try:
+        # The sun's map is a main map at scale 1 and a sharp one at scale 4.
+        for name, value, scale in (("normal_offset_texels", 8.0, 1), ("min_sigma_texels", 12.0, 1),
+                                   ("sharp_normal_offset_texels", 8.0, 4)):
+            base = FrameSettings(64, 64, shadow_size=64, small_light_scale=scale)
+            ref = renderer.render(scene, pems, base, cam).image
+            img = renderer.render(scene, pems, dataclasses.replace(base, **{name: value}), cam).image
+            assert np.abs(img - ref)[..., :3].max() > 1e-3, name
+    finally:
+        scene.release()
 
 
 def test_shadow_size_is_a_whole_number_of_texels_from_16():

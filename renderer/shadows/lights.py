@@ -148,17 +148,33 @@ FOOTPRINT_STEPS_PER_OCTAVE = 8
 MIN_DEPTH_TEXELS = 16.0
 
 
+def _box_in_light_space(basis: np.ndarray, lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    """Per light (basis (N, 3, 3)), the least and greatest light-space coordinates of a box's corners."""
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    ls = np.einsum("cj,nij->nci", corners, basis)                          # (N, 8, 3)
+    return ls.min(axis=1), ls.max(axis=1)
+
+
 def fit_light_view_projs(directions: np.ndarray, lo: np.ndarray, hi: np.ndarray, sigma_texels: np.ndarray,
-                         shadow_size, unit: float = 1.0) -> np.ndarray:
+                         shadow_size, unit: float = 1.0, receivers: tuple | None = None) -> np.ndarray:
     """World -> light clip matrices (N, 4, 4) float64 of N directions (N, 3): x, y in [-1, 1] over the
     casters' box (lo, hi), depth z in [0, 1] from its nearest to its farthest corner (GL clip space
     with w = 1). The footprint is square (the larger of its two sides), so that a blur in texels stays
     isotropic; shadow_size is one size or each light's; its sizes are steps relative to `unit` (a
-    length fixed for the scene, e.g. Scene.footprint_unit)."""
+    length fixed for the scene, e.g. Scene.footprint_unit).
+
+    `receivers`: the box (lo, hi) of what the camera can see (Scene.visible_bounds). A directional
+    light's shadow falls along its own depth axis, so only casters over a seen receiver's x, y can
+    shadow it: the footprint is the casters' x, y range where it overlaps the receivers', and the
+    depth range stays the casters' (a caster out of view still shadows what is in view). A body's
+    head, legs and outstretched arms out of the frame no longer spread the texels over them."""
     basis = light_basis(directions)                                        # (N, 3, 3)
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    ls = np.einsum("cj,nij->nci", corners, basis)                          # (N, 8, 3)
-    cmin, cmax = ls.min(axis=1), ls.max(axis=1)
+    cmin, cmax = _box_in_light_space(basis, lo, hi)
+    if receivers is not None:
+        rmin, rmax = _box_in_light_space(basis, *receivers)
+        xy_lo, xy_hi = np.maximum(cmin[:, :2], rmin[:, :2]), np.minimum(cmax[:, :2], rmax[:, :2])
+        overlap = (xy_hi > xy_lo).all(axis=1)   # else nothing seen lies under a caster: the casters' own
+        cmin[overlap, :2], cmax[overlap, :2] = xy_lo[overlap], xy_hi[overlap]
     centre = 0.5 * (cmin + cmax)
     tiny = np.maximum(1e-12 * np.maximum(1.0, np.abs(centre).max(axis=1)), 1e-30)
     half_xy = 0.5 * (cmax[:, :2] - cmin[:, :2])

@@ -1,11 +1,14 @@
 """Variance shadow maps, one per light, re-rendered every frame (Knuth et al. 2014, sec. 4).
 
 Moments (z, z^2) are 32-bit floats in a 2D texture array, one layer per light (shadow_lights[layer]
-is the layer's light; the renderer keeps a second, larger array for small lights, shadows/lights.py
-plan_layers). All layers are drawn in batches of instanced draws (instance = layer, gl_Layer from the
-vertex shader); the nearest surface is kept by MIN blending. A separable Gaussian blur whose width
-follows each region's angular size then softens them. The arrays are allocated once per (size,
-layer count) and reused frame after frame.
+is the layer's light), a pair per shadow group (xy: the casters of group 0, zw: group 1; Scene.groups):
+a receiver compares against the other group's pair without the bias that keeps a surface from
+shadowing itself, so that the body under a garment is shadowed by it however close. The renderer
+keeps a second, larger array for small lights (shadows/lights.py plan_layers). All layers are drawn
+in batches of instanced draws (instance = layer, gl_Layer from the vertex shader); the nearest
+surface of each group is kept by MIN blending. A separable Gaussian blur whose width follows each
+region's angular size then softens them. The arrays are allocated once per (size, layer count) and
+reused frame after frame.
 """
 
 from __future__ import annotations
@@ -20,6 +23,8 @@ from .lights import MAX_BLUR_RADIUS
 
 # Layers per instanced draw: bounds the layered framebuffer (GL_MAX_FRAMEBUFFER_LAYERS >= 2048).
 LAYERS_PER_BATCH = 64
+# Bytes per texel and layer: two groups' (z, z^2), float32 (RGBA32F).
+MOMENT_BYTES = 16
 
 
 class ShadowMaps:
@@ -33,7 +38,7 @@ class ShadowMaps:
             raise InvalidInputError(f"shadow-map size must be in [16, 8192], got {size}")
         self.gl, self.size, self.n_lights = gl, size, n_lights
         ctx = gl.ctx
-        self.moments = ctx.texture_array((size, size, n_lights), 2, dtype="f4")
+        self.moments = ctx.texture_array((size, size, n_lights), 4, dtype="f4")
         self.moments.filter = (moderngl.LINEAR, moderngl.LINEAR)
         self.moments.repeat_x = self.moments.repeat_y = False
         # The blur's ping-pong array, made by a frame that blurs and given back by one that does not
@@ -44,7 +49,7 @@ class ShadowMaps:
         # instead each batch renders into a batch-sized array that is then blurred into place.
         self.batch_layers = min(n_lights, LAYERS_PER_BATCH)
         self.target = (self.moments if n_lights <= LAYERS_PER_BATCH
-                       else ctx.texture_array((size, size, self.batch_layers), 2, dtype="f4"))
+                       else ctx.texture_array((size, size, self.batch_layers), 4, dtype="f4"))
         self.fbo = ctx.framebuffer(color_attachments=[self.target])
         self.prog = moments_prog
         self.blur = compute_shader(ctx, "shadows/blur.comp")
@@ -56,13 +61,13 @@ class ShadowMaps:
         # need more than one draw
         layers = (self.n_lights + (0 if self.scratch is None else self.batch_layers)
                   + (0 if self.target is self.moments else self.batch_layers))
-        return self.size * self.size * 8 * layers
+        return self.size * self.size * MOMENT_BYTES * layers
 
-    def render(self, passes: list[tuple[list[moderngl.VertexArray], int]], lights_buffer: moderngl.Buffer,
+    def render(self, passes: list[tuple[list[tuple[moderngl.VertexArray, int]], int]], lights_buffer: moderngl.Buffer,
                shadow_lights_buffer: moderngl.Buffer, timer: StageTimer | None = None, enabled: bool = True,
                coarse_min_sin: float = 1.0, blur: bool = True) -> None:
         """Render and blur the moments of every shadowed light (layer k: light shadow_lights[k]).
-        `passes`: (vertex arrays drawing the casters with `self.prog`, which layers they draw): -1
+        `passes`: ((vertex array, shadow group) per caster, drawn with `self.prog`, which layers they draw): -1
         every layer; 0 the layers of lights whose disc's sine is at most `coarse_min_sin`; 1 the others.
         `blur` False: no light has a blur width (the blur passes would leave every layer as drawn)."""
         gl, ctx = self.gl, self.gl.ctx
@@ -81,7 +86,7 @@ class ShadowMaps:
             with gl.stage(timer, "shadow_maps"):
                 self.fbo.use()
                 ctx.viewport = (0, 0, self.size, self.size)
-                self.fbo.clear(1.0, 1.0, 0.0, 0.0)
+                self.fbo.clear(1.0, 1.0, 1.0, 1.0)   # both groups' pairs at the far plane
                 if enabled:
                     ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
                     ctx.enable(moderngl.BLEND)
@@ -89,7 +94,8 @@ class ShadowMaps:
                     self.prog["u_first_light"].value = first
                     for vaos, which in passes:
                         self.prog["u_detail_pass"].value = which
-                        for vao in vaos:
+                        for vao, group in vaos:
+                            self.prog["u_group"].value = group
                             vao.render(moderngl.TRIANGLES, instances=count)
                     ctx.blend_equation = moderngl.FUNC_ADD
                     ctx.disable(moderngl.BLEND)
@@ -109,7 +115,7 @@ class ShadowMaps:
     def _blur_batch(self, first: int, count: int) -> None:
         ctx = self.gl.ctx
         if self.scratch is None:
-            self.scratch = ctx.texture_array((self.size, self.size, self.batch_layers), 2, dtype="f4")
+            self.scratch = ctx.texture_array((self.size, self.size, self.batch_layers), 4, dtype="f4")
         self.blur["u_first_light"].value = first
         self.blur["u_max_radius"].value = MAX_BLUR_RADIUS
         # Three box passes per axis, ping-ponging target <-> scratch: ends in target.
@@ -125,8 +131,9 @@ class ShadowMaps:
         ctx.memory_barrier()
 
     def read(self) -> np.ndarray:
-        """Blurred moments, float32 (n_lights, size, size, 2); row 0 is the bottom of light space."""
-        return np.frombuffer(self.moments.read(), np.float32).reshape(self.n_lights, self.size, self.size, 2)
+        """Blurred moments, float32 (n_lights, size, size, 4): group 0's (z, z^2), group 1's; row 0 is
+        the bottom of light space."""
+        return np.frombuffer(self.moments.read(), np.float32).reshape(self.n_lights, self.size, self.size, 4)
 
     def release(self) -> None:
         for obj in {id(o): o for o in (self.fbo, self.target, self.moments, self.scratch) if o is not None}.values():

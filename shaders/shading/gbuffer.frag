@@ -13,10 +13,11 @@ layout(binding = 4) uniform sampler2D u_gloss_map;    // (specular, glossiness),
 uniform bool u_use_albedo_map;
 uniform bool u_use_gloss_map;
 uniform vec3 u_camera_pos;
+uniform float u_shadow_group;   // the mesh's shadow group (renderer/scene.py): 0, 1, or 2 (casts nothing)
 
 layout(location = 0) out vec4 o_position;   // xyz: world position; w: specular weight (>= 0; -1: no surface)
 layout(location = 1) out vec4 o_normal;     // xyz: shading normal, turned to the seen side; w: glossiness g
-layout(location = 2) out vec4 o_geometric;  // xyz: the triangle's own plane normal, facing the camera; w: 1 (covered)
+layout(location = 2) out vec4 o_geometric;  // xyz: the triangle's own plane normal, facing the camera; w: shadow group
 layout(location = 3) out vec4 o_albedo;     // rgb: diffuse reflectance; a: 1 (covered)
 
 void main() {
@@ -35,6 +36,6 @@ void main() {
     vec2 material = u_use_gloss_map ? texture(u_gloss_map, v_uv).rg : v_material;
     o_position = vec4(v_ws_position, material.x);
     o_normal = vec4(n, material.y);
-    o_geometric = vec4(geometric, 1.0);
+    o_geometric = vec4(geometric, u_shadow_group);
     o_albedo = vec4(albedo, 1.0);
 }

@@ -69,28 +69,51 @@ const float PI = 3.14159265358979;
 
 float linstep(float lo, float hi, float x) { return clamp((x - lo) / (hi - lo), 0.0, 1.0); }
 
-// Chebyshev's one-tailed inequality on the blurred depth moments (Donnelly & Lauritzen 2006).
+// Chebyshev's one-tailed inequality on blurred depth moments m at receiver depth t (Donnelly &
+// Lauritzen 2006), with a least variance.
+float chebyshev(vec2 m, float t, float least_variance) {
+    if (t <= m.x) return 1.0;
+    float variance = max(m.y - m.x * m.x, least_variance);
+    float d = t - m.x;
+    return linstep(u_bleed_reduction, 1.0, variance / (variance + d * d));
+}
+
+// The pixel's shadow group (gbuffer.frag, renderer/scene.py): 0 or 1, SHADOW_GROUPS if it casts nothing.
+const int SHADOW_GROUPS = 2;
+int g_shadow_group = 0;
+
+// VIS_i from the light's variance shadow map: the smaller of the receiver's own group's visibility
+// and the other group's. Against its own group a surface needs a bias not to shadow itself (the
+// lookup pushed off it along n, a floor on the depths' deviation); against the other group it does
+// not (it is not in that group's map), so a garment shadows the body under it however small the gap.
 float visibility(int i, vec3 ws_pos, vec3 n, bool sharp) {
     float layer = lights[i].shadow.x;
     if (layer < 0.0) return 1.0;   // no shadow map: the PEM is added unshadowed
-    // The normal offset is in the light's own texels (a sharp map's are smaller).
-    float offset = (sharp ? u_sharp_normal_offset_texels : u_normal_offset_texels) * lights[i].shadow.z;
-    vec4 p = lights[i].view_proj * vec4(ws_pos + offset * n, 1.0);
-    vec2 uv = p.xy * 0.5 + 0.5;
-    if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
-    vec2 m = sharp ? texture(u_moments_sharp, vec3(uv, layer)).xy : texture(u_moments, vec3(uv, layer)).xy;
+    // The receiver's own group at the point pushed off the surface along n, by an offset in the
+    // light's own texels (a sharp map's are smaller); the other group at the surface itself.
+    float offset = g_shadow_group < SHADOW_GROUPS
+        ? (sharp ? u_sharp_normal_offset_texels : u_normal_offset_texels) * lights[i].shadow.z : 0.0;
+    vec4 p0 = lights[i].view_proj * vec4(ws_pos, 1.0);
+    vec4 p = p0 + offset * (lights[i].view_proj * vec4(n, 0.0));
+    vec2 uv = p.xy * 0.5 + 0.5, uv0 = p0.xy * 0.5 + 0.5;
+    // Outside the map nothing casts (the map is fitted to the casters).
+    bool in_map = all(greaterThanEqual(uv, vec2(0.0))) && all(lessThanEqual(uv, vec2(1.0)));
+    bool in_map0 = all(greaterThanEqual(uv0, vec2(0.0))) && all(lessThanEqual(uv0, vec2(1.0)));
+    vec4 far = vec4(1.0);
+    vec4 m = !in_map ? far : sharp ? texture(u_moments_sharp, vec3(uv, layer)) : texture(u_moments, vec3(uv, layer));
+    vec4 m0 = offset == 0.0 ? m : !in_map0 ? far
+        : sharp ? texture(u_moments_sharp, vec3(uv0, layer)) : texture(u_moments, vec3(uv0, layer));
     // A receiver behind every caster (beyond the far plane, e.g. a floor that casts nothing) is compared
     // at the far plane: lit where no caster is, shadowed where one is.
-    float t = min(p.z, 1.0);
-    if (t <= m.x) return 1.0;
+    float t = min(p.z, 1.0), t0 = min(p0.z, 1.0);
     // The depths under one texel spread by about a texel where the surface slopes: a floor on the
     // deviation, in the light's own texels, keeps a surface from shadowing itself.
     float floor_sigma = u_min_sigma_texels * lights[i].params.y;
     // 1e-7: float32's cancellation in m.y - m.x^2 (depths in [0, 1]), the floor when the knob is 0.
-    float variance = max(m.y - m.x * m.x, max(floor_sigma * floor_sigma, 1e-7));
-    float d = t - m.x;
-    float p_max = variance / (variance + d * d);
-    return linstep(u_bleed_reduction, 1.0, p_max);
+    float own_floor = max(floor_sigma * floor_sigma, 1e-7);
+    if (g_shadow_group == 0) return min(chebyshev(m.xy, t, own_floor), chebyshev(m0.zw, t0, 1e-7));
+    if (g_shadow_group == 1) return min(chebyshev(m.zw, t, own_floor), chebyshev(m0.xy, t0, 1e-7));
+    return min(chebyshev(m0.xy, t0, 1e-7), chebyshev(m0.zw, t0, 1e-7));
 }
 
 #ifdef CONTACT_SHADOWS
@@ -446,7 +469,9 @@ void main() {
     vec4 g_nrm = texelFetch(u_g_normal, px, 0);
     vec3 ws_position = g_pos.xyz;
     vec3 n = g_nrm.xyz;
-    g_geometric_normal = texelFetch(u_g_geometric, px, 0).xyz;
+    vec4 g_geo = texelFetch(u_g_geometric, px, 0);
+    g_geometric_normal = g_geo.xyz;
+    g_shadow_group = int(g_geo.w + 0.5);
     vec3 albedo = texelFetch(u_g_albedo, px, 0).rgb;
     vec2 material = vec2(g_pos.w, g_nrm.w);
     vec3 to_eye = normalize(u_camera_pos - ws_position);

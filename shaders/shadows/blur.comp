@@ -11,8 +11,8 @@ layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 
 #include "common/lights.glsl"
 layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
-layout(binding = 1, rg32f) readonly uniform image2DArray u_src;
-layout(binding = 2, rg32f) writeonly uniform image2DArray o_dst;
+layout(binding = 1, rgba32f) readonly uniform image2DArray u_src;
+layout(binding = 2, rgba32f) writeonly uniform image2DArray o_dst;
 
 uniform ivec2 u_axis;          // (1, 0): filter along rows; (0, 1): along columns
 uniform int u_first_light;
@@ -35,13 +35,13 @@ void main() {
     // them six times cost most of the blur stage: at blur scale 0.1 about 3 of 4 lights have r = 0).
     if (r <= 0) return;
     // Clamp-to-edge running sum of width 2r + 1 (light-space borders hold empty, unoccluded texels).
-    vec2 sum = vec2(0.0);
-    for (int k = -r; k <= r; ++k) sum += imageLoad(u_src, ivec3(origin + clamp(k, 0, length - 1) * u_axis, layer)).xy;
+    vec4 sum = vec4(0.0);
+    for (int k = -r; k <= r; ++k) sum += imageLoad(u_src, ivec3(origin + clamp(k, 0, length - 1) * u_axis, layer));
     float inv_width = 1.0 / float(2 * r + 1);
     for (int i = 0; i < length; ++i) {
-        imageStore(o_dst, ivec3(origin + i * u_axis, layer), vec4(sum * inv_width, 0.0, 0.0));
+        imageStore(o_dst, ivec3(origin + i * u_axis, layer), sum * inv_width);
         int add = min(i + r + 1, length - 1);
         int sub = max(i - r, 0);
-        sum += imageLoad(u_src, ivec3(origin + add * u_axis, layer)).xy - imageLoad(u_src, ivec3(origin + sub * u_axis, layer)).xy;
+        sum += imageLoad(u_src, ivec3(origin + add * u_axis, layer)) - imageLoad(u_src, ivec3(origin + sub * u_axis, layer));
     }
 }
