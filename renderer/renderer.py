@@ -90,7 +90,9 @@ class FrameSettings:
     bleed_reduction: float = 0.2
     # Shadow-map bias, in each map's own texels: the lookup pushed off the surface along the normal
     # (main maps, sharp maps), and the least deviation of the depths under a texel (Chebyshev's
-    # variance floor). Chosen on the benchmark scenes (docs/benchmarks.md, the bias rows).
+    # variance floor). Chosen on the benchmark scenes (docs/benchmarks.md, the bias rows). Only
+    # against the receiver's own shadow group (renderer/scene.py): the other group's casters are
+    # compared without it.
     normal_offset_texels: float = 1.5
     sharp_normal_offset_texels: float = 2.0
     min_sigma_texels: float = 3.0
