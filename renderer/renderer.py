@@ -536,6 +536,9 @@ class Renderer:
         # would make penumbrae anisotropic (a side run fitting x and y separately gained 0-2.5 %).
         vp = fit_light_view_projs(shadow_dirs, lo, hi, sigma, sizes, scene.footprint_unit,
                                   scene.visible_bounds(view_proj))
+        # The texels of maps over all the casters: the contact search's unit, so that its distance in
+        # the scene does not follow the camera (a closer view, finer maps, the same search).
+        scene_texels = texel_sizes(fit_light_view_projs(shadow_dirs, lo, hi, sigma, sizes, scene.footprint_unit), sizes)
         # Lights sharing a map look it up through the projection it was drawn with (its first light's:
         # with a blur the fit's margin follows each light's own width).
         sharp_layer = plan.layer[plan.sharp]
@@ -634,10 +637,12 @@ class Renderer:
                                          contact, discs)
             contact_radius = 0.0
             if "u_contact_radius" in p:
-                # In main-map texels (the maps whose bias hides the contact), else the sharp maps'.
+                # In main-map texels (the maps whose bias hides the contact), else the sharp maps', of
+                # maps over all the casters (scene_texels).
                 shadowed = layers >= 0
                 main = shadowed & ~plan.sharp
-                contact_radius = settings.contact_shadow_texels * float(np.median(texels[main if main.any() else shadowed, 0]))
+                contact_radius = settings.contact_shadow_texels * float(
+                    np.median(scene_texels[main if main.any() else shadowed, 0]))
                 p["u_contact_radius"] = contact_radius
                 p["u_contact_thickness"] = CONTACT_THICKNESS * contact_radius
                 p["u_view_proj"].write(vp_bytes)

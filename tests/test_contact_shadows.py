@@ -24,10 +24,10 @@ from renderer.shading.material import Material
 # 64^2 map over the floor in view, 3-5 cm) lifts every lookup out of.
 H, ELEVATION = 0.03, np.radians(25.0)
 CAM = Camera((0.6, 0.5, 0.0), (0.0, 0.0, 0.0), fov_y_deg=40.0)
-# 5 texels of the 64^2 maps, fitted to the view (renderer.scene.Scene.visible_bounds): 9 to 16 cm
-# across these views, about the distance the presets search on the dress form (its eight steps a
-# direction are spread over the radius: a much larger one steps over a 3 cm gap).
-RADIUS = 5.0
+# 3 texels of 64^2 maps over all the casters (the search's unit, whatever part the camera frames):
+# about 14 cm, the distance the presets search on the dress form (its eight steps a direction are
+# spread over the radius: a much larger one steps over a 3 cm gap).
+RADIUS = 3.0
 # The search depends on the view: the edge seen from 40 degrees to the side, and from higher up.
 SIDE = Camera((0.46, 0.5, 0.39), (0.0, 0.0, 0.0), fov_y_deg=40.0)
 HIGH = Camera((0.5, 0.8, 0.0), (0.15, 0.0, 0.0), fov_y_deg=40.0)

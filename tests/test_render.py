@@ -461,10 +461,22 @@ def test_maps_are_fitted_to_what_the_camera_sees(renderer):
         pems.release()
     assert near.timings["shadow_texel"] < 0.6 * wide.timings["shadow_texel"]
     assert wide.timings["shadow_texel"] > 4.0 / 256
+    # The contact search keeps its distance in the scene: its unit is a texel of maps over all the casters.
+    assert near.settings["contact_radius"] == pytest.approx(wide.settings["contact_radius"]) > 0.0
     lum = below.image[..., :3].mean(axis=-1)
     dark = lum < 0.2 * np.median(lum[covered(below)])
     # The shadow: an ellipse of the floor about the image's centre (measured 38 pixels), nothing else.
     assert np.isfinite(below.image).all() and dark[24:40, 16:48].sum() > 20 and dark[covered(below)].mean() < 0.05
+
+
+def test_shadow_groups_put_the_first_caster_apart():
+    from renderer.scene import RECEIVER_ONLY, shadow_groups
+
+    # A garment and its body; a floor that casts nothing; a second garment goes with the body.
+    assert shadow_groups([True, True]) == [0, 1]
+    assert shadow_groups([True]) == [0]
+    assert shadow_groups([False, True, True, True]) == [RECEIVER_ONLY, 0, 1, 1]
+    assert shadow_groups([True, False]) == [0, RECEIVER_ONLY]
 
 
 def test_the_box_in_view_is_the_frustum_cut_of_a_box():

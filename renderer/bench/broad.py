@@ -213,6 +213,8 @@ def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, truth
 # from the scenes it was chosen on (the report's knob table; a knob that does not pay there goes).
 KNOB_VARIANTS = {
     "lights=96": {"lights": 96},
+    "shadow_size=512": {"shadow_size": 512},
+    "min_sigma_texels=2": {"min_sigma_texels": 2.0},
     "caster_detail=1": {"caster_detail": 1.0},
     "sub_lights=1": {"sub_lights": 1},
     "small_light_scale=1": {"small_light_scale": 1},
