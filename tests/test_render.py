@@ -462,7 +462,8 @@ def test_maps_are_fitted_to_what_the_camera_sees(renderer):
     assert near.timings["shadow_texel"] < 0.6 * wide.timings["shadow_texel"]
     assert wide.timings["shadow_texel"] > 4.0 / 256
     # The contact search keeps its distance in the scene: its unit is a texel of maps over all the casters.
-    assert near.settings["contact_radius"] == pytest.approx(wide.settings["contact_radius"]) > 0.0
+    assert wide.settings["contact_radius"] > 0.0
+    assert near.settings["contact_radius"] == pytest.approx(wide.settings["contact_radius"])
     lum = below.image[..., :3].mean(axis=-1)
     dark = lum < 0.2 * np.median(lum[covered(below)])
     # The shadow: an ellipse of the floor about the image's centre (measured 38 pixels), nothing else.
