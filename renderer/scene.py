@@ -305,6 +305,10 @@ class Scene:
             clipped = box_in_frustum(*sm.box, view_proj)
             if clipped is None:
                 continue
+            if np.allclose(clipped[0], sm.box[0]) and np.allclose(clipped[1], sm.box[1]):
+                los.append(clipped[0])   # all in view: no vertex to leave out
+                his.append(clipped[1])
+                continue
             p = np.asarray(sm.positions, np.float64)
             inside = (p @ planes[:, :3].T + planes[:, 3] >= -sm.reach).all(axis=1)
             if inside.any():
