@@ -25,8 +25,6 @@ from .lights import MAX_BLUR_RADIUS
 LAYERS_PER_BATCH = 64
 # Bytes per texel and layer: two groups' (z, z^2), float32 (RGBA32F).
 MOMENT_BYTES = 16
-# The channels each shadow group's casters write (renderer/scene.py): xy group 0, zw group 1.
-GROUP_MASKS = ((True, True, False, False), (False, False, True, True))
 
 
 class ShadowMaps:
@@ -97,13 +95,8 @@ class ShadowMaps:
                     for vaos, which in passes:
                         self.prog["u_detail_pass"].value = which
                         for vao, group in vaos:
-                            # Only the group's own pair is written (the other two channels are left
-                            # to the blend unit untouched).
-                            self.fbo.color_mask = GROUP_MASKS[group]
-                            self.fbo.use()   # moderngl applies a framebuffer's mask when it is bound
+                            self.prog["u_group"].value = group
                             vao.render(moderngl.TRIANGLES, instances=count)
-                    self.fbo.color_mask = (True, True, True, True)   # the next clear writes all four
-                    self.fbo.use()
                     ctx.blend_equation = moderngl.FUNC_ADD
                     ctx.disable(moderngl.BLEND)
             if blur:

@@ -4,12 +4,13 @@
 // are the smallest because depth >= 0; the other group's pair is written as the cleared far plane),
 // which replaces a depth buffer that moderngl cannot attach in layered form.
 in float v_depth;
-out vec4 o_moments;   // the pair of the caster's group is kept by the colour mask (shadows/vsm.py)
+uniform int u_group;   // 0 or 1: which pair this caster's moments go to
+out vec4 o_moments;
 
 void main() {
     float z = clamp(v_depth, 0.0, 1.0);
     // Second moment with the derivative term of Donnelly & Lauritzen (sec. 3.1) against acne on slopes.
     float dx = dFdx(z), dy = dFdy(z);
     vec2 m = vec2(z, z * z + 0.25 * (dx * dx + dy * dy));
-    o_moments = vec4(m, m);
+    o_moments = u_group == 0 ? vec4(m, 1.0, 1.0) : vec4(1.0, 1.0, m);
 }
