@@ -441,14 +441,14 @@ class Renderer:
         materials = materials or [Material() for _ in meshes]
         return Scene(self.gl, meshes, materials, self._programs, casters, proxies)
 
-    def _shadow_maps_for(self, which: str, size: int, n_lights: int) -> ShadowMaps:
-        """The main ("main") or small lights' ("sharp") shadow-map array, re-made only when its size
-        or layer count changes."""
+    def _shadow_maps_for(self, which: str, size: int, n_lights: int, groups: int) -> ShadowMaps:
+        """The main ("main") or small lights' ("sharp") shadow-map array, re-made only when its size,
+        layer count or shadow groups change."""
         sm = self._shadow_maps.get(which)
-        if sm is None or sm.size != size or sm.n_lights != n_lights:
+        if sm is None or sm.size != size or sm.n_lights != n_lights or sm.groups != groups:
             if sm is not None:
                 sm.release()
-            sm = self._shadow_maps[which] = ShadowMaps(self.gl, size, n_lights, self._shadow_prog)
+            sm = self._shadow_maps[which] = ShadowMaps(self.gl, size, n_lights, self._shadow_prog, groups)
         return sm
 
     def _target_for(self, w: int, h: int) -> tuple[moderngl.Framebuffer, moderngl.Framebuffer, list[moderngl.Texture]]:
@@ -551,14 +551,15 @@ class Renderer:
         # The main array (casters at caster_detail; a proxy is made only when one is drawn: a large
         # mesh's takes seconds), then the small lights' array (casters at full detail).
         casters = [sm for sm in scene.meshes if sm.caster]
-        shadow_maps = self._shadow_maps_for("main", settings.shadow_size, max(len(plan.main_lights), 1))
+        groups = min(max(scene.shadow_groups, 1), 2)   # a scene that casts nothing keeps one (unused) pair
+        shadow_maps = self._shadow_maps_for("main", settings.shadow_size, max(len(plan.main_lights), 1), groups)
         arrays = {"main": shadow_maps}
         if len(plan.main_lights):
             shadow_maps.render([([(sm.shadow_vao(settings.caster_detail), sm.group) for sm in casters], -1)], lights_buf,
                                self._buffer("shadow_lights_main", plan.main_lights.tobytes()), timer, blur=blur)
         sharp_coarse = np.zeros(len(plan.sharp_lights), bool)
         if len(plan.sharp_lights):
-            arrays["sharp"] = self._shadow_maps_for("sharp", settings.shadow_size * k, len(plan.sharp_lights))
+            arrays["sharp"] = self._shadow_maps_for("sharp", settings.shadow_size * k, len(plan.sharp_lights), groups)
             # Each sharp map at full caster detail or, for a light with a larger disc, at caster_detail
             # (sharp_full_detail_deg): one pass per detail, each drawing only its own layers (-1: all).
             coarse_min_sin = float(np.sin(np.radians(settings.sharp_full_detail_deg)))
@@ -663,6 +664,7 @@ class Renderer:
             _set_uniform(p, "u_n_lights", n)
             _set_uniform(p, "u_diffuse_level", pems.lookup_level(pems.diffuse_level(settings.calibration)))
             _set_uniform(p, "u_min_sigma_texels", settings.min_sigma_texels)
+            _set_uniform(p, "u_two_groups", groups == 2)
             _set_uniform(p, "u_normal_offset_texels", settings.normal_offset_texels)
             _set_uniform(p, "u_sharp_normal_offset_texels", settings.sharp_normal_offset_texels)
             _set_uniform(p, "u_bleed_reduction", settings.bleed_reduction)

@@ -256,6 +256,8 @@ class Scene:
             for k, (m, mat, c) in enumerate(zip(meshes, materials, casters)):
                 given = {d: faces[k] for d, faces in (proxies or {}).items() if faces[k] is not None}
                 self.meshes.append(SceneMesh(gl, m, mat, programs, c, given, groups[k]))
+            # How many shadow groups cast (0-2): one casting mesh needs one pair of moments a texel.
+            self.shadow_groups = len({sm.group for sm in self.meshes if sm.caster})
             # The glossiest lookup any pixel can make (Material.max_glossiness; 0: no glossy lobe).
             self.max_glossiness = max(mat.max_glossiness() for mat in materials)
             # Whether any pixel can have a glossy lobe at all (False: a diffuse-only scene).

@@ -480,6 +480,32 @@ def test_shadow_groups_put_the_first_caster_apart():
     assert shadow_groups([True, False]) == [0, RECEIVER_ONLY]
 
 
+def test_a_scene_with_one_caster_keeps_one_pair_of_moments(renderer):
+    # One casting mesh (a floor that casts nothing beside it): RG32F maps, half the memory of two
+    # groups' RGBA32F. A second caster hidden inside the ball (it shadows nothing that is seen, and
+    # leaves the casters' box as it was) makes two groups and the same image.
+    cube = sun_sky_cube(32, (1.0, 1.0, 0.3), sun_radiance=2e3, sun_radius_deg=3)
+    ball, ground = sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)
+    inner = sphere(0.1, centre=(0, 0.6, 0), subdivisions=2)
+    mats = [Material((0.8, 0.8, 0.8))] * 3
+    pems = renderer.build_pems(cube, PEMSettings(24))
+    one = renderer.create_scene([ball, ground], mats[:2], casters=[True, False])
+    two = renderer.create_scene([ball, ground, inner], mats, casters=[True, False, True])
+    try:
+        assert (one.shadow_groups, two.shadow_groups) == (1, 2)
+        fs = FrameSettings(64, 64, shadow_size=64, small_light_scale=1, background=Background.BLACK)
+        a = renderer.render(one, pems, fs, CAM)
+        assert renderer._shadow_maps["main"].groups == 1
+        b = renderer.render(two, pems, fs, CAM)
+        assert renderer._shadow_maps["main"].groups == 2
+    finally:
+        one.release()
+        two.release()
+        pems.release()
+    assert b.settings["shadow_bytes"] == 2 * a.settings["shadow_bytes"]
+    np.testing.assert_allclose(a.image, b.image, rtol=1e-4, atol=1e-6)
+
+
 def test_the_box_in_view_is_the_frustum_cut_of_a_box():
     from renderer.scene import box_in_frustum
 

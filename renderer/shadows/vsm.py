@@ -23,22 +23,28 @@ from .lights import MAX_BLUR_RADIUS
 
 # Layers per instanced draw: bounds the layered framebuffer (GL_MAX_FRAMEBUFFER_LAYERS >= 2048).
 LAYERS_PER_BATCH = 64
-# Bytes per texel and layer: two groups' (z, z^2), float32 (RGBA32F).
-MOMENT_BYTES = 16
+# Bytes per texel, layer and shadow group: (z, z^2) as float32 (RG32F for one group, RGBA32F for two).
+GROUP_MOMENT_BYTES = 8
+# ... of a scene with two groups (the most a map holds).
+MOMENT_BYTES = 2 * GROUP_MOMENT_BYTES
 
 
 class ShadowMaps:
     """GPU state of the shadow pass for a fixed shadow-map size and light count."""
 
-    def __init__(self, gl: GLContext, size: int, n_lights: int, moments_prog: moderngl.Program):
-        """n_lights: the number of shadow-map layers (lights that have a shadow map)."""
+    def __init__(self, gl: GLContext, size: int, n_lights: int, moments_prog: moderngl.Program, groups: int = 2):
+        """n_lights: the number of shadow-map layers (lights that have a shadow map); groups: the
+        shadow groups that cast (1: RG32F moments, 2: RGBA32F)."""
         """`moments_prog` (shadows/moments.vert + .frag) is the caller's: the casters' vertex arrays use it."""
         gl.check_thread()
         if size < 16 or size > 8192:
             raise InvalidInputError(f"shadow-map size must be in [16, 8192], got {size}")
-        self.gl, self.size, self.n_lights = gl, size, n_lights
+        if groups not in (1, 2):
+            raise InvalidInputError(f"a shadow map holds one or two shadow groups, got {groups}")
+        self.gl, self.size, self.n_lights, self.groups = gl, size, n_lights, groups
         ctx = gl.ctx
-        self.moments = ctx.texture_array((size, size, n_lights), 4, dtype="f4")
+        comps = 2 * groups
+        self.moments = ctx.texture_array((size, size, n_lights), comps, dtype="f4")
         self.moments.filter = (moderngl.LINEAR, moderngl.LINEAR)
         self.moments.repeat_x = self.moments.repeat_y = False
         # The blur's ping-pong array, made by a frame that blurs and given back by one that does not
@@ -49,11 +55,12 @@ class ShadowMaps:
         # instead each batch renders into a batch-sized array that is then blurred into place.
         self.batch_layers = min(n_lights, LAYERS_PER_BATCH)
         self.target = (self.moments if n_lights <= LAYERS_PER_BATCH
-                       else ctx.texture_array((size, size, self.batch_layers), 4, dtype="f4"))
+                       else ctx.texture_array((size, size, self.batch_layers), comps, dtype="f4"))
         self.fbo = ctx.framebuffer(color_attachments=[self.target])
         self.prog = moments_prog
-        self.blur = compute_shader(ctx, "shadows/blur.comp")
-        self.copy = compute_shader(ctx, "shadows/copy_layers.comp") if self.target is not self.moments else None
+        fmt = {"MOMENT_FORMAT": "rgba32f" if groups == 2 else "rg32f"}
+        self.blur = compute_shader(ctx, "shadows/blur.comp", fmt)
+        self.copy = compute_shader(ctx, "shadows/copy_layers.comp", fmt) if self.target is not self.moments else None
 
     @property
     def nbytes(self) -> int:
@@ -61,7 +68,7 @@ class ShadowMaps:
         # need more than one draw
         layers = (self.n_lights + (0 if self.scratch is None else self.batch_layers)
                   + (0 if self.target is self.moments else self.batch_layers))
-        return self.size * self.size * MOMENT_BYTES * layers
+        return self.size * self.size * GROUP_MOMENT_BYTES * self.groups * layers
 
     def render(self, passes: list[tuple[list[tuple[moderngl.VertexArray, int]], int]], lights_buffer: moderngl.Buffer,
                shadow_lights_buffer: moderngl.Buffer, timer: StageTimer | None = None, enabled: bool = True,
@@ -115,7 +122,7 @@ class ShadowMaps:
     def _blur_batch(self, first: int, count: int) -> None:
         ctx = self.gl.ctx
         if self.scratch is None:
-            self.scratch = ctx.texture_array((self.size, self.size, self.batch_layers), 4, dtype="f4")
+            self.scratch = ctx.texture_array((self.size, self.size, self.batch_layers), 2 * self.groups, dtype="f4")
         self.blur["u_first_light"].value = first
         self.blur["u_max_radius"].value = MAX_BLUR_RADIUS
         # Three box passes per axis, ping-ponging target <-> scratch: ends in target.
@@ -131,9 +138,10 @@ class ShadowMaps:
         ctx.memory_barrier()
 
     def read(self) -> np.ndarray:
-        """Blurred moments, float32 (n_lights, size, size, 4): group 0's (z, z^2), group 1's; row 0 is
-        the bottom of light space."""
-        return np.frombuffer(self.moments.read(), np.float32).reshape(self.n_lights, self.size, self.size, 4)
+        """Blurred moments, float32 (n_lights, size, size, 2 x groups): group 0's (z, z^2), then group
+        1's; row 0 is the bottom of light space."""
+        return np.frombuffer(self.moments.read(), np.float32).reshape(self.n_lights, self.size, self.size,
+                                                                       2 * self.groups)
 
     def release(self) -> None:
         for obj in {id(o): o for o in (self.fbo, self.target, self.moments, self.scratch) if o is not None}.values():

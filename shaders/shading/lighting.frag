@@ -81,6 +81,13 @@ float chebyshev(vec2 m, float t, float least_variance) {
 // The pixel's shadow group (gbuffer.frag, renderer/scene.py): 0 or 1, SHADOW_GROUPS if it casts nothing.
 const int SHADOW_GROUPS = 2;
 int g_shadow_group = 0;
+uniform bool u_two_groups;   // the maps hold both groups' moments (RGBA); else group 0's alone (RG)
+
+// A light's blurred moments at uv; outside the map nothing casts (it is fitted to the casters).
+vec4 moments(vec2 uv, float layer, bool sharp) {
+    if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return vec4(1.0);
+    return sharp ? texture(u_moments_sharp, vec3(uv, layer)) : texture(u_moments, vec3(uv, layer));
+}
 
 // VIS_i from the light's variance shadow map: the smaller of the receiver's own group's visibility
 // and the other group's. Against its own group a surface needs a bias not to shadow itself (the
@@ -91,29 +98,26 @@ float visibility(int i, vec3 ws_pos, vec3 n, bool sharp) {
     if (layer < 0.0) return 1.0;   // no shadow map: the PEM is added unshadowed
     // The receiver's own group at the point pushed off the surface along n, by an offset in the
     // light's own texels (a sharp map's are smaller); the other group at the surface itself.
-    float offset = g_shadow_group < SHADOW_GROUPS
-        ? (sharp ? u_sharp_normal_offset_texels : u_normal_offset_texels) * lights[i].shadow.z : 0.0;
+    bool receiver_only = g_shadow_group >= SHADOW_GROUPS;
+    float offset = receiver_only ? 0.0 : (sharp ? u_sharp_normal_offset_texels : u_normal_offset_texels) * lights[i].shadow.z;
     vec4 p0 = lights[i].view_proj * vec4(ws_pos, 1.0);
     vec4 p = p0 + offset * (lights[i].view_proj * vec4(n, 0.0));
-    vec2 uv = p.xy * 0.5 + 0.5, uv0 = p0.xy * 0.5 + 0.5;
-    // Outside the map nothing casts (the map is fitted to the casters).
-    bool in_map = all(greaterThanEqual(uv, vec2(0.0))) && all(lessThanEqual(uv, vec2(1.0)));
-    bool in_map0 = all(greaterThanEqual(uv0, vec2(0.0))) && all(lessThanEqual(uv0, vec2(1.0)));
-    vec4 far = vec4(1.0);
-    vec4 m = !in_map ? far : sharp ? texture(u_moments_sharp, vec3(uv, layer)) : texture(u_moments, vec3(uv, layer));
-    vec4 m0 = offset == 0.0 ? m : !in_map0 ? far
-        : sharp ? texture(u_moments_sharp, vec3(uv0, layer)) : texture(u_moments, vec3(uv0, layer));
     // A receiver behind every caster (beyond the far plane, e.g. a floor that casts nothing) is compared
     // at the far plane: lit where no caster is, shadowed where one is.
     float t = min(p.z, 1.0), t0 = min(p0.z, 1.0);
+    vec4 m = moments(p.xy * 0.5 + 0.5, layer, sharp);
+    if (receiver_only) {
+        float v = chebyshev(m.xy, t0, 1e-7);
+        return u_two_groups ? min(v, chebyshev(m.zw, t0, 1e-7)) : v;
+    }
     // The depths under one texel spread by about a texel where the surface slopes: a floor on the
     // deviation, in the light's own texels, keeps a surface from shadowing itself.
     float floor_sigma = u_min_sigma_texels * lights[i].params.y;
     // 1e-7: float32's cancellation in m.y - m.x^2 (depths in [0, 1]), the floor when the knob is 0.
-    float own_floor = max(floor_sigma * floor_sigma, 1e-7);
-    if (g_shadow_group == 0) return min(chebyshev(m.xy, t, own_floor), chebyshev(m0.zw, t0, 1e-7));
-    if (g_shadow_group == 1) return min(chebyshev(m.zw, t, own_floor), chebyshev(m0.xy, t0, 1e-7));
-    return min(chebyshev(m0.xy, t0, 1e-7), chebyshev(m0.zw, t0, 1e-7));
+    float own = chebyshev(g_shadow_group == 0 ? m.xy : m.zw, t, max(floor_sigma * floor_sigma, 1e-7));
+    if (!u_two_groups) return own;
+    vec4 m0 = moments(p0.xy * 0.5 + 0.5, layer, sharp);
+    return min(own, chebyshev(g_shadow_group == 0 ? m0.zw : m0.xy, t0, 1e-7));
 }
 
 #ifdef CONTACT_SHADOWS

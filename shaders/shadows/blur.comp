@@ -7,12 +7,13 @@
 // synthesis of Gaussian filters by cascaded uniform filters", IEEE PAMI 1986). Each box is a running
 // sum along a line, so the cost per texel does not grow with the width: one invocation per line.
 // Run for axis (1, 0) then (0, 1), three times each.
+// MOMENT_FORMAT (a #define, shadows/vsm.py): rg32f for one shadow group, rgba32f for two.
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 
 #include "common/lights.glsl"
 layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
-layout(binding = 1, rgba32f) readonly uniform image2DArray u_src;
-layout(binding = 2, rgba32f) writeonly uniform image2DArray o_dst;
+layout(binding = 1, MOMENT_FORMAT) readonly uniform image2DArray u_src;
+layout(binding = 2, MOMENT_FORMAT) writeonly uniform image2DArray o_dst;
 
 uniform ivec2 u_axis;          // (1, 0): filter along rows; (0, 1): along columns
 uniform int u_first_light;

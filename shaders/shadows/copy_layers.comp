@@ -1,8 +1,9 @@
 // Copies a batch of blurred moment layers into the full array at a layer offset (used when the
 // light count exceeds one layered draw).
+// MOMENT_FORMAT (a #define, shadows/vsm.py): rg32f for one shadow group, rgba32f for two.
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
-layout(binding = 1, rgba32f) readonly uniform image2DArray u_src;
-layout(binding = 2, rgba32f) writeonly uniform image2DArray o_dst;
+layout(binding = 1, MOMENT_FORMAT) readonly uniform image2DArray u_src;
+layout(binding = 2, MOMENT_FORMAT) writeonly uniform image2DArray o_dst;
 uniform int u_first_layer;
 
 void main() {
