@@ -127,7 +127,12 @@ def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path):
     only = [Scene("ennis.hdr", "shirt", "cotton", "three-quarter", 32), Scene("pisa.hdr", "polo", "satin", "front", 32)]
     cfg = broad.BroadConfig(frames=1, frames_small=1, spp_small=8, spp_large=8, workers=1, cache=str(tmp_path / "refs"))
     rows = broad.run_broad(tmp_path / "out", cfg, log=lambda *_: None, only=only)
-    assert len(rows) == 2 * 3 and {r.preset for r in rows} == set(catalogue.PRESETS)
+    # The held-out satin scene also runs balanced with each knob variant (KNOB_SMALL_FABRIC).
+    assert len(rows) == 2 * 3 + len(broad.KNOB_VARIANTS)
+    assert {r.preset for r in rows if ":" not in r.preset} == set(catalogue.PRESETS)
+    assert {r.preset.split(":")[1] for r in rows if ":" in r.preset} == set(broad.KNOB_VARIANTS)
+    assert all(r.scene == only[1].name for r in rows if ":" in r.preset)
+    rows = [r for r in rows if ":" not in r.preset]
     for r in rows:
         assert np.isfinite([r.rel_rmse, r.flip, r.artefact_share, r.background_rel_rmse, r.ref_noise_rel_rmse]).all()
         assert 0.5 < r.mean_ratio < 2.0 and r.frame_ms > 0
@@ -147,10 +152,14 @@ def test_the_knob_table_sets_each_variant_against_balanced_on_the_same_scenes():
         _row("a", "balanced", rel_rmse=0.10, frame_ms=100.0), _row("b", "balanced", rel_rmse=0.20, frame_ms=100.0),
         _row("a", "balanced:lights=96", rel_rmse=0.08, frame_ms=200.0),
         _row("b", "balanced:lights=96", rel_rmse=0.22, frame_ms=180.0),
-        _row("a", "balanced:sub_lights=1", size=128, rel_rmse=0.5))]
+        _row("a", "balanced:sub_lights=1", size=128, rel_rmse=0.5))]   # no balanced row at 128: none
     (t,) = broad.knob_table(rows)
-    assert (t["knob"], t["set"], t["scenes"], t["better"]) == ("lights=96", "held-out", 2, 1)
+    assert (t["knob"], t["size"], t["set"], t["scenes"], t["better"]) == ("lights=96", 256, "held-out", 2, 1)
     assert t["d_rel_rmse"] == pytest.approx(0.0) and t["time_ratio"] == pytest.approx(1.9)
     # Variants are rows of their own, never counted as presets.
     assert {m["preset"] for m in broad.target_misses([broad.BroadRow(**r) for r in rows])} == {"balanced"}
-    assert "| lights=96 | held-out | 2 |" in "\n".join(broad.knob_lines(rows))
+    assert "| lights=96 | 256 | held-out | 2 |" in "\n".join(broad.knob_lines(rows))
+    # The 128 x 128 satin scenes' variants make rows of their own size.
+    small = rows + [dataclasses.asdict(_row("a", "balanced", size=128, rel_rmse=0.3))]
+    assert [(t["knob"], t["size"], t["scenes"]) for t in broad.knob_table(small)] == [
+        ("lights=96", 256, 2), ("sub_lights=1", 128, 1)]
