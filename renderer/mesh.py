@@ -360,6 +360,14 @@ def box(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return columns.min(axis=1).astype(np.float64), columns.max(axis=1).astype(np.float64)
 
 
+def box_corners(lo, hi) -> np.ndarray:
+    """The eight corners (8, 3) float64 of box (lo, hi); corner k takes hi on x if bit 2 of k is set,
+    on y bit 1, on z bit 0 (corners k and k ^ 1, k ^ 2, k ^ 4 share an edge)."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    k = np.arange(8)[:, None]
+    return np.where((k >> np.array([2, 1, 0])) & 1, hi, lo)
+
+
 def bounds(meshes: Mesh | Iterable[Mesh]) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned box (lo, hi) around all vertices of one or several meshes: two float64 (3,)."""
     boxes = [box(m.positions) for m in _as_mesh_list(meshes)]

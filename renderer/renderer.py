@@ -536,9 +536,6 @@ class Renderer:
         # would make penumbrae anisotropic (a side run fitting x and y separately gained 0-2.5 %).
         vp = fit_light_view_projs(shadow_dirs, lo, hi, sigma, sizes, scene.footprint_unit,
                                   scene.visible_bounds(view_proj))
-        # The texels of maps over all the casters: the contact search's unit, so that its distance in
-        # the scene does not follow the camera (a closer view, finer maps, the same search).
-        scene_texels = texel_sizes(fit_light_view_projs(shadow_dirs, lo, hi, sigma, sizes, scene.footprint_unit), sizes)
         # Lights sharing a map look it up through the projection it was drawn with (its first light's:
         # with a blur the fit's margin follows each light's own width).
         sharp_layer = plan.layer[plan.sharp]
@@ -551,7 +548,7 @@ class Renderer:
         # The main array (casters at caster_detail; a proxy is made only when one is drawn: a large
         # mesh's takes seconds), then the small lights' array (casters at full detail).
         casters = [sm for sm in scene.meshes if sm.caster]
-        groups = min(max(scene.shadow_groups, 1), 2)   # a scene that casts nothing keeps one (unused) pair
+        groups = max(scene.shadow_groups, 1)   # a scene that casts nothing keeps one (unused) pair
         shadow_maps = self._shadow_maps_for("main", settings.shadow_size, max(len(plan.main_lights), 1), groups)
         arrays = {"main": shadow_maps}
         if len(plan.main_lights):
@@ -639,11 +636,14 @@ class Renderer:
             contact_radius = 0.0
             if "u_contact_radius" in p:
                 # In main-map texels (the maps whose bias hides the contact), else the sharp maps', of
-                # maps over all the casters (scene_texels).
+                # maps over all the casters, not the view: the search's distance in the scene does not
+                # follow the camera (a closer view, finer maps, the same search).
                 shadowed = layers >= 0
                 main = shadowed & ~plan.sharp
-                contact_radius = settings.contact_shadow_texels * float(
-                    np.median(scene_texels[main if main.any() else shadowed, 0]))
+                pick = main if main.any() else shadowed
+                scene_texels = texel_sizes(fit_light_view_projs(shadow_dirs[pick], lo, hi, sigma[pick], sizes[pick],
+                                                                scene.footprint_unit), sizes[pick])
+                contact_radius = settings.contact_shadow_texels * float(np.median(scene_texels[:, 0]))
                 p["u_contact_radius"] = contact_radius
                 p["u_contact_thickness"] = CONTACT_THICKNESS * contact_radius
                 p["u_view_proj"].write(vp_bytes)

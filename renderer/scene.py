@@ -9,7 +9,7 @@ import numpy as np
 
 from .errors import MeshError
 from .gpu.context import GLContext
-from .mesh import FALLBACK_NORMAL, Mesh, box, vertex_normals
+from .mesh import FALLBACK_NORMAL, Mesh, box, box_corners, vertex_normals
 from .shading.material import Material
 from .shadows.proxy import caster_proxy
 
@@ -18,7 +18,7 @@ from .shadows.proxy import caster_proxy
 # compares against its own group's pair with the bias that keeps a surface from shadowing itself and
 # against the other's without it. A mesh that casts nothing is in neither (RECEIVER_ONLY: no bias on both).
 SHADOW_GROUPS = 2
-RECEIVER_ONLY = 2
+RECEIVER_ONLY = SHADOW_GROUPS
 
 
 def shadow_groups(casters: list[bool]) -> list[int]:
@@ -44,40 +44,51 @@ def frustum_planes(view_proj: np.ndarray) -> np.ndarray | None:
     return planes / norms[:, None]
 
 
-_BOX_EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]   # 12
+# The 12 edges of a box or frustum by corner index (mesh.box_corners' order: corners one bit apart).
+_BOX_EDGES = np.array([(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1])
+
+
+def _frustum(view_proj: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """A frustum's planes (frustum_planes) and its eight corners in world space (box_corners' order
+    over NDC), or None for a degenerate matrix."""
+    planes = frustum_planes(view_proj)
+    if planes is None:
+        return None
+    try:
+        inv = np.linalg.inv(np.asarray(view_proj, np.float64))
+    except np.linalg.LinAlgError:
+        return None
+    f = np.c_[box_corners(-np.ones(3), np.ones(3)), np.ones(8)] @ inv.T
+    return planes, f[:, :3] / f[:, 3:]
 
 
 def box_in_frustum(lo, hi, view_proj: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """The axis-aligned box around the part of box (lo, hi) inside the frustum of `view_proj`, or
-    None if none is. The intersection is a convex polytope whose corners are the box's corners in
-    the frustum, the frustum's corners in the box, and where the edges of either cross the other's faces."""
-    planes = frustum_planes(view_proj)
-    if planes is None:
-        return None
+    None if none is."""
+    frustum = _frustum(view_proj)
+    return None if frustum is None else _clip_box(lo, hi, *frustum)
+
+
+def _clip_box(lo, hi, planes: np.ndarray, frustum: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """`box_in_frustum` with the frustum's planes and corners given. The intersection is a convex
+    polytope whose corners are the box's corners in the frustum, the frustum's corners in the box,
+    and where the edges of either cross the other's faces."""
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    size = float(np.linalg.norm(hi - lo))
-    tol = 1e-9 * max(size, 1.0)
-    box = np.array([[(lo, hi)[(k >> 2) & 1][0], (lo, hi)[(k >> 1) & 1][1], (lo, hi)[k & 1][2]] for k in range(8)])
-    ndc = np.array([[x, y, z, 1.0] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
-    try:
-        f = ndc @ np.linalg.inv(np.asarray(view_proj, np.float64)).T
-    except np.linalg.LinAlgError:
-        return None
-    frustum = f[:, :3] / f[:, 3:]
+    tol = 1e-9 * max(float(np.linalg.norm(hi - lo)), 1.0)
+    box = box_corners(lo, hi)
     in_frustum = lambda q: (q @ planes[:, :3].T + planes[:, 3] >= -tol).all(axis=1)
     in_box = lambda q: ((q >= lo - tol) & (q <= hi + tol)).all(axis=1)
     points = [box[in_frustum(box)], frustum[in_box(frustum)]]
     # Box edges against the frustum's planes.
-    a, b = box[[e[0] for e in _BOX_EDGES]], box[[e[1] for e in _BOX_EDGES]]
+    a, b = box[_BOX_EDGES[:, 0]], box[_BOX_EDGES[:, 1]]
     da, db = a @ planes[:, :3].T + planes[:, 3], b @ planes[:, :3].T + planes[:, 3]    # (12, 6)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = da / (da - db)
-    ok = np.isfinite(t) & (t >= 0.0) & (t <= 1.0)
-    edge, plane = np.nonzero(ok)
+    edge, plane = np.nonzero(np.isfinite(t) & (t >= 0.0) & (t <= 1.0))
     q = a[edge] + t[edge, plane][:, None] * (b - a)[edge]
     points.append(q[in_frustum(q)])
     # Frustum edges against the box's faces.
-    a, b = frustum[[e[0] for e in _BOX_EDGES]], frustum[[e[1] for e in _BOX_EDGES]]
+    a, b = frustum[_BOX_EDGES[:, 0]], frustum[_BOX_EDGES[:, 1]]
     for axis in range(3):
         for value in (lo[axis], hi[axis]):
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -294,28 +305,30 @@ class Scene:
 
     def visible_bounds(self, view_proj: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """The box of every mesh's vertices the camera (`view_proj`, world -> clip) can see, each
-        frustum plane moved out by the mesh's longest edge so that a triangle crossing the frame with
-        its corners outside still counts (None: nothing in view). What the shadow maps are fitted to
-        (shadows.lights.fit_light_view_projs' receivers)."""
-        planes = frustum_planes(view_proj)
-        if planes is None:
+        frustum plane moved out by the mesh's reach (twice its longest edge) so that a triangle
+        crossing the frame with its corners outside still counts (None: nothing in view). What the
+        shadow maps are fitted to (shadows.lights.fit_light_view_projs' receivers)."""
+        frustum = _frustum(view_proj)
+        if frustum is None:
             return None
+        planes = frustum[0]
         los, his = [], []
         for sm in self.meshes:
             # The part of the mesh's box in the frustum (a floor of two triangles), and within it the
             # box of the vertices in view (a body whose head and legs are out of the frame).
-            clipped = box_in_frustum(*sm.box, view_proj)
+            clipped = _clip_box(*sm.box, *frustum)
             if clipped is None:
                 continue
             if np.allclose(clipped[0], sm.box[0]) and np.allclose(clipped[1], sm.box[1]):
                 los.append(clipped[0])   # all in view: no vertex to leave out
                 his.append(clipped[1])
                 continue
-            p = np.asarray(sm.positions, np.float64)
+            p = np.asarray(sm.positions)
             inside = (p @ planes[:, :3].T + planes[:, 3] >= -sm.reach).all(axis=1)
             if inside.any():
-                los.append(np.maximum(p[inside].min(axis=0), clipped[0]))
-                his.append(np.minimum(p[inside].max(axis=0), clipped[1]))
+                seen = box(p[inside])
+                los.append(np.maximum(seen[0], clipped[0]))
+                his.append(np.minimum(seen[1], clipped[1]))
         if not los:
             return None
         return np.min(los, axis=0), np.max(his, axis=0)

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..mesh import box_corners
+
 # Mirror of `struct Light` in shaders/common/lights.glsl (std430; mat4 is column-major).
 LIGHT_DTYPE = np.dtype([
     ("view_proj", np.float32, (16,)),
@@ -150,8 +152,7 @@ MIN_DEPTH_TEXELS = 16.0
 
 def _box_in_light_space(basis: np.ndarray, lo, hi) -> tuple[np.ndarray, np.ndarray]:
     """Per light (basis (N, 3, 3)), the least and greatest light-space coordinates of a box's corners."""
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    ls = np.einsum("cj,nij->nci", corners, basis)                          # (N, 8, 3)
+    ls = np.einsum("cj,nij->nci", box_corners(lo, hi), basis)             # (N, 8, 3)
     return ls.min(axis=1), ls.max(axis=1)
 
 
