@@ -16,7 +16,6 @@ from .presets import frame_settings as presets_frame_settings
 from .presets import pem_settings as presets_pem_settings
 
 
-
 def _floats(n: int):
     def parse(text: str) -> tuple:
         try:

@@ -488,7 +488,7 @@ def _merge_obj_chunks(parts: list) -> tuple[np.ndarray, np.ndarray, np.ndarray |
     uvs = None
     if all(p[2] is not None for p in parts):
         uvs = np.full((len(longest), 2), np.nan)
-        for v, f, uv, _ in parts:
+        for _, f, uv, _ in parts:
             used = np.unique(f)
             uvs[used] = uv[used]
         if np.isnan(uvs[np.unique(faces)]).any():

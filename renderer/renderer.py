@@ -21,15 +21,25 @@ from .errors import InvalidInputError
 from .gpu.context import GLContext, StageTimer
 from .gpu.shaders import compute_shader, program
 from .lighting.glossiness import Calibration
-from .lighting.sh import irradiance_coefficients
 from .lighting.pem import REGIONS_PER_TEXTURE, PEMSet, PEMSettings
+from .lighting.sh import irradiance_coefficients
 from .mesh import Mesh
 from .scene import Scene
 from .shading.background import BackgroundMap
-from .shading.horizon import N_G as HORIZON_N_G, N_MU as HORIZON_N_MU, horizon_table
+from .shading.horizon import N_G as HORIZON_N_G
+from .shading.horizon import N_MU as HORIZON_N_MU
+from .shading.horizon import horizon_table
 from .shading.material import Material
-from .shadows.lights import (SMALL_LIGHT_MAX_SIN, blur_sigma_texels, fit_light_view_projs, pack_lights, plan_layers,
-                             shadow_layers, share_sharp_maps, texel_sizes)
+from .shadows.lights import (
+    SMALL_LIGHT_MAX_SIN,
+    blur_sigma_texels,
+    fit_light_view_projs,
+    pack_lights,
+    plan_layers,
+    shadow_layers,
+    share_sharp_maps,
+    texel_sizes,
+)
 from .shadows.vsm import ShadowMaps
 
 

@@ -13,7 +13,6 @@ from .mesh import FALLBACK_NORMAL, Mesh, box, box_corners, vertex_normals
 from .shading.material import Material
 from .shadows.proxy import caster_proxy
 
-
 # Shadow groups (Scene): each caster's moments go to its group's pair of the shadow maps; a receiver
 # compares against its own group's pair with the bias that keeps a surface from shadowing itself and
 # against the other's without it. A mesh that casts nothing is in neither (RECEIVER_ONLY: no bias on both).
@@ -76,8 +75,13 @@ def _clip_box(lo, hi, planes: np.ndarray, frustum: np.ndarray) -> tuple[np.ndarr
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     tol = 1e-9 * max(float(np.linalg.norm(hi - lo)), 1.0)
     box = box_corners(lo, hi)
-    in_frustum = lambda q: (q @ planes[:, :3].T + planes[:, 3] >= -tol).all(axis=1)
-    in_box = lambda q: ((q >= lo - tol) & (q <= hi + tol)).all(axis=1)
+
+    def in_frustum(q):
+        return (q @ planes[:, :3].T + planes[:, 3] >= -tol).all(axis=1)
+
+    def in_box(q):
+        return ((q >= lo - tol) & (q <= hi + tol)).all(axis=1)
+
     points = [box[in_frustum(box)], frustum[in_box(frustum)]]
     # Box edges against the frustum's planes.
     a, b = box[_BOX_EDGES[:, 0]], box[_BOX_EDGES[:, 1]]

@@ -24,9 +24,9 @@ from renderer.presets import presets as renderer_presets
 from .errors import install_error_handlers
 from .limits import BodyLimitMiddleware
 from .metrics import ServiceMetrics
+from .operations import Services
 from .registry import EnvironmentStore, MeshStore, SceneStore
 from .routes import environments, frames, health, meshes, scenes, viewer
-from .operations import Services
 from .settings import ServiceSettings
 from .state import StateDir
 from .worker import GLResources, RenderWorker

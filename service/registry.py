@@ -18,11 +18,10 @@ from renderer.envmap.io import TexelReport
 from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
 from renderer.renderer import FrameSettings
-from renderer.shading.background import background_face_size
 from renderer.scene import Scene
+from renderer.shading.background import background_face_size
 
 from .errors import ConflictError, NotFoundError
-
 
 # -- environments --------------------------------------------------------------------------------
 

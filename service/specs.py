@@ -9,21 +9,20 @@ from dataclasses import dataclass
 import numpy as np
 
 from renderer.camera import Camera, frame_meshes
+from renderer.errors import MeshError
 from renderer.lighting.median_cut import regions_per_face
 from renderer.lighting.pem import PEMSettings
-from renderer.errors import MeshError
 from renderer.mesh import Mesh, z_up_to_y_up
 from renderer.presets import PRESET_KNOBS, base_knobs, frame_settings, knob_defaults, merge_knobs, pem_settings
 from renderer.renderer import Background, FrameSettings, ShadingMode
-from renderer.shadows.vsm import MOMENT_BYTES
 from renderer.shading.material import Material
 from renderer.shadows.proxy import caster_proxy_isolated
+from renderer.shadows.vsm import MOMENT_BYTES
 
 from .errors import InvalidRequestError, PayloadTooLargeError
 from .registry import MeshStore
 from .schemas import CameraSpec, MaterialSpec, MeshSpec, OutputSpec, QualitySpec, SceneCreate
 from .settings import ServiceSettings
-
 
 _KNOBS = (*PRESET_KNOBS, *knob_defaults())
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import plane, sphere, sun_sky_cube
+
 from renderer import presets as presets_mod
 from renderer.camera import Camera
 from renderer.reference import render_reference

@@ -5,16 +5,21 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import HDRI, sphere
+
 from renderer.camera import Camera
 from renderer.envmap import environment_from_array, read_hdr_image
 from renderer.errors import InvalidInputError
 from renderer.lighting.pem import PEMSettings
 from renderer.reference import relative_rmse
 from renderer.renderer import FrameSettings
-from renderer.shading.background import (BACKGROUND_FACE_MAX, HALF_MAX, BackgroundMap, background_face_size,
-                                         background_truth)
+from renderer.shading.background import (
+    BACKGROUND_FACE_MAX,
+    HALF_MAX,
+    BackgroundMap,
+    background_face_size,
+    background_truth,
+)
 
 SIZE = 128
 # Looking into the map, nothing of the scene in view (a tiny sphere far off).

@@ -54,6 +54,7 @@ def test_speed_times_every_variant_side_by_side(tmp_path):
 
 def test_speed_times_the_gpu_targets_large_scene(tmp_path):
     from conftest import asset
+
     from renderer.bench.speed import markdown, run_speed
     from renderer.errors import InvalidInputError
 
@@ -100,6 +101,7 @@ def test_error_split_accounts_for_the_whole_error(tmp_path):
 
 def test_the_assets_folder_can_be_named(monkeypatch, tmp_path):
     from conftest import asset
+
     from renderer.bench import scenes
 
     real = asset("sim", "newton_shirt_drape_f060.obj").parents[1]
@@ -114,6 +116,7 @@ def test_the_assets_folder_can_be_named(monkeypatch, tmp_path):
 
 def test_speed_large_equal_error_sets_each_setting_against_a_reference_ladder():
     from conftest import asset
+
     from renderer.bench.speed import run_speed
 
     asset("sim", "newton_shirt_drape_f060.obj")

@@ -8,8 +8,8 @@ import json
 
 import numpy as np
 import pytest
-
 from conftest import HDRI, needs_assets
+
 from renderer.bench import broad, catalogue
 from renderer.bench.catalogue import MAPS, Scene, fit_body_inside, scenes, split
 from renderer.bench.scenes import TARGET_PROBES

@@ -1,10 +1,9 @@
 import numpy as np
+from conftest import sun_sky_cube
 
 from renderer.cache import PEMCache, cache_key
 from renderer.lighting.filters import Filter
 from renderer.lighting.pem import PEMSettings
-
-from conftest import sun_sky_cube
 
 
 def _cube(seed):

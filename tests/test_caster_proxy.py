@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from conftest import plane, sphere, sun_sky_cube
 
-from conftest import sphere, plane, sun_sky_cube
 from renderer.camera import Camera
 from renderer.errors import InvalidInputError
 from renderer.lighting.pem import PEMSettings

@@ -7,8 +7,9 @@ import dataclasses
 
 import numpy as np
 import pytest
+from conftest import CAM as FRONT
+from conftest import covered, plane, sphere, sun_sky_cube
 
-from conftest import CAM as FRONT, covered, plane, sphere, sun_sky_cube
 from renderer.camera import Camera
 from renderer.cli import build_parser, resolve_quality
 from renderer.errors import InvalidInputError

@@ -3,8 +3,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from renderer.envmap.cube import (cube_solid_angles, dir_to_face_uv, dir_to_texel, face_uv_to_dir,
-                                  neighbour_texel, sample_bilinear, texel_directions)
+from renderer.envmap.cube import (
+    cube_solid_angles,
+    dir_to_face_uv,
+    dir_to_texel,
+    face_uv_to_dir,
+    neighbour_texel,
+    sample_bilinear,
+    texel_directions,
+)
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 16, 128, 1024])

@@ -30,7 +30,6 @@ import httpx
 import numpy as np
 import pytest
 from PIL import Image
-
 from service_server import environment_bytes, free_port, garment, scene_body
 
 yaml = pytest.importorskip("yaml", reason="PyYAML parses docker/compose.yaml (pip install -e '.[test]')")

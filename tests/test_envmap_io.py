@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 import pytest
+from conftest import HDRI, needs_assets
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -23,8 +24,6 @@ from renderer.envmap import (
     write_exr,
 )
 from renderer.errors import EnvironmentMapError, InvalidInputError
-
-from conftest import HDRI, needs_assets
 
 # (file, height, width, has negative texels) from shared/assets/MANIFEST.md
 ASSETS = [

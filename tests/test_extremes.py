@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from conftest import sun_sky_cube
 
 from renderer.envmap import environment_from_array
 from renderer.errors import EnvironmentMapError, MeshError
@@ -10,8 +11,6 @@ from renderer.mesh import Mesh
 from renderer.procedural import ground_plane, uv_sphere
 from renderer.renderer import Background, FrameSettings
 from renderer.shading.material import Material
-
-from conftest import sun_sky_cube
 
 SMALL = FrameSettings(48, 48, shadow_size=64)
 
@@ -178,6 +177,7 @@ def test_balanced_sun_1e5_and_1e6_times_its_sky(renderer):
     # image is dominated by the sun and grows with it (between 9x and 10x: the sky's share stays), and
     # the Monte Carlo reference of the same scene is finite and agrees with it in the mean.
     from conftest import CAM, plane, sphere
+
     from renderer.reference import render_reference
 
     meshes = [sphere(), plane(y=-0.6)]
@@ -223,9 +223,9 @@ def _sky_with_sun(h: int) -> np.ndarray:
 def test_16k_map_gives_the_image_of_its_2k_version(renderer):
     # A 16384 x 8192 lat-long map (1.5 GiB of float32; the conversion adds at most 0.6 GiB) becomes the
     # same 128^2 cube as the same sky at 2048 x 1024: the same power, and at balanced the same image.
-    from conftest import CAM, plane, sphere
-
     import tracemalloc
+
+    from conftest import CAM, plane, sphere
 
     available = _available_memory()
     if available is not None and available < 3 * 2**30:

@@ -5,7 +5,14 @@ import pytest
 
 from renderer.errors import ShaderError
 from renderer.gpu.shaders import _rewrite_log, compose, compute_shader
-from renderer.shadows.lights import FOOTPRINT_STEPS_PER_OCTAVE, LIGHT_DTYPE, MIN_DEPTH_TEXELS, fit_light_view_projs, pack_lights, texel_sizes
+from renderer.shadows.lights import (
+    FOOTPRINT_STEPS_PER_OCTAVE,
+    LIGHT_DTYPE,
+    MIN_DEPTH_TEXELS,
+    fit_light_view_projs,
+    pack_lights,
+    texel_sizes,
+)
 
 
 def test_light_struct_mirror_matches_glsl_std430(gl):

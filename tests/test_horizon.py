@@ -2,16 +2,14 @@
 
 import numpy as np
 import pytest
+from conftest import CAM, sphere, sun_sky_cube
 
+from renderer.errors import InvalidInputError
 from renderer.lighting.pem import PEMSettings
 from renderer.reference import relative_rmse, render_reference
 from renderer.renderer import FrameSettings
-from renderer.errors import InvalidInputError
 from renderer.shading.horizon import N_G, N_MU, horizon_table
 from renderer.shading.material import Material
-
-from conftest import sun_sky_cube
-from conftest import CAM, sphere
 
 
 def test_table_end_points_and_monotone():

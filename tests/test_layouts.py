@@ -8,6 +8,7 @@ import tracemalloc
 
 import numpy as np
 import pytest
+from conftest import HDRI, needs_assets
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
@@ -28,8 +29,6 @@ from renderer.envmap import (
     to_cube,
 )
 from renderer.errors import EnvironmentMapError
-
-from conftest import HDRI, needs_assets
 
 SIZES = {Layout.LATLONG: (64, 128), Layout.ANGULAR: (96, 96), Layout.HCROSS: (48, 64), Layout.VCROSS: (64, 48)}
 # Tiles of the crosses: (column, row) -> face direction, as pinned in the layouts module docstring.

@@ -1,13 +1,12 @@
 import numpy as np
 import pytest
+from conftest import sun_sky_cube
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from renderer.envmap.cube import cube_solid_angles, dir_to_texel
 from renderer.errors import InvalidInputError
 from renderer.lighting.median_cut import LUMINANCE_RGB, median_cut, sub_lights
-
-from conftest import sun_sky_cube
 
 
 def _covered_once(rs, n):

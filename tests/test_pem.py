@@ -2,13 +2,12 @@
 
 import numpy as np
 import pytest
+from conftest import sun_sky_cube
 
 from renderer.errors import InvalidInputError
 from renderer.lighting.filters import Filter, taps_1d
 from renderer.lighting.pem import PEMSettings
 from renderer.lighting.pem_reference import pem_chain
-
-from conftest import sun_sky_cube
 
 HALF_EPS = 2.0**-10  # relative precision of RGBA16F storage
 
@@ -162,10 +161,11 @@ def test_the_base_level_is_never_finer_than_a_lookup_the_shader_makes(face, g):
 
 
 def test_a_set_with_a_base_level_stores_only_the_needed_levels_and_renders_the_same(renderer):
+    from conftest import CAM, sphere
+
     from renderer.lighting.pem import finest_level_needed
     from renderer.renderer import FrameSettings
     from renderer.shading.material import Material
-    from conftest import CAM, sphere
 
     cube = sun_sky_cube(64, (1, 1, 0.5), sun_radiance=300.0, sun_radius_deg=8)
     mats = [Material((0.7, 0.5, 0.3), 0.6, 0.85)]

@@ -4,19 +4,25 @@ enough (a smooth map, no occlusion)."""
 
 import numpy as np
 import pytest
+from conftest import CAM, covered, plane, sphere, sun_sky_cube
 
 from renderer.camera import Camera
 from renderer.envmap.cube import cube_solid_angles, texel_directions
 from renderer.errors import InvalidInputError
 from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
-from renderer.reference import (EnvironmentSampler, artefact_share, ReferenceFrame, mean_flip, noise_floor, relative_rmse,
-                                relative_squared_errors,
-                                render_reference)
+from renderer.reference import (
+    EnvironmentSampler,
+    ReferenceFrame,
+    artefact_share,
+    mean_flip,
+    noise_floor,
+    relative_rmse,
+    relative_squared_errors,
+    render_reference,
+)
 from renderer.renderer import FrameSettings, ShadingMode
 from renderer.shading.material import Material
-
-from conftest import CAM, covered, plane, sphere, sun_sky_cube
 
 WHITE_DIFFUSE = Material((1.0, 1.0, 1.0), 0.0, 0.5)
 

@@ -4,17 +4,15 @@ import threading
 
 import numpy as np
 import pytest
+from conftest import CAM, covered, plane, sphere, sun_sky_cube
 
 from renderer.camera import Camera, bounds_sphere
 from renderer.errors import GLContextError, InvalidInputError
 from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
 from renderer.reference import relative_rmse
-from renderer.renderer import (Background, FrameSettings, Renderer, ShadingMode, default_lighting_pass,
-                               default_normals)
+from renderer.renderer import Background, FrameSettings, Renderer, ShadingMode, default_lighting_pass, default_normals
 from renderer.shading.material import Material
-
-from conftest import CAM, covered, plane, sphere, sun_sky_cube
 
 
 @pytest.fixture(scope="module")

@@ -3,12 +3,11 @@ import json
 import numpy as np
 import pytest
 import trimesh
+from conftest import asset
 
 from renderer.cli import main
 from renderer.errors import MeshError
 from renderer.sequence import load_sequence, read_mdd, read_pc2, to_meshes, write_mdd, write_pc2
-
-from conftest import asset
 
 
 def _frames(n=4, v=10, seed=0):

@@ -18,7 +18,6 @@ import httpx
 import numpy as np
 import pytest
 from PIL import Image
-
 from service_server import FAST_QUALITY, SMALL_OUTPUT, ServiceProcess, environment_bytes, garment, scene_body
 
 OCTET = {"Content-Type": "application/octet-stream"}

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import httpx
 import numpy as np
-
 from service_server import ServiceProcess, environment_bytes, garment, scene_body
 
 OCTET = {"Content-Type": "application/octet-stream"}

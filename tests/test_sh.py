@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from conftest import CAM, plane, sphere, sun_sky_cube
 
 from renderer.envmap.cube import cube_solid_angles, texel_directions
 from renderer.lighting.pem import PEMSettings
@@ -9,9 +10,6 @@ from renderer.lighting.sh import irradiance, irradiance_coefficients, region_sh
 from renderer.reference.montecarlo import primary_rays
 from renderer.renderer import FrameSettings
 from renderer.shading.material import Material
-
-from conftest import sun_sky_cube
-from conftest import CAM, plane, sphere
 
 
 def _normals(k=40, seed=0):

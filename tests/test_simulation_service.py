@@ -7,14 +7,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import asset
+from service_server import FAST_QUALITY, ServiceProcess
 
 from renderer.camera import Camera
 from service.client import RenderClient
 from simulation import BodyProxy, ClothSettings, ClothSim, mannequin, sheet, sphere
 from simulation.feed import FRONT, DrapeFeed, View, upload_studio_environment
-
-from conftest import asset
-from service_server import FAST_QUALITY, ServiceProcess
 
 SIZE = 96
 # Small and fast, but a 256^2 shadow map: the body's floor is 3 m wide, and at 64^2 a texel (5 cm)

@@ -7,8 +7,8 @@ import dataclasses
 
 import numpy as np
 import pytest
-
 from conftest import plane, sphere, sun_sky_cube
+
 from renderer.camera import Camera
 from renderer.errors import InvalidInputError
 from renderer.lighting.pem import PEMSettings

@@ -14,12 +14,11 @@ from html.parser import HTMLParser
 import httpx
 import numpy as np
 import pytest
+from service_server import FAST_QUALITY, ROOT, ServiceProcess, free_port
 
 from service.client import RenderClient, ServiceError
 from simulation import ClothSettings, ClothSim, mannequin, sheet
 from simulation.feed import DrapeFeed, upload_studio_environment
-
-from service_server import FAST_QUALITY, ROOT, ServiceProcess, free_port
 
 TOKEN = "viewer-test-token"
 OUTPUT = {"width": 96, "height": 80}
@@ -64,8 +63,9 @@ def test_latest_frame_endpoints(server, scenes):
             r = c.http.get(frame["image_url"])
             assert r.status_code == 200 and r.headers["content-type"] == "image/png"
             assert r.headers["x-frame-sequence"] == "3"
-            from PIL import Image
             import io
+
+            from PIL import Image
             img = np.asarray(Image.open(io.BytesIO(r.content)))
             assert img.shape[:2] == (80, 96) and img.std() > 1
         # The PNG kept for a PNG frame is the very answer the simulator got.

@@ -38,9 +38,18 @@ import numpy as np
 
 from ..atomic import atomic_file
 from ..reference import artefact_share, mean_flip, relative_rmse, render_reference
-from .catalogue import (EQUAL_ERROR_TARGET, PRESETS, REFERENCE_FACE_SIZE, TARGETS, Scene, environment_cube,
-                        map_digest, scenes, split)
 from ..shading.background import background_truth
+from .catalogue import (
+    EQUAL_ERROR_TARGET,
+    PRESETS,
+    REFERENCE_FACE_SIZE,
+    TARGETS,
+    Scene,
+    environment_cube,
+    map_digest,
+    scenes,
+    split,
+)
 from .processes import one_thread_pool
 from .scenes import shared_assets
 
@@ -181,7 +190,7 @@ class Truth:
     background: np.ndarray
 
     @classmethod
-    def of(cls, ref_a: dict, ref_b: dict, spp: int, background: np.ndarray) -> "Truth":
+    def of(cls, ref_a: dict, ref_b: dict, spp: int, background: np.ndarray) -> Truth:
         a, b = ref_a["image"], ref_b["image"]
         mask = a[..., 3] > 0.5
         return cls(a, b, 0.5 * (a + b), mask, relative_rmse(b, a, mask), mean_flip(b, a, mask),
@@ -299,7 +308,7 @@ class BroadConfig:
     cache: str | None = None         # reference cache folder (default: default_cache_dir())
 
     @classmethod
-    def quick_config(cls) -> "BroadConfig":
+    def quick_config(cls) -> BroadConfig:
         return cls(quick=True, frames=2, frames_small=2, spp_small=256, spp_large=512)
 
     def spp_of(self, scene: Scene) -> int:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -115,7 +115,7 @@ def fit_body_inside(body: np.ndarray, garment: np.ndarray, margin: float = 0.01,
     return b.astype(np.float32)
 
 
-@lru_cache(maxsize=None)
+@cache
 def garment_meshes(garment: str) -> tuple[Mesh, Mesh]:
     """(garment, body) in metres, Y-up."""
     assets = shared_assets()
@@ -129,14 +129,14 @@ def garment_meshes(garment: str) -> tuple[Mesh, Mesh]:
     return cloth, body
 
 
-@lru_cache(maxsize=None)
+@cache
 def environment_cube(name: str, face_size: int) -> np.ndarray:
     from ..envmap import load_environment
 
     return load_environment(shared_assets() / "hdri" / name, face_size=face_size, repair=True).cube
 
 
-@lru_cache(maxsize=None)
+@cache
 def map_digest(name: str) -> str:
     return hashlib.sha256((shared_assets() / "hdri" / name).read_bytes()).hexdigest()
 

@@ -18,12 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import presets
 from ..camera import frame_meshes
 from ..gpu.context import GLContext
 from ..lighting.filters import Filter
-from ..reference import artefact_share, mean_flip, relative_rmse, render_reference
-from .. import presets
 from ..presets import DEFAULT_PRESETS, knob_defaults
+from ..reference import artefact_share, mean_flip, relative_rmse, render_reference
 from ..renderer import FrameSettings, Renderer, ShadingMode
 from .budget import OLD_SHADOW_BIAS
 from .scenes import BenchScene, bundled_scene, shared_scenes
@@ -89,7 +89,7 @@ class BenchConfig:
     shared: bool = True
 
     @classmethod
-    def quick_config(cls) -> "BenchConfig":
+    def quick_config(cls) -> BenchConfig:
         return cls(quick=True, size=128, frames=3, ref_spp=512, ladder=(1, 2, 4, 8, 16, 32, 64, 128, 256))
 
 

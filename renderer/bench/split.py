@@ -25,8 +25,8 @@ import numpy as np
 
 from ..camera import frame_meshes
 from ..errors import InvalidInputError
-from ..presets import merge_knobs, pem_settings, presets
 from ..presets import frame_settings as preset_frame_settings
+from ..presets import merge_knobs, pem_settings, presets
 from ..reference import mean_flip, relative_rmse, relative_squared_errors, render_reference
 from ..renderer import Renderer, ShadingMode
 from .run import BALANCED

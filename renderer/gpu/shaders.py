@@ -22,7 +22,7 @@ _INCLUDE = re.compile(r'^\s*#include\s+"([^"]+)"\s*$')
 LINE_BASE = 100000
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _read(name: str) -> str:
     path = SHADER_DIR / name
     if not path.is_file():

@@ -23,7 +23,7 @@ class Filter(str, Enum):
     SQRT_COSINE = "sqrt-cosine"
 
     @classmethod
-    def parse(cls, value: "Filter | str") -> "Filter":
+    def parse(cls, value: Filter | str) -> Filter:
         try:
             return cls(value)
         except ValueError:

@@ -50,7 +50,7 @@ class Calibration(str, Enum):
     L2 = "l2"          # the closest normalized kernel to the normalized Phong lobe
 
     @classmethod
-    def parse(cls, value: "Calibration | str") -> "Calibration":
+    def parse(cls, value: Calibration | str) -> Calibration:
         try:
             return cls(value)
         except ValueError:
@@ -164,7 +164,7 @@ def lobe_table(face_size: int, kind: Filter | str = Filter.SQRT_COSINE) -> LobeT
     n_levels = len(chain)
     grid = np.linspace(0.0, n_levels - 1, (n_levels - 1) * STEPS_PER_LEVEL + 1)
     table = LobeTable(face_size, kind, impulse_dir, dirs, omega, responses, grid, np.zeros(0))
-    vols = np.array([(table.lobe(l) ** 3 * omega).sum() / 3.0 for l in grid])
+    vols = np.array([(table.lobe(level) ** 3 * omega).sum() / 3.0 for level in grid])
     vols = np.maximum.accumulate(vols)  # volume grows with blur; make the inverse well defined
     log_s, l2 = _l2_calibration(responses, dirs @ impulse_dir, omega, grid, m)
     return LobeTable(face_size, kind, impulse_dir, dirs, omega, responses, grid, vols, log_s, l2)

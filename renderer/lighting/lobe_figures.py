@@ -17,8 +17,8 @@ exponents. Everything is computed by `glossiness.py`; this module only evaluates
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 

@@ -25,6 +25,7 @@ from ..shadows.lights import disc_sine
 from .filters import Filter, taps_1d
 from .glossiness import Calibration, LobeTable, lobe_table
 from .median_cut import RegionSet, median_cut, sub_lights
+from .pem_reference import mip_levels, texel_weights, weight_chain
 from .sh import region_sh
 
 
@@ -41,7 +42,6 @@ def finest_level_needed(face_size: int, kind: Filter | str, max_glossiness: floa
     g_entry = min(np.ceil(float(max_glossiness) * steps) / steps, 1.0)
     level = min(table.level_for_glossiness(g_entry, calibration), full - 1)
     return int(np.clip(np.floor(level), 0, full - 1))
-from .pem_reference import mip_levels, texel_weights, weight_chain
 
 SCRATCH_BUDGET_BYTES = 64 << 20  # bound on the two float32 scratch buffers of one batch
 # GL_MAX_ARRAY_TEXTURE_LAYERS is 2048 on Mesa and NVIDIA: 341 cubes. 192 regions per texture keeps
@@ -67,7 +67,7 @@ class PEMSettings:
     def key(self) -> tuple:
         return (self.n_lights, self.filter.value, self.levels, self.base_level, self.whole_sources)
 
-    def for_materials(self, face_size: int, materials, calibration: Calibration | str = Calibration.L2) -> "PEMSettings":
+    def for_materials(self, face_size: int, materials, calibration: Calibration | str = Calibration.L2) -> PEMSettings:
         """These settings storing only the levels the materials' glossiest lookup reads
         (`finest_level_needed`): the same image, a fraction of the memory."""
         g_max = max((m.max_glossiness() for m in materials), default=0.0)
@@ -193,7 +193,7 @@ class PEMSet:
 
             for first in range(0, n_regions, batch):
                 count = min(batch, n_regions - first)
-                groups = lambda size: ((size + 7) // 8, (size + 7) // 8, 6 * count)  # noqa: E731
+                groups = lambda size, count=count: ((size + 7) // 8, (size + 7) // 8, 6 * count)  # noqa: E731
                 texture = self.textures[first // REGIONS_PER_TEXTURE]
                 texture_first = first - first % REGIONS_PER_TEXTURE
                 for name in ("level0", "filter"):

@@ -1,7 +1,15 @@
 """The Monte Carlo ground truth (embree ray casting) and the error metrics measured against it."""
 
 from .envsampling import EnvironmentSampler
-from .metrics import ArtefactShare, NoiseFloor, artefact_share, mean_flip, noise_floor, relative_rmse, relative_squared_errors
+from .metrics import (
+           ArtefactShare,
+           NoiseFloor,
+           artefact_share,
+           mean_flip,
+           noise_floor,
+           relative_rmse,
+           relative_squared_errors,
+)
 from .montecarlo import ReferenceFrame, primary_rays, render_reference
 
 __all__ = ["ArtefactShare", "EnvironmentSampler", "artefact_share", "NoiseFloor", "ReferenceFrame", "mean_flip", "noise_floor", "primary_rays",

@@ -39,8 +39,8 @@ def pem_set_info(env: EnvironmentRecord, info: PemInfo, with_lights: bool) -> Pe
         lum = info.energy_rgb @ np.array([0.2126, 0.7152, 0.0722])
         total = max(float(lum.sum()), 1e-30)
         lights = [LightInfo(direction=tuple(float(c) for c in d), energy_rgb=tuple(float(c) for c in e),
-                            energy_share=float(l / total), solid_angle_sr=float(sa))
-                  for d, e, l, sa in zip(info.directions, info.energy_rgb, lum, info.solid_angle_sr)]
+                            energy_share=float(y / total), solid_angle_sr=float(sa))
+                  for d, e, y, sa in zip(info.directions, info.energy_rgb, lum, info.solid_angle_sr)]
     return PemSetInfo(key=info.key, face_size=info.face_size, n_lights=info.settings.n_lights,
                       filter=info.settings.filter.value, levels=s["levels"], base_level=s["base_level"],
                       whole_sources=info.settings.whole_sources, source=info.source,

@@ -30,6 +30,7 @@ from renderer.cache import cache_key
 from ..codecs import FrameArrays, check_frame_size, decode_frame, frame_nbytes, parse_layout
 from ..deps import OCTET_STREAM, MetricsDep, ServicesDep, SettingsDep, WorkerDep, raw_body, require_token
 from ..errors import InvalidRequestError, PayloadTooLargeError, RenderTimeoutError
+from ..operations import find_environment, find_scene
 from ..pipeline import (
     encode_async,
     frame_payload,
@@ -40,7 +41,6 @@ from ..pipeline import (
     render_job,
     server_timing,
 )
-from ..operations import find_environment, find_scene
 from ..schemas import BatchFormat, ImageFormat, SceneCreate
 from ..specs import prepare_scene
 from ..worker import GLResources

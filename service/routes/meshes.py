@@ -12,8 +12,8 @@ from fastapi import APIRouter, Depends, Query, Request, Response, status
 from renderer.errors import MeshError
 from renderer.mesh import load_mesh
 
-from ..deps import OCTET_STREAM, MeshesDep, SettingsDep, media_type, raw_body, require_token
 from ..codecs import uploaded_file
+from ..deps import OCTET_STREAM, MeshesDep, SettingsDep, media_type, raw_body, require_token
 from ..errors import InvalidRequestError
 from ..registry import MeshRecord
 from ..schemas import MeshInfo
