@@ -202,7 +202,7 @@ class RenderWorker:
         timeout = self.settings.request_timeout_s if timeout is None else timeout
         try:
             value = await asyncio.wait_for(asyncio.wrap_future(fut), timeout)
-        except (TimeoutError, asyncio.TimeoutError):
+        except TimeoutError:
             fut.cancel()  # only succeeds while queued; a running job finishes and is discarded
             raise RenderTimeoutError(
                 f"no answer from the GL thread within {timeout:g} s (queue depth {self.queue_depth}); "

@@ -1,4 +1,5 @@
-"""GLSL source loading: files under the top-level `shaders/`, composed by `#include` and `#define`.
+"""GLSL source loading: files under the top-level `shaders/` (installed as `renderer/shaders`),
+composed by `#include` and `#define`.
 
 Every included file is given its own GLSL source-string number through `#line <line> <file-id>`
 so that a compile error can be mapped back to a file and line; `ShaderError` carries that mapping.
@@ -15,7 +16,9 @@ import moderngl
 
 from ..errors import ShaderError
 
-SHADER_DIR = Path(__file__).resolve().parents[2] / "shaders"
+# An installed package carries them as renderer/shaders (pyproject.toml); a checkout has them beside it.
+_PACKAGED = Path(__file__).resolve().parents[1] / "shaders"
+SHADER_DIR = _PACKAGED if _PACKAGED.is_dir() else Path(__file__).resolve().parents[2] / "shaders"
 _INCLUDE = re.compile(r'^\s*#include\s+"([^"]+)"\s*$')
 # Each file's lines are numbered from a base of its own (file id x LINE_BASE): compile logs name the
 # file and line even where the driver ignores #line's source-string number.

@@ -166,7 +166,7 @@ async def post_batch(
         for k in range(n_frames):
             try:
                 i, out, job_ms = await asyncio.wait_for(ready.get(), settings.request_timeout_s)
-            except (TimeoutError, asyncio.TimeoutError):
+            except TimeoutError:
                 raise RenderTimeoutError(f"batch frame {k} took longer than {settings.request_timeout_s:g} s") \
                     from None
             if isinstance(out, BaseException):
