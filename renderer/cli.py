@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InvalidInputError, RenderError
-from .presets import DEFAULT_PRESETS, PRESET_KNOBS, base_knobs, knob_defaults, merge_knobs, presets
+from .presets import PRESET_KNOBS, PRESET_NAMES, base_knobs, knob_defaults, merge_knobs, presets
 from .presets import frame_settings as presets_frame_settings
 from .presets import pem_settings as presets_pem_settings
 
@@ -57,7 +57,7 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--camera-target", type=_floats(3))
     g.add_argument("--fov", type=float, default=35.0, help="vertical field of view, degrees")
     q = p.add_argument_group("quality")
-    q.add_argument("--preset", choices=sorted(DEFAULT_PRESETS), default="balanced")
+    q.add_argument("--preset", choices=PRESET_NAMES, default="balanced")
     q.add_argument("--frame-budget-ms", type=float, help="choose the most accurate measured setting within this time")
     q.add_argument("--error-budget", type=float, help="choose the fastest measured setting within this rel. RMSE")
     q.add_argument("--lights", type=int, help="regions / lights, 6 * 2^k")
@@ -499,7 +499,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --broad: the references' folder (default: $GARMENT_RENDER_REFERENCE_CACHE, else "
                         "~/.cache/garment-render/references)")
     b.add_argument("--store", action="store_true",
-                   help="store the measured table in the package: presets and budgets are then chosen from it")
+                   help="store the measured table in the package: budgets (--frame-budget-ms, --error-budget) choose from it")
     b.set_defaults(func=cmd_bench)
     sp = sub.add_parser("speed", help="frame times of the presets side by side (settings take turns, frame by frame)")
     sp.add_argument("--rounds", type=int, default=15, help="frames per setting and scene")
@@ -520,7 +520,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=cmd_speed)
     es = sub.add_parser("error-split", help="where a preset's error comes from: lighting alone, the worst pixels, "
                                             "the silhouette (split.md, split.json, split.png)")
-    es.add_argument("--preset", choices=sorted(DEFAULT_PRESETS), default="balanced")
+    es.add_argument("--preset", choices=PRESET_NAMES, default="balanced")
     es.add_argument("--size", type=int, default=128)
     es.add_argument("--spp", type=int, default=512, help="samples per technique of each of the four references")
     es.add_argument("--no-shared", action="store_true", help="bundled scene only (skip ../shared/assets)")

@@ -50,10 +50,10 @@ def limit_malloc_arenas(n: int = 2) -> None:
 async def lifespan(app: FastAPI):
     settings: ServiceSettings = app.state.settings
     limit_malloc_arenas()
-    # The measured table is read once: the presets and every budget request choose from the same one
-    # (a table stored while the service runs applies after a restart).
+    # The measured table is read once: every budget request chooses from the same one (a table stored
+    # while the service runs applies after a restart). The presets are the package's files.
     measured = load_table()
-    app.state.presets, app.state.presets_source = renderer_presets(measured)
+    app.state.presets, app.state.presets_source = renderer_presets()
     app.state.environments = EnvironmentStore(settings.max_environments)
     app.state.scenes = SceneStore(settings.max_scenes)
     app.state.meshes = MeshStore(settings.max_meshes)

@@ -19,7 +19,7 @@ SUN_ELEVATION = np.radians(35.0)
 
 
 def _preset_frame(renderer, preset, cube, meshes, materials, camera, size):
-    knobs = presets_mod.merge_knobs(presets_mod.DEFAULT_PRESETS[preset], {})
+    knobs = presets_mod.merge_knobs(presets_mod.preset(preset), {})
     scene = renderer.create_scene(meshes, materials)
     pems = renderer.build_pems(cube, presets_mod.pem_settings(knobs, "sqrt-cosine", None, materials))
     try:
@@ -84,7 +84,7 @@ def test_a_smooth_surface_under_a_sun_above_it_shows_no_false_shadow(renderer, p
 
     cube = sun_sky_cube(64, (0.0, 1.0, 0.05), sun_radiance=1e3, sun_radius_deg=2.0, sky=(0, 0, 0), ground=(0, 0, 0))
     material = Material((0.7, 0.7, 0.7), 0.3, 0.6)
-    knobs = presets_mod.merge_knobs(presets_mod.DEFAULT_PRESETS[preset], {})
+    knobs = presets_mod.merge_knobs(presets_mod.preset(preset), {})
     scene = renderer.create_scene([_ripples()], [material])
     pems = renderer.build_pems(cube, presets_mod.pem_settings(knobs, "sqrt-cosine", None, [material]))
     try:

@@ -1,6 +1,6 @@
 import pytest
 
-from renderer.bench.budget import choose, presets, summarize
+from renderer.bench.budget import choose, summarize
 from renderer.errors import InvalidInputError
 
 
@@ -35,27 +35,35 @@ def test_budgets_choose_from_the_measured_table():
         choose(table, frame_budget_ms=5, error_budget=0.01)
 
 
-def test_presets_follow_the_error_targets():
-    p = presets(summarize(BENCH))
-    assert (p["fast"]["lights"], p["balanced"]["lights"], p["accurate"]["lights"]) == (24, 48, 96)
+def test_the_presets_are_their_files_whatever_the_measured_table_holds(monkeypatch):
+    import renderer.bench.budget as budget
+    from renderer.cli import build_parser, resolve_quality
+    from renderer.presets import PRESET_DIR, presets
+
+    found, source = presets()
+    assert "renderer/presets" in source and set(found) == {"fast", "balanced", "accurate"}
+    for name, knobs in found.items():
+        text = (PRESET_DIR / f"{name}.toml").read_text()
+        assert f"lights = {knobs['lights']}" in text
+    # A table that would have made another balanced changes nothing: presets are not chosen at run time.
+    monkeypatch.setattr(budget, "load_table", lambda path=None: summarize(BENCH))
+    assert resolve_quality(build_parser().parse_args(["render"]))["lights"] == found["balanced"]["lights"]
 
 
-def test_a_preset_is_clearly_faster_than_the_one_above_it():
-    # Only the slow settings are within 10 %: none of them is a fast preset. Balanced is then the
-    # default's entry (48 lights, 60 ms): a 10 % setting must beat that too.
-    rows = [_row("a", 6, 10, 0.20), _row("a", 48, 60, 0.12), _row("a", 192, 300, 0.09), _row("a", 384, 600, 0.08)]
-    table = summarize({**BENCH, "rows": rows})
-    default = {k: v for k, v in table["entries"][1]["settings"].items()}
-    p = presets(table, {"balanced": default})
-    assert p["accurate"]["lights"] == 384 and "balanced" not in p and "fast" not in p
-    # Without the default's entry nothing is shown to be faster than balanced: no measured fast preset.
-    assert set(presets(table)) == {"accurate"}
-    # With a measured balanced, a 10 % setting clearly faster than it is the fast preset ...
-    rows.append(_row("a", 24, 30, 0.095))
-    assert presets(summarize({**BENCH, "rows": rows}), {"balanced": default})["fast"]["lights"] == 24
-    # ... and one within the bench's timing noise of it (PRESET_SPEEDUP) is not.
-    rows[-1] = _row("a", 24, 50, 0.095)
-    assert "fast" not in presets(summarize({**BENCH, "rows": rows}), {"balanced": default})
+def test_a_preset_file_that_misses_a_setting_or_names_an_unknown_one_is_refused(tmp_path, monkeypatch):
+    import renderer.presets as presets_mod
+
+    good = (presets_mod.PRESET_DIR / "fast.toml").read_text()
+    monkeypatch.setattr(presets_mod, "PRESET_DIR", tmp_path)
+    (tmp_path / "fast.toml").write_text(good.replace("sub_lights = 1\n", ""))
+    with pytest.raises(ValueError, match=r"missing \['sub_lights'\]"):
+        presets_mod._read_preset("fast")
+    (tmp_path / "fast.toml").write_text(good + "shadow_bias = 2.0\n")
+    with pytest.raises(ValueError, match=r"unknown \['shadow_bias'\]"):
+        presets_mod._read_preset("fast")
+    (tmp_path / "fast.toml").write_text(good.replace("version = 1", "version = 2"))
+    with pytest.raises(ValueError, match="version 2"):
+        presets_mod._read_preset("fast")
 
 
 def test_a_budget_sets_every_measured_knob_unless_a_flag_says_otherwise(monkeypatch):
@@ -76,22 +84,19 @@ def test_a_budget_sets_every_measured_knob_unless_a_flag_says_otherwise(monkeypa
     assert (q["lights"], k) == (48, ("off", "volume", False, True))
     assert "budget" in q["source"]
     assert knobs("--error-budget", "0.05", "--glossy-horizon", "lobe", "--terminator")[1] == ("lobe", "volume", True, True)
-    assert knobs()[1] == ("off", "volume", False, True)          # the balanced preset is now that entry
-
-    monkeypatch.setattr(budget, "load_table", lambda path=None: None)
-    q, k = knobs()                                              # no table: the defaults
-    assert k == ("lights", "l2", True, True) and q["small_light_scale"] == 4 and "default" in q["source"]
+    q, k = knobs()                                              # no budget: the balanced preset's file
+    assert k == ("lights", "l2", True, True) and q["small_light_scale"] == 4 and "preset balanced" in q["source"]
 
 
 def test_a_presets_small_light_scale_yields_to_a_large_shadow_map():
-    from renderer.presets import DEFAULT_PRESETS, frame_settings, merge_knobs
+    from renderer.presets import frame_settings, merge_knobs, preset
 
-    assert DEFAULT_PRESETS["balanced"]["small_light_scale"] == 4
-    knobs = merge_knobs(DEFAULT_PRESETS["balanced"], {"shadow_size": 4096})
+    assert preset("balanced")["small_light_scale"] == 4
+    knobs = merge_knobs(preset("balanced"), {"shadow_size": 4096})
     assert knobs["small_light_scale"] == 2 and frame_settings(knobs, 8, 8).shadow_size == 4096
-    assert merge_knobs(DEFAULT_PRESETS["balanced"], {"shadow_size": 1024})["small_light_scale"] == 4
+    assert merge_knobs(preset("balanced"), {"shadow_size": 1024})["small_light_scale"] == 4
     # A scale the caller names is kept, and the frame settings refuse what cannot be made.
-    knobs = merge_knobs(DEFAULT_PRESETS["balanced"], {"shadow_size": 4096, "small_light_scale": 4})
+    knobs = merge_knobs(preset("balanced"), {"shadow_size": 4096, "small_light_scale": 4})
     with pytest.raises(InvalidInputError, match="8192"):
         frame_settings(knobs, 8, 8)
 
@@ -115,20 +120,17 @@ def test_a_budget_brings_its_measured_filter_unless_one_is_named(monkeypatch):
     assert resolve_quality(build_parser().parse_args(["render"]))["filter"] == "sqrt-cosine"
 
 
-def test_the_service_chooses_budgets_and_presets_from_the_table_it_read_at_start_up():
+def test_the_service_chooses_budgets_from_the_table_it_read_at_start_up():
     from renderer.presets import presets as resolved_presets
     from service.schemas import OutputSpec, QualitySpec
     from service.settings import ServiceSettings
     from service.specs import resolve_quality
 
     table = summarize(BENCH)             # not the package's stored table
-    found, source = resolved_presets(table)
-    assert found["balanced"]["lights"] == 48 and "measured on test" in source
+    found, _ = resolved_presets()
     settings = ServiceSettings()
     q = resolve_quality(QualitySpec(error_budget=0.1), OutputSpec(width=16, height=16), found, table, settings)
     assert q.knobs["lights"] == 24 and "on test" in q.info["source"]
     # None stored when the service started: a budget is refused with what to do, whatever the disk holds now.
-    defaults, source = resolved_presets(None)
-    assert source.startswith("default")
     with pytest.raises(InvalidInputError, match="none is stored"):
-        resolve_quality(QualitySpec(frame_budget_ms=100), OutputSpec(width=16, height=16), defaults, None, settings)
+        resolve_quality(QualitySpec(frame_budget_ms=100), OutputSpec(width=16, height=16), found, None, settings)

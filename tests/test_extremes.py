@@ -144,9 +144,9 @@ def test_two_million_triangles(renderer):
 
 
 def _balanced(size, **output):
-    from renderer.presets import DEFAULT_PRESETS, frame_settings, merge_knobs, pem_settings
+    from renderer.presets import frame_settings, merge_knobs, pem_settings, preset
 
-    knobs = merge_knobs(DEFAULT_PRESETS["balanced"], {})
+    knobs = merge_knobs(preset("balanced"), {})
     return frame_settings(knobs, size, size, **output), pem_settings(knobs, "sqrt-cosine", None)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import sysconfig
@@ -35,9 +36,14 @@ def test_the_package_list_names_every_folder_of_code_and_shaders():
 
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
+    # Built from a copy of the sources: setuptools' build/ folder would otherwise stay in the checkout,
+    # and files it kept from an earlier build could reach the wheel.
+    src = tmp_path_factory.mktemp("src") / "garment-render"
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(".git", ".venv", "build", "dist", "out", "docs", "tests",
+                                                             "__pycache__", "*.egg-info", ".pytest_cache", ".hypothesis"))
     out = tmp_path_factory.mktemp("wheel")
     subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(out),
-                    str(ROOT)], check=True, cwd=out, timeout=300)
+                    str(src)], check=True, cwd=out, timeout=300)
     (whl,) = out.glob("garment_render-*.whl")
     return whl
 
@@ -48,6 +54,8 @@ def test_the_wheel_carries_every_shader_and_data_file(wheel):
                for p in (ROOT / "shaders").rglob("*") if p.suffix in SHADER_SUFFIXES}
     assert shaders and shaders <= names, sorted(shaders - names)
     assert {"renderer/bench/measured.json", "service/viewer.html"} <= names
+    presets = {p.relative_to(ROOT).as_posix() for p in (ROOT / "renderer" / "presets").glob("*.toml")}
+    assert len(presets) == 3 and presets <= names
     modules = {p.relative_to(ROOT).as_posix() for top in ("renderer", "service", "simulation")
                for p in (ROOT / top).rglob("*.py")}
     assert modules <= names, sorted(modules - names)

@@ -2,7 +2,8 @@
 
 `garment-render bench` writes `bench.json`; `summarize` reduces it to one entry per setting (worst
 relative RMSE over the scenes, median frame time over the scenes) and `write_table` stores that in
-the package (`measured.json`), from which the presets and per-request budgets are chosen.
+the package (`measured.json`), from which per-request budgets are chosen (the presets are files of
+their own: renderer/presets).
 """
 
 from __future__ import annotations
@@ -16,13 +17,6 @@ from ..presets import PRESET_KNOBS, STORED, knob_defaults
 
 MEASURED = Path(__file__).with_name("measured.json")
 
-# Error targets of the presets (relative RMSE against the Monte Carlo reference, worst scene).
-PRESET_ERROR = {"fast": 0.10, "balanced": 0.05}
-# A measured preset must be this much faster than the preset above it: the bench times its rows one
-# after another, and on a shared machine the same work differs by up to 1.3-1.4x between rows
-# (docs/benchmarks.md). A setting that costs more than balanced side by side can measure a little
-# faster in the bench, and is no fast preset.
-PRESET_SPEEDUP = 1.4
 # Every knob a table entry records: the presets' four, the PEM filter and the others.
 KNOBS = (*PRESET_KNOBS, "filter", *knob_defaults())
 # The shadow bias before it was stated in each map's texels: 1.5 x 2 |box diagonal| / map size (about
@@ -99,35 +93,3 @@ def budget_knobs(frame_budget_ms: float | None, error_budget: float | None,
               f"{entry['worst_rel_rmse']:.4f} on {table['machine'].get('gl_renderer', '?')} "
               f"({table['machine'].get('date', '?')})")
     return knobs, entry["settings"].get("filter", "sqrt-cosine"), source
-
-
-def _entry_of(table: dict, knobs: dict) -> dict | None:
-    """The table's entry of exactly these knobs (every KNOBS value), if it was measured."""
-    want = tuple(knobs.get(k) for k in KNOBS)
-    return next((e for e in table["entries"] if tuple(e["settings"].get(k) for k in KNOBS) == want), None)
-
-
-def presets(table: dict, defaults: dict[str, dict] | None = None) -> dict[str, dict]:
-    """accurate: the lowest error; balanced / fast: the fastest settings within 5 % / 10 % worst error,
-    each the preset above's setting or at least PRESET_SPEEDUP times faster than it (a 10 % setting
-    that takes about as long as balanced is no fast preset). `defaults`: a preset's knobs when the
-    table has none for it: their entry's time is then the bound for the preset below, and without an
-    entry (the default was not measured) the presets below cannot be shown to be faster and are left
-    to their defaults too. Presets the table has no setting for are left out."""
-    best = choose(table)
-    out = {"accurate": best["settings"]}
-    above = best
-    for name in ("balanced", "fast"):
-        try:
-            entry = choose(table, error_budget=PRESET_ERROR[name])
-        except InvalidInputError:
-            entry = None
-        # The same setting as the preset above (it is the fastest within this target too), or one clearly faster.
-        if entry is not None and above is not None and (
-                entry["settings"] == above["settings"]
-                or entry["median_frame_ms"] * PRESET_SPEEDUP <= above["median_frame_ms"]):
-            out[name] = entry["settings"]
-        else:
-            entry = _entry_of(table, defaults[name]) if defaults and name in defaults else None
-        above = entry
-    return out

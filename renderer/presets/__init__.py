@@ -1,0 +1,131 @@
+"""Quality presets: versioned files beside this module (fast.toml, balanced.toml, accurate.toml),
+each naming every quality setting with the measurement behind it. Used by the command line, the
+service and the benchmark alike; the measured table (renderer/bench/measured.json) serves budgets
+only, never the presets."""
+
+from __future__ import annotations
+
+import functools
+import tomllib
+from pathlib import Path
+
+# The knobs every preset names; the others (knob_defaults) a preset or budget may also set.
+PRESET_KNOBS = ("lights", "face_size", "shadow_size", "blur_scale")
+# Knobs of knob_defaults() that change the PEM set, not the frame (pem_settings).
+PEM_KNOBS = ("needed_levels", "whole_sources")
+
+
+def knob_defaults() -> dict:
+    """The quality knobs besides a preset's four (lights, PEM face, shadow map, blur) and their
+    defaults: what a preset or budget from the measured table may also set, and what the benchmark's
+    balanced setting uses. The one place these defaults are stated (FrameSettings' own)."""
+    from ..renderer import FrameSettings
+
+    f = FrameSettings()
+    return {"calibration": f.calibration.value, "diffuse": f.diffuse, "glossy_horizon": f.glossy_horizon,
+            "terminator": f.terminator, "horizon": f.horizon, "shadow_threshold": f.shadow_threshold,
+            "sh_unshadowed": f.sh_unshadowed, "needed_levels": True, "whole_sources": True, "glossy": f.glossy,
+            "caster_detail": f.caster_detail, "small_light_scale": f.small_light_scale,
+            "small_light_min_energy": f.small_light_min_energy, "sharp_large_lights": f.sharp_large_lights,
+            "sharp_share_deg": f.sharp_share_deg, "sharp_max_maps": f.sharp_max_maps,
+            "sharp_full_detail_deg": f.sharp_full_detail_deg, "sub_lights": f.sub_lights,
+            "normal_offset_texels": f.normal_offset_texels, "sharp_normal_offset_texels": f.sharp_normal_offset_texels,
+            "min_sigma_texels": f.min_sigma_texels, "contact_shadow_texels": f.contact_shadow_texels}
+
+
+def merge_knobs(base: dict, explicit: dict) -> dict:
+    """A preset's or budget's knobs (`base`) over the defaults, with the caller's explicit values
+    (None: not given) over both: the one rule the command line, the service and the benchmark share."""
+    from ..renderer import MAX_SHADOW_SIDE
+
+    knobs = {**knob_defaults(), **base}
+    given = {k: v for k, v in explicit.items() if v is not None}
+    knobs.update(given)
+    missing = [k for k in PRESET_KNOBS if k not in knobs]
+    if missing:
+        raise ValueError(f"quality knobs without a value: {missing}")
+    # A preset's small-light scale yields to an explicit large shadow map (the sharp maps stay within
+    # MAX_SHADOW_SIDE); a scale the caller names is kept, and FrameSettings refuses it if too large.
+    if "small_light_scale" not in given and int(knobs["shadow_size"]) * int(knobs["small_light_scale"]) > MAX_SHADOW_SIDE:
+        knobs["small_light_scale"] = max(1, MAX_SHADOW_SIDE // int(knobs["shadow_size"]))
+    return knobs
+
+
+def frame_settings(knobs: dict, width: int, height: int, **output):
+    """The FrameSettings of resolved knobs (`merge_knobs`) for a width x height image; `output` are
+    the settings no preset chooses (mode, background, bleed_reduction)."""
+    from ..renderer import FrameSettings
+
+    frame_knobs = {k: knobs[k] for k in knob_defaults() if k not in PEM_KNOBS}
+    return FrameSettings(width=width, height=height, shadow_size=int(knobs["shadow_size"]),
+                         blur_scale=float(knobs["blur_scale"]), **frame_knobs, **output)
+
+
+def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
+    """The PEM set's settings of resolved knobs: with needed_levels and the scene's materials, only
+    the levels their glossiness reads (the same image, a fraction of the memory); without
+    materials, the whole chain."""
+    from ..lighting.filters import Filter
+    from ..lighting.pem import PEMSettings
+
+    pem = PEMSettings(int(knobs["lights"]), Filter.parse(filter), levels, whole_sources=bool(knobs["whole_sources"]))
+    if knobs["needed_levels"] and materials is not None:
+        pem = pem.for_materials(int(knobs["face_size"]), materials, knobs["calibration"])
+    return pem
+
+
+# `table=STORED`: read the package's measured table now (renderer/bench/measured.json); a long-running
+# caller passes the table it read at start-up (None: none was stored), so that its presets and budgets agree.
+STORED = "stored"
+
+
+PRESET_DIR = Path(__file__).parent
+PRESET_NAMES = ("fast", "balanced", "accurate")
+# The version of the preset files' format (their `version`): a file of another version is refused.
+PRESET_VERSION = 1
+
+
+def _read_preset(name: str) -> dict:
+    path = PRESET_DIR / f"{name}.toml"
+    data = tomllib.loads(path.read_text())
+    if data.get("version") != PRESET_VERSION:
+        raise ValueError(f"{path}: preset format version {data.get('version')!r}, this code reads {PRESET_VERSION}")
+    settings = data.get("settings", {})
+    want = {*PRESET_KNOBS, *knob_defaults()}
+    if set(settings) != want:
+        raise ValueError(f"{path}: a preset names every quality setting; missing {sorted(want - set(settings))}, "
+                         f"unknown {sorted(set(settings) - want)}")
+    return settings
+
+
+@functools.cache
+def _presets() -> dict[str, dict]:
+    return {name: _read_preset(name) for name in PRESET_NAMES}
+
+
+def presets() -> tuple[dict, str]:
+    """The presets (name -> every quality setting) and where they come from: the versioned files
+    beside this module (renderer/presets/*.toml), read once, never re-chosen at run time."""
+    return {name: dict(knobs) for name, knobs in _presets().items()}, \
+        f"preset files renderer/presets/*.toml, version {PRESET_VERSION}"
+
+
+def preset(name: str) -> dict:
+    """One preset's settings (a copy)."""
+    if name not in PRESET_NAMES:
+        raise ValueError(f"unknown preset {name!r}; the presets are {', '.join(PRESET_NAMES)}")
+    return dict(_presets()[name])
+
+
+def base_knobs(preset: str, preset_knobs: dict, preset_source: str | None, frame_budget_ms: float | None,
+               error_budget: float | None, table: dict | None | str = STORED) -> tuple[dict, str | None, str]:
+    """What a request's knobs go over (`merge_knobs`): the measured setting that meets its budgets
+    when it names one (`budget_knobs`, chosen from `table`), else its preset's knobs (from
+    `preset_knobs`, the presets in use). Returns (knobs, the measured PEM filter, or None when the
+    preset chose them, and where they came from): the one rule the command line and the service share."""
+    if frame_budget_ms is not None or error_budget is not None:
+        from ..bench.budget import budget_knobs
+
+        return budget_knobs(frame_budget_ms, error_budget, table)
+    return preset_knobs[preset], None, f"preset {preset}" + (f", {preset_source}" if preset_source else "")
+
