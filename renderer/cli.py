@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InvalidInputError, RenderError
-from .presets import PRESET_KNOBS, PRESET_NAMES, base_knobs, knob_defaults, merge_knobs, presets
+from .presets import PRESET_KNOBS, PRESET_NAMES, RETIRED, base_knobs, knob_defaults, merge_knobs, presets
 from .presets import frame_settings as presets_frame_settings
 from .presets import pem_settings as presets_pem_settings
 
@@ -36,6 +36,17 @@ def _size(text: str) -> tuple[int, int]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"size must look like 512x512, got {text!r}") from None
     return w, h
+
+
+class _Retired(argparse.Action):
+    """A flag of a setting that went: refused with what replaced it (presets.RETIRED)."""
+
+    def __init__(self, option_strings, dest, reason: str = "", **kw):
+        super().__init__(option_strings, dest, nargs="?", help=argparse.SUPPRESS, **kw)
+        self.reason = reason
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        parser.error(f"{option_string}: {self.reason}")
 
 
 def add_scene_arguments(p: argparse.ArgumentParser) -> None:
@@ -65,19 +76,12 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--filter", choices=["none", "box", "gauss", "cosine", "sqrt-cosine"],
                    help="PEM MIP filter (default: the budget's measured setting, else sqrt-cosine)")
     q.add_argument("--levels", type=int, help="MIP levels to build (default: the full chain)")
-    q.add_argument("--needed-levels", action=argparse.BooleanOptionalAction,
-                   help="store only the PEM levels the materials' glossiness reads (the same image, less memory "
-                        "and faster lookups; default on)")
     q.add_argument("--whole-sources", action=argparse.BooleanOptionalAction,
                    help="median cut: no cut through a compact bright source such as a sun, which keeps it in one "
                         "region (default on; --no-whole-sources: the paper's plain median cut)")
     q.add_argument("--shadow-size", type=int, help="shadow-map size per light")
     q.add_argument("--blur-scale", type=float, help="scale of the per-light shadow blur (0: hard shadows)")
     q.add_argument("--bleed-reduction", type=float, default=0.2)
-    q.add_argument("--calibration", choices=["l2", "volume"],
-                   help="g -> MIP level: the closest normalized kernel (l2) or the paper's equal lobe volume")
-    q.add_argument("--shadow-threshold", type=float,
-                   help="lights below this share of the energy get no shadow map (their PEMs are added unshadowed)")
     q.add_argument("--caster-detail", type=float,
                    help="share of the casters' triangles the shadow maps draw, in (0, 1] (a proxy with the same "
                         "vertices; 1: the meshes themselves; default: the preset's)")
@@ -91,22 +95,13 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
                    help="sharp lights within this many degrees (at most 30) of a brighter one whose disc theirs "
                         "overlaps share its map, drawn along their energy-weighted direction (a sun split into a "
                         "few regions); 0: one map each (default: the preset's)")
-    q.add_argument("--sharp-full-detail-deg", type=float,
-                   help="sharp maps of lights whose disc is at most this many degrees in radius (a sun) draw the "
-                        "casters at full detail, larger ones' at --caster-detail; 90: every sharp map at full "
-                        "detail (default: the preset's)")
     q.add_argument("--sub-lights", type=int,
                    help="each region's glossy term in closed form from this many discs (its texels cut further by "
                         "the same median cut; 1, 2, 4, 8 or 16; its shadow map and diffuse term stay the region's; "
                         "default: the preset's)")
-    q.add_argument("--sharp-max-maps", type=int,
-                   help="at most this many sharp maps, the brightest lights' first; the others go to the main maps "
-                        "(0: no cap; default: the preset's)")
     q.add_argument("--normal-offset-texels", type=float,
                    help="shadow lookups pushed off the surface along the normal by this many of the main maps' "
                         "texels, 0-16 (default: the preset's)")
-    q.add_argument("--sharp-normal-offset-texels", type=float,
-                   help="the same for the sharp maps, in their own texels (default: the preset's)")
     q.add_argument("--min-sigma-texels", type=float,
                    help="least deviation of the depths under a shadow-map texel, in that map's texels, 0-16: "
                         "keeps sloped surfaces from shadowing themselves (default: the preset's)")
@@ -117,26 +112,19 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     q.add_argument("--small-light-min-energy", type=float,
                    help="only small lights carrying at least this many times the mean light's energy get those "
                         "maps; 0: every small light (default: the preset's)")
-    q.add_argument("--sh-unshadowed", action=argparse.BooleanOptionalAction,
-                   help="the diffuse term of the large unshadowed lights from their summed SH9 irradiance (small ones "
-                        "keep their own; in a scene without a glossy lobe the lighting pass then skips them)")
-    q.add_argument("--glossy-horizon", choices=["off", "lobe", "lights", "both"],
-                   help="drop the glossy lobe's part below the surface: per light (default), by the lobe's share, "
-                        "both, or not (the paper)")
-    q.add_argument("--terminator", action=argparse.BooleanOptionalAction,
-                   help="small lights below the triangle's own plane light neither term (default on)")
-    q.add_argument("--horizon", action=argparse.BooleanOptionalAction,
-                   help="the tangent plane of the shading normal blocks every light, both terms (default off)")
-    q.add_argument("--diffuse", choices=["pem", "lights", "mixed", "sh"],
-                   help="diffuse term from the PEMs along the normal (the paper), from each light's disc, mixed, "
-                        "or sh (large lights from their region's SH9 irradiance)")
-    q.add_argument("--glossy", choices=["pem", "mixed", "wide"],
-                   help="glossy term from the PEMs along the reflection vector (the paper), mixed (small "
-                        "lights from their disc through the Phong lobe in closed form), or wide (as mixed, and "
-                        "large lights too where the lobe is wider than their disc; default: the preset's)")
+    q.add_argument("--diffuse", choices=["pem", "lights"],
+                   help="diffuse term from the PEMs along the normal (the paper) or from each light's disc "
+                        "(default: the preset's)")
+    q.add_argument("--glossy", choices=["pem", "wide"],
+                   help="glossy term from the PEMs along the reflection vector (the paper), or wide: small lights' "
+                        "from their disc through the Phong lobe in closed form, and large lights' too where the "
+                        "lobe is wider than their disc (default: the preset's)")
     q.add_argument("--mode", default="full", choices=["full", "none", "ao", "ao-color", "many-lights"],
                    help="full method, no occlusion, grey AO, AO with colour (paper Fig. 6), or the plain "
                         "many-light baseline (the N lights shade as well as shadow)")
+    for name, reason in RETIRED.items():
+        flag = name.replace("_", "-")
+        q.add_argument(f"--{flag}", f"--no-{flag}", action=_Retired, reason=reason, dest=f"retired_{name}")
     o = p.add_argument_group("output")
     o.add_argument("--size", type=_size, default=(512, 512))
     o.add_argument("--out", type=Path, help="tone-mapped sRGB PNG")

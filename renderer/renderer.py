@@ -20,15 +20,10 @@ from .camera import Camera, bounds_sphere, default_camera
 from .errors import InvalidInputError
 from .gpu.context import GLContext, StageTimer
 from .gpu.shaders import compute_shader, program
-from .lighting.glossiness import Calibration
 from .lighting.pem import REGIONS_PER_TEXTURE, PEMSet, PEMSettings
-from .lighting.sh import irradiance_coefficients
 from .mesh import Mesh
 from .scene import Scene
 from .shading.background import BackgroundMap
-from .shading.horizon import N_G as HORIZON_N_G
-from .shading.horizon import N_MU as HORIZON_N_MU
-from .shading.horizon import horizon_table
 from .shading.material import Material
 from .shadows.lights import (
     SMALL_LIGHT_MAX_SIN,
@@ -36,7 +31,6 @@ from .shadows.lights import (
     fit_light_view_projs,
     pack_lights,
     plan_layers,
-    shadow_layers,
     share_sharp_maps,
     texel_sizes,
 )
@@ -58,9 +52,8 @@ _MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_
                ShadingMode.MANY_LIGHTS: 4}
 
 
-DIFFUSE_SOURCES = ("pem", "lights", "mixed", "sh")
-GLOSSY_HORIZONS = ("off", "lobe", "lights", "both")
-GLOSSY_SOURCES = ("pem", "mixed", "wide")
+DIFFUSE_SOURCES = ("pem", "lights")
+GLOSSY_SOURCES = ("pem", "wide")
 MAX_SHADOW_SIDE = 8192   # the largest shadow map side, small lights' included (shadow_size x small_light_scale)
 # Lights within this of a group's brightest share its map: the group's mean direction then stays within it
 # of every member (its component along the brightest light's is at least cos 30 degrees of the total).
@@ -98,20 +91,18 @@ class FrameSettings:
     shadow_size: int = 256
     blur_scale: float = 0.1  # the paper's per-light blur, narrowed; the presets use 0 (docs/benchmarks.md)
     bleed_reduction: float = 0.2
-    # Shadow-map bias, in each map's own texels: the lookup pushed off the surface along the normal
-    # (main maps, sharp maps), and the least deviation of the depths under a texel (Chebyshev's
+    # Shadow-map bias, in each map's own texels (main and sharp maps alike): the lookup pushed off the
+    # surface along the normal, and the least deviation of the depths under a texel (Chebyshev's
     # variance floor). Chosen on the benchmark scenes (docs/benchmarks.md, the bias rows). Only
     # against the receiver's own shadow group (renderer/scene.py): the other group's casters are
     # compared without it.
     normal_offset_texels: float = 1.5
-    sharp_normal_offset_texels: float = 2.0
     min_sigma_texels: float = 3.0
     # Contact shadows (full mode; lighting.frag): occluders within this many main-map texels of a
     # surface, found in the geometry pass's positions along screen lines: those the maps' bias skips
     # (the collar over the neck) and the near ones a 256^2 map drawn from a proxy blurs (a fold's
     # lips). 0: off (the paper). Chosen on the benchmark scenes (docs/benchmarks.md).
     contact_shadow_texels: float = 24.0
-    shadow_threshold: float = 0.0  # lights below this share of the energy get no shadow map
     # Share of the casters' triangles the shadow pass draws (shadows/proxy.py; 1: the meshes
     # themselves): the pass costs per triangle on a CPU rasterizer.
     caster_detail: float = 1.0
@@ -133,49 +124,23 @@ class FrameSettings:
     # the median cut split into regions a degree apart; each keeps its own direction and energy for
     # shading). 0: one map each.
     sharp_share_deg: float = 0.0
-    # At most this many sharp maps (the brightest lights' groups); the other lights go back to the main
-    # maps. 0: no cap.
-    sharp_max_maps: int = 0
-    # Sharp maps of lights whose disc is at most this many degrees in radius (a sun) draw the casters
-    # at full detail; larger sharp lights' maps (an interior's lamps, whole since the median cut keeps
-    # compact sources whole: penumbrae wide enough that the proxy's facets do not show) draw them at
-    # caster_detail. 90: every sharp map at full detail.
-    sharp_full_detail_deg: float = 90.0
-    # Each region's glossy term in closed form (full and no-occlusion modes; glossy "mixed" or "wide";
+    # Each region's glossy term in closed form (full and no-occlusion modes; glossy "wide";
     # with "pem" no glossy term is in closed form and this does nothing) summed over this many discs:
     # its texels cut further by the same median cut (lighting/median_cut.py, SubLights), its
     # visibility, diffuse term and PEMs still the region's.
     # 1: one disc per region (the paper's one light per region). A power of two, at most
     # MAX_SUB_LIGHTS. Chosen on the benchmark scenes (docs/benchmarks.md, the sub_lights rows).
     sub_lights: int = 1
-    horizon: bool = False          # VIS_i includes the tangent plane (see lighting.frag); off: the paper
-    # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level),
-    # "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups) or
-    # "mixed" (small lights, angular radius <= ~6 degrees, from their disc; the rest from the PEMs) or
-    # "sh" (small lights from their disc, the rest from their own SH9 irradiance; no diffuse lookups).
+    # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level)
+    # or "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups).
     diffuse: str = "pem"
-    # The glossy lobe's part below the surface (full mode only; shading/horizon.py): "off" (the paper),
-    # "lobe" (times the lobe's share above the shading normal's plane), "lights" (each light times the
-    # share of its disc above the triangle's own plane; the default) or "both" (they overlap).
-    glossy_horizon: str = "lights"
     # Where the glossy term comes from: "pem" (the paper: PEM_i along the reflection vector at the level
-    # of g), "mixed" (small lights, angular radius <= ~6 degrees, from their disc through the Phong
-    # lobe in closed form; the rest from the PEMs) or "wide" (as mixed, and the large lights too
-    # wherever the lobe is wider than their disc, 1 / s >= a^2 / 4: there the PEM's coarse MIP levels
-    # are the larger error; a narrow lobe reads the PEM's fine levels, which hold the region's detail).
+    # of g) or "wide" (small lights, angular radius <= ~6 degrees, from their disc through the Phong
+    # lobe in closed form, and the large lights too wherever the lobe is wider than their disc,
+    # 1 / s >= a^2 / 4: there the PEM's coarse MIP levels are the larger error; a narrow lobe reads the
+    # PEM's fine levels, which hold the region's detail). In every mode with closed-form terms, each
+    # light's glossy term loses the part of its disc below the triangle's own plane (lighting.frag).
     glossy: str = "pem"
-    # Full mode: small lights (angular radius <= ~6 degrees) below the triangle's own plane are removed
-    # from the diffuse term too: the terminator a shadow map cannot resolve (lighting.frag).
-    terminator: bool = True
-    # Full mode: the diffuse term of the large lights that get no shadow map (below shadow_threshold)
-    # from their summed SH9 irradiance (lighting/sh.py) instead of one PEM lookup (or disc, or SH9)
-    # each, whatever the diffuse source (small ones, a sun's shape, keep their own); in a scene
-    # without a glossy lobe those lights then cost nothing per pixel (light_kinds). The frame's
-    # timings count them (sh_lights, sh_skipped_lights).
-    sh_unshadowed: bool = False
-    # g -> MIP level: "l2" (closest normalized kernel, the default: lower error in every target scene)
-    # or "volume" (the paper's section 5); lighting/glossiness.py.
-    calibration: Calibration = Calibration.L2
     mode: ShadingMode = ShadingMode.FULL
     background: Background = Background.ENVIRONMENT
 
@@ -198,23 +163,12 @@ class FrameSettings:
         if isinstance(self.sharp_share_deg, bool) or not (0.0 <= self.sharp_share_deg <= MAX_SHARP_SHARE_DEG):
             raise InvalidInputError(f"sharp_share_deg is an angle in [0, {MAX_SHARP_SHARE_DEG:g}] degrees, got "
                                     f"{self.sharp_share_deg!r}")   # also refuses NaN
-        if not (_whole(self.sharp_max_maps) and 0 <= self.sharp_max_maps <= 4096):
-            raise InvalidInputError(f"sharp_max_maps is a whole number in 0..4096 (0: no cap), got {self.sharp_max_maps!r}")
-        if isinstance(self.sharp_full_detail_deg, bool) or not (0.0 <= self.sharp_full_detail_deg <= 90.0):
-            raise InvalidInputError(f"sharp_full_detail_deg is a disc radius in [0, 90] degrees, got "
-                                    f"{self.sharp_full_detail_deg!r}")   # also refuses NaN
         if not (_whole(self.sub_lights) and 1 <= self.sub_lights <= MAX_SUB_LIGHTS
                 and not self.sub_lights & (self.sub_lights - 1)):
             raise InvalidInputError(f"sub_lights is a power of two in 1..{MAX_SUB_LIGHTS} (discs per region in the "
                                     f"closed-form glossy term), got {self.sub_lights!r}")
         if not (0.0 < self.caster_detail <= 1.0):
             raise InvalidInputError(f"caster detail is the share of triangles kept, in (0, 1], got {self.caster_detail}")
-        if not (0.0 <= self.shadow_threshold <= 1.0):
-            raise InvalidInputError(f"shadow threshold is a share of the energy in [0, 1], got {self.shadow_threshold}")
-        object.__setattr__(self, "calibration", Calibration.parse(self.calibration))
-        if self.glossy_horizon not in GLOSSY_HORIZONS:
-            raise InvalidInputError(f"glossy_horizon must be one of {', '.join(GLOSSY_HORIZONS)}, "
-                                    f"got {self.glossy_horizon!r}")
         if self.glossy not in GLOSSY_SOURCES:
             raise InvalidInputError(f"glossy must be one of {', '.join(GLOSSY_SOURCES)}, got {self.glossy!r}")
         if self.diffuse not in DIFFUSE_SOURCES:
@@ -222,7 +176,7 @@ class FrameSettings:
         if isinstance(self.contact_shadow_texels, bool) or not (0.0 <= self.contact_shadow_texels <= MAX_CONTACT_TEXELS):
             raise InvalidInputError(f"contact_shadow_texels is a number of texels in [0, {MAX_CONTACT_TEXELS:g}], "
                                     f"got {self.contact_shadow_texels!r}")   # also refuses NaN
-        for name in ("normal_offset_texels", "sharp_normal_offset_texels", "min_sigma_texels"):
+        for name in ("normal_offset_texels", "min_sigma_texels"):
             value = getattr(self, name)
             if isinstance(value, bool) or not (0.0 <= value <= MAX_BIAS_TEXELS):   # also refuses NaN
                 raise InvalidInputError(f"{name} is a number of texels in [0, {MAX_BIAS_TEXELS:g}], got {value!r}")
@@ -232,7 +186,6 @@ class FrameSettings:
     def as_dict(self) -> dict:
         d = asdict(self)
         d["mode"], d["background"] = self.mode.value, self.background.value
-        d["calibration"] = self.calibration.value
         return d
 
 
@@ -264,52 +217,33 @@ MAX_SUB_LIGHTS = 16
 
 
 def _glossy_closed_form(mode: ShadingMode, glossy: str) -> bool:
-    """Whether some light's glossy term is in closed form (small lights with "mixed", large ones too
-    where the lobe is wide with "wide"): what FrameSettings.sub_lights applies to."""
-    return mode in _CLOSED_FORM_MODES and glossy in ("mixed", "wide")
+    """Whether some light's glossy term is in closed form (with "wide": small lights', and large ones'
+    where the lobe is wide): what FrameSettings.sub_lights applies to."""
+    return mode in _CLOSED_FORM_MODES and glossy == "wide"
 
 
 def _no_diffuse_pems(mode: ShadingMode, diffuse: str) -> bool:
     """Every light's diffuse term without PEM lookups: the DIFFUSE_LIGHTS program variant, whose
     loops are compiled only for the kinds light_kinds then gives (one rule for both)."""
-    return diffuse in ("lights", "sh") and mode in _CLOSED_FORM_MODES
-
-
-def _sh_carried(lights: np.ndarray, mode: ShadingMode, sh_unshadowed: bool) -> np.ndarray:
-    """The lights whose diffuse term the summed SH9 irradiance carries (FrameSettings.sh_unshadowed,
-    full mode): the large ones without a shadow map, as the shader's sh_skip decides (the packed
-    float32 sine against the float32 define); small ones keep their own (order 2 cannot hold a sun)."""
-    if not (sh_unshadowed and mode is ShadingMode.FULL):
-        return np.zeros(len(lights), bool)
-    return (lights["shadow"][:, 0] < 0) & (lights["params"][:, 3] > np.float32(SMALL_LIGHT_MAX_SIN))
+    return diffuse == "lights" and mode in _CLOSED_FORM_MODES
 
 
 def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
-                sh_unshadowed: bool, max_glossiness: float = 1.0,
-                glossy_scene: bool = True) -> tuple[np.ndarray, np.ndarray]:
+                max_glossiness: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """The lighting pass's order of the lights and the end of each kind in it (int32 arrays: the
     light_order buffer and u_kind_end of lighting.frag). A light's kind: bit 0 it reads its diffuse
     PEM, bit 1 its glossy PEM, bit 2 its map is in the sharp array, bit 3 its region is in the second
     PEM texture. Whether a term comes from the PEM follows the shader's modes: in the full and
-    no-occlusion modes small lights (angular radius <= ~6 degrees) have their diffuse term in closed
-    form with diffuse "mixed" (every light with "lights" or "sh"), their glossy term with glossy
-    "mixed"; large lights without a shadow map get their diffuse term from SH9 when `sh_unshadowed`. With
-    glossy "wide", a large light whose disc is narrower than the lobe at every pixel (at the scene's
+    no-occlusion modes every light's diffuse term is in closed form with diffuse "lights", and small
+    lights' (angular radius <= ~6 degrees) glossy term with glossy "wide"; there a large light whose disc is narrower than the lobe at every pixel (at the scene's
     `max_glossiness`, the widest lobe being the least glossy) has its glossy term in closed form
     everywhere: its glossy PEM is not read (the shader's wide_lobe would discard the lookup at every
-    pixel; a CPU rasterizer runs it anyway). In a scene without a glossy lobe (`glossy_scene` False)
-    the lights whose diffuse term SH9 carries add nothing of their own: they get kind N_LIGHT_KINDS,
-    after every loop's end, and the shader never visits them."""
+    pixel; a CPU rasterizer runs it anyway)."""
     n = len(lights)
     exact_modes = settings.mode in _CLOSED_FORM_MODES
     # The shader compares the packed float32 sine with the float32 define.
     small = lights["params"][:, 3] <= np.float32(SMALL_LIGHT_MAX_SIN)
-    if _no_diffuse_pems(settings.mode, settings.diffuse):
-        pem_diffuse = np.zeros(n, bool)
-    else:
-        pem_diffuse = ~(small & exact_modes & (settings.diffuse == "mixed"))
-    sh_carried = _sh_carried(lights, settings.mode, sh_unshadowed)
-    pem_diffuse &= ~sh_carried
+    pem_diffuse = np.full(n, not _no_diffuse_pems(settings.mode, settings.diffuse))
     pem_glossy = ~(small & _glossy_closed_form(settings.mode, settings.glossy))
     if exact_modes and settings.glossy == "wide":
         # wide_lobe in lighting.frag at the glossiest pixel, with a margin for the interpolated g.
@@ -318,8 +252,6 @@ def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
     second = np.arange(n) >= REGIONS_PER_TEXTURE
     kind = (pem_diffuse.astype(np.int32) | pem_glossy.astype(np.int32) << 1 | np.asarray(sharp, np.int32) << 2
             | second.astype(np.int32) << 3)
-    if not glossy_scene:
-        kind[sh_carried] = N_LIGHT_KINDS
     order = np.argsort(kind, kind="stable").astype(np.int32)
     kind_end = np.searchsorted(kind[order], np.arange(1, N_LIGHT_KINDS + 1)).astype(np.int32)
     return order, kind_end
@@ -382,7 +314,6 @@ class Renderer:
                 self.gl.release()
             raise
         defines = {"GLOSS_TABLE_SIZE": PEMSet.GLOSS_TABLE_SIZE, "REGIONS_PER_TEXTURE": REGIONS_PER_TEXTURE,
-                   "HORIZON_N_MU": float(HORIZON_N_MU), "HORIZON_N_G": float(HORIZON_N_G),
                    "SMALL_LIGHT_MAX_SIN": float(SMALL_LIGHT_MAX_SIN)}
         self._defines = defines
         self._shade_progs: dict[tuple, tuple[moderngl.Program, moderngl.VertexArray]] = {}
@@ -393,9 +324,6 @@ class Renderer:
         self._readback: np.ndarray | None = None
         self._buffers: dict[str, moderngl.Buffer] = {}
         self._gloss_buf = ctx.buffer(reserve=4 * PEMSet.GLOSS_TABLE_SIZE)
-        table = horizon_table()
-        self._horizon_tex = ctx.texture((table.shape[1], table.shape[0]), 1, table.tobytes(), dtype="f4")
-        self._horizon_tex.repeat_x = self._horizon_tex.repeat_y = False
         # The moments program is needed to build vertex arrays before any shadow map exists.
         self._shadow_prog = program(ctx, "shadows/moments.vert", "shadows/moments.frag")
         self.gbuffer_prog = program(ctx, "shading/surface.vert", "shading/gbuffer.frag")
@@ -423,8 +351,6 @@ class Renderer:
                 defines["GLOSSY_WIDE"] = 1   # large lights' glossy term in closed form where the lobe is wide
             if closed:
                 defines["DIFFUSE_LIGHTS"] = 1   # no diffuse PEM lookups
-            if closed and diffuse == "sh":
-                defines["DIFFUSE_SH"] = 1
             if sub_lights > 1:
                 defines["SUB_LIGHTS"] = sub_lights
             if contact:
@@ -527,7 +453,8 @@ class Renderer:
         n = regions.n_regions
         lo, hi = scene.bounds(casters_only=True)
         shadowed = settings.mode is not ShadingMode.NO_OCCLUSION
-        layers = shadow_layers(regions.energy_luminance, settings.shadow_threshold if shadowed else 2.0)
+        # Every light has a map (none in the no-occlusion mode).
+        layers = np.arange(n, dtype=np.int32) if shadowed else np.full(n, -1, np.int32)
         disc_radius = regions.disc_radius_rad()
         small = np.sin(disc_radius) <= SMALL_LIGHT_MAX_SIN
         relative = regions.energy_luminance / max(float(regions.energy_luminance.mean()), 1e-300)
@@ -536,8 +463,7 @@ class Renderer:
         sharp = (small | settings.sharp_large_lights) & bright if settings.small_light_min_energy > 0 else small
         plan = plan_layers(layers, sharp, k)
         plan, shadow_dirs = share_sharp_maps(plan, regions.directions, regions.energy_luminance,
-                                             np.radians(settings.sharp_share_deg), settings.sharp_max_maps,
-                                             disc_radius)
+                                             np.radians(settings.sharp_share_deg), disc_radius)
         # Each light's map size; blur widths are in the light's own texels.
         sizes = np.where(plan.sharp, settings.shadow_size * k, settings.shadow_size)
         sigma = blur_sigma_texels(regions.light_radius_rad(), sizes, settings.blur_scale)
@@ -562,22 +488,15 @@ class Renderer:
         shadow_maps = self._shadow_maps_for("main", settings.shadow_size, max(len(plan.main_lights), 1), groups)
         arrays = {"main": shadow_maps}
         if len(plan.main_lights):
-            shadow_maps.render([([(sm.shadow_vao(settings.caster_detail), sm.group) for sm in casters], -1)], lights_buf,
+            shadow_maps.render([(sm.shadow_vao(settings.caster_detail), sm.group) for sm in casters], lights_buf,
                                self._buffer("shadow_lights_main", plan.main_lights.tobytes()), timer, blur=blur)
-        sharp_coarse = np.zeros(len(plan.sharp_lights), bool)
         if len(plan.sharp_lights):
+            # The sharp maps draw the casters themselves, never a proxy: a proxy's facets show in a
+            # sharp shadow (and drawn from one, the interiors' lamps measured no faster on the held-out
+            # maps: docs/broad-benchmark.md).
             arrays["sharp"] = self._shadow_maps_for("sharp", settings.shadow_size * k, len(plan.sharp_lights), groups)
-            # Each sharp map at full caster detail or, for a light with a larger disc, at caster_detail
-            # (sharp_full_detail_deg): one pass per detail, each drawing only its own layers (-1: all).
-            coarse_min_sin = float(np.sin(np.radians(settings.sharp_full_detail_deg)))
-            if settings.sharp_full_detail_deg < 90.0 and settings.caster_detail < 1.0:
-                sharp_coarse = np.sin(disc_radius[plan.sharp_lights]) > coarse_min_sin
-            full_vaos = [(sm.vao_shadow, sm.group) for sm in casters]
-            proxy_vaos = [(sm.shadow_vao(settings.caster_detail), sm.group) for sm in casters] if sharp_coarse.any() else []
-            passes = ([(proxy_vaos, -1)] if sharp_coarse.all() else [(full_vaos, 0), (proxy_vaos, 1)]
-                      if sharp_coarse.any() else [(full_vaos, -1)])
-            arrays["sharp"].render(passes, lights_buf, self._buffer("shadow_lights_sharp", plan.sharp_lights.tobytes()),
-                                   timer, coarse_min_sin=coarse_min_sin, blur=blur)
+            arrays["sharp"].render([(sm.vao_shadow, sm.group) for sm in casters], lights_buf,
+                                   self._buffer("shadow_lights_sharp", plan.sharp_lights.tobytes()), timer, blur=blur)
         elif "sharp" in self._shadow_maps:   # no small light now: give its memory back
             self._shadow_maps.pop("sharp").release()
 
@@ -587,11 +506,8 @@ class Renderer:
         # The PEM set's tables the shading pass reads (the glossy discs, the lights' SH), made once per
         # set when a frame first asks for them: that frame reports them as their own stage.
         discs = settings.sub_lights if _glossy_closed_form(settings.mode, settings.glossy) else 1
-        light_sh = settings.diffuse == "sh" and _no_diffuse_pems(settings.mode, settings.diffuse)
-        sh_carried = _sh_carried(lights, settings.mode, settings.sh_unshadowed)
-        sh_on = bool(sh_carried.any())
         t0 = time.perf_counter()
-        if pems.prepare_tables(discs, light_sh=light_sh, region_sh=sh_on):
+        if pems.prepare_tables(discs):
             timer.wall_ms["light_tables"] = (time.perf_counter() - t0) * 1e3
         with gl.stage(timer, "geometry"):
             # Geometry pass: nearest surface's position, normals and material per pixel.
@@ -619,13 +535,10 @@ class Renderer:
             fbo.depth_mask = False   # the depth buffer is the geometry pass's: clear the colour only
             fbo.clear(0.0, 0.0, 0.0, 0.0)
             lights_buf.bind_to_storage_buffer(0)
-            if light_sh:   # per light, its region's irradiance coefficients
-                self._buffer("light_sh", pems.light_sh).bind_to_storage_buffer(3)
             if discs > 1:
                 self._buffer("sub_lights", pems.sub_lights_bytes(discs)).bind_to_storage_buffer(6)
-            self._gloss_buf.write(pems.gloss_table(settings.calibration).tobytes())
+            self._gloss_buf.write(pems.gloss_table().tobytes())
             self._gloss_buf.bind_to_storage_buffer(1)
-            self._horizon_tex.use(location=7)
             for unit, t in enumerate(gbuf):
                 t.use(location=8 + unit)
             pems.bind(0, 5, 6)
@@ -665,26 +578,17 @@ class Renderer:
                 self._buffer("light_screen", screen.astype(np.float32).tobytes()).bind_to_storage_buffer(5)
                 p["u_image_size"] = (float(w), float(h))
                 p["u_focal_px"] = 0.5 * h / float(np.tan(np.radians(camera.fov_y_deg) / 2.0))
-            order, kind_end = light_kinds(lights, plan.sharp, settings, sh_on, scene.max_glossiness,
-                                          scene.has_glossy_lobe)
+            order, kind_end = light_kinds(lights, plan.sharp, settings, scene.max_glossiness)
             self._buffer("light_order", order.tobytes()).bind_to_storage_buffer(4)
             if "u_kind_end" in p:   # the compiler keeps the entries up to the last kind this variant loops over
                 p["u_kind_end"].write(kind_end[:p["u_kind_end"].array_length].tobytes())
             _set_uniform(p, "u_camera_pos", tuple(float(x) for x in camera.eye))
             _set_uniform(p, "u_n_lights", n)
-            _set_uniform(p, "u_diffuse_level", pems.lookup_level(pems.diffuse_level(settings.calibration)))
+            _set_uniform(p, "u_diffuse_level", pems.lookup_level(pems.diffuse_level()))
             _set_uniform(p, "u_min_sigma_texels", settings.min_sigma_texels)
             _set_uniform(p, "u_two_groups", groups == 2)
             _set_uniform(p, "u_normal_offset_texels", settings.normal_offset_texels)
-            _set_uniform(p, "u_sharp_normal_offset_texels", settings.sharp_normal_offset_texels)
             _set_uniform(p, "u_bleed_reduction", settings.bleed_reduction)
-            _set_uniform(p, "u_horizon", settings.horizon)
-            _set_uniform(p, "u_terminator", settings.terminator)
-            _set_uniform(p, "u_sh_unshadowed", sh_on)
-            if sh_on:
-                coeffs = irradiance_coefficients(pems.region_sh[sh_carried].sum(axis=0))
-                _set_uniform(p, "u_sh", coeffs.astype(np.float32).tobytes())
-            _set_uniform(p, "u_glossy_horizon", GLOSSY_HORIZONS.index(settings.glossy_horizon))
             if vao is None:   # the compute pass: every pixel, uncovered ones left as drawn
                 ctx.memory_barrier()
                 fbo.color_attachments[0].bind_to_image(0, read=False, write=True)
@@ -709,10 +613,6 @@ class Renderer:
         timings["frame_wall_ms"] = (time.perf_counter() - t_frame) * 1e3
         timings["n_lights"] = n
         timings["shadowed_lights"] = n_shadowed
-        # Lights whose diffuse term came from the summed SH9 irradiance (sh_unshadowed), and of them
-        # those the lighting pass did not visit at all (no glossy lobe in the scene).
-        timings["sh_lights"] = int(sh_carried.sum())
-        timings["sh_skipped_lights"] = int(n - kind_end[-1])   # kind N_LIGHT_KINDS: after every loop's end
         timings["shadow_layers"] = plan.n_layers if n_shadowed else 0
         timings["sharp_layers"] = len(plan.sharp_lights) if n_shadowed else 0
         # The median main-map texel the casters' fit gave, in world units.
@@ -721,10 +621,10 @@ class Renderer:
         timings["n_triangles"] = scene.n_triangles
         # Triangles the shadow pass drew: the small lights' maps at full detail, the others' at caster_detail.
         # The proxy's count only where one was drawn (counting makes it: seconds for a large mesh).
-        n_coarse = len(plan.main_lights) + int(sharp_coarse.sum())
+        n_main = len(plan.main_lights)
         full = sum(sm.shadow_triangles(1.0) for sm in scene.meshes if sm.caster)
-        coarse = sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster) if n_coarse else 0
-        timings["shadow_triangles"] = (len(plan.sharp_lights) - int(sharp_coarse.sum())) * full + n_coarse * coarse
+        coarse = sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster) if n_main else 0
+        timings["shadow_triangles"] = len(plan.sharp_lights) * full + n_main * coarse
         timings["device"] = gl.renderer_name
         timings["lighting_pass"] = self.lighting_pass
         timings["normals"] = self.normals if positions is not None else None
@@ -748,7 +648,6 @@ class Renderer:
         for buf in self._buffers.values():
             buf.release()
         self._gloss_buf.release()
-        self._horizon_tex.release()
         variants = [obj for pair in self._shade_progs.values() for obj in pair[::-1] if obj is not None]
         for obj in (self.bg_vao, self.bg_prog, *variants, *self._programs.values()):
             obj.release()

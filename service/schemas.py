@@ -8,7 +8,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from renderer.presets import knob_defaults
+from renderer.presets import knob_defaults, retired
 from renderer.renderer import MAX_BIAS_TEXELS, MAX_CONTACT_TEXELS, MAX_SHARP_SHARE_DEG, MAX_SUB_LIGHTS
 
 
@@ -80,25 +80,13 @@ class QualitySpec(_Strict):
     shadow_size: int | None = Field(None, ge=16, le=4096, description="shadow-map size per light")
     blur_scale: float | None = Field(None, ge=0.0, le=100.0, description="shadow blur scale (0: hard)")
     bleed_reduction: float = Field(0.2, ge=0.0, lt=1.0)
-    shadow_threshold: float = Field(_KNOB["shadow_threshold"], ge=0.0, le=1.0)
     mode: ModeName = ModeName.FULL
-    calibration: Literal["l2", "volume"] = Field(_KNOB["calibration"], description="g -> MIP level: closest normalized kernel "
-                                                 "(l2) or the paper's equal lobe volume")
-    diffuse: Literal["pem", "lights", "mixed", "sh"] = Field(
-        _KNOB["diffuse"], description="diffuse term from the PEMs (the paper), from each light's disc, mixed (small "
-                           "lights from their disc, the rest from the PEMs) or sh (small lights from their "
-                           "disc, the rest from their region's SH9 irradiance)")
-    glossy: Literal["pem", "mixed", "wide"] = Field(
-        _KNOB["glossy"], description="glossy term from the PEMs (the paper), mixed (small lights from their "
-                                     "disc through the Phong lobe in closed form, the rest from the PEMs) or "
-                                     "wide (as mixed, and large lights too where the lobe is wider than their "
-                                     "disc)")
-    glossy_horizon: Literal["off", "lobe", "lights", "both"] = Field(
-        _KNOB["glossy_horizon"], description="drop the glossy lobe's part below the surface (off: the paper)")
-    terminator: bool = Field(_KNOB["terminator"], description="small lights below the triangle's own plane light neither term")
-    horizon: bool = Field(_KNOB["horizon"], description="the shading normal's tangent plane blocks every light, both terms")
-    needed_levels: bool = Field(_KNOB["needed_levels"], description="store only the PEM levels the scene's glossiness reads "
-                                "(the same image, less memory)")
+    diffuse: Literal["pem", "lights"] = Field(
+        _KNOB["diffuse"], description="diffuse term from the PEMs (the paper) or from each light's disc")
+    glossy: Literal["pem", "wide"] = Field(
+        _KNOB["glossy"], description="glossy term from the PEMs (the paper) or wide (small lights from their "
+                                     "disc through the Phong lobe in closed form, large lights too where the "
+                                     "lobe is wider than their disc)")
     whole_sources: bool = Field(_KNOB["whole_sources"], description="median cut: no cut through a compact bright source "
                                 "(a sun), which keeps it in one region (false: the paper's plain median cut)")
     caster_detail: float = Field(_KNOB["caster_detail"], gt=0.0, le=1.0, description="share of the casters' triangles the shadow "
@@ -110,20 +98,12 @@ class QualitySpec(_Strict):
     sharp_share_deg: float = Field(_KNOB["sharp_share_deg"], ge=0.0, le=MAX_SHARP_SHARE_DEG, strict=True,
                                    description="sharp lights within this many degrees of a brighter one whose disc "
                                    "theirs overlaps share its map (a sun split into a few regions)")
-    sharp_max_maps: int = Field(_KNOB["sharp_max_maps"], ge=0, le=4096, strict=True, description="at most this many "
-                                "sharp maps, the brightest lights' first (0: no cap)")
-    sharp_full_detail_deg: float = Field(_KNOB["sharp_full_detail_deg"], ge=0.0, le=90.0, strict=True,
-                                         description="sharp maps of lights whose disc is at most this many degrees "
-                                         "in radius draw the casters at full detail, larger ones' at caster_detail")
     sub_lights: int = Field(_KNOB["sub_lights"], ge=1, le=MAX_SUB_LIGHTS, strict=True,
                             description="each region's glossy term in closed form from this many discs (a power "
                             "of two: its texels cut further by the same median cut)")
     normal_offset_texels: float = Field(_KNOB["normal_offset_texels"], ge=0.0, le=MAX_BIAS_TEXELS, strict=True,
                                         description="shadow lookups pushed off the surface along the normal by "
                                         "this many of the main maps' texels")
-    sharp_normal_offset_texels: float = Field(_KNOB["sharp_normal_offset_texels"], ge=0.0, le=MAX_BIAS_TEXELS,
-                                              strict=True, description="the same for the sharp maps, in their "
-                                              "own texels")
     min_sigma_texels: float = Field(_KNOB["min_sigma_texels"], ge=0.0, le=MAX_BIAS_TEXELS, strict=True,
                                     description="least deviation of the depths under a shadow-map texel, in that "
                                     "map's texels (keeps sloped surfaces from shadowing themselves)")
@@ -133,9 +113,15 @@ class QualitySpec(_Strict):
     small_light_min_energy: float = Field(_KNOB["small_light_min_energy"], ge=0.0, le=1e6, description="only small "
                                           "lights carrying at least this many times the mean light's energy get "
                                           "those maps (0: every small light)")
-    sh_unshadowed: bool = Field(_KNOB["sh_unshadowed"], description="the diffuse term of the large lights below "
-                                "shadow_threshold from their summed SH9 irradiance (small ones keep their own; a "
-                                "scene without a glossy lobe then skips those lights)")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_retired_settings(cls, data: Any) -> Any:
+        if isinstance(data, dict):
+            for name in data:
+                if retired(name):
+                    raise ValueError(f"quality.{name}: {retired(name)}")
+        return data
 
     @field_validator("sub_lights")
     @classmethod

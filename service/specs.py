@@ -63,14 +63,11 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: di
     frame = frame_settings(knobs, out.width, out.height, bleed_reduction=q.bleed_reduction,
                            mode=ShadingMode(q.mode.value), background=Background(out.background))
     # The shadow maps' memory before any is made, bounded as if every light that may be small were
-    # (at most lights / small_light_min_energy of them carry that multiple of the mean, and at most
-    # sharp_max_maps of them): a request that cannot fit is refused here with the numbers, not by the
+    # (at most lights / small_light_min_energy of them carry that multiple of the mean): a request that cannot fit is refused here with the numbers, not by the
     # GL driver mid-frame.
     n = int(knobs["lights"])
     n_sharp = n if frame.small_light_scale == 1 or frame.small_light_min_energy <= 0 else \
         int(min(n, n / frame.small_light_min_energy))   # min first: n / 1e-320 is inf
-    if frame.sharp_max_maps > 0:
-        n_sharp = min(n_sharp, frame.sharp_max_maps)
     side = frame.shadow_size * frame.small_light_scale
     worst = (n_sharp * side * side + (n - n_sharp) * frame.shadow_size ** 2) * 2 * MOMENT_BYTES
     if worst > settings.max_shadow_map_bytes:
@@ -79,7 +76,7 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: di
             f"({frame.shadow_size} x {frame.small_light_scale})^2, the others at {frame.shadow_size}^2, x {2 * MOMENT_BYTES} "
             f"bytes), over the limit of {settings.max_shadow_map_bytes / 2**30:.1f} GiB "
             "(GARMENT_RENDER_MAX_SHADOW_MAP_BYTES): use fewer lights, a smaller shadow_size or "
-            "small_light_scale, a larger small_light_min_energy, or a sharp_max_maps")
+            "small_light_scale, or a larger small_light_min_energy")
     pem = pem_settings(knobs, filter_name, q.levels)
     applied = frame.as_dict()   # the knobs as the frame holds them (enums as their values)
     info = {"preset": name, "source": source, **{k: applied.get(k, knobs[k]) for k in _KNOBS},
@@ -185,7 +182,7 @@ def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshe
     if not any(casters):
         raise InvalidRequestError("cast_shadows is false on every mesh, so nothing would cast a shadow: set "
                                   "cast_shadows: true on the garment (a floor alone may be false)")
-    # The scene's PEM set: with needed_levels (the default), only the levels its materials' glossiness reads.
+    # The scene's PEM set: only the levels its materials' glossiness reads.
     quality.pem = pem_settings(quality.knobs, quality.pem.filter, quality.pem.levels, materials)
     quality.info["base_level"] = quality.pem.base_level
     detail = quality.frame.caster_detail

@@ -20,7 +20,7 @@ def test_pareto_front_keeps_only_undominated_settings():
 
 def test_plot_is_written_per_scene(tmp_path):
     rows = [_row("lights", 6, 30, 0.2), _row("balanced", "balanced", 120, 0.12),
-            _row("sh_unshadowed", "shadow_threshold=0.01, sh_unshadowed=True", 100, 0.13),
+            _row("sharp_large_lights", "sharp_large_lights=True, small_light_min_energy=4.8", 100, 0.13),
             _row("baseline", "none", 25, 0.19, mode="none"), _row("lights", 6, 40, 0.4, scene="t")]
     path = tmp_path / "pareto.png"
     write_pareto(path, rows)

@@ -74,7 +74,7 @@ def test_contact_shadows_darken_what_the_maps_bias_skips(renderer, azimuth_deg, 
     scene = renderer.create_scene(meshes, materials)
     pems = renderer.build_pems(cube, PEMSettings(24))
     try:
-        base = FrameSettings(width, height, shadow_size=64, diffuse="mixed", background=Background.BLACK)
+        base = FrameSettings(width, height, shadow_size=64, diffuse="lights", background=Background.BLACK)
         off = renderer.render(scene, pems, dataclasses.replace(base, contact_shadow_texels=0.0), cam).image
         on = renderer.render(scene, pems, dataclasses.replace(base, contact_shadow_texels=RADIUS), cam).image
     finally:
@@ -111,7 +111,7 @@ def test_a_plate_of_its_own_shadows_the_floor_through_the_maps_alone(renderer, a
     try:
         # 256^2 maps: a texel of 8 mm against the shadow's 25 mm across in the light's view (a 64^2
         # map's 3 cm texel cannot resolve it).
-        fs = FrameSettings(64, 64, shadow_size=256, diffuse="mixed", contact_shadow_texels=0.0,
+        fs = FrameSettings(64, 64, shadow_size=256, diffuse="lights", contact_shadow_texels=0.0,
                            background=Background.BLACK)
         lum = renderer.render(scene, pems, fs, CAM).image[..., :3].mean(axis=-1)
     finally:

@@ -33,16 +33,16 @@ def _ok(frame):
     return frame.image
 
 
-@pytest.mark.parametrize("source", ["pem", "mixed"])
+@pytest.mark.parametrize("source", [("pem", "pem"), ("lights", "wide")])
 def test_sun_far_beyond_half_float_range(renderer, source):
     # Suns of 1e5 and 1e6 (half floats end at 65504): images are finite and scale with the light,
-    # through the PEMs and through the small lights' closed forms (diffuse and glossy "mixed").
+    # through the PEMs and through the lights' closed forms (diffuse "lights", glossy "wide").
     meshes = [uv_sphere(0.5, 16, 32, (0, 0.6, 0)), ground_plane(3.0)]
     images = []
     for sun in (1e5, 1e6):
         cube = sun_sky_cube(32, (0.3, 1.0, 0.4), sun_radiance=sun, sun_radius_deg=3, sky=(0, 0, 0), ground=(0, 0, 0))
         assert cube.max() == sun
-        fs = FrameSettings(48, 48, shadow_size=64, background=Background.BLACK, diffuse=source, glossy=source)
+        fs = FrameSettings(48, 48, shadow_size=64, background=Background.BLACK, diffuse=source[0], glossy=source[1])
         frame = _frame(renderer, meshes, cube, settings=fs)
         images.append(_ok(frame)[..., :3])
     np.testing.assert_allclose(images[1], 10.0 * images[0], rtol=5e-3, atol=1e-3 * images[1].max())

@@ -160,34 +160,27 @@ def test_the_lighting_pass_visits_every_light_once_grouped_by_kind():
     lights["shadow"][:, 0] = np.where(np.arange(n) % 7 == 0, -1, 0)   # every 7th without a shadow map
     sharp = small & (np.arange(n) % 2 == 0)
 
-    def kinds(sh=False, max_glossiness=1.0, **kw):
-        order, end = light_kinds(lights, sharp, FrameSettings(**kw), sh, max_glossiness)
+    def kinds(max_glossiness=1.0, **kw):
+        order, end = light_kinds(lights, sharp, FrameSettings(**kw), max_glossiness)
         assert sorted(order) == list(range(n)) and end[-1] == n and np.all(np.diff(end) >= 0)
         kind = np.zeros(n, int)
         kind[order] = np.searchsorted(end, np.arange(n), side="right")   # the kind of each light
         return kind
 
-    k = kinds(diffuse="mixed", glossy="mixed")
-    np.testing.assert_array_equal(k & 1, ~small)               # small lights: both terms in closed form
+    # "wide": small lights' glossy term in closed form; the large lights read their glossy PEM (the
+    # shader picks the closed form per pixel)...
+    k = kinds(diffuse="pem", glossy="wide")
+    np.testing.assert_array_equal(k & 1, np.ones(n, bool))     # diffuse from the PEMs
     np.testing.assert_array_equal(k >> 1 & 1, ~small)
     np.testing.assert_array_equal(k >> 2 & 1, sharp)
     np.testing.assert_array_equal(k >> 3 & 1, np.arange(n) >= REGIONS_PER_TEXTURE)
     assert np.all(kinds(diffuse="pem", glossy="pem") & 3 == 3)
-    # "wide": the large lights read their glossy PEM (the shader picks the closed form per pixel)...
-    np.testing.assert_array_equal(kinds(diffuse="mixed", glossy="wide"), k)
+    assert np.all(kinds(diffuse="lights", glossy="wide") & 3 == np.where(small, 0, 2))
     # ... unless the lobe is wider than their disc at every pixel: at g <= 0.8 (1/s >= 0.2) a disc of
     # sine 0.5 is (a^2 / 4 = 0.0625); at g = 1 - 0.0625 only without the margin.
     for g in (0.8, 0.76, 0.0):
-        np.testing.assert_array_equal(kinds(diffuse="mixed", glossy="wide", max_glossiness=g), k & ~2)
-    np.testing.assert_array_equal(kinds(diffuse="mixed", glossy="wide", max_glossiness=1.0 - 0.0625), k)
-    np.testing.assert_array_equal(kinds(diffuse="mixed", glossy="mixed", max_glossiness=0.0), k)   # "mixed": no
-    assert np.all(kinds(diffuse="lights", glossy="mixed") & 3 == np.where(small, 0, 2))
-    # The baselines read both PEMs of every light; SH9 carries the unshadowed lights' diffuse term.
-    assert np.all(kinds(diffuse="mixed", glossy="mixed", mode=ShadingMode.AO_GREY) & 3 == 3)
-    shu = kinds(sh=True, diffuse="pem", glossy="pem")
-    carried = (lights["shadow"][:, 0] < 0) & ~small             # small ones keep their own diffuse term
-    assert carried.any() and ((lights["shadow"][:, 0] < 0) & small).any()
-    np.testing.assert_array_equal(shu & 1, ~carried)
-    # Without a glossy lobe in the scene the lights SH9 carries leave every loop (after the last end).
-    order, end = light_kinds(lights, sharp, FrameSettings(diffuse="pem", glossy="pem"), True, 1.0, False)
-    assert end[-1] == n - carried.sum() and sorted(order[end[-1]:]) == list(np.nonzero(carried)[0])
+        np.testing.assert_array_equal(kinds(diffuse="pem", glossy="wide", max_glossiness=g), k & ~2)
+    np.testing.assert_array_equal(kinds(diffuse="pem", glossy="wide", max_glossiness=1.0 - 0.0625), k)
+    np.testing.assert_array_equal(kinds(diffuse="pem", glossy="pem", max_glossiness=0.0) & 2, np.full(n, 2))
+    # The baselines read both PEMs of every light.
+    assert np.all(kinds(diffuse="lights", glossy="wide", mode=ShadingMode.AO_GREY) & 3 == 3)

@@ -492,7 +492,7 @@ def test_gpu_many_light_baseline_agrees_with_the_reference_under_a_sun(renderer)
 
 @pytest.mark.gpu
 def test_gpu_glossy_term_of_small_lights_in_closed_form_matches_the_reference(renderer):
-    # glossy="mixed": a small light's glossy term is its disc seen through the Phong lobe in closed
+    # glossy="wide": a small light's glossy term is its disc seen through the Phong lobe in closed
     # form. A glossy sphere (g = 0.9: s = 10) under a lone 3-degree sun, without occlusion on both
     # sides: the closed form agrees with the reference, the PEM lookup (the paper's, a prefiltered
     # MIP kernel instead of the lobe) does not.
@@ -503,15 +503,15 @@ def test_gpu_glossy_term_of_small_lights_in_closed_form_matches_the_reference(re
     try:
         small = int((np.sin(pems.regions.disc_radius_rad()) <= 0.1).sum())
         frames = {g: renderer.render(scene, pems, FrameSettings(48, 48, mode=ShadingMode.NO_OCCLUSION, glossy=g), CAM)
-                  for g in ("pem", "mixed")}
+                  for g in ("pem", "wide")}
     finally:
         pems.release()
         scene.release()
     assert small >= 1
     ref = render_reference([sphere()], [material], cube, CAM, 48, 48, 256, seed=11, occlusion=False)
-    both = covered(ref) & covered(frames["mixed"])
+    both = covered(ref) & covered(frames["wide"])
     err = {g: relative_rmse(f.image, ref.image, both) for g, f in frames.items()}
-    assert err["mixed"] < 0.03 and err["mixed"] < 0.2 * err["pem"], err   # measured: 0.004 and 0.31
+    assert err["wide"] < 0.03 and err["wide"] < 0.2 * err["pem"], err   # measured: 0.004 and 0.31
 
 
 @pytest.mark.gpu
@@ -519,7 +519,7 @@ def test_gpu_wide_lobes_of_large_lights_in_closed_form_match_the_reference_bette
     # glossy="wide": a large light's glossy term from its disc through the Phong lobe wherever the lobe
     # is wider than the disc. A glossy sphere under a soft sky (large regions only), no occlusion on
     # either side: at g = 0.6 (s = 2.5, every lobe wide) the closed forms are closer to the reference
-    # than the PEM's coarse MIP levels; at g = 1 no lobe is wide and "wide" is "mixed", pixel for pixel.
+    # than the PEM's coarse MIP levels; at g = 1 no lobe is wide and "wide" is "pem", pixel for pixel.
     cube = soft_sky_cube(32)
     scene = renderer.create_scene([sphere()], [Material((0.0, 0.0, 0.0), 1.0, 0.6)])
     mirror = renderer.create_scene([sphere()], [Material((0.0, 0.0, 0.0), 1.0, 1.0)])
@@ -527,8 +527,8 @@ def test_gpu_wide_lobes_of_large_lights_in_closed_form_match_the_reference_bette
     try:
         assert (np.sin(pems.regions.disc_radius_rad()) > 0.1).all()      # no small light
         frames = {g: renderer.render(scene, pems, FrameSettings(48, 48, mode=ShadingMode.NO_OCCLUSION, glossy=g), CAM)
-                  for g in ("mixed", "wide")}
-        at_one = [renderer.render(mirror, pems, FrameSettings(32, 32, glossy=g), CAM).image for g in ("mixed", "wide")]
+                  for g in ("pem", "wide")}
+        at_one = [renderer.render(mirror, pems, FrameSettings(32, 32, glossy=g), CAM).image for g in ("pem", "wide")]
     finally:
         pems.release()
         scene.release()
@@ -538,7 +538,7 @@ def test_gpu_wide_lobes_of_large_lights_in_closed_form_match_the_reference_bette
                            occlusion=False)
     both = covered(ref) & covered(frames["wide"])
     err = {g: relative_rmse(f.image, ref.image, both) for g, f in frames.items()}
-    assert err["wide"] < 0.02 and err["wide"] < 0.85 * err["mixed"], err   # measured: 0.013 and 0.019
+    assert err["wide"] < 0.02 and err["wide"] < 0.85 * err["pem"], err   # measured: 0.013 and 0.019
 
 
 def _sky_over_grass(face_size: int) -> np.ndarray:

@@ -76,15 +76,15 @@ def test_unshadowed_image_does_not_depend_on_region_count(renderer):
         assert np.abs(img - images[0]).max() <= 3e-3 * peak
 
 
-@pytest.mark.parametrize("source", ["pem", "mixed"])
+@pytest.mark.parametrize("source", [("pem", "pem"), ("lights", "wide")])
 @pytest.mark.parametrize("g", [0.0, 1e-7, 0.5, 1.0 - 1e-7, 1.0])
 def test_extreme_glossiness_gives_finite_images(renderer, g, source):
-    # Through the PEM lookups and through the small lights' closed forms (s' stays finite at g = 1).
+    # Through the PEM lookups and through the lights' closed forms (s' stays finite at g = 1).
     cube = sun_sky_cube(32, (0.3, 1, 0.2), sun_radiance=1e6, sun_radius_deg=1)
     scene = renderer.create_scene([sphere(), plane(y=-0.6)], [Material((0.8, 0.2, 0.2), 0.5, g), Material()])
     pems = renderer.build_pems(cube, PEMSettings(48))
     try:
-        frame = renderer.render(scene, pems, FrameSettings(64, 64, diffuse=source, glossy=source), CAM)
+        frame = renderer.render(scene, pems, FrameSettings(64, 64, diffuse=source[0], glossy=source[1]), CAM)
     finally:
         pems.release()
         scene.release()
@@ -183,29 +183,19 @@ def test_new_positions_reuse_gpu_objects_and_move_the_image(renderer):
     assert cols_b.mean() > cols_a.mean() + 3
 
 
-def test_lights_below_the_energy_threshold_get_no_shadow_map(renderer):
+def test_every_light_has_a_shadow_map_and_the_unoccluded_mode_none(renderer):
     cube = sun_sky_cube(32, (0.4, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3)
     scene = renderer.create_scene([sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)], [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
     pems = renderer.build_pems(cube, PEMSettings(48))
-    # Horizon corrections off: with no shadow map the full mode must equal the unshadowed one exactly.
     try:
-        full = renderer.render(scene, pems, FrameSettings(64, 64, glossy_horizon="off", terminator=False, blur_scale=1.0), CAM)
-        some = renderer.render(scene, pems, FrameSettings(64, 64, glossy_horizon="off", terminator=False, blur_scale=1.0, shadow_threshold=0.01), CAM)
-        none_ = renderer.render(scene, pems, FrameSettings(64, 64, glossy_horizon="off", terminator=False, blur_scale=1.0, shadow_threshold=1.0), CAM)
-        unshadowed = renderer.render(scene, pems, FrameSettings(64, 64, glossy_horizon="off", terminator=False, blur_scale=1.0, mode=ShadingMode.NO_OCCLUSION), CAM)
+        full = renderer.render(scene, pems, FrameSettings(64, 64), CAM)
+        unshadowed = renderer.render(scene, pems, FrameSettings(64, 64, mode=ShadingMode.NO_OCCLUSION), CAM)
     finally:
         pems.release()
         scene.release()
-    assert full.timings["shadowed_lights"] == 48
-    assert 0 < some.timings["shadowed_lights"] < 48
-    assert none_.timings["shadowed_lights"] == 0 and "shadow_maps" not in none_.timings["wall_ms"]
-    # Two program variants: equal up to the last bit a GPU's compiler may round differently (an
-    # NVIDIA driver's did in a few pixels; llvmpipe's do not).
-    np.testing.assert_allclose(none_.image, unshadowed.image, rtol=1e-6, atol=0)
-    # Dropping the dim lights' shadows changes the image by far less than dropping all shadows.
-    err_some = np.abs(some.image - full.image)[..., :3].mean()
-    err_none = np.abs(none_.image - full.image)[..., :3].mean()
-    assert err_some < 0.1 * err_none
+    assert full.timings["shadowed_lights"] == 48 and "shadow_maps" in full.timings["wall_ms"]
+    assert unshadowed.timings["shadowed_lights"] == 0 and "shadow_maps" not in unshadowed.timings["wall_ms"]
+    assert full.image[..., :3].mean() < unshadowed.image[..., :3].mean()   # the sphere's shadow on the floor
 
 
 def test_scene_scale_does_not_change_the_image(renderer):
@@ -242,39 +232,43 @@ def test_many_light_baseline_matches_the_furnace_for_diffuse(renderer, sphere_sc
     assert px.mean() == pytest.approx(1.0, rel=0.1)
 
 
-def test_horizon_term_stops_light_from_below_an_open_sheet(renderer):
+def test_a_sun_below_an_open_sheet_does_not_light_it(renderer):
     # A sun below a single-sided sheet: the shadow map cannot block it (the sheet is the first surface
-    # the sun sees) and the PEM's diffuse lobe reaches past 90 degrees. The horizon term removes it, and
-    # so does the default terminator term (the sun is below the sheet's own plane).
-    cube = sun_sky_cube(32, (1.0, -0.25, 0.0), sun_radiance=1e3, sun_radius_deg=4, sky=(0, 0, 0), ground=(0, 0, 0))
+    # the sun sees) and the PEM's diffuse lobe reaches past 90 degrees; the terminator term (the sun is
+    # below the sheet's own plane) removes it. The same sun mirrored above the sheet says how bright
+    # a leak would be.
     cam = Camera((0.0, 3.0, 0.5), (0.0, 0.0, 0.0), fov_y_deg=40.0)
     scene = renderer.create_scene([plane(2.0)], [Material((0.8, 0.8, 0.8))])
-    pems = renderer.build_pems(cube, PEMSettings(24))
+    out = {}
     try:
-        paper = dict(terminator=False, glossy_horizon="off", background=Background.BLACK)
-        leak = renderer.render(scene, pems, FrameSettings(32, 32, **paper), cam).image
-        clipped = renderer.render(scene, pems, FrameSettings(32, 32, **{**paper, "horizon": True}), cam).image
-        default = renderer.render(scene, pems, FrameSettings(32, 32, background=Background.BLACK), cam).image
+        for name, y in (("below", -0.25), ("above", 0.25)):
+            cube = sun_sky_cube(32, (1.0, y, 0.0), sun_radiance=1e3, sun_radius_deg=4, sky=(0, 0, 0), ground=(0, 0, 0))
+            pems = renderer.build_pems(cube, PEMSettings(24))
+            try:
+                for diffuse in ("pem", "lights"):
+                    fs = FrameSettings(32, 32, diffuse=diffuse, background=Background.BLACK)
+                    out[name, diffuse] = renderer.render(scene, pems, fs, cam).image
+            finally:
+                pems.release()
     finally:
-        pems.release()
         scene.release()
-    top = leak[..., 3] > 0.5
-    assert leak[top][:, :3].mean() > 0.01                    # the paper's method leaks the sun through
-    assert clipped[top][:, :3].mean() < 0.01 * leak[top][:, :3].mean()
-    assert default[top][:, :3].mean() < 0.01 * leak[top][:, :3].mean()  # the terminator term (a small sun)
+    top = out["above", "pem"][..., 3] > 0.5
+    for diffuse in ("pem", "lights"):
+        lit = out["above", diffuse][top][:, :3].mean()
+        assert lit > 0.01
+        assert out["below", diffuse][top][:, :3].mean() < 0.01 * lit, diffuse
 
 
 @pytest.mark.parametrize("n_lights", [6, 48, 384])
-@pytest.mark.parametrize("diffuse", ["lights", "sh"])
-def test_diffuse_from_lights_passes_the_furnace_test(renderer, sphere_scene, n_lights, diffuse):
+def test_diffuse_from_lights_passes_the_furnace_test(renderer, sphere_scene, n_lights):
     # diffuse="lights": each region as a uniform disc with the region's mean cosine, its clamped-cosine
     # integral in closed form. Exact for regions above the horizon; the discs only approximate the
     # regions that straddle it (measured: mean within 0.01 %, worst pixel 0.6 % at 6 lights, 1.8 % at
-    # 48, 0.08 % at 384). diffuse="sh": large regions by their SH9 irradiance, exact for a constant map.
+    # 48, 0.08 % at 384).
     L = 2.5
     pems = renderer.build_pems(np.full((6, 32, 32, 3), L, np.float32), PEMSettings(n_lights))
     try:
-        s = FrameSettings(96, 96, mode=ShadingMode.NO_OCCLUSION, diffuse=diffuse)
+        s = FrameSettings(96, 96, mode=ShadingMode.NO_OCCLUSION, diffuse="lights")
         image = renderer.render(sphere_scene, pems, s, CAM).image
     finally:
         pems.release()
@@ -518,25 +512,6 @@ def test_the_box_in_view_is_the_frustum_cut_of_a_box():
     np.testing.assert_allclose(np.concatenate(box_in_frustum((-0.1, -0.1, -0.1), (0.1, 0.1, 0.1), vp)),
                                [-0.1, -0.1, -0.1, 0.1, 0.1, 0.1], atol=1e-9)
     assert box_in_frustum((20.0, 0.0, 0.0), (21.0, 1.0, 1.0), vp) is None
-
-
-def test_mixed_diffuse_takes_small_lights_in_closed_form(renderer):
-    # A black sky with one small sun: every light with energy is small, so "mixed" equals "lights" on
-    # the diffuse term; "pem" differs (its kernel is not the cosine lobe).
-    cube = sun_sky_cube(32, (0.3, 1.0, 0.5), sun_radiance=2e3, sun_radius_deg=2, sky=(0, 0, 0), ground=(0, 0, 0))
-    scene = renderer.create_scene([sphere()], [Material((0.7, 0.7, 0.7), 0.0, 0.0)])
-    pems = renderer.build_pems(cube, PEMSettings(48))
-    try:
-        img = {d: renderer.render(scene, pems, FrameSettings(64, 64, diffuse=d, mode=ShadingMode.NO_OCCLUSION,
-                                                            background=Background.BLACK), CAM).image
-               for d in ("pem", "lights", "mixed", "sh")}
-    finally:
-        pems.release()
-        scene.release()
-    m = img["pem"][..., 3] > 0.5
-    np.testing.assert_allclose(img["mixed"][m], img["lights"][m], rtol=1e-4, atol=1e-6)
-    np.testing.assert_allclose(img["sh"][m], img["lights"][m], rtol=1e-4, atol=1e-6)  # the dark sky's SH is 0
-    assert np.abs(img["pem"][m] - img["lights"][m]).max() > 0.05 * img["lights"][m].max()
 
 
 def test_the_shading_normal_is_turned_to_the_side_of_the_sheet_the_camera_sees(renderer):

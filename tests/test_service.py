@@ -291,7 +291,7 @@ def test_bad_frames_are_4xx_naming_the_problem(http, scene, mesh):
     ("nan_albedo", ["albedo"]),
     ("short_specular", ["specular"]),
     ("bad_lights", ["6 * 2^k"]),
-    ("bad_calibration", ["calibration"]),
+    ("bad_glossy", ["glossy"]),
     ("huge_image", ["exceeds the limit"]),
     ("unknown_env", ["unknown environment"]),
     ("unknown_mesh", ["unknown mesh"]),
@@ -318,8 +318,8 @@ def test_bad_scenes_are_4xx_naming_the_problem(http, env_upload, mesh, case, wor
         g["material"]["specular"] = [0.5, 0.5]
     elif case == "bad_lights":
         body["quality"]["lights"] = 10
-    elif case == "bad_calibration":
-        body["quality"]["calibration"] = "peak"
+    elif case == "bad_glossy":
+        body["quality"]["glossy"] = "mixed"
     elif case == "huge_image":
         body["output"]["width"] = 5000
     elif case == "unknown_env":
@@ -560,9 +560,9 @@ def test_no_gl_context_is_not_ready_and_503(tmp_path):
 def test_accuracy_knobs_reach_the_renderer_and_are_reported(http, env_upload, mesh):
     body = scene_body(env_upload[0]["id"], mesh)
     images = {}
-    for knobs in ({}, {"calibration": "volume", "diffuse": "lights", "glossy_horizon": "off", "needed_levels": False,
+    for knobs in ({}, {"diffuse": "pem",
                        "caster_detail": 0.5, "glossy": "pem", "small_light_min_energy": 10.0,
-                       "normal_offset_texels": 3.0, "sharp_normal_offset_texels": 1.0, "min_sigma_texels": 1.0,
+                       "normal_offset_texels": 3.0, "min_sigma_texels": 1.0,
                        "contact_shadow_texels": 3.0, "sub_lights": 4}):
         body["quality"] = {**body["quality"], **knobs}
         r = http.post("/render", json=body, params={"format": "json"})
@@ -570,20 +570,22 @@ def test_accuracy_knobs_reach_the_renderer_and_are_reported(http, env_upload, me
         j = r.json()
         settings = j["render"]["settings"]
         for k, v in knobs.items():
-            if k != "needed_levels":
-                assert settings[k] == v, (k, settings[k], v)
-        assert (j["render"]["pem_set"]["base_level"] == 0) == ("needed_levels" in knobs)
+            assert settings[k] == v, (k, settings[k], v)
         images[bool(knobs)] = j["image"]["base64"]
     assert images[True] != images[False]
     good = dict(body["quality"])
     body["quality"] = {**good, "caster_detail": 0.0}
     assert_error(http.post("/render", json=body), 422, "caster_detail")
-    for knob, bad in (("sharp_max_maps", True), ("sharp_share_deg", 45.0), ("small_light_scale", 2.5),
-                      ("normal_offset_texels", 17.0), ("min_sigma_texels", -1.0), ("sharp_normal_offset_texels", True),
-                      ("contact_shadow_texels", 64.5), ("contact_shadow_texels", "8"), ("sharp_full_detail_deg", 95.0),
+    for knob, bad in (("sharp_share_deg", 45.0), ("small_light_scale", 2.5),
+                      ("normal_offset_texels", 17.0), ("min_sigma_texels", -1.0),
+                      ("contact_shadow_texels", 64.5), ("contact_shadow_texels", "8"),
                       ("sub_lights", 3), ("sub_lights", 32), ("sub_lights", 0), ("shadow_fit", "scene")):
         body["quality"] = {**good, knob: bad}   # one bad knob at a time: the error names it
         assert_error(http.post("/render", json=body), 422, knob)
+    # A setting that went is refused with what replaced it.
+    for knob, value in (("terminator", False), ("needed_levels", True), ("sharp_max_maps", 2), ("calibration", "l2")):
+        body["quality"] = {**good, knob: value}
+        assert_error(http.post("/render", json=body), 422, f"quality.{knob}: removed")
     # sub_lights reaches the renderer where glossy terms are in closed form (glossy "wide").
     images = []
     for k in (1, 4):

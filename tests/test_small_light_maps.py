@@ -159,10 +159,6 @@ def test_sharp_lights_close_together_share_one_map():
     np.testing.assert_allclose(dirs[3], mean)
     np.testing.assert_array_equal(dirs[[1, 2, 4]], directions[[1, 2, 4]])   # alone, or not sharp: their own
 
-    # At most one sharp map: the sun's group keeps it, light 1 goes back to the main maps.
-    capped, _ = share_sharp_maps(plan, directions, energy, np.radians(2.0), max_maps=1)
-    assert list(capped.sharp_lights) == [0] and list(capped.main_lights) == [1, 2]
-    assert list(capped.layer) == [0, 0, 1, 0, -1] and list(capped.sharp) == [True, False, False, True, False]
     # With the lights' angular radii: lights 0 and 3 (a degree apart) share only if their discs overlap.
     points, _ = share_sharp_maps(plan, directions, energy, np.radians(2.0), radii=np.full(5, np.radians(0.3)))
     assert list(points.sharp_lights) == [0, 1, 3]                 # 0.3 + 0.3 < 1 degree: a map each
@@ -173,18 +169,12 @@ def test_sharp_lights_close_together_share_one_map():
     both = plan_layers(np.array([0, 1], np.int32), np.array([True, True]), 4)
     _, dirs = share_sharp_maps(both, opposite, np.array([1.0, 1.0]), np.pi)
     np.testing.assert_array_equal(dirs, [opposite[0], opposite[0]])
-    # A cap without sharing: the brightest lights' own maps.
-    alone, dirs = share_sharp_maps(plan, directions, energy, 0.0, max_maps=2)
-    assert list(alone.sharp_lights) == [0, 1] and list(alone.main_lights) == [2, 3]
-    np.testing.assert_array_equal(dirs, directions)
 
 
 def test_a_suns_regions_sharing_one_map_shade_as_with_their_own(renderer, sun_scene, request):
     from renderer.shadows.lights import SMALL_LIGHT_MAX_SIN
 
     _, pems = sun_scene
-    # One mesh: the capped lights' coarse maps blur the shadow's edge through their bias (texels of
-    # the 32^2 maps) as well as their resolution.
     scene = renderer.create_scene([_ball_and_ground()], [Material((0.8, 0.8, 0.8))])
     request.addfinalizer(scene.release)
     cam = Camera((0.0, 3.0, 2.5), (0.0, 0.2, 0.0), fov_y_deg=50.0)
@@ -199,29 +189,21 @@ def test_a_suns_regions_sharing_one_map_shade_as_with_their_own(renderer, sun_sc
 
     own = frame()
     shared = frame(sharp_share_deg=10.0)     # the sun's disc is 2 degrees in radius: its regions are closer
-    capped = frame(sharp_max_maps=1)
     assert own.timings["sharp_layers"] == int(small.sum()) >= 2
-    assert shared.timings["sharp_layers"] == capped.timings["sharp_layers"] == 1
-    # Every light keeps its shadow; the shared maps are drawn once, the capped lights' in the main array.
-    assert shared.timings["shadowed_lights"] == capped.timings["shadowed_lights"] == own.timings["shadowed_lights"]
+    assert shared.timings["sharp_layers"] == 1
+    # Every light keeps its shadow; the shared map is drawn once.
+    assert shared.timings["shadowed_lights"] == own.timings["shadowed_lights"]
     assert shared.timings["shadow_layers"] == own.timings["shadow_layers"] - (int(small.sum()) - 1)
-    assert capped.timings["shadow_layers"] == own.timings["shadow_layers"]
     assert shared.settings["shadow_bytes"] < own.settings["shadow_bytes"]
-    lum = [f.image[..., :3].mean(axis=-1) for f in (own, shared, capped)]
+    lum = [f.image[..., :3].mean(axis=-1) for f in (own, shared)]
     dark = lum[0] < 0.3 * np.percentile(lum[0], 95)
     assert dark.sum() > 100                  # the sphere's shadow is in the image
-    # One map along the sun's energy-weighted direction draws that shadow as the regions' own maps do;
-    # the cap sends the dimmer regions back to 32^2 maps, which blur its edge.
+    # One map along the sun's energy-weighted direction draws that shadow as the regions' own maps do.
     err_shared = np.abs(lum[1] - lum[0]).sum() / lum[0].sum()
-    err_capped = np.abs(lum[2] - lum[0]).sum() / lum[0].sum()
     assert err_shared < 0.01, err_shared
-    assert err_capped > 2.0 * err_shared, (err_capped, err_shared)
     for bad in (-1.0, 31.0, float("nan"), True):
         with pytest.raises(InvalidInputError, match="sharp_share_deg"):
             FrameSettings(sharp_share_deg=bad)
-    for bad in (-1, 1.5, 5000, True):
-        with pytest.raises(InvalidInputError, match="sharp_max_maps"):
-            FrameSettings(sharp_max_maps=bad)
 
 
 def test_lights_sharing_a_map_look_it_up_through_the_projection_it_was_drawn_with(renderer, sun_scene):
@@ -241,7 +223,7 @@ def test_lights_sharing_a_map_look_it_up_through_the_projection_it_was_drawn_wit
 
 
 def test_shadow_bias_is_a_bounded_number_of_texels():
-    for name in ("normal_offset_texels", "sharp_normal_offset_texels", "min_sigma_texels"):
+    for name in ("normal_offset_texels", "min_sigma_texels"):
         for good in (0.0, 16.0):
             assert getattr(FrameSettings(**{name: good}), name) == good
         for bad in (-0.5, 16.5, float("nan"), True):
@@ -257,7 +239,7 @@ def test_each_shadow_bias_knob_reaches_the_shadow_test(renderer, sun_scene):
     try:
         # The sun's map is a main map at scale 1 and a sharp one at scale 4.
         for name, value, scale in (("normal_offset_texels", 8.0, 1), ("min_sigma_texels", 12.0, 1),
-                                   ("sharp_normal_offset_texels", 8.0, 4)):
+                                   ("normal_offset_texels", 8.0, 4)):
             base = FrameSettings(64, 64, shadow_size=64, small_light_scale=scale)
             ref = renderer.render(scene, pems, base, cam).image
             img = renderer.render(scene, pems, dataclasses.replace(base, **{name: value}), cam).image
@@ -273,9 +255,9 @@ def test_shadow_size_is_a_whole_number_of_texels_from_16():
 
 
 
-def test_sharp_maps_of_larger_discs_draw_the_proxy_and_a_suns_the_full_meshes(renderer):
-    """sharp_full_detail_deg: a sun's sharp map (a 1-degree disc) from the full meshes, a lamp's (a
-    4-degree disc) from the caster proxy; each layer drawn by exactly one of the two passes."""
+def test_sharp_maps_draw_the_casters_at_full_detail_and_the_main_maps_the_proxy(renderer):
+    """A sun's and a lamp's sharp maps both from the full meshes, whatever caster_detail; the main
+    maps from the proxy: the frame's triangle count says which were drawn."""
     from renderer.envmap.cube import texel_directions
 
     d = texel_directions(64)
@@ -288,13 +270,15 @@ def test_sharp_maps_of_larger_discs_draw_the_proxy_and_a_suns_the_full_meshes(re
     pems = renderer.build_pems(cube, PEMSettings(48, whole_sources=True))
     cam = Camera((0.0, 3.0, 2.5), (0.0, 0.2, 0.0), fov_y_deg=50.0)
     try:
-        def frame(limit_deg):
+        def frame(detail):
             fs = FrameSettings(48, 48, shadow_size=32, small_light_scale=2, small_light_min_energy=1.0,
-                               caster_detail=0.25, sharp_full_detail_deg=limit_deg)
+                               caster_detail=detail)
             f = renderer.render(scene, pems, fs, cam)
             return f, renderer._shadow_maps["sharp"].read().copy()
 
-        (full, m_full), (coarse, m_coarse), (mixed, m_mixed) = frame(90.0), frame(0.0), frame(2.0)
+        (full, m_full), (coarse, m_coarse) = frame(1.0), frame(0.25)
+        full_tris = scene.meshes[0].shadow_triangles(1.0) + scene.meshes[1].shadow_triangles(1.0)
+        proxy_tris = scene.meshes[0].shadow_triangles(0.25) + scene.meshes[1].shadow_triangles(0.25)
     finally:
         pems.release()
         scene.release()
@@ -302,17 +286,10 @@ def test_sharp_maps_of_larger_discs_draw_the_proxy_and_a_suns_the_full_meshes(re
     relative = pems.regions.energy_luminance / pems.regions.energy_luminance.mean()
     sharp = (np.sin(np.radians(radius)) <= SMALL_LIGHT_MAX_SIN) & (relative >= 1.0)
     assert (sharp & (radius <= 2.0)).any() and (sharp & (radius > 2.0)).any()   # the sun's and the lamp's
-    n_layers = full.timings["sharp_layers"]
-    assert n_layers == coarse.timings["sharp_layers"] == mixed.timings["sharp_layers"] == m_full.shape[0] >= 2
-    # Every layer of the mixed frame is the full-detail frame's or the proxy's, bit for bit: one of each
-    # at least, and none left empty or drawn twice.
-    from_full = [np.array_equal(m_mixed[k], m_full[k]) for k in range(n_layers)]
-    from_proxy = [np.array_equal(m_mixed[k], m_coarse[k]) for k in range(n_layers)]
-    differ = [not np.array_equal(m_full[k], m_coarse[k]) for k in range(n_layers)]
-    assert all(a or b for a, b in zip(from_full, from_proxy)) and all(differ)
-    assert any(from_full) and any(from_proxy)
-    t = [f.timings["shadow_triangles"] for f in (coarse, mixed, full)]
-    assert t[0] < t[1] < t[2], t
-    for bad in (-1.0, 91.0, float("nan"), True):
-        with pytest.raises(InvalidInputError, match="sharp_full_detail_deg"):
-            FrameSettings(sharp_full_detail_deg=bad)
+    n_sharp = coarse.timings["sharp_layers"]
+    assert n_sharp == full.timings["sharp_layers"] == m_full.shape[0] >= 2
+    np.testing.assert_array_equal(m_coarse, m_full)            # the sharp maps never see the proxy
+    n_main = coarse.timings["shadowed_lights"] - int(sharp.sum())
+    assert proxy_tris < full_tris
+    assert coarse.timings["shadow_triangles"] == n_sharp * full_tris + n_main * proxy_tris
+

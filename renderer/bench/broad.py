@@ -230,12 +230,8 @@ KNOB_VARIANTS = {
     "caster_detail=1": {"caster_detail": 1.0},
     "sub_lights=1": {"sub_lights": 1},
     "small_light_scale=1": {"small_light_scale": 1},
-    "sharp_full_detail_deg=90": {"sharp_full_detail_deg": 90.0},
     "contact_shadow_texels=0": {"contact_shadow_texels": 0.0},
-    "terminator=off": {"terminator": False},
-    "glossy_horizon=off": {"glossy_horizon": "off"},
     "whole_sources=off": {"whole_sources": False},
-    "calibration=volume": {"calibration": "volume"},
 }
 
 

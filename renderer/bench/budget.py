@@ -22,14 +22,11 @@ KNOBS = (*PRESET_KNOBS, "filter", *knob_defaults())
 # The shadow bias before it was stated in each map's texels: 1.5 x 2 |box diagonal| / map size (about
 # 3.3 texels on the bench scenes) and an absolute variance floor of 1e-6 in depth units (about 0.25
 # texels of a 256^2 map, 1 of a 1024^2 one: this approximates it). The bench's shadow_bias row.
-OLD_SHADOW_BIAS = {"normal_offset_texels": 3.3, "sharp_normal_offset_texels": 3.3, "min_sigma_texels": 0.25}
+OLD_SHADOW_BIAS = {"normal_offset_texels": 3.3, "min_sigma_texels": 0.25}
 # Knobs added after a table was stored take the value they had then (the only one there was).
-KNOB_DEFAULTS = {"horizon": False, "calibration": "volume", "diffuse": "pem", "glossy_horizon": "off",
-                "terminator": False, "needed_levels": False, "shadow_threshold": 0.0, "sh_unshadowed": False,
-                "caster_detail": 1.0, "small_light_scale": 1, "small_light_min_energy": 0.0, "glossy": "pem",
-                "sharp_large_lights": False, "sharp_share_deg": 0.0, "sharp_max_maps": 0, "sharp_full_detail_deg": 90.0,
-                "sub_lights": 1, **OLD_SHADOW_BIAS,
-                "contact_shadow_texels": 0.0, "whole_sources": False}
+KNOB_DEFAULTS = {"diffuse": "pem", "caster_detail": 1.0, "small_light_scale": 1, "small_light_min_energy": 0.0,
+                 "glossy": "pem", "sharp_large_lights": False, "sharp_share_deg": 0.0, "sub_lights": 1,
+                 **OLD_SHADOW_BIAS, "contact_shadow_texels": 0.0, "whole_sources": False}
 
 
 def summarize(bench: dict) -> dict:

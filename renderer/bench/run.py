@@ -2,7 +2,7 @@
 one run on one machine, against the Monte Carlo reference (with its own noise floor stated).
 
 One-at-a-time sweeps around the `balanced` preset (lights, PEM face size, shadow-map size, blur
-scale, filter, calibration, diffuse source, horizon terms, needed levels, dim lights, caster detail,
+scale, filter, diffuse and glossy sources, caster detail,
 small lights' map size), the other presets as rows of their own, plus baselines timed in the same run on the same scenes: unshadowed prefiltered
 environment lighting, the plain many-light method, ambient occlusion times environment lighting
 (grey and colour), and the reference at the sample count that reaches the same error.
@@ -29,9 +29,7 @@ from .budget import OLD_SHADOW_BIAS
 from .scenes import BenchScene, bundled_scene, shared_scenes
 
 BALANCED = {**knob_defaults(), **preset("balanced"), "filter": "sqrt-cosine"}
-# Section 5 of the speed/accuracy issue: dim lights without shadow maps, their diffuse term by SH9.
-# A dict value changes several knobs at once (SH9 only matters once some lights are unshadowed).
-DIM_LIGHTS = [{"shadow_threshold": 0.01, "sh_unshadowed": True}]
+# A dict value in a sweep changes several knobs at once.
 
 SWEEPS = {
     "lights": [6, 12, 24, 48, 96, 192, 384],
@@ -39,29 +37,19 @@ SWEEPS = {
     "shadow_size": [64, 128, 256, 512],
     "blur_scale": [0.0, 0.1, 0.25, 0.5, 1.0, 2.0],
     "filter": [f.value for f in Filter],
-    "horizon": [False, True],
-    "calibration": ["l2", "volume"],
-    "diffuse": ["pem", "lights", "mixed", "sh"],
-    "glossy": ["pem", "mixed", "wide"],
+    "diffuse": ["pem"],
+    "glossy": ["pem"],
     "source": [{"diffuse": "pem", "glossy": "pem"}],   # the paper's PEM lookups for both terms
-    "glossy_horizon": ["off", "lobe", "lights", "both"],
-    "terminator": [False],
-    "needed_levels": [False],
     "whole_sources": [False],   # the paper's plain median cut
-    "shadow_threshold": [0.002, 0.01, 0.03],
-    "sh_unshadowed": DIM_LIGHTS,
     "caster_detail": [1.0, 0.5, 0.25, 0.1],
     "small_light_scale": [1, 2, 4, {"small_light_scale": 2, "small_light_min_energy": 0.0}],
     "small_light_min_energy": [0.0, 1.0, 4.8],
-    "sharp_large_lights": [True, {"sharp_large_lights": True, "sharp_max_maps": 2},
-                           {"sharp_large_lights": True, "small_light_min_energy": 4.8}],
+    "sharp_large_lights": [True, {"sharp_large_lights": True, "small_light_min_energy": 4.8}],
     "sharp_share_deg": [0.0, 1.0, 4.0],
-    "sharp_full_detail_deg": [90.0, 0.0],   # every sharp map from the full meshes; every one from the proxy
     "sub_lights": [1, 4, 8],   # discs per region in the glossy closed form (1: the paper's one light)
-    # Shadow bias in each map's texels (renderer.FrameSettings): the normal offsets and the variance
+    # Shadow bias in each map's texels (renderer.FrameSettings): the normal offset and the variance
     # floor; shadow_bias: the bias before it was stated in texels.
     "normal_offset_texels": [1.0, 3.3],
-    "sharp_normal_offset_texels": [1.0, 3.3],
     "min_sigma_texels": [0.0, 6.0],
     "shadow_bias": [OLD_SHADOW_BIAS],
     # Contact shadows (0: the paper's method without them), in main-map texels.
@@ -71,9 +59,9 @@ SWEEPS = {
     "preset": [preset("fast")],
 }
 QUICK_SWEEPS = {**SWEEPS, "lights": [6, 24, 48, 96], "face_size": [64, 128], "shadow_size": [128, 256],
-                "blur_scale": [0.0, 0.1, 1.0], "filter": ["none", "sqrt-cosine"], "shadow_threshold": [0.01],
+                "blur_scale": [0.0, 0.1, 1.0], "filter": ["none", "sqrt-cosine"],
                 "caster_detail": [1.0], "small_light_scale": [1, 2], "small_light_min_energy": [0.0],
-                "contact_shadow_texels": [0.0], "sharp_full_detail_deg": [90.0], "sub_lights": [1],
+                "contact_shadow_texels": [0.0], "sub_lights": [1],
                 "preset": [preset("fast"), preset("accurate")]}
 BASELINE_MODES = [ShadingMode.NO_OCCLUSION, ShadingMode.MANY_LIGHTS, ShadingMode.AO_GREY, ShadingMode.AO_COLOUR]
 

@@ -26,7 +26,6 @@ from .filters import Filter, taps_1d
 from .glossiness import Calibration, LobeTable, lobe_table
 from .median_cut import RegionSet, median_cut, sub_lights
 from .pem_reference import mip_levels, texel_weights, weight_chain
-from .sh import region_sh
 
 
 def finest_level_needed(face_size: int, kind: Filter | str, max_glossiness: float,
@@ -121,8 +120,6 @@ class PEMSet:
                                         "build it anew (omit `stored`) or pass the settings it was built with")
         self.median_cut_ms = (time.perf_counter() - t0) * 1e3
         self._cube = cube  # float32, kept for the SH9 coefficients, computed on first use
-        self._region_sh: np.ndarray | None = None
-        self._light_sh: bytes | None = None
         self._sub_lights: dict[int, bytes] = {}
         n_regions = self.regions.n_regions
 
@@ -244,30 +241,14 @@ class PEMSet:
         return out
 
     # -- queries ----------------------------------------------------------------------------
-    @property
-    def region_sh(self) -> np.ndarray:
-        """Radiance SH9 of every region (lighting/sh.py), for the dim lights' diffuse term: float64
-        (N, 9, 3), computed once, when a frame first asks for it (not part of every build)."""
-        if self._region_sh is None:
-            self._region_sh = region_sh(self._cube[..., :3], self.regions.labels, self.regions.n_regions)
-        return self._region_sh
-
-    def prepare_tables(self, sub_lights: int = 1, light_sh: bool = False, region_sh: bool = False) -> bool:
-        """Make the per-set tables a frame will read (`sub_lights_bytes(sub_lights)` when it is > 1,
-        `light_sh` when `light_sh`, `region_sh` when `region_sh`) if they are not made yet; True when
-        something was made, so that a renderer can time it as its own stage rather than inside the
-        shading pass."""
-        made = False
+    def prepare_tables(self, sub_lights: int = 1) -> bool:
+        """Make the per-set tables a frame will read (`sub_lights_bytes(sub_lights)` when it is > 1)
+        if they are not made yet; True when something was made, so that a renderer can time it as its
+        own stage rather than inside the shading pass."""
         if sub_lights > 1 and sub_lights not in self._sub_lights:
             self.sub_lights_bytes(sub_lights)
-            made = True
-        if (light_sh or region_sh) and self._region_sh is None:
-            _ = self.region_sh
-            made = True
-        if light_sh and self._light_sh is None:
-            _ = self.light_sh
-            made = True
-        return made
+            return True
+        return False
 
     def sub_lights_bytes(self, per_region: int) -> bytes:
         """Every region cut into `per_region` discs for the closed-form terms (median_cut.SubLights)
@@ -281,18 +262,6 @@ class PEMSet:
             out[:, 1, :3] = sub.energy_rgb
             self._sub_lights[per_region] = out.tobytes()
         return self._sub_lights[per_region]
-
-    @property
-    def light_sh(self) -> bytes:
-        """Every region's own irradiance coefficients (9 x rgb per light, padded to vec4, float32) as
-        the shading pass's `diffuse "sh"` reads them; computed once."""
-        if self._light_sh is None:
-            from .sh import irradiance_coefficients
-
-            sh = np.zeros((self.n_regions, 9, 4), np.float32)
-            sh[..., :3] = irradiance_coefficients(self.region_sh)
-            self._light_sh = sh.tobytes()
-        return self._light_sh
 
     @property
     def n_regions(self) -> int:

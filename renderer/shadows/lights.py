@@ -78,22 +78,20 @@ def plan_layers(layers: np.ndarray, small: np.ndarray, small_light_scale: int) -
 
 
 def share_sharp_maps(plan: LayerPlan, directions: np.ndarray, energy: np.ndarray, max_angle_rad: float,
-                     max_maps: int = 0, radii: np.ndarray | None = None) -> tuple[LayerPlan, np.ndarray]:
+                     radii: np.ndarray | None = None) -> tuple[LayerPlan, np.ndarray]:
     """Sharp lights within `max_angle_rad` of a brighter sharp light share its map (a sun split by the
     median cut into a few regions a degree apart): brightest first, each light joins the first group
     whose leader is that close, else leads a group of its own. With `radii` (each light's angular
     radius) only lights whose discs overlap the leader's join it (angle <= the sum of the radii): each
     one's own spread then covers the offset, while point-like parts a degree apart (a sun split into
-    many regions) keep their maps, whose offsets draw the sun's penumbra. With `max_maps` > 0 the lights of the
-    groups beyond the brightest `max_maps` go back to the main array. Returns the new plan and each
+    many regions) keep their maps, whose offsets draw the sun's penumbra. Returns the new plan and each
     light's shadow direction (its group's energy-weighted mean direction; its own outside groups).
     The lights keep their own directions and energies for shading; only their visibility is shared."""
     shadow_dirs = np.array(directions, np.float64, copy=True)
-    if (max_angle_rad <= 0.0 and max_maps <= 0) or len(plan.sharp_lights) == 0:
+    if max_angle_rad <= 0.0 or len(plan.sharp_lights) == 0:
         return plan, shadow_dirs
+
     def close(i: int, lead: int) -> bool:
-        if max_angle_rad <= 0.0:   # a cap without sharing
-            return False
         limit = max_angle_rad if radii is None else min(max_angle_rad, float(radii[i] + radii[lead]))
         return float(directions[i] @ directions[lead]) >= np.cos(limit)
 
@@ -106,8 +104,6 @@ def share_sharp_maps(plan: LayerPlan, directions: np.ndarray, energy: np.ndarray
                 break
         else:
             groups.append([int(i)])
-    if max_maps > 0:
-        groups = groups[:max_maps]   # made brightest leader first; a group's members are dimmer
     sharp = np.zeros_like(plan.sharp)
     layer = np.full(len(plan.layer), -1, np.int32)
     for g, members in enumerate(groups):

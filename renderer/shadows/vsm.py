@@ -70,18 +70,16 @@ class ShadowMaps:
                   + (0 if self.target is self.moments else self.batch_layers))
         return self.size * self.size * GROUP_MOMENT_BYTES * self.groups * layers
 
-    def render(self, passes: list[tuple[list[tuple[moderngl.VertexArray, int]], int]], lights_buffer: moderngl.Buffer,
+    def render(self, casters: list[tuple[moderngl.VertexArray, int]], lights_buffer: moderngl.Buffer,
                shadow_lights_buffer: moderngl.Buffer, timer: StageTimer | None = None, enabled: bool = True,
-               coarse_min_sin: float = 1.0, blur: bool = True) -> None:
+               blur: bool = True) -> None:
         """Render and blur the moments of every shadowed light (layer k: light shadow_lights[k]).
-        `passes`: ((vertex array, shadow group) per caster, drawn with `self.prog`, which layers they draw): -1
-        every layer; 0 the layers of lights whose disc's sine is at most `coarse_min_sin`; 1 the others.
+        `casters`: (vertex array, shadow group) per caster, drawn with `self.prog` into every layer.
         `blur` False: no light has a blur width (the blur passes would leave every layer as drawn)."""
         gl, ctx = self.gl, self.gl.ctx
         gl.check_thread()
         lights_buffer.bind_to_storage_buffer(0)
         shadow_lights_buffer.bind_to_storage_buffer(2)
-        self.prog["u_coarse_min_sin"].value = coarse_min_sin
         groups = ((self.size + 7) // 8, (self.size + 7) // 8)
         if not blur and self.scratch is not None:
             # A frame without a blur gives back the array an earlier frame's blur made: the memory a
@@ -99,11 +97,9 @@ class ShadowMaps:
                     ctx.enable(moderngl.BLEND)
                     ctx.blend_equation = moderngl.MIN
                     self.prog["u_first_light"].value = first
-                    for vaos, which in passes:
-                        self.prog["u_detail_pass"].value = which
-                        for vao, group in vaos:
-                            self.prog["u_group"].value = group
-                            vao.render(moderngl.TRIANGLES, instances=count)
+                    for vao, group in casters:
+                        self.prog["u_group"].value = group
+                        vao.render(moderngl.TRIANGLES, instances=count)
                     ctx.blend_equation = moderngl.FUNC_ADD
                     ctx.disable(moderngl.BLEND)
             if blur:

@@ -38,7 +38,6 @@ layout(binding = 5) uniform samplerCubeArray u_pem1;         // layer i - 192 = 
 layout(binding = 6) uniform samplerCubeArray u_pem_norm;     // layer 0: B = chain(w), the normalizer
 layout(binding = 1) uniform sampler2DArray u_moments;        // blurred moments, layer shadow.x of light i
 layout(binding = 12) uniform sampler2DArray u_moments_sharp; // the small lights' (shadow.y = 1), larger maps
-layout(binding = 7) uniform sampler2D u_horizon_map;        // F(n.r, g): share of the glossy lobe above the surface
 layout(binding = 8) uniform sampler2D u_g_position;         // the geometry pass's targets (gbuffer.frag)
 layout(binding = 9) uniform sampler2D u_g_normal;
 layout(binding = 10) uniform sampler2D u_g_geometric;
@@ -52,12 +51,7 @@ uniform int u_kind_end[16];
 uniform float u_diffuse_level;
 uniform float u_min_sigma_texels;  // FrameSettings.min_sigma_texels: least deviation of the depths under a texel
 uniform float u_bleed_reduction;   // Lauritzen's light-bleeding reduction: clip p_max below this
-uniform float u_normal_offset_texels;        // the shadow lookup pushed off the surface along n, in the
-uniform float u_sharp_normal_offset_texels;  // light's own texels: main maps, sharp maps
-uniform bool u_horizon;            // include the tangent plane in VIS_i
-uniform bool u_sh_unshadowed;      // full mode: lights without a shadow map light the diffuse term by SH9
-uniform vec3 u_sh[9];              // their irradiance coefficients (renderer/lighting/sh.py)
-uniform int u_glossy_horizon;      // full mode: 0 off, 1 the lobe's share above the tangent plane,
+uniform float u_normal_offset_texels;  // the shadow lookup pushed off the surface along n, in the light's own texels
                                    // 2 each light's disc share above the triangle's plane, 3 both
                                    // (FrameSettings.glossy_horizon)
 
@@ -99,7 +93,7 @@ float visibility(int i, vec3 ws_pos, vec3 n, bool sharp) {
     // The receiver's own group at the point pushed off the surface along n, by an offset in the
     // light's own texels (a sharp map's are smaller); the other group at the surface itself.
     bool receiver_only = g_shadow_group >= SHADOW_GROUPS;
-    float offset = receiver_only ? 0.0 : (sharp ? u_sharp_normal_offset_texels : u_normal_offset_texels) * lights[i].shadow.z;
+    float offset = receiver_only ? 0.0 : u_normal_offset_texels * lights[i].shadow.z;
     vec4 p0 = lights[i].view_proj * vec4(ws_pos, 1.0);
     vec4 p = p0 + offset * (lights[i].view_proj * vec4(n, 0.0));
     // A receiver behind every caster (beyond the far plane, e.g. a floor that casts nothing) is compared
@@ -232,16 +226,6 @@ float contact_visibility(int i, vec3 v) {
 }
 #endif
 
-// E(n) from the SH9 irradiance coefficients (the basis of renderer/lighting/sh.py).
-vec3 sh_irradiance(vec3 n) {
-    vec3 e = u_sh[0] * 0.282095
-           + (u_sh[1] * n.y + u_sh[2] * n.z + u_sh[3] * n.x) * 0.488603
-           + (u_sh[4] * (n.x * n.y) + u_sh[5] * (n.y * n.z) + u_sh[7] * (n.x * n.z)) * 1.092548
-           + u_sh[6] * (0.315392 * (3.0 * n.z * n.z - 1.0))
-           + u_sh[8] * (0.546274 * (n.x * n.x - n.y * n.y));
-    return max(e, vec3(0.0));
-}
-
 float gloss_level(float g) {
     float x = clamp(g, 0.0, 1.0) * float(GLOSS_TABLE_SIZE - 1);
     int k = min(int(x), GLOSS_TABLE_SIZE - 2);
@@ -250,7 +234,6 @@ float gloss_level(float g) {
 
 // SMALL_LIGHT_MAX_SIN (a #define, renderer/shadows/lights.py): lights of angular radius up to ~5.7
 // degrees count as small.
-uniform bool u_terminator;             // FrameSettings.terminator
 
 // Accumulators of main(), shared with add_light() (GLSL has no closures).
 vec3 g_geometric_normal = vec3(0.0, 0.0, 1.0);  // the triangle's plane, facing the camera
@@ -301,11 +284,6 @@ struct SubLight { vec4 dir_sin; vec4 energy; };   // unit direction, sine of the
 layout(std430, binding = 6) readonly buffer SubLights { SubLight sub_lights[]; };
 #endif
 
-// A large light without a shadow map, whose diffuse term the summed SH9 irradiance carries (full
-// mode; a small one keeps its own: order 2 cannot hold a sun's shape).
-bool sh_skip(int i) {
-    return MODE == 0 && u_sh_unshadowed && lights[i].shadow.x < 0.0 && lights[i].params.w > SMALL_LIGHT_MAX_SIN;
-}
 vec3 g_diffuse_exact = vec3(0.0);   // the closed-form terms, added after the PEM terms' normalization
 vec3 g_glossy_exact = vec3(0.0);
 float g_gloss = 0.0;                // the pixel's glossiness g
@@ -334,37 +312,6 @@ vec3 glossy_from_light(int i, vec3 r) {
 #endif
 }
 
-#ifdef DIFFUSE_SH
-// diffuse "sh": each region's own irradiance as nine spherical-harmonic coefficients (its radiance
-// projected onto order <= 2 and convolved with the clamped cosine, renderer/lighting/sh.py), for the
-// lights larger than ~6 degrees; small ones (a sun, which order 2 cannot hold) from their disc.
-layout(std430, binding = 3) readonly buffer LightSH { vec4 light_sh[]; };   // 9 per light, rgb
-float g_sh_basis[9];   // Y_lm(n), set once per pixel
-void set_sh_basis(vec3 n) {
-    g_sh_basis[0] = 0.282095;
-    g_sh_basis[1] = 0.488603 * n.y; g_sh_basis[2] = 0.488603 * n.z; g_sh_basis[3] = 0.488603 * n.x;
-    g_sh_basis[4] = 1.092548 * n.x * n.y; g_sh_basis[5] = 1.092548 * n.y * n.z;
-    g_sh_basis[6] = 0.315392 * (3.0 * n.z * n.z - 1.0); g_sh_basis[7] = 1.092548 * n.x * n.z;
-    g_sh_basis[8] = 0.546274 * (n.x * n.x - n.y * n.y);
-}
-#endif
-
-// A light's diffuse term without its PEM: the disc's closed form, or (diffuse "sh", large lights)
-// its SH9 irradiance / pi.
-vec3 exact_diffuse_term(int i, vec3 n) {
-#ifdef DIFFUSE_SH
-    if (lights[i].params.w > SMALL_LIGHT_MAX_SIN) {
-        vec3 e = vec3(0.0);
-        for (int k = 0; k < 9; ++k) e += light_sh[9 * i + k].rgb * g_sh_basis[k];
-        // Not clamped per light: a region behind the surface rings slightly negative, and the sum over
-        // the regions is the map's own SH9 irradiance only without per-light clamping (the total is
-        // clamped in main()).
-        return e / PI;
-    }
-#endif
-    return diffuse_from_light(i, n);
-}
-
 // Share of light i's energy, a disc of angular radius r (sin r = params.w) around its direction,
 // above the plane of `normal` (linear in the cosine across the disc).
 float disc_share_above(int i, vec3 normal) {
@@ -385,15 +332,14 @@ bool wide_lobe(int i) {
 #endif
 }
 
-// pem_diffuse / pem_glossy: the light's terms come from its PEMs (else in closed form, or from SH9 for
-// the diffuse term of an sh_skip light); sharp: its map is in the sharp array. Constants of the
+// pem_diffuse / pem_glossy: the light's terms come from its PEMs (else in closed form); sharp: its map is in the sharp array. Constants of the
 // caller's loop (see main()).
 void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos, bool pem_diffuse, bool pem_glossy, bool sharp) {
     float scale = lights[i].dir_scale.w;
     pem_d *= scale;
     pem_g *= scale;
 #if MODE == 1
-    if (!pem_diffuse) g_diffuse_exact += exact_diffuse_term(i, n);
+    if (!pem_diffuse) g_diffuse_exact += diffuse_from_light(i, n);
     else g_diffuse += pem_d;
     if (!pem_glossy || wide_lobe(i)) { if (g_has_glossy) g_glossy_exact += glossy_from_light(i, g_reflect); }
     else g_glossy += pem_g;
@@ -402,13 +348,6 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos, bool pem_diff
 #ifdef CONTACT_SHADOWS
     if (lights[i].shadow.x >= 0.0) vis = min(vis, contact_visibility(i, g_to_eye));
 #endif
-    if (u_horizon) {
-        // The tangent plane blocks light from below the surface. A shadow map cannot see this on
-        // open cloth (the sheet itself is the first surface from a light behind it) and the PEM's
-        // diffuse lobe reaches past 90 degrees: keep the share of the light's energy (a disc of
-        // angular radius r around its direction) that lies above the plane.
-        vis *= disc_share_above(i, n);
-    }
     // Light from below the surface's own plane (the triangle's, not the interpolated normal's) is
     // blocked by the surface for a closed body and by the body under a garment; a shadow map cannot
     // resolve it at the terminator, where the surface is its own occluder at grazing angles. Share of
@@ -416,18 +355,14 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos, bool pem_diff
     float sin_r = lights[i].params.w;
     float above = disc_share_above(i, g_geometric_normal);
     // Small lights (a sun): both terms (their terminator is sharp; a large region's share is soft
-    // and its PEM's diffuse kernel spreads it anyway).
-    bool small = u_terminator && sin_r <= SMALL_LIGHT_MAX_SIN;
+    // and its PEM's diffuse kernel spreads it anyway); large lights: the glossy term (the lobe's part
+    // below the surface, which the reference's visibility removes and the PEM lookup along r does not).
+    bool small = sin_r <= SMALL_LIGHT_MAX_SIN;
     if (small) vis *= above;
     if (pem_diffuse) g_diffuse += vis * pem_d;
-    else if (!sh_skip(i)) g_diffuse_exact += vis * exact_diffuse_term(i, n);
-    // The glossy lobe's part below the surface (renderer/shading/horizon.py), per light.
-    if (u_glossy_horizon >= 2 && !small) vis *= above;
+    else g_diffuse_exact += vis * diffuse_from_light(i, n);
+    if (!small) vis *= above;
     if (!pem_glossy || wide_lobe(i)) {
-        // Evaluated at the light's own direction, so the lobe's horizon factor does not apply; the
-        // disc's part below the triangle's plane is removed whatever the knobs (light from behind
-        // the sheet does not reach the seen side).
-        if (!small && u_glossy_horizon < 2) vis *= above;
         if (g_has_glossy) g_glossy_exact += vis * glossy_from_light(i, g_reflect);
     } else {
         g_glossy += vis * pem_g;
@@ -487,9 +422,6 @@ void main() {
 #endif
     g_gloss = material.y;
     float specular = material.x;
-#ifdef DIFFUSE_SH
-    set_sh_basis(n);
-#endif
     float level_g = gloss_level(material.y);
 
 #if MODE == 4
@@ -531,19 +463,7 @@ void main() {
 #ifndef DIFFUSE_LIGHTS
     g_diffuse /= textureLod(u_pem_norm, vec4(n, 0.0), u_diffuse_level).r;
 #endif
-#if MODE == 0
-    if (u_sh_unshadowed) g_diffuse += sh_irradiance(n) / PI;
-#endif
     g_diffuse += max(g_diffuse_exact, vec3(0.0));
-#if MODE == 0
-    if (glossy && (u_glossy_horizon == 1 || u_glossy_horizon == 3)) {
-        // renderer/shading/horizon.py: the reference's lobe loses its part below the surface to
-        // visibility; the PEM lookup along r does not.
-        const vec2 size = vec2(HORIZON_N_MU, HORIZON_N_G);
-        vec2 x = vec2(clamp(dot(n, r), 0.0, 1.0), clamp(material.y, 0.0, 1.0));
-        g_glossy *= texture(u_horizon_map, (x * (size - 1.0) + 0.5) / size).r;
-    }
-#endif
     if (glossy) g_glossy /= textureLod(u_pem_norm, vec4(r, 0.0), level_g).r;
     g_glossy += g_glossy_exact;
 #endif
