@@ -49,6 +49,23 @@ class _Retired(argparse.Action):
         parser.error(f"{option_string}: {self.reason}")
 
 
+# The flags `--help` lists (the scripts' contract and the few a user reasons about); `--help-all`
+# lists the rest too (docs/cli.md is generated from it).
+COMMON_FLAGS = {"--env", "--mesh", "--up", "--mesh-scale", "--albedo", "--specular", "--glossiness", "--body-albedo",
+                "--camera-eye", "--camera-target", "--fov", "--preset", "--frame-budget-ms", "--error-budget",
+                "--lights", "--shadow-size", "--contact-shadow-texels", "--size", "--out", "--exr", "--timings",
+                "--background", "--frames", "--topology", "--body", "--spp", "--seed", "--help", "--help-all"}
+
+
+def _common_help_only(p: argparse.ArgumentParser) -> None:
+    """Hide the flags outside COMMON_FLAGS from `--help` (they still parse)."""
+    for action in p._actions:   # argparse keeps no public list of a parser's actions
+        if action.option_strings and not COMMON_FLAGS & set(action.option_strings):
+            action.help = argparse.SUPPRESS
+    for group in p._action_groups:
+        group.description = None
+
+
 def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     """Scene, quality and output flags shared by `render` and the commands built on it."""
     g = p.add_argument_group("scene")
@@ -63,12 +80,13 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--albedo", type=_floats(3), default=(0.8, 0.2, 0.2), help="garment diffuse reflectance r,g,b")
     g.add_argument("--specular", type=float, default=0.5, help="garment weight of the glossy lobe")
     g.add_argument("--glossiness", type=float, default=0.8, help="garment glossiness g in [0,1] (paper Eq. 3)")
-    g.add_argument("--body-albedo", type=_floats(3), default=(0.55, 0.5, 0.45))
-    g.add_argument("--camera-eye", type=_floats(3))
-    g.add_argument("--camera-target", type=_floats(3))
+    g.add_argument("--body-albedo", type=_floats(3), default=(0.55, 0.5, 0.45), help="body diffuse reflectance r,g,b")
+    g.add_argument("--camera-eye", type=_floats(3), help="camera position x,y,z (default: framing the scene from +Z)")
+    g.add_argument("--camera-target", type=_floats(3), help="point the camera looks at x,y,z")
     g.add_argument("--fov", type=float, default=35.0, help="vertical field of view, degrees")
     q = p.add_argument_group("quality")
-    q.add_argument("--preset", choices=PRESET_NAMES, default="balanced")
+    q.add_argument("--preset", choices=PRESET_NAMES, default="balanced",
+                   help="quality preset (renderer/presets/*.toml; default balanced)")
     q.add_argument("--frame-budget-ms", type=float, help="choose the most accurate measured setting within this time")
     q.add_argument("--error-budget", type=float, help="choose the fastest measured setting within this rel. RMSE")
     q.add_argument("--lights", type=int, help="regions / lights, 6 * 2^k")
@@ -126,13 +144,14 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
         flag = name.replace("_", "-")
         q.add_argument(f"--{flag}", f"--no-{flag}", action=_Retired, reason=reason, dest=f"retired_{name}")
     o = p.add_argument_group("output")
-    o.add_argument("--size", type=_size, default=(512, 512))
+    o.add_argument("--size", type=_size, default=(512, 512), help="image size WxH (default 512x512)")
     o.add_argument("--out", type=Path, help="tone-mapped sRGB PNG")
     o.add_argument("--exr", type=Path, help="linear HDR EXR (RGBA float32)")
     o.add_argument("--timings", type=Path, help="per-stage timings JSON")
     o.add_argument("--exposure", type=float, help="exposure in EV (default: automatic)")
     o.add_argument("--tone", default="filmic", choices=["filmic", "reinhard", "linear"])
-    o.add_argument("--background", default="env", choices=["env", "black"])
+    o.add_argument("--background", default="env", choices=["env", "black"],
+                   help="the map behind the garment, or nothing (alpha 0)")
 
 
 def resolve_quality(args) -> dict:
@@ -453,7 +472,9 @@ def cmd_lobes(args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
+    """The command line; `show_all` False: `render`, `sequence` and `reference` list only COMMON_FLAGS
+    in their help (what `--help` shows; `--help-all` shows everything)."""
     p = argparse.ArgumentParser(prog="garment-render", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("render", help="render one frame")
@@ -471,6 +492,10 @@ def build_parser() -> argparse.ArgumentParser:
     ref.add_argument("--spp", type=int, default=256, help="samples per pixel (per technique)")
     ref.add_argument("--seed", type=int, default=0)
     ref.set_defaults(func=cmd_reference)
+    for scene_command in (r, sq, ref):
+        scene_command.add_argument("--help-all", action="help", help="show every flag, the advanced ones too")
+        if not show_all:
+            _common_help_only(scene_command)
     b = sub.add_parser("bench", help="sweep the quality knobs against the reference; write bench.json/md, pareto.png")
     b.add_argument("--quick", action="store_true", help="a reduced sweep that finishes in minutes on 2 cores")
     b.add_argument("--no-shared", action="store_true", help="bundled scene only (skip ../shared/assets)")
@@ -527,8 +552,22 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def cli_reference() -> str:
+    """docs/cli.md: every command's `--help-all`, at a fixed width (tests/test_cli_reference.py
+    checks the stored file against it)."""
+    p = build_parser(show_all=True)
+    out = ["# Command-line reference", "", "Generated from the parser (`renderer/cli.py`, `cli_reference`); "
+           "`garment-render COMMAND --help` shows the common flags, `--help-all` all of them.", ""]
+    sub = next(a for a in p._actions if isinstance(a, argparse._SubParsersAction))
+    for name, parser in sub.choices.items():
+        parser.formatter_class = lambda prog: argparse.HelpFormatter(prog, width=100, max_help_position=32)
+        out += [f"## {name}", "", "```", parser.format_help().rstrip(), "```", ""]
+    return "\n".join(out)
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    args = build_parser(show_all="--help-all" in argv).parse_args(argv)
     try:
         return args.func(args)
     except RenderError as exc:

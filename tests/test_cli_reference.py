@@ -1,0 +1,46 @@
+"""The command line's help: the common flags on one screen, every flag in the generated docs/cli.md."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from renderer.cli import COMMON_FLAGS, build_parser, cli_reference
+from renderer.presets import RETIRED
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_stored_reference_is_what_the_parser_generates():
+    stored = (ROOT / "docs" / "cli.md").read_text()
+    assert stored == cli_reference() + "\n", "docs/cli.md is stale: regenerate it with renderer.cli.cli_reference()"
+
+
+def test_help_lists_the_common_flags_and_help_all_every_one():
+    def run(flag):
+        return subprocess.run([sys.executable, "-m", "renderer.cli", "render", flag], capture_output=True, text=True,
+                              check=True, cwd=ROOT).stdout
+
+    short, full = run("--help"), run("--help-all")
+    assert len(short.splitlines()) <= 70 < len(full.splitlines())
+    for flag in ("--env", "--mesh", "--preset", "--lights", "--size", "--out", "--exr", "--timings", "--background"):
+        assert flag in short
+    assert "--caster-detail" in full and "--caster-detail" not in short
+    assert "--sub-lights" in full and "--sub-lights" not in short
+
+
+def test_every_shown_flag_is_an_option_of_the_parser_and_a_hidden_one_still_parses():
+    p = build_parser(show_all=False)
+    args = p.parse_args(["render", "--caster-detail", "0.5", "--lights", "24"])
+    assert args.caster_detail == 0.5 and args.lights == 24
+    options = {o for a in build_parser()._subparsers._group_actions[0].choices["render"]._actions
+               for o in a.option_strings}
+    assert COMMON_FLAGS - {"--frames", "--topology", "--body", "--spp", "--seed"} <= options
+
+
+@pytest.mark.parametrize("name", sorted(RETIRED))
+def test_a_retired_flag_is_refused_with_what_replaced_it(name, capsys):
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["render", f"--{name.replace('_', '-')}"])
+    assert "removed" in capsys.readouterr().err
