@@ -10,8 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
+from . import config
 from .errors import InvalidInputError, RenderError
-from .presets import PRESET_KNOBS, PRESET_NAMES, RETIRED, base_knobs, knob_defaults, merge_knobs, presets
+from .presets import PRESET_NAMES, RETIRED, base_knobs, merge_knobs, presets
 from .presets import frame_settings as presets_frame_settings
 from .presets import pem_settings as presets_pem_settings
 
@@ -89,54 +90,18 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
                    help="quality preset (renderer/presets/*.toml; default balanced)")
     q.add_argument("--frame-budget-ms", type=float, help="choose the most accurate measured setting within this time")
     q.add_argument("--error-budget", type=float, help="choose the fastest measured setting within this rel. RMSE")
-    q.add_argument("--lights", type=int, help="regions / lights, 6 * 2^k")
-    q.add_argument("--face-size", type=int, help="PEM cube face size (power of two)")
+    # Every quality setting of renderer/config.py, in its order; None: the preset's (or budget's) value.
+    for st in config.SETTINGS:
+        flag = "--" + st.name.replace("_", "-")
+        text = st.doc + ("" if st.type is bool else f"; {st.limits()}") + " (default: the preset's)"
+        if st.type is bool:
+            q.add_argument(flag, action=argparse.BooleanOptionalAction, help=text)
+        else:
+            q.add_argument(flag, type=st.type if st.choices is None else str, choices=st.choices, help=text)
     q.add_argument("--filter", choices=["none", "box", "gauss", "cosine", "sqrt-cosine"],
                    help="PEM MIP filter (default: the budget's measured setting, else sqrt-cosine)")
     q.add_argument("--levels", type=int, help="MIP levels to build (default: the full chain)")
-    q.add_argument("--whole-sources", action=argparse.BooleanOptionalAction,
-                   help="median cut: no cut through a compact bright source such as a sun, which keeps it in one "
-                        "region (default on; --no-whole-sources: the paper's plain median cut)")
-    q.add_argument("--shadow-size", type=int, help="shadow-map size per light")
-    q.add_argument("--blur-scale", type=float, help="scale of the per-light shadow blur (0: hard shadows)")
     q.add_argument("--bleed-reduction", type=float, default=0.2)
-    q.add_argument("--caster-detail", type=float,
-                   help="share of the casters' triangles the shadow maps draw, in (0, 1] (a proxy with the same "
-                        "vertices; 1: the meshes themselves; default: the preset's)")
-    q.add_argument("--small-light-scale", type=int,
-                   help="small lights (a sun, under ~6 degrees) get shadow maps K times --shadow-size per side, "
-                        "at full caster detail (default: the preset's)")
-    q.add_argument("--sharp-large-lights", action=argparse.BooleanOptionalAction,
-                   help="large lights with at least --small-light-min-energy x the mean energy get those maps too "
-                        "(default: the preset's)")
-    q.add_argument("--sharp-share-deg", type=float,
-                   help="sharp lights within this many degrees (at most 30) of a brighter one whose disc theirs "
-                        "overlaps share its map, drawn along their energy-weighted direction (a sun split into a "
-                        "few regions); 0: one map each (default: the preset's)")
-    q.add_argument("--sub-lights", type=int,
-                   help="each region's glossy term in closed form from this many discs (its texels cut further by "
-                        "the same median cut; 1, 2, 4, 8 or 16; its shadow map and diffuse term stay the region's; "
-                        "default: the preset's)")
-    q.add_argument("--normal-offset-texels", type=float,
-                   help="shadow lookups pushed off the surface along the normal by this many of the main maps' "
-                        "texels, 0-16 (default: the preset's)")
-    q.add_argument("--min-sigma-texels", type=float,
-                   help="least deviation of the depths under a shadow-map texel, in that map's texels, 0-16: "
-                        "keeps sloped surfaces from shadowing themselves (default: the preset's)")
-    q.add_argument("--contact-shadow-texels", type=float,
-                   help="contact shadows: occluders within this many of the main maps' texels of a surface, which "
-                        "the maps' bias skips, found along screen lines in the camera's view, 0-64; 0: off, the "
-                        "paper (default: the preset's)")
-    q.add_argument("--small-light-min-energy", type=float,
-                   help="only small lights carrying at least this many times the mean light's energy get those "
-                        "maps; 0: every small light (default: the preset's)")
-    q.add_argument("--diffuse", choices=["pem", "lights"],
-                   help="diffuse term from the PEMs along the normal (the paper) or from each light's disc "
-                        "(default: the preset's)")
-    q.add_argument("--glossy", choices=["pem", "wide"],
-                   help="glossy term from the PEMs along the reflection vector (the paper), or wide: small lights' "
-                        "from their disc through the Phong lobe in closed form, and large lights' too where the "
-                        "lobe is wider than their disc (default: the preset's)")
     q.add_argument("--mode", default="full", choices=["full", "none", "ao", "ao-color", "many-lights"],
                    help="full method, no occlusion, grey AO, AO with colour (paper Fig. 6), or the plain "
                         "many-light baseline (the N lights shade as well as shadow)")
@@ -159,7 +124,7 @@ def resolve_quality(args) -> dict:
     defaults; explicit flags override all (`merge_knobs`). The result says where they came from,
     and which PEM filter: --filter, else the budget's measured one, else sqrt-cosine."""
     base, measured_filter, where = base_knobs(args.preset, *presets(), args.frame_budget_ms, args.error_budget)
-    knobs = merge_knobs(base, {k: getattr(args, k) for k in (*PRESET_KNOBS, *knob_defaults())})
+    knobs = merge_knobs(base, {k: getattr(args, k) for k in config.NAMES})
     return {**knobs, "filter": args.filter or measured_filter or "sqrt-cosine", "source": where}
 
 

@@ -16,7 +16,9 @@ from enum import Enum
 import moderngl
 import numpy as np
 
+from . import config
 from .camera import Camera, bounds_sphere, default_camera
+from .config import MAX_SHADOW_SIDE
 from .errors import InvalidInputError
 from .gpu.context import GLContext, StageTimer
 from .gpu.shaders import compute_shader, program
@@ -52,17 +54,11 @@ _MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_
                ShadingMode.MANY_LIGHTS: 4}
 
 
-DIFFUSE_SOURCES = ("pem", "lights")
-GLOSSY_SOURCES = ("pem", "wide")
-MAX_SHADOW_SIDE = 8192   # the largest shadow map side, small lights' included (shadow_size x small_light_scale)
-# Lights within this of a group's brightest share its map: the group's mean direction then stays within it
-# of every member (its component along the brightest light's is at least cos 30 degrees of the total).
-MAX_SHARP_SHARE_DEG = 30.0
 
 
-def _whole(x) -> bool:
-    """A whole number, not a bool (True is an int in Python)."""
-    return isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_))
+def _default(name: str):
+    """A setting's FrameSettings default, as renderer/config.py declares it."""
+    return config.BY_NAME[name].default
 
 
 class Background(str, Enum):
@@ -70,10 +66,6 @@ class Background(str, Enum):
     BLACK = "black"
 
 
-# Shadow bias beyond this many texels moves shadows visibly off their casters.
-MAX_BIAS_TEXELS = 16.0
-# Contact shadows search the screen this far (in main-map texels); the search's steps are capped.
-MAX_CONTACT_TEXELS = 64.0
 # Screen lines (slices) and steps per side of the contact-shadow search (lighting.frag).
 CONTACT_SLICES, CONTACT_STEPS = 4, 8
 # How far behind what the camera sees the contact search takes it to be solid, in units of its radius:
@@ -88,59 +80,59 @@ class FrameSettings:
 
     width: int = 512
     height: int = 512
-    shadow_size: int = 256
-    blur_scale: float = 0.1  # the paper's per-light blur, narrowed; the presets use 0 (docs/benchmarks.md)
+    shadow_size: int = _default("shadow_size")
+    blur_scale: float = _default("blur_scale")  # the paper's per-light blur, narrowed; the presets use 0 (docs/benchmarks.md)
     bleed_reduction: float = 0.2
     # Shadow-map bias, in each map's own texels (main and sharp maps alike): the lookup pushed off the
     # surface along the normal, and the least deviation of the depths under a texel (Chebyshev's
     # variance floor). Chosen on the benchmark scenes (docs/benchmarks.md, the bias rows). Only
     # against the receiver's own shadow group (renderer/scene.py): the other group's casters are
     # compared without it.
-    normal_offset_texels: float = 1.5
-    min_sigma_texels: float = 3.0
+    normal_offset_texels: float = _default("normal_offset_texels")
+    min_sigma_texels: float = _default("min_sigma_texels")
     # Contact shadows (full mode; lighting.frag): occluders within this many main-map texels of a
     # surface, found in the geometry pass's positions along screen lines: those the maps' bias skips
     # (the collar over the neck) and the near ones a 256^2 map drawn from a proxy blurs (a fold's
     # lips). 0: off (the paper). Chosen on the benchmark scenes (docs/benchmarks.md).
-    contact_shadow_texels: float = 24.0
+    contact_shadow_texels: float = _default("contact_shadow_texels")
     # Share of the casters' triangles the shadow pass draws (shadows/proxy.py; 1: the meshes
     # themselves): the pass costs per triangle on a CPU rasterizer.
-    caster_detail: float = 1.0
+    caster_detail: float = _default("caster_detail")
     # Small lights (a sun; angular radius <= ~6 degrees) get shadow maps k times shadow_size per side,
     # in an array of their own, drawn at full caster detail: their shadows are sharp. 1: the same maps
     # as every other light.
-    small_light_scale: int = 1
+    small_light_scale: int = _default("small_light_scale")
     # Of the small lights, only those carrying at least this many times the mean light's energy get
     # the sharp maps; the others are shadowed like the large lights (their edges, dim, cost more than
     # they show: docs/benchmarks.md). Relative to the mean, so that a sun split into more regions at
     # more lights keeps its sharp maps. 0: every small light.
-    small_light_min_energy: float = 0.0
+    small_light_min_energy: float = _default("small_light_min_energy")
     # Large lights with at least small_light_min_energy x the mean energy get the sharp maps too (the
     # bright sky beside a sun, an overcast sky's brightest patches: their energy is more concentrated
     # than their region). Only with small_light_min_energy > 0.
-    sharp_large_lights: bool = False
+    sharp_large_lights: bool = _default("sharp_large_lights")
     # Sharp lights within this many degrees (at most MAX_SHARP_SHARE_DEG) of a brighter sharp light
     # whose disc theirs overlaps share its map, drawn along the group's energy-weighted direction (a sun
     # the median cut split into regions a degree apart; each keeps its own direction and energy for
     # shading). 0: one map each.
-    sharp_share_deg: float = 0.0
+    sharp_share_deg: float = _default("sharp_share_deg")
     # Each region's glossy term in closed form (full and no-occlusion modes; glossy "wide";
     # with "pem" no glossy term is in closed form and this does nothing) summed over this many discs:
     # its texels cut further by the same median cut (lighting/median_cut.py, SubLights), its
     # visibility, diffuse term and PEMs still the region's.
     # 1: one disc per region (the paper's one light per region). A power of two, at most
     # MAX_SUB_LIGHTS. Chosen on the benchmark scenes (docs/benchmarks.md, the sub_lights rows).
-    sub_lights: int = 1
+    sub_lights: int = _default("sub_lights")
     # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level)
     # or "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups).
-    diffuse: str = "pem"
+    diffuse: str = _default("diffuse")
     # Where the glossy term comes from: "pem" (the paper: PEM_i along the reflection vector at the level
     # of g) or "wide" (small lights, angular radius <= ~6 degrees, from their disc through the Phong
     # lobe in closed form, and the large lights too wherever the lobe is wider than their disc,
     # 1 / s >= a^2 / 4: there the PEM's coarse MIP levels are the larger error; a narrow lobe reads the
     # PEM's fine levels, which hold the region's detail). In every mode with closed-form terms, each
     # light's glossy term loses the part of its disc below the triangle's own plane (lighting.frag).
-    glossy: str = "pem"
+    glossy: str = _default("glossy")
     mode: ShadingMode = ShadingMode.FULL
     background: Background = Background.ENVIRONMENT
 
@@ -149,39 +141,11 @@ class FrameSettings:
             raise InvalidInputError(f"image size must be within 1..8192 per side, got {self.width}x{self.height}")
         if not (0.0 <= self.bleed_reduction < 1.0):
             raise InvalidInputError(f"bleed reduction must be in [0, 1), got {self.bleed_reduction}")
-        if not (_whole(self.shadow_size) and 16 <= self.shadow_size <= MAX_SHADOW_SIDE):
-            raise InvalidInputError(f"shadow_size is a whole number of texels in 16..{MAX_SHADOW_SIDE}, got {self.shadow_size!r}")
-        if not (_whole(self.small_light_scale) and 1 <= self.small_light_scale <= 8):
-            raise InvalidInputError(f"small_light_scale is a whole number in 1..8 (times the shadow-map size), "
-                                    f"got {self.small_light_scale!r}")
+        for name in config.FRAME_SETTINGS:   # each setting against its declared limits (renderer/config.py)
+            object.__setattr__(self, name, config.check(name, getattr(self, name)))
         if self.shadow_size * self.small_light_scale > MAX_SHADOW_SIDE:
             raise InvalidInputError(f"shadow_size x small_light_scale must be at most {MAX_SHADOW_SIDE}, got "
                                     f"{self.shadow_size} x {self.small_light_scale}")
-        if not (0.0 <= self.small_light_min_energy <= 1e6):   # also refuses NaN
-            raise InvalidInputError(f"small_light_min_energy is a multiple of the mean light's energy in "
-                                    f"[0, 1e6], got {self.small_light_min_energy}")
-        if isinstance(self.sharp_share_deg, bool) or not (0.0 <= self.sharp_share_deg <= MAX_SHARP_SHARE_DEG):
-            raise InvalidInputError(f"sharp_share_deg is an angle in [0, {MAX_SHARP_SHARE_DEG:g}] degrees, got "
-                                    f"{self.sharp_share_deg!r}")   # also refuses NaN
-        if not (_whole(self.sub_lights) and 1 <= self.sub_lights <= MAX_SUB_LIGHTS
-                and not self.sub_lights & (self.sub_lights - 1)):
-            raise InvalidInputError(f"sub_lights is a power of two in 1..{MAX_SUB_LIGHTS} (discs per region in the "
-                                    f"closed-form glossy term), got {self.sub_lights!r}")
-        if not (0.0 < self.caster_detail <= 1.0):
-            raise InvalidInputError(f"caster detail is the share of triangles kept, in (0, 1], got {self.caster_detail}")
-        if self.glossy not in GLOSSY_SOURCES:
-            raise InvalidInputError(f"glossy must be one of {', '.join(GLOSSY_SOURCES)}, got {self.glossy!r}")
-        if self.diffuse not in DIFFUSE_SOURCES:
-            raise InvalidInputError(f"diffuse must be one of {', '.join(DIFFUSE_SOURCES)}, got {self.diffuse!r}")
-        if isinstance(self.contact_shadow_texels, bool) or not (0.0 <= self.contact_shadow_texels <= MAX_CONTACT_TEXELS):
-            raise InvalidInputError(f"contact_shadow_texels is a number of texels in [0, {MAX_CONTACT_TEXELS:g}], "
-                                    f"got {self.contact_shadow_texels!r}")   # also refuses NaN
-        for name in ("normal_offset_texels", "min_sigma_texels"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not (0.0 <= value <= MAX_BIAS_TEXELS):   # also refuses NaN
-                raise InvalidInputError(f"{name} is a number of texels in [0, {MAX_BIAS_TEXELS:g}], got {value!r}")
-        if not (0.0 <= self.blur_scale <= 100.0) or not np.isfinite(self.blur_scale):
-            raise InvalidInputError(f"blur scale must be in [0, 100], got {self.blur_scale}")
 
     def as_dict(self) -> dict:
         d = asdict(self)
@@ -213,7 +177,6 @@ _CLOSED_FORM_MODES = (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
 # light_kinds: a large light counts as wide at every pixel only by this margin in 1 - g (a pixel's g is
 # interpolated in float32 between vertices or texels).
 WIDE_LOBE_MARGIN = 1e-3
-MAX_SUB_LIGHTS = 16
 
 
 def _glossy_closed_form(mode: ShadingMode, glossy: str) -> bool:

@@ -4,12 +4,12 @@ positions travel as raw little-endian float32 bytes (see routes/frames.py), neve
 from __future__ import annotations
 
 from enum import Enum
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, create_model, model_validator
 
-from renderer.presets import knob_defaults, retired
-from renderer.renderer import MAX_BIAS_TEXELS, MAX_CONTACT_TEXELS, MAX_SHARP_SHARE_DEG, MAX_SUB_LIGHTS
+from renderer import config
+from renderer.presets import retired
 
 
 class Preset(str, Enum):
@@ -60,11 +60,22 @@ class _Strict(BaseModel):
 # -- quality and output --------------------------------------------------------------------------
 
 
-# The knobs' defaults are the renderer's (renderer/presets.py); a preset's values win over them.
-_KNOB = knob_defaults()
+def _registry_field(st: config.Setting):
+    """A request field of a quality setting of renderer/config.py: its type (strict: no strings for
+    numbers, no floats for whole numbers), its range for the schema, and the registry's own check
+    (power of two, 6 * 2^k) with the registry's message. None: the preset's value."""
+    base = Literal[st.choices] if st.choices is not None else st.type
+    bounds = {} if st.minimum is None else {("gt" if st.above_minimum else "ge"): st.minimum, "le": st.maximum}
+
+    def checked(value):
+        return None if value is None else st.check(value)   # InvalidInputError is a ValueError: a 422
+
+    strict = {} if st.choices is not None else {"strict": True}
+    kind = Annotated[base, Field(**strict, **bounds), AfterValidator(checked)]
+    return (kind | None, Field(None, description=f"{st.doc}; {st.limits()} (null: the preset's)"))
 
 
-class QualitySpec(_Strict):
+class _QualityBase(_Strict):
     """A preset, refined by explicit knobs (each overrides the preset's value)."""
 
     preset: Preset | None = Field(None, description="fast | balanced | accurate; default: the service's default")
@@ -73,46 +84,10 @@ class QualitySpec(_Strict):
     error_budget: float | None = Field(None, gt=0.0, description="instead of a preset: the fastest setting measured "
                                        "within this worst-scene rel. RMSE (with frame_budget_ms: the most accurate "
                                        "within both)")
-    lights: int | None = Field(None, description="median-cut regions = lights, 6 * 2^k", ge=6, le=384)
-    face_size: int | None = Field(None, description="PEM cube face size, a power of two", ge=4, le=2048)
     filter: FilterName = FilterName.SQRT_COSINE
     levels: int | None = Field(None, ge=1, le=12, description="MIP levels built (default: the full chain)")
-    shadow_size: int | None = Field(None, ge=16, le=4096, description="shadow-map size per light")
-    blur_scale: float | None = Field(None, ge=0.0, le=100.0, description="shadow blur scale (0: hard)")
     bleed_reduction: float = Field(0.2, ge=0.0, lt=1.0)
     mode: ModeName = ModeName.FULL
-    diffuse: Literal["pem", "lights"] = Field(
-        _KNOB["diffuse"], description="diffuse term from the PEMs (the paper) or from each light's disc")
-    glossy: Literal["pem", "wide"] = Field(
-        _KNOB["glossy"], description="glossy term from the PEMs (the paper) or wide (small lights from their "
-                                     "disc through the Phong lobe in closed form, large lights too where the "
-                                     "lobe is wider than their disc)")
-    whole_sources: bool = Field(_KNOB["whole_sources"], description="median cut: no cut through a compact bright source "
-                                "(a sun), which keeps it in one region (false: the paper's plain median cut)")
-    caster_detail: float = Field(_KNOB["caster_detail"], gt=0.0, le=1.0, description="share of the casters' triangles the shadow "
-                                 "maps draw (a proxy over the same vertices; 1: the meshes themselves)")
-    small_light_scale: int = Field(_KNOB["small_light_scale"], ge=1, le=8, strict=True, description="small lights (a sun, under ~6 degrees) get shadow "
-                                   "maps K times shadow_size per side, at full caster detail")
-    sharp_large_lights: bool = Field(_KNOB["sharp_large_lights"], description="large lights with at least "
-                                     "small_light_min_energy x the mean energy get the sharp maps too")
-    sharp_share_deg: float = Field(_KNOB["sharp_share_deg"], ge=0.0, le=MAX_SHARP_SHARE_DEG, strict=True,
-                                   description="sharp lights within this many degrees of a brighter one whose disc "
-                                   "theirs overlaps share its map (a sun split into a few regions)")
-    sub_lights: int = Field(_KNOB["sub_lights"], ge=1, le=MAX_SUB_LIGHTS, strict=True,
-                            description="each region's glossy term in closed form from this many discs (a power "
-                            "of two: its texels cut further by the same median cut)")
-    normal_offset_texels: float = Field(_KNOB["normal_offset_texels"], ge=0.0, le=MAX_BIAS_TEXELS, strict=True,
-                                        description="shadow lookups pushed off the surface along the normal by "
-                                        "this many of the main maps' texels")
-    min_sigma_texels: float = Field(_KNOB["min_sigma_texels"], ge=0.0, le=MAX_BIAS_TEXELS, strict=True,
-                                    description="least deviation of the depths under a shadow-map texel, in that "
-                                    "map's texels (keeps sloped surfaces from shadowing themselves)")
-    contact_shadow_texels: float = Field(_KNOB["contact_shadow_texels"], ge=0.0, le=MAX_CONTACT_TEXELS, strict=True,
-                                         description="contact shadows: occluders within this many of the main "
-                                         "maps' texels of a surface, found in the camera's view (0: off)")
-    small_light_min_energy: float = Field(_KNOB["small_light_min_energy"], ge=0.0, le=1e6, description="only small "
-                                          "lights carrying at least this many times the mean light's energy get "
-                                          "those maps (0: every small light)")
 
     @model_validator(mode="before")
     @classmethod
@@ -123,12 +98,10 @@ class QualitySpec(_Strict):
                     raise ValueError(f"quality.{name}: {retired(name)}")
         return data
 
-    @field_validator("sub_lights")
-    @classmethod
-    def _sub_lights_power_of_two(cls, value: int) -> int:
-        if value & (value - 1):
-            raise ValueError(f"sub_lights must be a power of two (1, 2, 4, 8, 16), got {value}")
-        return value
+
+# Every quality setting of the registry, as a field of its own.
+QualitySpec = create_model("QualitySpec", __base__=_QualityBase, __module__=__name__,
+                           **{st.name: _registry_field(st) for st in config.SETTINGS})
 
 
 class OutputSpec(_Strict):

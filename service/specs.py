@@ -8,12 +8,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from renderer import config
 from renderer.camera import Camera, frame_meshes
 from renderer.errors import MeshError
 from renderer.lighting.median_cut import regions_per_face
 from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh, z_up_to_y_up
-from renderer.presets import PRESET_KNOBS, base_knobs, frame_settings, knob_defaults, merge_knobs, pem_settings
+from renderer.presets import base_knobs, frame_settings, merge_knobs, pem_settings
 from renderer.renderer import Background, FrameSettings, ShadingMode
 from renderer.shading.material import Material
 from renderer.shadows.proxy import caster_proxy_isolated
@@ -24,7 +25,7 @@ from .registry import MeshStore
 from .schemas import CameraSpec, MaterialSpec, MeshSpec, OutputSpec, QualitySpec, SceneCreate
 from .settings import ServiceSettings
 
-_KNOBS = (*PRESET_KNOBS, *knob_defaults())
+_KNOBS = config.NAMES
 
 
 @dataclass

@@ -37,9 +37,9 @@ def test_full_detail_is_the_mesh_itself_and_bad_shares_are_refused():
     m = sphere(1.0, subdivisions=2)
     assert np.array_equal(caster_proxy(m.positions, m.faces, 1.0), m.faces)
     for bad in (0.0, -0.5, 1.5, float("nan")):
-        with pytest.raises(InvalidInputError, match="caster detail"):
+        with pytest.raises(InvalidInputError, match="caster_detail"):
             caster_proxy(m.positions, m.faces, bad)
-        with pytest.raises(InvalidInputError, match="caster detail"):
+        with pytest.raises(InvalidInputError, match="caster_detail"):
             FrameSettings(caster_detail=bad)
 
 

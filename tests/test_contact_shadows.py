@@ -12,11 +12,12 @@ from conftest import covered, plane, sphere, sun_sky_cube
 
 from renderer.camera import Camera
 from renderer.cli import build_parser, resolve_quality
+from renderer.config import MAX_CONTACT_TEXELS
 from renderer.errors import InvalidInputError
 from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
 from renderer.reference import render_reference
-from renderer.renderer import MAX_CONTACT_TEXELS, Background, FrameSettings
+from renderer.renderer import Background, FrameSettings
 from renderer.shading.material import Material
 
 # A plate a little above a floor, lit by a sun 25 degrees above the horizon from the plate's side

@@ -11,14 +11,15 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from .. import config
 from ..atomic import atomic_file
 from ..errors import InvalidInputError
-from ..presets import PRESET_KNOBS, STORED, knob_defaults
+from ..presets import STORED
 
 MEASURED = Path(__file__).with_name("measured.json")
 
 # Every knob a table entry records: the presets' four, the PEM filter and the others.
-KNOBS = (*PRESET_KNOBS, "filter", *knob_defaults())
+KNOBS = (*config.NAMES, "filter")
 # The shadow bias before it was stated in each map's texels: 1.5 x 2 |box diagonal| / map size (about
 # 3.3 texels on the bench scenes) and an absolute variance floor of 1e-6 in depth units (about 0.25
 # texels of a 256^2 map, 1 of a 1024^2 one: this approximates it). The bench's shadow_bias row.

@@ -9,11 +9,8 @@ import functools
 import tomllib
 from pathlib import Path
 
-# The knobs every preset names; the others (knob_defaults) a preset or budget may also set.
-PRESET_KNOBS = ("lights", "face_size", "shadow_size", "blur_scale")
-# Knobs of knob_defaults() that change the PEM set, not the frame (pem_settings).
-PEM_KNOBS = ("whole_sources",)
-
+from .. import config
+from ..errors import InvalidInputError
 
 # Settings that went because they did not pay on the broad benchmark's held-out scenes
 # (docs/broad-benchmark.md, "Settings removed"): what a request or flag naming one is told.
@@ -39,31 +36,18 @@ def retired(name: str) -> str | None:
 
 
 def knob_defaults() -> dict:
-    """The quality knobs besides a preset's four (lights, PEM face, shadow map, blur) and their
-    defaults: what a preset or budget from the measured table may also set, and what the benchmark's
-    balanced setting uses. The one place these defaults are stated (FrameSettings' own)."""
-    from ..renderer import FrameSettings
-
-    f = FrameSettings()
-    return {"diffuse": f.diffuse, "whole_sources": True,
-            "glossy": f.glossy, "caster_detail": f.caster_detail, "small_light_scale": f.small_light_scale,
-            "small_light_min_energy": f.small_light_min_energy, "sharp_large_lights": f.sharp_large_lights,
-            "sharp_share_deg": f.sharp_share_deg, "sub_lights": f.sub_lights,
-            "normal_offset_texels": f.normal_offset_texels, "min_sigma_texels": f.min_sigma_texels,
-            "contact_shadow_texels": f.contact_shadow_texels}
+    """Every quality setting (renderer/config.py) and its default, in the registry's order."""
+    return {st.name: st.default for st in config.SETTINGS}
 
 
 def merge_knobs(base: dict, explicit: dict) -> dict:
     """A preset's or budget's knobs (`base`) over the defaults, with the caller's explicit values
     (None: not given) over both: the one rule the command line, the service and the benchmark share."""
-    from ..renderer import MAX_SHADOW_SIDE
+    from ..config import MAX_SHADOW_SIDE
 
-    knobs = {**knob_defaults(), **base}
+    knobs = {**knob_defaults(), **{k: v for k, v in base.items() if k in config.BY_NAME}}
     given = {k: v for k, v in explicit.items() if v is not None}
     knobs.update(given)
-    missing = [k for k in PRESET_KNOBS if k not in knobs]
-    if missing:
-        raise ValueError(f"quality knobs without a value: {missing}")
     # A preset's small-light scale yields to an explicit large shadow map (the sharp maps stay within
     # MAX_SHADOW_SIDE); a scale the caller names is kept, and FrameSettings refuses it if too large.
     if "small_light_scale" not in given and int(knobs["shadow_size"]) * int(knobs["small_light_scale"]) > MAX_SHADOW_SIDE:
@@ -76,9 +60,7 @@ def frame_settings(knobs: dict, width: int, height: int, **output):
     the settings no preset chooses (mode, background, bleed_reduction)."""
     from ..renderer import FrameSettings
 
-    frame_knobs = {k: knobs[k] for k in knob_defaults() if k not in PEM_KNOBS}
-    return FrameSettings(width=width, height=height, shadow_size=int(knobs["shadow_size"]),
-                         blur_scale=float(knobs["blur_scale"]), **frame_knobs, **output)
+    return FrameSettings(width=width, height=height, **{k: knobs[k] for k in config.FRAME_SETTINGS}, **output)
 
 
 def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
@@ -88,7 +70,9 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
     from ..lighting.filters import Filter
     from ..lighting.pem import PEMSettings
 
-    pem = PEMSettings(int(knobs["lights"]), Filter.parse(filter), levels, whole_sources=bool(knobs["whole_sources"]))
+    for name in config.PEM_SETTINGS:
+        config.check(name, knobs[name])
+    pem = PEMSettings(knobs["lights"], Filter.parse(filter), levels, whole_sources=knobs["whole_sources"])
     if materials is not None:
         pem = pem.for_materials(int(knobs["face_size"]), materials)
     return pem
@@ -111,11 +95,14 @@ def _read_preset(name: str) -> dict:
     if data.get("version") != PRESET_VERSION:
         raise ValueError(f"{path}: preset format version {data.get('version')!r}, this code reads {PRESET_VERSION}")
     settings = data.get("settings", {})
-    want = {*PRESET_KNOBS, *knob_defaults()}
+    want = set(config.NAMES)
     if set(settings) != want:
         raise ValueError(f"{path}: a preset names every quality setting; missing {sorted(want - set(settings))}, "
                          f"unknown {sorted(set(settings) - want)}")
-    return settings
+    try:
+        return {name: config.check(name, settings[name]) for name in config.NAMES}
+    except InvalidInputError as exc:
+        raise ValueError(f"{path}: {exc}") from None
 
 
 @functools.cache

@@ -26,7 +26,7 @@ def caster_proxy(positions: np.ndarray, faces: np.ndarray, keep: float) -> np.nd
     (0 < keep <= 1; 1 returns `faces`). Triangles that collapse to a line or point are dropped, and so
     are duplicates."""
     if not (0.0 < keep <= 1.0):
-        raise InvalidInputError(f"caster detail is the share of triangles kept, in (0, 1], got {keep}")
+        raise InvalidInputError(f"caster_detail is the share of triangles kept, in (0, 1], got {keep}")
     faces = np.ascontiguousarray(faces, np.int32)
     target = int(round(keep * len(faces)))
     if keep >= 1.0 or len(faces) < 16 or target >= len(faces):

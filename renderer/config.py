@@ -1,0 +1,163 @@
+"""The quality settings, declared once (no GL): name, type, range or choices, one-line doc, group, and
+what a change of it invalidates. The frame's checks (FrameSettings), the presets' files, the command
+line's flags, the service's request model and the generated reference (docs/settings.md) all read
+this table; adding a setting touches it and the code that uses the setting.
+
+The presets (renderer/presets/*.toml) give every setting here a value; `default` is what
+FrameSettings and PEMSettings hold when nothing else is said: the paper's choice wherever the paper
+has one (contact shadows, which it has not, are on).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InvalidInputError
+
+# Limits the settings' ranges name (the renderer's own bounds; renderer.py imports them from here).
+MAX_SHADOW_SIDE = 8192      # the largest shadow map side, small lights' included (shadow_size x small_light_scale)
+MAX_SHARP_SHARE_DEG = 30.0  # a group's mean direction stays within this of every member
+MAX_BIAS_TEXELS = 16.0      # shadow bias beyond this many texels moves shadows visibly off their casters
+MAX_CONTACT_TEXELS = 64.0   # the contact search's reach, in main-map texels
+MAX_SUB_LIGHTS = 16
+MAX_LIGHTS = 384
+
+GROUPS = ("lights", "shadows", "contact", "shading")
+# What a change of a setting makes anew: the PEM set (seconds), the shadow maps (every frame anyway),
+# a lighting-pass program variant (compiled once per variant), or nothing beyond the frame itself.
+INVALIDATES = ("pem set", "shadow maps", "shader variant", "frame")
+
+
+@dataclass(frozen=True)
+class Setting:
+    name: str
+    type: type                       # int, float, bool or str
+    default: object                  # FrameSettings' / PEMSettings' value: the paper's where it has one
+    doc: str
+    group: str
+    invalidates: str
+    minimum: float | None = None
+    maximum: float | None = None
+    above_minimum: bool = False      # minimum itself excluded
+    choices: tuple[str, ...] | None = None
+    power_of_two: bool = False
+    lights_rule: bool = False        # 6 * 2^k
+
+    def __post_init__(self):
+        assert self.group in GROUPS and self.invalidates in INVALIDATES, self.name
+
+    def limits(self) -> str:
+        """The allowed values, as the error message and the docs say them."""
+        if self.choices is not None:
+            return "one of " + ", ".join(self.choices)
+        if self.type is bool:
+            return "true or false"
+        if self.lights_rule:
+            return f"6 * 2^k, at most {MAX_LIGHTS}"
+        lo = "(" if self.above_minimum else "["
+        span = f"{lo}{self.minimum:g}, {self.maximum:g}]"
+        if self.type is int:
+            return ("a power of two in " if self.power_of_two else "a whole number in ") + span
+        return "a number in " + span
+
+    def check(self, value) -> object:
+        """The value, or InvalidInputError naming the setting, its limits and the value."""
+        bad = InvalidInputError(f"{self.name} must be {self.limits()}, got {value!r}")
+        if self.choices is not None:
+            if not isinstance(value, str) or value not in self.choices:
+                raise bad
+            return value
+        if isinstance(value, (bool, np.bool_)) != (self.type is bool):
+            raise bad
+        if self.type is bool:
+            return bool(value)
+        if not isinstance(value, numbers.Integral if self.type is int else numbers.Real) or not math.isfinite(value):
+            raise bad
+        if self.lights_rule:
+            k = value / 6
+            if not (1 <= k and int(k) == k and not int(k) & (int(k) - 1) and value <= MAX_LIGHTS):
+                raise bad
+            return int(value)
+        if value < self.minimum or value > self.maximum or (self.above_minimum and value == self.minimum):
+            raise bad
+        if self.power_of_two and int(value) & (int(value) - 1):
+            raise bad
+        return int(value) if self.type is int else float(value)
+
+
+SETTINGS: tuple[Setting, ...] = (
+    # Lights and PEMs.
+    Setting("lights", int, 48, "median-cut regions, one light and one shadow map each", "lights", "pem set",
+            6, MAX_LIGHTS, lights_rule=True),
+    Setting("face_size", int, 128, "PEM cube face size", "lights", "pem set", 4, 2048, power_of_two=True),
+    Setting("whole_sources", bool, False, "median cut: no cut through a compact bright source (a sun), which keeps "
+            "it in one region (false: the paper's plain cut)", "lights", "pem set"),
+    # Shadow maps.
+    Setting("shadow_size", int, 256, "shadow-map side per light, texels", "shadows", "shadow maps", 16,
+            MAX_SHADOW_SIDE),
+    Setting("blur_scale", float, 0.1, "scale of the paper's per-light shadow blur (0: hard shadows)", "shadows",
+            "shadow maps", 0.0, 100.0),
+    Setting("caster_detail", float, 1.0, "share of the casters' triangles the main maps draw (a proxy over the same "
+            "vertices; 1: the meshes themselves)", "shadows", "shadow maps", 0.0, 1.0, above_minimum=True),
+    Setting("normal_offset_texels", float, 1.5, "shadow lookups pushed off the surface along the normal, in each "
+            "map's texels", "shadows", "frame", 0.0, MAX_BIAS_TEXELS),
+    Setting("min_sigma_texels", float, 3.0, "least deviation of the depths under a texel, in that map's texels "
+            "(keeps sloped surfaces from shadowing themselves)", "shadows", "frame", 0.0, MAX_BIAS_TEXELS),
+    Setting("small_light_scale", int, 1, "small lights (a sun, under ~6 degrees) get maps this many times "
+            "shadow_size per side, drawn from the casters themselves", "shadows", "shadow maps", 1, 8),
+    Setting("small_light_min_energy", float, 0.0, "only small lights with at least this many times the mean light's "
+            "energy get those maps (0: every small light)", "shadows", "shadow maps", 0.0, 1e6),
+    Setting("sharp_large_lights", bool, False, "large lights that bright get those maps too", "shadows",
+            "shadow maps"),
+    Setting("sharp_share_deg", float, 0.0, "sharp lights within this many degrees of a brighter one whose disc "
+            "theirs overlaps share its map (a sun split into a few regions; 0: one map each)", "shadows",
+            "shadow maps", 0.0, MAX_SHARP_SHARE_DEG),
+    # Contact shadows.
+    Setting("contact_shadow_texels", float, 24.0, "occluders within this many main-map texels of a surface, which the "
+            "maps' bias skips, found in the camera's view (0: off, the paper)", "contact", "shader variant", 0.0,
+            MAX_CONTACT_TEXELS),
+    # Shading.
+    Setting("diffuse", str, "pem", "diffuse term from the PEMs along the normal (pem, the paper) or from each "
+            "light's disc in closed form (lights)", "shading", "shader variant", choices=("pem", "lights")),
+    Setting("glossy", str, "pem", "glossy term from the PEMs along the reflection vector (pem, the paper), or wide: "
+            "small lights' from their disc through the Phong lobe, large lights' too where the lobe is wider than "
+            "their disc", "shading", "shader variant", choices=("pem", "wide")),
+    Setting("sub_lights", int, 1, "discs per region in the closed-form glossy term (1: the paper's one light)",
+            "shading", "shader variant", 1, MAX_SUB_LIGHTS, power_of_two=True),
+)
+BY_NAME = {s.name: s for s in SETTINGS}
+NAMES = tuple(BY_NAME)
+# The settings of the PEM set, not of the frame (the others are FrameSettings fields).
+PEM_SETTINGS = tuple(s.name for s in SETTINGS if s.invalidates == "pem set")
+FRAME_SETTINGS = tuple(n for n in NAMES if n not in PEM_SETTINGS)
+
+
+def check(name: str, value) -> object:
+    return BY_NAME[name].check(value)
+
+
+def reference_table() -> str:
+    """docs/settings.md: every setting with its group, limits, the paper's value, what a change makes
+    anew and its doc (tests/test_config.py checks the stored file against it)."""
+    from .presets import PRESET_NAMES, preset
+
+    presets = {name: preset(name) for name in PRESET_NAMES}
+    head = ["# Quality settings", "",
+            "Generated from `renderer/config.py` (`reference_table`); each is a `--flag` of `render`, `sequence` and "
+            "`reference` (dashes for underscores) and a field of the service's `quality`. The default is what "
+            "`FrameSettings` holds when nothing else is said (the paper's choice wherever it has one); the presets' "
+            "values are their files' (`renderer/presets/*.toml`).", "",
+            "| setting | group | values | default | " + " | ".join(PRESET_NAMES) + " | a change makes anew | what it does |",
+            "|---|---|---|---|" + "---|" * len(PRESET_NAMES) + "---|---|"]
+    rows = [f"| `{s.name}` | {s.group} | {s.limits()} | {_show(s.default)} | "
+            + " | ".join(_show(presets[p][s.name]) for p in PRESET_NAMES) + f" | {s.invalidates} | {s.doc} |"
+            for s in SETTINGS]
+    return "\n".join(head + rows) + "\n"
+
+
+def _show(value) -> str:
+    return str(value).lower() if isinstance(value, bool) else f"{value:g}" if isinstance(value, float) else str(value)

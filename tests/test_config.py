@@ -1,0 +1,77 @@
+"""The settings registry (renderer/config.py): one declaration per setting, read by the frame's
+checks, the presets, the command line, the service's model and the generated docs."""
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from renderer import config
+from renderer.cli import build_parser
+from renderer.errors import InvalidInputError
+from renderer.lighting.pem import PEMSettings
+from renderer.presets import PRESET_NAMES, preset
+from renderer.renderer import FrameSettings
+from service.schemas import QualitySpec
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_stored_settings_reference_is_what_the_registry_generates():
+    assert (ROOT / "docs" / "settings.md").read_text() == config.reference_table(), \
+        "docs/settings.md is stale: regenerate it with renderer.config.reference_table()"
+
+
+def test_every_setting_reaches_the_frame_or_the_pem_set_the_command_line_and_the_service():
+    frame_fields = {f.name for f in dataclasses.fields(FrameSettings)}
+    pem_fields = {f.name for f in dataclasses.fields(PEMSettings)} | {"lights", "face_size"}
+    assert set(config.FRAME_SETTINGS) <= frame_fields
+    assert set(config.PEM_SETTINGS) <= pem_fields and not set(config.PEM_SETTINGS) & frame_fields
+    render = build_parser()._subparsers._group_actions[0].choices["render"]
+    dests = {a.dest for a in render._actions}
+    assert set(config.NAMES) <= dests
+    assert set(config.NAMES) <= set(QualitySpec.model_fields)
+    for name in PRESET_NAMES:   # each preset names every setting, within its limits
+        knobs = preset(name)
+        assert list(knobs) == list(config.NAMES)
+        for k, v in knobs.items():
+            assert config.check(k, v) == v
+
+
+def test_defaults_are_the_frames_own():
+    f = FrameSettings()
+    for name in config.FRAME_SETTINGS:
+        assert getattr(f, name) == config.BY_NAME[name].default, name
+        config.check(name, config.BY_NAME[name].default)
+
+
+@pytest.mark.parametrize("st", config.SETTINGS, ids=lambda s: s.name)
+def test_each_setting_refuses_what_it_cannot_be_and_names_itself(st):
+    bad = [None, "8", [1], math.nan, math.inf]
+    if st.type is bool:
+        bad += [1, 0.0]
+    elif st.choices is not None:
+        bad += [st.choices[0].upper(), True]
+    else:
+        bad += [True, st.minimum - 1, st.maximum * 2 + 1]
+        if st.above_minimum:
+            bad.append(st.minimum)
+        if st.type is int:
+            bad.append(float(st.default))   # a whole number, not a float
+    for value in bad:
+        with pytest.raises(InvalidInputError, match=st.name):
+            st.check(value)
+    assert st.check(st.default) == st.default
+
+
+def test_numpy_scalars_pass_as_their_python_kind():
+    assert config.check("shadow_size", np.int64(512)) == 512 and type(config.check("shadow_size", np.int64(512))) is int
+    assert config.check("caster_detail", np.float32(0.5)) == 0.5
+    assert config.check("sharp_large_lights", np.bool_(True)) is True
+    for n in (6, 12, 24, 48, 96, 192, 384):
+        assert config.check("lights", n) == n
+    for n in (0, 7, 18, 36, 768):
+        with pytest.raises(InvalidInputError, match="6 \\* 2\\^k"):
+            config.check("lights", n)
