@@ -123,7 +123,8 @@ def resolve_quality(args) -> dict:
     """Quality knobs: a budget (chosen from the measured table), else the preset, over the
     defaults; explicit flags override all (`merge_knobs`). The result says where they came from,
     and which PEM filter: --filter, else the budget's measured one, else sqrt-cosine."""
-    base, measured_filter, where = base_knobs(args.preset, *presets(), args.frame_budget_ms, args.error_budget)
+    base, measured_filter, where = base_knobs(args.preset, *presets(), args.frame_budget_ms, args.error_budget,
+                                              size=tuple(args.size))
     knobs = merge_knobs(base, {k: getattr(args, k) for k in config.NAMES})
     return {**knobs, "filter": args.filter or measured_filter or "sqrt-cosine", "source": where}
 

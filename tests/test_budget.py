@@ -76,7 +76,7 @@ def test_a_budget_sets_every_measured_knob_unless_a_flag_says_otherwise(monkeypa
     monkeypatch.setattr(budget, "load_table", lambda path=None: table)
 
     def knobs(*flags):
-        q = resolve_quality(build_parser().parse_args(["render", *flags]))
+        q = resolve_quality(build_parser().parse_args(["render", "--size", "256x256", *flags]))
         return q, (q["sub_lights"], q["whole_sources"], q["caster_detail"])
 
     q, k = knobs("--error-budget", "0.05")
@@ -110,11 +110,11 @@ def test_a_budget_brings_its_measured_filter_unless_one_is_named(monkeypatch):
     table = summarize({**BENCH, "rows": [box, dict(_row("a", 24, 30, 0.3))]})
     monkeypatch.setattr(budget, "load_table", lambda path=None: table)
 
-    args = build_parser().parse_args(["render", "--error-budget", "0.1"])
+    args = build_parser().parse_args(["render", "--size", "256x256", "--error-budget", "0.1"])
     q = resolve_quality(args)
     assert q["filter"] == "box" and q["lights"] == 48
     assert pem_settings(args, q, [Material()]).filter.value == "box"   # the PEMs are built as measured
-    args = build_parser().parse_args(["render", "--error-budget", "0.1", "--filter", "gauss"])
+    args = build_parser().parse_args(["render", "--size", "256x256", "--error-budget", "0.1", "--filter", "gauss"])
     assert resolve_quality(args)["filter"] == "gauss"
     assert resolve_quality(build_parser().parse_args(["render"]))["filter"] == "sqrt-cosine"
 
@@ -128,8 +128,21 @@ def test_the_service_chooses_budgets_from_the_table_it_read_at_start_up():
     table = summarize(BENCH)             # not the package's stored table
     found, _ = resolved_presets()
     settings = ServiceSettings()
-    q = resolve_quality(QualitySpec(error_budget=0.1), OutputSpec(width=16, height=16), found, table, settings)
+    q = resolve_quality(QualitySpec(error_budget=0.1), OutputSpec(width=256, height=256), found, table, settings)
     assert q.knobs["lights"] == 24 and "on test" in q.info["source"]
     # None stored when the service started: a budget is refused with what to do, whatever the disk holds now.
     with pytest.raises(InvalidInputError, match="none is stored"):
         resolve_quality(QualitySpec(frame_budget_ms=100), OutputSpec(width=16, height=16), found, None, settings)
+
+
+def test_a_budget_for_a_frame_size_the_table_was_not_measured_at_is_refused(monkeypatch):
+    import renderer.bench.budget as budget
+    from renderer.cli import build_parser, resolve_quality
+
+    table = summarize(BENCH)   # measured at 256 x 256
+    monkeypatch.setattr(budget, "load_table", lambda path=None: table)
+    assert resolve_quality(build_parser().parse_args(["render", "--size", "256x256", "--error-budget", "0.1"]))
+    with pytest.raises(InvalidInputError, match="measured at 256x256 on test; a 512x384 frame"):
+        resolve_quality(build_parser().parse_args(["render", "--size", "512x384", "--error-budget", "0.1"]))
+    # A preset is not a measurement of one size: any size takes it.
+    assert resolve_quality(build_parser().parse_args(["render", "--size", "512x384"]))["lights"] == 48

@@ -602,7 +602,8 @@ def test_a_per_request_budget_chooses_a_measured_setting_and_says_so(http, env_u
 
     table = load_table()
     assert table is not None   # the package keeps the table measured by `garment-render bench --store`
-    body = scene_body(env_upload[0]["id"], mesh)
+    # At the table's own size: a budget is a measurement of one image size.
+    body = scene_body(env_upload[0]["id"], mesh, output={"width": table["size"], "height": table["size"]})
     want = choose(table, error_budget=0.3)["settings"]
     body["quality"] = {"error_budget": 0.3}
     r = http.post("/scenes", json=body)
@@ -622,6 +623,8 @@ def test_a_per_request_budget_chooses_a_measured_setting_and_says_so(http, env_u
     assert reported["lights"] == 6 and reported["source"].startswith("budget: measured")
     r = http.post("/render", json=body)               # a PNG: the source in a header
     assert r.status_code == 200 and r.headers["X-Quality-Source"].startswith("budget: measured")
+    body["output"] = {"width": 64, "height": 64}       # another size: refused, naming the table's
+    assert_error(http.post("/render", json=body), 422, f"measured at {table['size']}x{table['size']}")
 
 
 def test_shadow_maps_beyond_the_memory_limit_are_refused_before_rendering(http, env_upload, mesh):

@@ -78,13 +78,22 @@ def choose(table: dict, frame_budget_ms: float | None = None, error_budget: floa
 
 
 def budget_knobs(frame_budget_ms: float | None, error_budget: float | None,
-                 table: dict | None | str = STORED) -> tuple[dict, str, str]:
+                 table: dict | None | str = STORED, size: tuple[int, int] | None = None) -> tuple[dict, str, str]:
     """The knobs (without the filter), the PEM filter and a description of the table's entry that
-    meets the budgets (`choose`): what the command line and the service apply for a budget."""
+    meets the budgets (`choose`): what the command line and the service apply for a budget. A table
+    is measured at one image size on one machine: a frame of another `size` (width, height) is
+    refused, not guessed at (times and errors change with the pixels)."""
     table = load_table() if table == STORED else table
     if table is None:
         raise InvalidInputError("budgets choose from the measured table (renderer/bench/measured.json), and none "
                                 "is stored: run `garment-render bench --store` first, or name a preset")
+    measured = table.get("size")
+    if size is not None and measured is not None and tuple(size) != (measured, measured):
+        raise InvalidInputError(
+            f"budgets choose from settings measured at {measured}x{measured} on "
+            f"{table['machine'].get('gl_renderer', '?')}; a {size[0]}x{size[1]} frame's time and error were not "
+            f"measured: render at {measured}x{measured}, name a preset, or store a table measured at this size "
+            "(garment-render bench --store)")
     entry = choose(table, frame_budget_ms, error_budget)
     knobs = {k: v for k, v in entry["settings"].items() if k != "filter"}
     source = (f"budget: measured {entry['median_frame_ms']:.1f} ms median, worst rel. RMSE "
