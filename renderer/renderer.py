@@ -21,7 +21,7 @@ from .camera import Camera, bounds_sphere, default_camera
 from .config import MAX_SHADOW_SIDE
 from .errors import InvalidInputError
 from .gpu.context import GLContext, StageTimer
-from .gpu.shaders import compute_shader, program
+from .gpu.shaders import compute_shader, program, set_uniform
 from .lighting.pem import REGIONS_PER_TEXTURE, PEMSet, PEMSettings
 from .mesh import Mesh
 from .scene import Scene
@@ -160,15 +160,6 @@ class Frame:
     image: np.ndarray
     timings: dict
     settings: dict = field(default_factory=dict)
-
-
-def _set_uniform(prog: moderngl.Program, name: str, value) -> None:
-    """Set a uniform if this program variant uses it (the compiler drops unused ones)."""
-    if name in prog:
-        if isinstance(value, bytes):
-            prog[name].write(value)
-        else:
-            prog[name].value = value
 
 
 N_LIGHT_KINDS = 16   # lighting.frag's kinds: 4 bits
@@ -484,13 +475,13 @@ class Renderer:
             ctx.depth_func = "<"
             g = self.gbuffer_prog
             g["u_view_proj"].write(vp_bytes)
-            _set_uniform(g, "u_camera_pos", tuple(float(x) for x in camera.eye))
+            set_uniform(g, "u_camera_pos", tuple(float(x) for x in camera.eye))
             for sm in scene.meshes:
                 sm.albedo_tex.use(location=3)
                 sm.gloss_tex.use(location=4)
-                _set_uniform(g, "u_use_albedo_map", sm.use_maps[0])
-                _set_uniform(g, "u_use_gloss_map", sm.use_maps[1])
-                _set_uniform(g, "u_shadow_group", float(sm.group))
+                set_uniform(g, "u_use_albedo_map", sm.use_maps[0])
+                set_uniform(g, "u_use_gloss_map", sm.use_maps[1])
+                set_uniform(g, "u_shadow_group", float(sm.group))
                 sm.vao_gbuffer.render(moderngl.TRIANGLES)
         with gl.stage(timer, "shading"):
             fbo.use()
@@ -545,13 +536,13 @@ class Renderer:
             self._buffer("light_order", order.tobytes()).bind_to_storage_buffer(4)
             if "u_kind_end" in p:   # the compiler keeps the entries up to the last kind this variant loops over
                 p["u_kind_end"].write(kind_end[:p["u_kind_end"].array_length].tobytes())
-            _set_uniform(p, "u_camera_pos", tuple(float(x) for x in camera.eye))
-            _set_uniform(p, "u_n_lights", n)
-            _set_uniform(p, "u_diffuse_level", pems.lookup_level(pems.diffuse_level()))
-            _set_uniform(p, "u_min_sigma_texels", settings.min_sigma_texels)
-            _set_uniform(p, "u_two_groups", groups == 2)
-            _set_uniform(p, "u_normal_offset_texels", settings.normal_offset_texels)
-            _set_uniform(p, "u_bleed_reduction", settings.bleed_reduction)
+            set_uniform(p, "u_camera_pos", tuple(float(x) for x in camera.eye))
+            set_uniform(p, "u_n_lights", n)
+            set_uniform(p, "u_diffuse_level", pems.lookup_level(pems.diffuse_level()))
+            set_uniform(p, "u_min_sigma_texels", settings.min_sigma_texels)
+            set_uniform(p, "u_two_groups", groups == 2)
+            set_uniform(p, "u_normal_offset_texels", settings.normal_offset_texels)
+            set_uniform(p, "u_bleed_reduction", settings.bleed_reduction)
             if vao is None:   # the compute pass: every pixel, uncovered ones left as drawn
                 ctx.memory_barrier()
                 fbo.color_attachments[0].bind_to_image(0, read=False, write=True)

@@ -184,3 +184,21 @@ def test_the_lighting_pass_visits_every_light_once_grouped_by_kind():
     np.testing.assert_array_equal(kinds(diffuse="pem", glossy="pem", max_glossiness=0.0) & 2, np.full(n, 2))
     # The baselines read both PEMs of every light.
     assert np.all(kinds(diffuse="lights", glossy="wide", mode=ShadingMode.AO_GREY) & 3 == 3)
+
+
+def test_a_uniform_no_source_declares_is_an_error_and_one_a_variant_dropped_is_not(gl):
+    from renderer.errors import ShaderError
+    from renderer.gpu.shaders import program, set_uniform
+
+    prog = program(gl.ctx, "shading/background.vert", "shading/lighting.frag",
+                   {"GLOSS_TABLE_SIZE": 257, "REGIONS_PER_TEXTURE": 192, "SMALL_LIGHT_MAX_SIN": 0.1, "MODE": 1,
+                    "TWO_PEM_TEXTURES": 0})
+    try:
+        assert "u_contact_radius" not in prog                 # declared under CONTACT_SHADOWS: dropped here
+        set_uniform(prog, "u_contact_radius", 1.0)            # ... and setting it is no error
+        set_uniform(prog, "u_diffuse_level", 3.0)
+        assert prog["u_diffuse_level"].value == 3.0
+        with pytest.raises(ShaderError, match="u_diffuse_levels'"):
+            set_uniform(prog, "u_diffuse_levels", 3.0)         # a typo
+    finally:
+        prog.release()

@@ -80,20 +80,44 @@ def _rewrite_log(log: str, files: list[str]) -> str:
     return re.sub(r"\b(\d+)\((\d+)\)", sub, log)
 
 
-def _build(factory, files: list[str], what: str):
+_UNIFORM = re.compile(r"^\s*(?:layout\s*\([^)]*\)\s*)?uniform\s+\w+\s+(\w+)", re.M)
+
+
+def declared_uniforms(*sources: str) -> frozenset[str]:
+    """The names the sources declare as uniforms (whether or not a variant's compiler keeps them)."""
+    return frozenset(m.group(1) for src in sources for m in _UNIFORM.finditer(src))
+
+
+def _build(factory, files: list[str], what: str, *sources: str):
     try:
-        return factory()
+        prog = factory()
     except moderngl.Error as exc:
         raise ShaderError(f"{what} failed to compile or link:\n{_rewrite_log(str(exc), files)}") from exc
+    # What set_uniform checks a name against: the compiler drops the uniforms a variant does not use,
+    # a name the sources never declare is a mistake.
+    prog.extra = {"declared": declared_uniforms(*sources), "what": what}
+    return prog
+
+
+def set_uniform(prog, name: str, value) -> None:
+    """Set a uniform if this program variant uses it (the compiler drops unused ones); a name the
+    program's sources do not declare at all is an error, not a silent no-op."""
+    if name in prog:
+        if isinstance(value, bytes):
+            prog[name].write(value)
+        else:
+            prog[name].value = value
+    elif name not in (prog.extra or {}).get("declared", ()):
+        raise ShaderError(f"{(prog.extra or {}).get('what', 'the program')} declares no uniform {name!r}")
 
 
 def compute_shader(ctx: moderngl.Context, name: str, defines: dict | None = None) -> moderngl.ComputeShader:
     src, files = compose(name, defines)
-    return _build(lambda: ctx.compute_shader(src), files, name)
+    return _build(lambda: ctx.compute_shader(src), files, name, src)
 
 
 def program(ctx: moderngl.Context, vertex: str, fragment: str, defines: dict | None = None) -> moderngl.Program:
     vs, vfiles = compose(vertex, defines)
     fs, ffiles = compose(fragment, defines, first_id=len(vfiles))
     return _build(lambda: ctx.program(vertex_shader=vs, fragment_shader=fs), vfiles + ffiles,
-                  f"{vertex} + {fragment}")
+                  f"{vertex} + {fragment}", vs, fs)
