@@ -94,8 +94,10 @@ def check_frame_size(got: int, blocks: list[str], scene: SceneRecord) -> int:
     return expected
 
 
-def decode_frame(data: bytes | memoryview, blocks: list[str], scene: SceneRecord) -> FrameArrays:
-    """Validate and decode one frame (size, NaN/Inf, zero normals), rotate to Y-up, compute missing normals."""
+def decode_frame(data: bytes | memoryview, blocks: list[str], scene: SceneRecord,
+                 compute_normals: bool = True) -> FrameArrays:
+    """Validate and decode one frame (size, NaN/Inf, zero normals), rotate to Y-up, and compute the
+    missing normals (`compute_normals` False: left to the renderer's GPU pass)."""
     import time
 
     t0 = time.perf_counter()
@@ -121,7 +123,7 @@ def decode_frame(data: bytes | memoryview, blocks: list[str], scene: SceneRecord
             normals[i] = _normals(chunk, n, b, scene.up)
     t1 = time.perf_counter()
     for i, mesh in enumerate(scene.meshes):
-        if positions[i] is not None and normals[i] is None:
+        if compute_normals and positions[i] is not None and normals[i] is None:
             normals[i] = vertex_normals(positions[i], mesh.faces)
     t2 = time.perf_counter()
     return FrameArrays(positions, normals, (t1 - t0) * 1e3, (t2 - t1) * 1e3)

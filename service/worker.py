@@ -126,6 +126,9 @@ class RenderWorker:
         self._gl: GLResources | None = None
         self.startup_error: Exception | None = None
         self.gl_info: dict = {}
+        # Where a frame's missing normals are made: by the renderer's compute pass on the GL thread
+        # when it has one (a GPU), else by numpy with the decoding, off the GL thread.
+        self.normals_on_gpu = False
         self.stats = WorkerStats()
         self._running_since: float | None = None
         self._cleanup: list[Callable[[GLResources], None]] = []
@@ -221,6 +224,7 @@ class RenderWorker:
             return
         self._gl = GLResources(renderer, cache)
         self.gl_info = renderer.gl.info()
+        self.normals_on_gpu = renderer.normals == "gpu"
         self._ready.set()
         try:
             while True:

@@ -700,3 +700,36 @@ def test_the_background_comes_from_the_map_at_its_own_resolution(http, env_uploa
     err = relative_rmse(rgba[..., :3], truth, empty)
     print(f"background rel. RMSE {err:.3f}")
     assert err < 0.12
+
+
+def test_a_service_whose_renderer_makes_normals_on_the_gpu_leaves_them_to_it(http, env_upload, mesh, tmp_path):
+    # GARMENT_RENDER_NORMALS=gpu: the renderer's compute pass makes a frame's normals (what it does on
+    # a GPU by default); the service then makes none with the decoding, and the frame is the one the
+    # numpy normals give.
+    moved = np.asarray(mesh.positions, np.float32) * np.float32(1.03)
+    images, timings = {}, {}
+    gpu = ServiceProcess(tmp_path, normals="gpu")
+    try:
+        with httpx.Client(base_url=gpu.url, timeout=120) as other:
+            for name, client in (("cpu", http), ("gpu", other)):
+                env = client.post("/environments", content=env_upload[1], headers=OCTET,
+                                  params={"name": env_upload[2], "lights": 12, "face_size": 32, "preset": "fast"})
+                assert env.status_code in (200, 201), env.text
+                r = client.post("/scenes", json=scene_body(env.json()["id"], mesh))
+                assert r.status_code == 201, r.text
+                f = post_frame(client, r.json()["id"], moved, params={"format": "exr"})
+                assert f.status_code == 200, f.text
+                images[name] = f.content
+                timings[name] = server_timing(f.headers["Server-Timing"])
+                client.delete(f"/scenes/{r.json()['id']}")
+    finally:
+        gpu.stop()
+    # The normals stage is the loop that finds nothing to do (microseconds) where the GPU makes them.
+    assert timings["gpu"]["normals"] < 0.05 < timings["cpu"]["normals"], timings
+    from renderer.envmap.io import read_hdr_image
+
+    arrays = {}
+    for name, data in images.items():
+        (tmp_path / f"{name}.exr").write_bytes(data)
+        arrays[name] = read_hdr_image(tmp_path / f"{name}.exr")
+    np.testing.assert_allclose(arrays["gpu"], arrays["cpu"], rtol=1e-4, atol=1e-5)

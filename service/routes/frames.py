@@ -81,7 +81,7 @@ async def post_frame(
     json_image = _json_image(image)
     blocks = parse_layout(x_frame_layout or layout, scene)
     body = await raw_body(request, (OCTET_STREAM,), "a frame of vertex positions")
-    arrays = await anyio.to_thread.run_sync(decode_frame, body, blocks, scene)
+    arrays = await anyio.to_thread.run_sync(decode_frame, body, blocks, scene, not worker.normals_on_gpu)
     result = await worker.call(render_job(scene, arrays))
     frame, source = result.value
     sequence = scene.count_frames()
@@ -132,7 +132,7 @@ async def post_batch(
             chunk = view[i * per_frame:(i + 1) * per_frame]
             check_frame_size(len(chunk), blocks, scene)
             try:
-                out.append(decode_frame(chunk, blocks, scene))
+                out.append(decode_frame(chunk, blocks, scene, not worker.normals_on_gpu))
             except ValueError as e:  # MeshError / InvalidInputError: say which frame
                 raise type(e)(f"batch frame {i}: {e}") from None
         return out
