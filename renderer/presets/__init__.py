@@ -138,3 +138,15 @@ def base_knobs(preset: str, preset_knobs: dict, preset_source: str | None, frame
         return budget_knobs(frame_budget_ms, error_budget, table, size)
     return preset_knobs[preset], None, f"preset {preset}" + (f", {preset_source}" if preset_source else "")
 
+
+
+def preset_frame(name: str = "balanced", width: int = 512, height: int = 512, **output):
+    """A preset's FrameSettings for a width x height image (balanced unless named); `output`: mode,
+    background, bleed_reduction."""
+    return frame_settings(merge_knobs(preset(name), {}), width, height, **output)
+
+
+def preset_pems(name: str = "balanced", materials=None, filter: str = "sqrt-cosine", levels: int | None = None):
+    """A preset's PEMSettings (balanced unless named): with the scene's materials, only the levels
+    they read."""
+    return pem_settings(merge_knobs(preset(name), {}), filter, levels, materials)
