@@ -3,9 +3,10 @@ what a change of it invalidates. The frame's checks (FrameSettings), the presets
 line's flags, the service's request model and the generated reference (docs/settings.md) all read
 this table; adding a setting touches it and the code that uses the setting.
 
-The presets (renderer/presets/*.toml) give every setting here a value; `default` is what
-FrameSettings and PEMSettings hold when nothing else is said: the paper's choice wherever the paper
-has one (contact shadows, which it has not, are on).
+The presets (renderer/presets/*.toml) give every setting here a value, and FrameSettings() holds
+balanced's; `default` is the paper's choice (the PEM lookups for both terms, the plain median cut,
+one map size, full caster detail, no contact shadows; the bias, which the paper does not state, is
+the presets'): what tests of one mechanism hold still, and PEMSettings' own defaults.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ INVALIDATES = ("pem set", "shadow maps", "shader variant", "frame")
 class Setting:
     name: str
     type: type                       # int, float, bool or str
-    default: object                  # FrameSettings' / PEMSettings' value: the paper's where it has one
+    default: object                  # the paper's choice (the bias: the presets')
     doc: str
     group: str
     invalidates: str
@@ -117,7 +118,7 @@ SETTINGS: tuple[Setting, ...] = (
             "theirs overlaps share its map (a sun split into a few regions; 0: one map each)", "shadows",
             "shadow maps", 0.0, MAX_SHARP_SHARE_DEG),
     # Contact shadows.
-    Setting("contact_shadow_texels", float, 24.0, "occluders within this many main-map texels of a surface, which the "
+    Setting("contact_shadow_texels", float, 0.0, "occluders within this many main-map texels of a surface, which the "
             "maps' bias skips, found in the camera's view (0: off, the paper)", "contact", "shader variant", 0.0,
             MAX_CONTACT_TEXELS),
     # Shading.
@@ -148,10 +149,10 @@ def reference_table() -> str:
     presets = {name: preset(name) for name in PRESET_NAMES}
     head = ["# Quality settings", "",
             "Generated from `renderer/config.py` (`reference_table`); each is a `--flag` of `render`, `sequence` and "
-            "`reference` (dashes for underscores) and a field of the service's `quality`. The default is what "
-            "`FrameSettings` holds when nothing else is said (the paper's choice wherever it has one); the presets' "
-            "values are their files' (`renderer/presets/*.toml`).", "",
-            "| setting | group | values | default | " + " | ".join(PRESET_NAMES) + " | a change makes anew | what it does |",
+            "`reference` (dashes for underscores) and a field of the service's `quality`. `FrameSettings()` holds "
+            "balanced's values; the paper's column is the method as the paper states it (the bias, which it does not "
+            "state, is the presets'); the presets' values are their files' (`renderer/presets/*.toml`).", "",
+            "| setting | group | values | paper | " + " | ".join(PRESET_NAMES) + " | a change makes anew | what it does |",
             "|---|---|---|---|" + "---|" * len(PRESET_NAMES) + "---|---|"]
     rows = [f"| `{s.name}` | {s.group} | {s.limits()} | {_show(s.default)} | "
             + " | ".join(_show(presets[p][s.name]) for p in PRESET_NAMES) + f" | {s.invalidates} | {s.doc} |"

@@ -57,8 +57,10 @@ _MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_
 
 
 def _default(name: str):
-    """A setting's FrameSettings default, as renderer/config.py declares it."""
-    return config.BY_NAME[name].default
+    """A setting's FrameSettings default: the balanced preset's (renderer/presets/balanced.toml)."""
+    from .presets import preset
+
+    return preset("balanced")[name]
 
 
 class Background(str, Enum):
@@ -76,12 +78,13 @@ CONTACT_THICKNESS = 0.5
 
 @dataclass(frozen=True)
 class FrameSettings:
-    """Per-frame quality and output settings (the PEM set's own settings are in PEMSettings)."""
+    """Per-frame quality and output settings (the PEM set's own settings are in PEMSettings); the
+    quality settings default to the balanced preset's (renderer/presets/balanced.toml)."""
 
     width: int = 512
     height: int = 512
     shadow_size: int = _default("shadow_size")
-    blur_scale: float = _default("blur_scale")  # the paper's per-light blur, narrowed; the presets use 0 (docs/benchmarks.md)
+    blur_scale: float = _default("blur_scale")  # the paper's per-light blur, its scale (0: hard shadows, every preset)
     bleed_reduction: float = 0.2
     # Shadow-map bias, in each map's own texels (main and sharp maps alike): the lookup pushed off the
     # surface along the normal, and the least deviation of the depths under a texel (Chebyshev's

@@ -62,6 +62,17 @@ def sun_sky_cube(face_size: int, sun_dir, sun_radiance: float = 2000.0, sun_radi
 CAM = Camera((0.0, 0.3, 3.0), (0.0, 0.0, 0.0), fov_y_deg=30.0)
 
 
+def paper(*size, **settings):
+    """FrameSettings with the paper's choices (renderer/config.py's defaults: the PEM lookups, full
+    caster detail, one map size, one disc a region) under `settings`: what the tests of one mechanism
+    hold still, where FrameSettings() itself is the balanced preset."""
+    from renderer import config
+    from renderer.renderer import FrameSettings
+
+    base = {name: config.BY_NAME[name].default for name in config.FRAME_SETTINGS}
+    return FrameSettings(*size, **{**base, **settings})
+
+
 def sphere(radius=0.5, *, centre=(0, 0, 0), subdivisions=4) -> Mesh:
     s = trimesh.creation.icosphere(subdivisions, radius)
     return Mesh.from_arrays(np.asarray(s.vertices) + centre, np.asarray(s.faces), name="sphere")

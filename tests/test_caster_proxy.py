@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-from conftest import plane, sphere, sun_sky_cube
+from conftest import paper, plane, sphere, sun_sky_cube
 
 from renderer.camera import Camera
 from renderer.errors import InvalidInputError
@@ -53,7 +53,7 @@ def test_a_proxy_casts_the_full_meshs_shadow_and_follows_it(renderer):
     pems = renderer.build_pems(cube, PEMSettings(24))
     try:
         def frame(detail, positions=None):
-            fs = FrameSettings(96, 96, caster_detail=detail, background=Background.BLACK)
+            fs = paper(96, 96, caster_detail=detail, background=Background.BLACK)
             return renderer.render(scene, pems, fs, cam, positions=positions)
 
         full, coarse = frame(1.0), frame(0.25)
@@ -86,7 +86,7 @@ def test_proxies_made_in_advance_are_used_and_checked(renderer):
         renderer.create_scene([ball], [Material()], proxies={0.5: [faces + len(ball.positions)]})
     scene = renderer.create_scene([ball], [Material()], proxies={0.5: [faces]})
     try:
-        f = renderer.render(scene, pems, FrameSettings(16, 16, caster_detail=0.5), Camera((0, 0, 3), (0, 0, 0)))
+        f = renderer.render(scene, pems, paper(16, 16, caster_detail=0.5), Camera((0, 0, 3), (0, 0, 0)))
         assert f.timings["shadow_triangles"] == f.timings["shadow_layers"] * len(faces) > 0
     finally:
         scene.release()

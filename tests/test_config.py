@@ -40,11 +40,13 @@ def test_every_setting_reaches_the_frame_or_the_pem_set_the_command_line_and_the
             assert config.check(k, v) == v
 
 
-def test_defaults_are_the_frames_own():
-    f = FrameSettings()
+def test_the_frame_defaults_to_balanced_and_the_registry_holds_the_papers_choices():
+    f, balanced = FrameSettings(), preset("balanced")
     for name in config.FRAME_SETTINGS:
-        assert getattr(f, name) == config.BY_NAME[name].default, name
+        assert getattr(f, name) == balanced[name], name
         config.check(name, config.BY_NAME[name].default)
+    paper = {name: config.BY_NAME[name].default for name in config.NAMES}
+    assert (paper["diffuse"], paper["glossy"], paper["sub_lights"], paper["whole_sources"]) == ("pem", "pem", 1, False)
 
 
 @pytest.mark.parametrize("st", config.SETTINGS, ids=lambda s: s.name)

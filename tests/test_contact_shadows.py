@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 from conftest import CAM as FRONT
-from conftest import covered, plane, sphere, sun_sky_cube
+from conftest import covered, paper, plane, sphere, sun_sky_cube
 
 from renderer.camera import Camera
 from renderer.cli import build_parser, resolve_quality
@@ -75,7 +75,7 @@ def test_contact_shadows_darken_what_the_maps_bias_skips(renderer, azimuth_deg, 
     scene = renderer.create_scene(meshes, materials)
     pems = renderer.build_pems(cube, PEMSettings(24))
     try:
-        base = FrameSettings(width, height, shadow_size=64, diffuse="lights", background=Background.BLACK)
+        base = paper(width, height, shadow_size=64, diffuse="lights", background=Background.BLACK)
         off = renderer.render(scene, pems, dataclasses.replace(base, contact_shadow_texels=0.0), cam).image
         on = renderer.render(scene, pems, dataclasses.replace(base, contact_shadow_texels=RADIUS), cam).image
     finally:
@@ -112,7 +112,7 @@ def test_a_plate_of_its_own_shadows_the_floor_through_the_maps_alone(renderer, a
     try:
         # 256^2 maps: a texel of 8 mm against the shadow's 25 mm across in the light's view (a 64^2
         # map's 3 cm texel cannot resolve it).
-        fs = FrameSettings(64, 64, shadow_size=256, diffuse="lights", contact_shadow_texels=0.0,
+        fs = paper(64, 64, shadow_size=256, diffuse="lights", contact_shadow_texels=0.0,
                            background=Background.BLACK)
         lum = renderer.render(scene, pems, fs, CAM).image[..., :3].mean(axis=-1)
     finally:
@@ -129,7 +129,7 @@ def test_a_convex_body_does_not_shadow_itself(renderer):
     scene = renderer.create_scene([sphere(0.5, subdivisions=3)], [Material((0.7, 0.7, 0.7), 0.5, 0.6)])
     pems = renderer.build_pems(cube, PEMSettings(12))
     try:
-        fs = FrameSettings(64, 64, shadow_size=64, background=Background.BLACK)
+        fs = paper(64, 64, shadow_size=64, background=Background.BLACK)
         off = renderer.render(scene, pems, dataclasses.replace(fs, contact_shadow_texels=0.0), FRONT)
         on = renderer.render(scene, pems, dataclasses.replace(fs, contact_shadow_texels=MAX_CONTACT_TEXELS), FRONT)
         assert covered(on).sum() > 100

@@ -4,7 +4,7 @@ enough (a smooth map, no occlusion)."""
 
 import numpy as np
 import pytest
-from conftest import CAM, covered, plane, sphere, sun_sky_cube
+from conftest import CAM, covered, paper, plane, sphere, sun_sky_cube
 
 from renderer.camera import Camera
 from renderer.envmap.cube import cube_solid_angles, texel_directions
@@ -21,7 +21,7 @@ from renderer.reference import (
     relative_squared_errors,
     render_reference,
 )
-from renderer.renderer import FrameSettings, ShadingMode
+from renderer.renderer import ShadingMode
 from renderer.shading.material import Material
 
 WHITE_DIFFUSE = Material((1.0, 1.0, 1.0), 0.0, 0.5)
@@ -456,7 +456,7 @@ def test_gpu_renderer_without_occlusion_agrees_with_the_reference_on_a_smooth_sk
     scene = renderer.create_scene([sphere()], [material])
     pems = renderer.build_pems(cube, PEMSettings(24))
     try:
-        frame = renderer.render(scene, pems, FrameSettings(48, 48, mode=ShadingMode.NO_OCCLUSION), CAM)
+        frame = renderer.render(scene, pems, paper(48, 48, mode=ShadingMode.NO_OCCLUSION), CAM)
     finally:
         pems.release()
         scene.release()
@@ -479,7 +479,7 @@ def test_gpu_many_light_baseline_agrees_with_the_reference_under_a_sun(renderer)
     scene = renderer.create_scene([sphere()], [WHITE_DIFFUSE])
     pems = renderer.build_pems(cube, PEMSettings(24))
     try:
-        frame = renderer.render(scene, pems, FrameSettings(32, 32, mode=ShadingMode.MANY_LIGHTS), CAM)
+        frame = renderer.render(scene, pems, paper(32, 32, mode=ShadingMode.MANY_LIGHTS), CAM)
     finally:
         pems.release()
         scene.release()
@@ -502,7 +502,7 @@ def test_gpu_glossy_term_of_small_lights_in_closed_form_matches_the_reference(re
     pems = renderer.build_pems(cube, PEMSettings(24))
     try:
         small = int((np.sin(pems.regions.disc_radius_rad()) <= 0.1).sum())
-        frames = {g: renderer.render(scene, pems, FrameSettings(48, 48, mode=ShadingMode.NO_OCCLUSION, glossy=g), CAM)
+        frames = {g: renderer.render(scene, pems, paper(48, 48, mode=ShadingMode.NO_OCCLUSION, glossy=g), CAM)
                   for g in ("pem", "wide")}
     finally:
         pems.release()
@@ -526,9 +526,9 @@ def test_gpu_wide_lobes_of_large_lights_in_closed_form_match_the_reference_bette
     pems = renderer.build_pems(cube, PEMSettings(24))
     try:
         assert (np.sin(pems.regions.disc_radius_rad()) > 0.1).all()      # no small light
-        frames = {g: renderer.render(scene, pems, FrameSettings(48, 48, mode=ShadingMode.NO_OCCLUSION, glossy=g), CAM)
+        frames = {g: renderer.render(scene, pems, paper(48, 48, mode=ShadingMode.NO_OCCLUSION, glossy=g), CAM)
                   for g in ("pem", "wide")}
-        at_one = [renderer.render(mirror, pems, FrameSettings(32, 32, glossy=g), CAM).image for g in ("pem", "wide")]
+        at_one = [renderer.render(mirror, pems, paper(32, 32, glossy=g), CAM).image for g in ("pem", "wide")]
     finally:
         pems.release()
         scene.release()
@@ -563,7 +563,7 @@ def test_gpu_sub_lights_bring_the_glossy_term_closer_to_the_reference(renderer):
             pems = renderer.build_pems(cube, PEMSettings(n_lights))
             try:
                 for k in (1, 4):
-                    settings = FrameSettings(48, 48, mode=ShadingMode.NO_OCCLUSION, glossy="wide", sub_lights=k)
+                    settings = paper(48, 48, mode=ShadingMode.NO_OCCLUSION, glossy="wide", sub_lights=k)
                     frames[n_lights, k] = renderer.render(scene, pems, settings, CAM).image
             finally:
                 pems.release()

@@ -4,7 +4,7 @@ import threading
 
 import numpy as np
 import pytest
-from conftest import CAM, covered, plane, sphere, sun_sky_cube
+from conftest import CAM, covered, paper, plane, sphere, sun_sky_cube
 
 from renderer.camera import Camera, bounds_sphere
 from renderer.errors import GLContextError, InvalidInputError
@@ -28,7 +28,7 @@ def test_furnace_white_diffuse_sphere_renders_the_environment_radiance(renderer,
     L = 2.5
     pems = renderer.build_pems(np.full((6, 32, 32, 3), L, np.float32), PEMSettings(48))
     try:
-        frame = renderer.render(sphere_scene, pems, FrameSettings(96, 96, mode=mode), CAM)
+        frame = renderer.render(sphere_scene, pems, paper(96, 96, mode=mode), CAM)
     finally:
         pems.release()
     px = frame.image[covered(frame)][:, :3]
@@ -48,7 +48,7 @@ def test_furnace_glossy_lobe_conserves_energy(renderer, sphere_scene):
     scene = renderer.create_scene([sphere()], [Material((0, 0, 0), 1.0, 0.7)])
     pems = renderer.build_pems(np.full((6, 32, 32, 3), 1.0, np.float32), PEMSettings(24))
     try:
-        frame = renderer.render(scene, pems, FrameSettings(64, 64, mode=ShadingMode.NO_OCCLUSION), CAM)
+        frame = renderer.render(scene, pems, paper(64, 64, mode=ShadingMode.NO_OCCLUSION), CAM)
     finally:
         pems.release()
         scene.release()
@@ -64,7 +64,7 @@ def test_unshadowed_image_does_not_depend_on_region_count(renderer):
         for n_lights in (6, 48, 384):
             pems = renderer.build_pems(cube, PEMSettings(n_lights))
             try:
-                s = FrameSettings(64, 64, mode=ShadingMode.NO_OCCLUSION, background=Background.BLACK)
+                s = paper(64, 64, mode=ShadingMode.NO_OCCLUSION, background=Background.BLACK)
                 images.append(renderer.render(scene, pems, s, CAM).image)
             finally:
                 pems.release()
@@ -84,7 +84,7 @@ def test_extreme_glossiness_gives_finite_images(renderer, g, source):
     scene = renderer.create_scene([sphere(), plane(y=-0.6)], [Material((0.8, 0.2, 0.2), 0.5, g), Material()])
     pems = renderer.build_pems(cube, PEMSettings(48))
     try:
-        frame = renderer.render(scene, pems, FrameSettings(64, 64, diffuse=source[0], glossy=source[1]), CAM)
+        frame = renderer.render(scene, pems, paper(64, 64, diffuse=source[0], glossy=source[1]), CAM)
     finally:
         pems.release()
         scene.release()
@@ -98,8 +98,8 @@ def test_same_frame_twice_gives_identical_pixels(renderer):
     scene = renderer.create_scene([sphere(centre=(0, 0.6, 0)), plane()], [Material((0.8, 0.2, 0.2), 0.5, 0.8), Material()])
     pems = renderer.build_pems(cube, PEMSettings(24))
     try:
-        a = renderer.render(scene, pems, FrameSettings(64, 64), CAM).image
-        b = renderer.render(scene, pems, FrameSettings(64, 64), CAM).image
+        a = renderer.render(scene, pems, paper(64, 64), CAM).image
+        b = renderer.render(scene, pems, paper(64, 64), CAM).image
     finally:
         pems.release()
         scene.release()
@@ -115,7 +115,7 @@ def test_sphere_above_plane_casts_its_shadow_where_the_sun_says(renderer, sun):
     cam = Camera((0.0, 4.0, 3.0), (0.0, 0.0, 0.0), fov_y_deg=50.0)
     pems = renderer.build_pems(cube, PEMSettings(48))
     try:
-        frame = renderer.render(scene, pems, FrameSettings(128, 128, background=Background.BLACK), cam)
+        frame = renderer.render(scene, pems, paper(128, 128, background=Background.BLACK), cam)
     finally:
         pems.release()
         scene.release()
@@ -144,7 +144,7 @@ def test_gl_context_is_checked_for_the_owning_thread(renderer, sphere_scene):
 
     def other():
         try:
-            renderer.render(sphere_scene, pems, FrameSettings(8, 8), CAM)
+            renderer.render(sphere_scene, pems, paper(8, 8), CAM)
         except GLContextError as exc:
             errors.append(exc)
 
@@ -157,7 +157,7 @@ def test_gl_context_is_checked_for_the_owning_thread(renderer, sphere_scene):
 
 def test_invalid_frame_settings_are_rejected():
     with pytest.raises(InvalidInputError, match="image size"):
-        FrameSettings(0, 10)
+        paper(0, 10)
     with pytest.raises(InvalidInputError, match="bleed"):
         FrameSettings(bleed_reduction=1.5)
     for bad in (0, 3, 32, 2.5, True):
@@ -171,8 +171,8 @@ def test_new_positions_reuse_gpu_objects_and_move_the_image(renderer):
     pems = renderer.build_pems(sun_sky_cube(16, (0, 1, 1)), PEMSettings(12))
     buffers = [m.vbo_pos.glo for m in scene.meshes]
     try:
-        a = renderer.render(scene, pems, FrameSettings(64, 64, background=Background.BLACK), CAM)
-        b = renderer.render(scene, pems, FrameSettings(64, 64, background=Background.BLACK), CAM,
+        a = renderer.render(scene, pems, paper(64, 64, background=Background.BLACK), CAM)
+        b = renderer.render(scene, pems, paper(64, 64, background=Background.BLACK), CAM,
                             positions=[s.positions + np.float32([0.5, 0, 0])])
         assert buffers == [m.vbo_pos.glo for m in scene.meshes]
     finally:
@@ -188,8 +188,8 @@ def test_every_light_has_a_shadow_map_and_the_unoccluded_mode_none(renderer):
     scene = renderer.create_scene([sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)], [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
     pems = renderer.build_pems(cube, PEMSettings(48))
     try:
-        full = renderer.render(scene, pems, FrameSettings(64, 64), CAM)
-        unshadowed = renderer.render(scene, pems, FrameSettings(64, 64, mode=ShadingMode.NO_OCCLUSION), CAM)
+        full = renderer.render(scene, pems, paper(64, 64), CAM)
+        unshadowed = renderer.render(scene, pems, paper(64, 64, mode=ShadingMode.NO_OCCLUSION), CAM)
     finally:
         pems.release()
         scene.release()
@@ -209,7 +209,7 @@ def test_scene_scale_does_not_change_the_image(renderer):
                       for m in (sphere(0.4, centre=(0, 0.6, 0)), plane(4.0))]
             scene = renderer.create_scene(meshes, [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
             try:
-                images[scale] = renderer.render(scene, pems, FrameSettings(64, 64)).image
+                images[scale] = renderer.render(scene, pems, paper(64, 64)).image
             finally:
                 scene.release()
     finally:
@@ -224,7 +224,7 @@ def test_many_light_baseline_matches_the_furnace_for_diffuse(renderer, sphere_sc
     # radiance approaches L (each point sees about half the lights, cosine-weighted).
     pems = renderer.build_pems(np.full((6, 32, 32, 3), 1.0, np.float32), PEMSettings(384))
     try:
-        frame = renderer.render(sphere_scene, pems, FrameSettings(64, 64, mode=ShadingMode.MANY_LIGHTS), CAM)
+        frame = renderer.render(sphere_scene, pems, paper(64, 64, mode=ShadingMode.MANY_LIGHTS), CAM)
     finally:
         pems.release()
     px = frame.image[covered(frame)][:, :3]
@@ -246,7 +246,7 @@ def test_a_sun_below_an_open_sheet_does_not_light_it(renderer):
             pems = renderer.build_pems(cube, PEMSettings(24))
             try:
                 for diffuse in ("pem", "lights"):
-                    fs = FrameSettings(32, 32, diffuse=diffuse, background=Background.BLACK)
+                    fs = paper(32, 32, diffuse=diffuse, background=Background.BLACK)
                     out[name, diffuse] = renderer.render(scene, pems, fs, cam).image
             finally:
                 pems.release()
@@ -268,7 +268,7 @@ def test_diffuse_from_lights_passes_the_furnace_test(renderer, sphere_scene, n_l
     L = 2.5
     pems = renderer.build_pems(np.full((6, 32, 32, 3), L, np.float32), PEMSettings(n_lights))
     try:
-        s = FrameSettings(96, 96, mode=ShadingMode.NO_OCCLUSION, diffuse="lights")
+        s = paper(96, 96, mode=ShadingMode.NO_OCCLUSION, diffuse="lights")
         image = renderer.render(sphere_scene, pems, s, CAM).image
     finally:
         pems.release()
@@ -306,7 +306,7 @@ def test_shadow_blur_matches_a_numpy_box_cascade_and_leaves_unblurred_lights_alo
     cube = sun_sky_cube(32, (1, 1, 0.5), sun_radiance=300.0, sun_radius_deg=8)
     scene = renderer.create_scene([sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)], [Material(), Material()])
     pems = renderer.build_pems(cube, PEMSettings(n_lights))
-    settings = FrameSettings(32, 32, shadow_size=64, blur_scale=0.5)
+    settings = paper(32, 32, shadow_size=64, blur_scale=0.5)
     try:
         monkeypatch.setattr(vsm, "MAX_BLUR_RADIUS", 0)     # every radius clamps to 0: the raw moments
         renderer.render(scene, pems, settings, CAM)
@@ -348,7 +348,7 @@ def test_without_a_blur_the_maps_skip_the_blur_passes_and_their_scratch(renderer
     size = 48 if n_lights == 24 else 40   # sizes no other test uses: a new array, without a scratch yet
     sharp = dict(small_light_scale=1)
     try:
-        plain = renderer.render(scene, pems, FrameSettings(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
+        plain = renderer.render(scene, pems, paper(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
         maps = renderer._shadow_maps["main"]
         assert maps.scratch is None
         assert plain.settings["shadow_bytes"] == size * size * 16 * (maps.n_lights + (
@@ -356,12 +356,12 @@ def test_without_a_blur_the_maps_skip_the_blur_passes_and_their_scratch(renderer
         assert "blur" not in plain.timings["wall_ms"]   # the batches' copy is part of the shadow_maps stage
         original = ShadowMaps.render
         monkeypatch.setattr(ShadowMaps, "render", lambda self, *a, **k: original(self, *a, **{**k, "blur": True}))
-        passes = renderer.render(scene, pems, FrameSettings(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
+        passes = renderer.render(scene, pems, paper(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
         monkeypatch.undo()
         assert renderer._shadow_maps["main"] is maps and maps.scratch is not None
         assert passes.settings["shadow_bytes"] > plain.settings["shadow_bytes"]
         # The next frame without a blur gives the array back and reports the maps alone again.
-        again = renderer.render(scene, pems, FrameSettings(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
+        again = renderer.render(scene, pems, paper(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
         assert maps.scratch is None and again.settings["shadow_bytes"] == plain.settings["shadow_bytes"]
     finally:
         pems.release()
@@ -380,7 +380,7 @@ def test_a_receiver_that_casts_nothing_is_lit_outside_the_casters_shadow(rendere
     meshes, mats = [sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)], [Material((0.8, 0.8, 0.8)), Material((0.8, 0.8, 0.8))]
     cam = Camera((0.0, 4.0, 0.5), (0.0, 0.0, 0.0), fov_y_deg=50.0)
     pems = renderer.build_pems(cube, PEMSettings(24))
-    s = FrameSettings(64, 64, background=Background.BLACK)
+    s = paper(64, 64, background=Background.BLACK)
     try:
         images = []
         for casters in ([True, True], [True, False]):
@@ -410,7 +410,7 @@ def test_maps_are_fitted_to_the_casters_not_the_scene(renderer):
     pems = renderer.build_pems(cube, PEMSettings(24))
     scene = renderer.create_scene(meshes, mats, casters=[True, False])
     try:
-        frame = renderer.render(scene, pems, FrameSettings(64, 64, small_light_scale=1, background=Background.BLACK), cam)
+        frame = renderer.render(scene, pems, paper(64, 64, small_light_scale=1, background=Background.BLACK), cam)
     finally:
         scene.release()
         pems.release()
@@ -433,7 +433,7 @@ def test_maps_are_fitted_to_what_the_camera_sees(renderer):
     pems = renderer.build_pems(cube, PEMSettings(24))
     scene = renderer.create_scene(meshes, mats, casters=[True, True, False])
     try:
-        fs = FrameSettings(64, 64, small_light_scale=1, background=Background.BLACK)
+        fs = paper(64, 64, small_light_scale=1, contact_shadow_texels=24.0, background=Background.BLACK)
         near, wide = (renderer.render(scene, pems, fs, cam) for cam in (framed, both))
         # A caster above the frame still shadows the floor in it: the maps' depth range is the casters'.
         high = renderer.create_scene([sphere(0.3, centre=(0.0, 1.6, 0.0)), plane(10.0)], mats[:2], casters=[True, False])
@@ -485,7 +485,7 @@ def test_a_scene_with_one_caster_keeps_one_pair_of_moments(renderer):
     two = renderer.create_scene([ball, ground, inner], mats, casters=[True, False, True])
     try:
         assert (one.shadow_groups, two.shadow_groups) == (1, 2)
-        fs = FrameSettings(64, 64, shadow_size=64, small_light_scale=1, background=Background.BLACK)
+        fs = paper(64, 64, shadow_size=64, small_light_scale=1, background=Background.BLACK)
         a = renderer.render(one, pems, fs, CAM)
         assert renderer._shadow_maps["main"].groups == 1
         b = renderer.render(two, pems, fs, CAM)
@@ -530,7 +530,7 @@ def test_the_shading_normal_is_turned_to_the_side_of_the_sheet_the_camera_sees(r
     scene = renderer.create_scene([sheet], [Material((1.0, 1.0, 1.0), 0.0, 0.0)])
     pems = renderer.build_pems(cube, PEMSettings(24))
     try:
-        fs = FrameSettings(32, 32, mode=ShadingMode.NO_OCCLUSION, background=Background.BLACK)
+        fs = paper(32, 32, mode=ShadingMode.NO_OCCLUSION, background=Background.BLACK)
         frame = renderer.render(scene, pems, fs, cam, positions=[v], normals=[lean])
     finally:
         pems.release()
@@ -561,7 +561,7 @@ def test_compute_lighting_pass_gives_the_fragment_pass_image(renderer, mode):
                 for n_lights in (48, 384):
                     pems = r.build_pems(cube, PEMSettings(n_lights))
                     try:
-                        images.append(r.render(scene, pems, FrameSettings(45, 37, mode=mode), CAM))
+                        images.append(r.render(scene, pems, paper(45, 37, mode=mode), CAM))
                     finally:
                         pems.release()
             finally:
@@ -621,7 +621,7 @@ def test_normals_made_on_the_gpu_match_numpys(renderer, monkeypatch, groups_x):
         scene = r.create_scene([mesh], [Material()])
         pems = r.build_pems(np.full((6, 8, 8, 3), 1.0, np.float32), PEMSettings(6))
         try:
-            frame = r.render(scene, pems, FrameSettings(32, 32), CAM, positions=[moved])
+            frame = r.render(scene, pems, paper(32, 32), CAM, positions=[moved])
             gpu = np.frombuffer(scene.meshes[0].vbo_nrm.read(), np.float32).reshape(-1, 3)
         finally:
             pems.release()
@@ -642,7 +642,7 @@ def test_normals_on_the_gpu_give_the_image_of_normals_on_the_cpu(renderer):
             scene = r.create_scene([s, plane(4.0)], [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
             pems = r.build_pems(sun_sky_cube(16, (0.4, 1, 0.3)), PEMSettings(12))
             try:
-                images.append(r.render(scene, pems, FrameSettings(48, 48), CAM, positions=moved).image)
+                images.append(r.render(scene, pems, paper(48, 48), CAM, positions=moved).image)
             finally:
                 pems.release()
                 scene.release()
@@ -658,7 +658,7 @@ def test_lights_wide_at_every_pixel_skip_their_glossy_pem_for_the_same_image(ren
     scene = renderer.create_scene([sphere(0.4, centre=(0, 0.5, 0)), plane(4.0)],
                                   [Material((0.5, 0.4, 0.3), 0.6, 0.8), Material((0.6, 0.6, 0.6), 0.2, 0.3)])
     pems = renderer.build_pems(sun_sky_cube(32, (1, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3), PEMSettings(48))
-    settings = FrameSettings(64, 64, diffuse="lights", glossy="wide", sub_lights=2)
+    settings = paper(64, 64, diffuse="lights", glossy="wide", sub_lights=2)
     try:
         assert scene.max_glossiness == pytest.approx(0.8)
         skipping = renderer.render(scene, pems, settings, CAM).image
@@ -682,10 +682,10 @@ def test_each_light_sums_its_own_glossy_discs(renderer):
                                   [Material((0.1, 0.1, 0.1), 1.0, 0.8), Material((0.2, 0.2, 0.2), 0.5, 0.6)])
     pems = renderer.build_pems(sun_sky_cube(32, (1, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3), PEMSettings(48))
     try:
-        frames = {(g, k): renderer.render(scene, pems, FrameSettings(64, 64, diffuse="lights", glossy=g, sub_lights=k),
+        frames = {(g, k): renderer.render(scene, pems, paper(64, 64, diffuse="lights", glossy=g, sub_lights=k),
                                           CAM)
                   for g in ("wide", "pem") for k in (1, 2)}
-        again = renderer.render(scene, pems, FrameSettings(64, 64, diffuse="lights", glossy="wide", sub_lights=2), CAM)
+        again = renderer.render(scene, pems, paper(64, 64, diffuse="lights", glossy="wide", sub_lights=2), CAM)
     finally:
         pems.release()
         scene.release()

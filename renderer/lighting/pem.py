@@ -60,7 +60,7 @@ class PEMSettings:
     # lookup of the scene needs them (`finest_level_needed`). 0: the whole chain, mirror included.
     base_level: int = 0
     # The median cut keeps compact bright sources (a sun) whole (lighting/median_cut.py); off: the
-    # paper's plain median cut. The presets turn it on (presets.knob_defaults).
+    # paper's plain median cut. Every preset turns it on (renderer/presets/*.toml).
     whole_sources: bool = False
 
     def key(self) -> tuple:
