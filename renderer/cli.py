@@ -119,12 +119,24 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
                    help="the map behind the garment, or nothing (alpha 0)")
 
 
+def _device_name() -> str:
+    """The GL renderer this machine's frames would run on (a budget must have been measured there)."""
+    from .gpu.context import GLContext
+
+    gl = GLContext()
+    try:
+        return gl.renderer_name
+    finally:
+        gl.release()
+
+
 def resolve_quality(args) -> dict:
     """Quality knobs: a budget (chosen from the measured table), else the preset, over the
     defaults; explicit flags override all (`merge_knobs`). The result says where they came from,
     and which PEM filter: --filter, else the budget's measured one, else sqrt-cosine."""
+    budget = args.frame_budget_ms is not None or args.error_budget is not None
     base, measured_filter, where = base_knobs(args.preset, *presets(), args.frame_budget_ms, args.error_budget,
-                                              size=tuple(args.size))
+                                              size=tuple(args.size), device=_device_name() if budget else None)
     knobs = merge_knobs(base, {k: getattr(args, k) for k in config.NAMES})
     return {**knobs, "filter": args.filter or measured_filter or "sqrt-cosine", "source": where}
 

@@ -45,8 +45,9 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: di
     came from (None: none stored)."""
     name = q.preset.value if q.preset is not None else settings.default_preset
     # A budget chooses the measured setting that meets it, never a guess (InvalidInputError: 422).
+    device = (measured or {}).get("applied_on")   # the service's GL renderer, once its GL thread runs
     base, measured_filter, source = base_knobs(name, presets, None, q.frame_budget_ms, q.error_budget, measured,
-                                               size=(out.width, out.height))
+                                               size=(out.width, out.height), device=device)
     if measured_filter is not None:   # a budget chose the knobs: no preset name, and its filter unless named
         name = None
         filter_name = q.filter.value if "filter" in q.model_fields_set else measured_filter

@@ -78,15 +78,23 @@ def choose(table: dict, frame_budget_ms: float | None = None, error_budget: floa
 
 
 def budget_knobs(frame_budget_ms: float | None, error_budget: float | None,
-                 table: dict | None | str = STORED, size: tuple[int, int] | None = None) -> tuple[dict, str, str]:
+                 table: dict | None | str = STORED, size: tuple[int, int] | None = None,
+                 device: str | None = None) -> tuple[dict, str, str]:
     """The knobs (without the filter), the PEM filter and a description of the table's entry that
     meets the budgets (`choose`): what the command line and the service apply for a budget. A table
     is measured at one image size on one machine: a frame of another `size` (width, height) is
-    refused, not guessed at (times and errors change with the pixels)."""
+    refused, not guessed at (times and errors change with the pixels), and so is a renderer on another
+    `device` (the GL renderer's name; None: not checked)."""
     table = load_table() if table == STORED else table
     if table is None:
         raise InvalidInputError("budgets choose from the measured table (renderer/bench/measured.json), and none "
                                 "is stored: run `garment-render bench --store` first, or name a preset")
+    measured_on = table["machine"].get("gl_renderer")
+    if device is not None and measured_on is not None and device != measured_on:
+        raise InvalidInputError(
+            f"budgets choose from settings measured on {measured_on}; this renderer runs on {device}, where their "
+            "times and errors were not measured: name a preset, or store a table measured on this device "
+            "(garment-render bench --store)")
     measured = table.get("size")
     if size is not None and measured is not None and tuple(size) != (measured, measured):
         raise InvalidInputError(

@@ -126,16 +126,16 @@ def preset(name: str) -> dict:
 
 def base_knobs(preset: str, preset_knobs: dict, preset_source: str | None, frame_budget_ms: float | None,
                error_budget: float | None, table: dict | None | str = STORED,
-               size: tuple[int, int] | None = None) -> tuple[dict, str | None, str]:
+               size: tuple[int, int] | None = None, device: str | None = None) -> tuple[dict, str | None, str]:
     """What a request's knobs go over (`merge_knobs`): the measured setting that meets its budgets
     when it names one (`budget_knobs`, chosen from `table`), else its preset's knobs (from
     `preset_knobs`, the presets in use); `size`: the frame's (width, height), which a budget's table
-    must have been measured at. Returns (knobs, the measured PEM filter, or None when the
+    must have been measured at, on `device` (the GL renderer's name; None: not checked). Returns (knobs, the measured PEM filter, or None when the
     preset chose them, and where they came from): the one rule the command line and the service share."""
     if frame_budget_ms is not None or error_budget is not None:
         from ..bench.budget import budget_knobs
 
-        return budget_knobs(frame_budget_ms, error_budget, table, size)
+        return budget_knobs(frame_budget_ms, error_budget, table, size, device)
     return preset_knobs[preset], None, f"preset {preset}" + (f", {preset_source}" if preset_source else "")
 
 
