@@ -47,6 +47,9 @@ class Setting:
     choices: tuple[str, ...] | None = None
     power_of_two: bool = False
     lights_rule: bool = False        # 6 * 2^k
+    # The values `garment-render bench` measures around balanced (renderer/bench/run.py); a dict
+    # changes several settings at once.
+    sweep: tuple = ()
 
     def __post_init__(self):
         assert self.group in GROUPS and self.invalidates in INVALIDATES, self.name
@@ -93,42 +96,58 @@ class Setting:
 SETTINGS: tuple[Setting, ...] = (
     # Lights and PEMs.
     Setting("lights", int, 48, "median-cut regions, one light and one shadow map each", "lights", "pem set",
-            6, MAX_LIGHTS, lights_rule=True),
-    Setting("face_size", int, 128, "PEM cube face size", "lights", "pem set", 4, 2048, power_of_two=True),
+            6, MAX_LIGHTS, lights_rule=True,
+            sweep=(6, 12, 24, 48, 96, 192, 384)),
+    Setting("face_size", int, 128, "PEM cube face size", "lights", "pem set", 4, 2048, power_of_two=True,
+            sweep=(32, 64, 128, 256)),
     Setting("whole_sources", bool, False, "median cut: no cut through a compact bright source (a sun), which keeps "
-            "it in one region (false: the paper's plain cut)", "lights", "pem set"),
+            "it in one region (false: the paper's plain cut)", "lights", "pem set",
+            sweep=(False,)),
     # Shadow maps.
     Setting("shadow_size", int, 256, "shadow-map side per light, texels", "shadows", "shadow maps", 16,
-            MAX_SHADOW_SIDE),
+            MAX_SHADOW_SIDE,
+            sweep=(64, 128, 256, 512)),
     Setting("blur_scale", float, 0.1, "scale of the paper's per-light shadow blur (0: hard shadows)", "shadows",
-            "shadow maps", 0.0, 100.0),
+            "shadow maps", 0.0, 100.0,
+            sweep=(0.0, 0.1, 0.25, 0.5, 1.0, 2.0)),
     Setting("caster_detail", float, 1.0, "share of the casters' triangles the main maps draw (a proxy over the same "
-            "vertices; 1: the meshes themselves)", "shadows", "shadow maps", 0.0, 1.0, above_minimum=True),
+            "vertices; 1: the meshes themselves)", "shadows", "shadow maps", 0.0, 1.0, above_minimum=True,
+            sweep=(1.0, 0.5, 0.25, 0.1)),
     Setting("normal_offset_texels", float, 1.5, "shadow lookups pushed off the surface along the normal, in each "
-            "map's texels", "shadows", "frame", 0.0, MAX_BIAS_TEXELS),
+            "map's texels", "shadows", "frame", 0.0, MAX_BIAS_TEXELS,
+            sweep=(1.0, 3.3)),
     Setting("min_sigma_texels", float, 3.0, "least deviation of the depths under a texel, in that map's texels "
-            "(keeps sloped surfaces from shadowing themselves)", "shadows", "frame", 0.0, MAX_BIAS_TEXELS),
+            "(keeps sloped surfaces from shadowing themselves)", "shadows", "frame", 0.0, MAX_BIAS_TEXELS,
+            sweep=(0.0, 6.0)),
     Setting("small_light_scale", int, 1, "small lights (a sun, under ~6 degrees) get maps this many times "
-            "shadow_size per side, drawn from the casters themselves", "shadows", "shadow maps", 1, 8),
+            "shadow_size per side, drawn from the casters themselves", "shadows", "shadow maps", 1, 8,
+            sweep=(1, 2, 4, {"small_light_scale": 2, "small_light_min_energy": 0.0})),
     Setting("small_light_min_energy", float, 0.0, "only small lights with at least this many times the mean light's "
-            "energy get those maps (0: every small light)", "shadows", "shadow maps", 0.0, 1e6),
+            "energy get those maps (0: every small light)", "shadows", "shadow maps", 0.0, 1e6,
+            sweep=(0.0, 1.0, 4.8)),
     Setting("sharp_large_lights", bool, False, "large lights that bright get those maps too", "shadows",
-            "shadow maps"),
+            "shadow maps",
+            sweep=(True, {"sharp_large_lights": True, "small_light_min_energy": 4.8})),
     Setting("sharp_share_deg", float, 0.0, "sharp lights within this many degrees of a brighter one whose disc "
             "theirs overlaps share its map (a sun split into a few regions; 0: one map each)", "shadows",
-            "shadow maps", 0.0, MAX_SHARP_SHARE_DEG),
+            "shadow maps", 0.0, MAX_SHARP_SHARE_DEG,
+            sweep=(0.0, 1.0, 4.0)),
     # Contact shadows.
     Setting("contact_shadow_texels", float, 0.0, "occluders within this many main-map texels of a surface, which the "
             "maps' bias skips, found in the camera's view (0: off, the paper)", "contact", "shader variant", 0.0,
-            MAX_CONTACT_TEXELS),
+            MAX_CONTACT_TEXELS,
+            sweep=(0.0, 8.0, 48.0)),
     # Shading.
     Setting("diffuse", str, "pem", "diffuse term from the PEMs along the normal (pem, the paper) or from each "
-            "light's disc in closed form (lights)", "shading", "shader variant", choices=("pem", "lights")),
+            "light's disc in closed form (lights)", "shading", "shader variant", choices=("pem", "lights"),
+            sweep=("pem",)),
     Setting("glossy", str, "pem", "glossy term from the PEMs along the reflection vector (pem, the paper), or wide: "
             "small lights' from their disc through the Phong lobe, large lights' too where the lobe is wider than "
-            "their disc", "shading", "shader variant", choices=("pem", "wide")),
+            "their disc", "shading", "shader variant", choices=("pem", "wide"),
+            sweep=("pem",)),
     Setting("sub_lights", int, 1, "discs per region in the closed-form glossy term (1: the paper's one light)",
-            "shading", "shader variant", 1, MAX_SUB_LIGHTS, power_of_two=True),
+            "shading", "shader variant", 1, MAX_SUB_LIGHTS, power_of_two=True,
+            sweep=(1, 4, 8)),
 )
 BY_NAME = {s.name: s for s in SETTINGS}
 NAMES = tuple(BY_NAME)

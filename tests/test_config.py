@@ -77,3 +77,14 @@ def test_numpy_scalars_pass_as_their_python_kind():
     for n in (0, 7, 18, 36, 768):
         with pytest.raises(InvalidInputError, match="6 \\* 2\\^k"):
             config.check("lights", n)
+
+
+def test_the_bench_sweeps_every_setting_that_declares_values_and_each_value_is_valid():
+    from renderer.bench.run import SWEEPS
+
+    declared = [st for st in config.SETTINGS if st.sweep]
+    assert [st.name for st in declared] == [k for k in SWEEPS if k in config.BY_NAME]
+    for st in declared:
+        for value in st.sweep:
+            for name, v in (value.items() if isinstance(value, dict) else [(st.name, value)]):
+                config.check(name, v)

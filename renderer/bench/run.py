@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import presets
+from .. import config, presets
 from ..camera import frame_meshes
 from ..gpu.context import GLContext
 from ..lighting.filters import Filter
@@ -29,33 +29,15 @@ from .budget import OLD_SHADOW_BIAS
 from .scenes import BenchScene, bundled_scene, shared_scenes
 
 BALANCED = {**knob_defaults(), **preset("balanced"), "filter": "sqrt-cosine"}
-# A dict value in a sweep changes several knobs at once.
-
+# The sweep: each setting's own values from the registry (renderer/config.py, `sweep`), in its
+# order, then the rows that are not one setting: the PEM filter, the paper's lookups for both terms,
+# the bias before it was stated in texels, the other presets as a whole (accurate is balanced at 192
+# lights: the lights row, except in the quick sweep).
 SWEEPS = {
-    "lights": [6, 12, 24, 48, 96, 192, 384],
-    "face_size": [32, 64, 128, 256],
-    "shadow_size": [64, 128, 256, 512],
-    "blur_scale": [0.0, 0.1, 0.25, 0.5, 1.0, 2.0],
+    **{st.name: list(st.sweep) for st in config.SETTINGS if st.sweep},
     "filter": [f.value for f in Filter],
-    "diffuse": ["pem"],
-    "glossy": ["pem"],
-    "source": [{"diffuse": "pem", "glossy": "pem"}],   # the paper's PEM lookups for both terms
-    "whole_sources": [False],   # the paper's plain median cut
-    "caster_detail": [1.0, 0.5, 0.25, 0.1],
-    "small_light_scale": [1, 2, 4, {"small_light_scale": 2, "small_light_min_energy": 0.0}],
-    "small_light_min_energy": [0.0, 1.0, 4.8],
-    "sharp_large_lights": [True, {"sharp_large_lights": True, "small_light_min_energy": 4.8}],
-    "sharp_share_deg": [0.0, 1.0, 4.0],
-    "sub_lights": [1, 4, 8],   # discs per region in the glossy closed form (1: the paper's one light)
-    # Shadow bias in each map's texels (renderer.FrameSettings): the normal offset and the variance
-    # floor; shadow_bias: the bias before it was stated in texels.
-    "normal_offset_texels": [1.0, 3.3],
-    "min_sigma_texels": [0.0, 6.0],
+    "source": [{"diffuse": "pem", "glossy": "pem"}],
     "shadow_bias": [OLD_SHADOW_BIAS],
-    # Contact shadows (0: the paper's method without them), in main-map texels.
-    "contact_shadow_texels": [0.0, 8.0, 48.0],
-    # The other presets, measured as a whole beside balanced (accurate is balanced at 192 lights: the
-    # lights row, except in the quick sweep).
     "preset": [preset("fast")],
 }
 QUICK_SWEEPS = {**SWEEPS, "lights": [6, 24, 48, 96], "face_size": [64, 128], "shadow_size": [128, 256],
