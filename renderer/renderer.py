@@ -214,6 +214,29 @@ def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
     return order, kind_end
 
 
+@dataclass
+class _LightPlan:
+    """A frame's lights as the passes need them (Renderer._light_plan): the PEM set's regions, the
+    casters' box, each light's layer, disc, map plan and shadow direction, map size, blur width,
+    projection's texel size, and the packed records the shaders read."""
+
+    regions: object
+    n: int
+    lo: np.ndarray
+    hi: np.ndarray
+    layers: np.ndarray
+    disc_radius: np.ndarray
+    k: int
+    plan: object
+    shadow_dirs: np.ndarray
+    sizes: np.ndarray
+    sigma: np.ndarray
+    blur: bool
+    n_shadowed: int
+    texels: np.ndarray
+    lights: np.ndarray
+
+
 LIGHTING_PASSES = ("fragment", "compute")
 
 
@@ -387,8 +410,9 @@ class Renderer:
                camera: Camera | None = None, positions: list[np.ndarray | None] | None = None,
                normals: list[np.ndarray | None] | None = None, background: BackgroundMap | None = None) -> Frame:
         """One frame. background: the map seen behind the scene (`background_map`); None shows the
-        PEM set's own cube, as coarse as its faces."""
-        gl, ctx = self.gl, self.gl.ctx
+        PEM set's own cube, as coarse as its faces. The stages: upload, the light plan (numpy), the
+        shadow maps, the geometry pass, the lighting pass, the readback."""
+        gl = self.gl
         gl.check_thread()
         timer = StageTimer()
         t_frame = time.perf_counter()
@@ -404,6 +428,53 @@ class Renderer:
         camera = camera or default_camera(centre, radius, w / h)
         view_proj = camera.view_proj(w / h, centre, radius)
 
+        lp = self._light_plan(scene, pems, settings, view_proj)
+        lights_buf = self._buffer("lights", lp.lights.tobytes())
+        arrays = self._shadow_pass(scene, settings, lp, lights_buf, timer)
+
+        fbo, gbuf_fbo, gbuf = self._target_for(w, h)
+        vp_bytes = view_proj.T.astype(np.float32).tobytes()
+        # The PEM set's tables the shading pass reads (the glossy discs), made once per set when a
+        # frame first asks for them: that frame reports them as their own stage.
+        discs = settings.sub_lights if _glossy_closed_form(settings.mode, settings.glossy) else 1
+        t0 = time.perf_counter()
+        if pems.prepare_tables(discs):
+            timer.wall_ms["light_tables"] = (time.perf_counter() - t0) * 1e3
+        self._geometry_pass(scene, camera, vp_bytes, gbuf_fbo, w, h, timer)
+        contact_radius = self._lighting_pass(scene, pems, settings, camera, view_proj, vp_bytes, lp, arrays,
+                                             lights_buf, fbo, gbuf, discs, background, timer)
+        image = self._readback_image(fbo, w, h, timer)
+        plan, layers, n, n_shadowed, texels = lp.plan, lp.layers, lp.n, lp.n_shadowed, lp.texels
+
+        timings = timer.as_dict()
+        timings["frame_wall_ms"] = (time.perf_counter() - t_frame) * 1e3
+        timings["n_lights"] = n
+        timings["shadowed_lights"] = n_shadowed
+        timings["shadow_layers"] = plan.n_layers if n_shadowed else 0
+        timings["sharp_layers"] = len(plan.sharp_lights) if n_shadowed else 0
+        # The median main-map texel the casters' fit gave, in world units.
+        main_texels = texels[(layers >= 0) & ~plan.sharp, 0]
+        timings["shadow_texel"] = float(np.median(main_texels)) if len(main_texels) else None
+        timings["n_triangles"] = scene.n_triangles
+        # Triangles the shadow pass drew: the small lights' maps at full detail, the others' at caster_detail.
+        # The proxy's count only where one was drawn (counting makes it: seconds for a large mesh).
+        n_main = len(plan.main_lights)
+        full = sum(sm.shadow_triangles(1.0) for sm in scene.meshes if sm.caster)
+        coarse = sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster) if n_main else 0
+        timings["shadow_triangles"] = len(plan.sharp_lights) * full + n_main * coarse
+        timings["device"] = gl.renderer_name
+        timings["lighting_pass"] = self.lighting_pass
+        timings["normals"] = self.normals if positions is not None else None
+        info = {"frame": settings.as_dict(), "pems": pems.summary(),
+                "camera": {"eye": list(camera.eye), "target": list(camera.target), "fov_y_deg": camera.fov_y_deg},
+                "shadow_bytes": sum(a.nbytes for a in arrays.values()) if n_shadowed else 0,
+                "shadowed_lights": n_shadowed,
+                # The contact search's distance in world units (0: none this frame).
+                "contact_radius": contact_radius}
+        return Frame(image, timings, info)
+
+    def _light_plan(self, scene: Scene, pems: PEMSet, settings: FrameSettings, view_proj: np.ndarray) -> _LightPlan:
+        """Which lights get which maps, and each map's projection: numpy, once per frame."""
         # Lights: directions and energies from the PEM set, projections fitted to the casters now,
         # over the receivers in view.
         regions = pems.regions
@@ -437,7 +508,13 @@ class Renderer:
         texels = texel_sizes(vp, sizes)
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
                              sigma, plan.layer, disc_radius, plan.sharp, texels)
-        lights_buf = self._buffer("lights", lights.tobytes())
+        return _LightPlan(regions, n, lo, hi, layers, disc_radius, k, plan, shadow_dirs, sizes, sigma, blur,
+                          n_shadowed, texels, lights)
+
+    def _shadow_pass(self, scene: Scene, settings: FrameSettings, lp: _LightPlan, lights_buf: moderngl.Buffer,
+                     timer: StageTimer) -> dict[str, ShadowMaps]:
+        """Every shadowed light's moments: the main maps and the small lights' sharp maps."""
+        plan, k, blur = lp.plan, lp.k, lp.blur
         # The main array (casters at caster_detail; a proxy is made only when one is drawn: a large
         # mesh's takes seconds), then the small lights' array (casters at full detail).
         casters = [sm for sm in scene.meshes if sm.caster]
@@ -456,16 +533,12 @@ class Renderer:
                                    self._buffer("shadow_lights_sharp", plan.sharp_lights.tobytes()), timer, blur=blur)
         elif "sharp" in self._shadow_maps:   # no small light now: give its memory back
             self._shadow_maps.pop("sharp").release()
+        return arrays
 
-        # Shading.
-        fbo, gbuf_fbo, gbuf = self._target_for(w, h)
-        vp_bytes = view_proj.T.astype(np.float32).tobytes()
-        # The PEM set's tables the shading pass reads (the glossy discs, the lights' SH), made once per
-        # set when a frame first asks for them: that frame reports them as their own stage.
-        discs = settings.sub_lights if _glossy_closed_form(settings.mode, settings.glossy) else 1
-        t0 = time.perf_counter()
-        if pems.prepare_tables(discs):
-            timer.wall_ms["light_tables"] = (time.perf_counter() - t0) * 1e3
+    def _geometry_pass(self, scene: Scene, camera: Camera, vp_bytes: bytes, gbuf_fbo, w: int, h: int,
+                       timer: StageTimer) -> None:
+        """The nearest surface's position, normals and material per pixel (gbuffer.frag)."""
+        gl, ctx = self.gl, self.gl.ctx
         with gl.stage(timer, "geometry"):
             # Geometry pass: nearest surface's position, normals and material per pixel.
             gbuf_fbo.use()
@@ -486,6 +559,21 @@ class Renderer:
                 set_uniform(g, "u_use_gloss_map", sm.use_maps[1])
                 set_uniform(g, "u_shadow_group", float(sm.group))
                 sm.vao_gbuffer.render(moderngl.TRIANGLES)
+
+    def _lighting_pass(self, scene: Scene, pems: PEMSet, settings: FrameSettings, camera: Camera,
+                       view_proj: np.ndarray, vp_bytes: bytes, lp: _LightPlan, arrays: dict[str, ShadowMaps],
+                       lights_buf: moderngl.Buffer, fbo, gbuf, discs: int, background: BackgroundMap | None,
+                       timer: StageTimer) -> float:
+        """The background, then per covered pixel c = sum_i VIS_i * PEM_i (lighting.frag). Returns the
+        contact search's distance in world units (0: none)."""
+        gl, ctx = self.gl, self.gl.ctx
+        w, h = settings.width, settings.height
+        regions, n, lo, hi, layers = lp.regions, lp.n, lp.lo, lp.hi, lp.layers
+        plan, shadow_dirs, sigma, sizes, disc_radius, n_shadowed = (lp.plan, lp.shadow_dirs, lp.sigma, lp.sizes,
+                                                                    lp.disc_radius, lp.n_shadowed)
+        lights = lp.lights
+        shadow_maps = arrays["main"]
+        groups = max(scene.shadow_groups, 1)
         with gl.stage(timer, "shading"):
             fbo.use()
             ctx.viewport = (0, 0, w, h)
@@ -556,7 +644,9 @@ class Renderer:
             fbo.depth_mask = True
             ctx.depth_func = "<"
             ctx.disable(moderngl.DEPTH_TEST)
+        return contact_radius
 
+    def _readback_image(self, fbo, w: int, h: int, timer: StageTimer) -> np.ndarray:
         t0 = time.perf_counter()
         # Into a host array kept with the targets (no 16 MB allocation per frame at 1024x1024), then
         # one copy that turns the rows over (GL rows start at the bottom): the caller owns the image.
@@ -565,33 +655,7 @@ class Renderer:
         fbo.read_into(self._readback, components=4, dtype="f4")
         image = self._readback[::-1].copy()
         timer.wall_ms["readback"] = (time.perf_counter() - t0) * 1e3
-
-        timings = timer.as_dict()
-        timings["frame_wall_ms"] = (time.perf_counter() - t_frame) * 1e3
-        timings["n_lights"] = n
-        timings["shadowed_lights"] = n_shadowed
-        timings["shadow_layers"] = plan.n_layers if n_shadowed else 0
-        timings["sharp_layers"] = len(plan.sharp_lights) if n_shadowed else 0
-        # The median main-map texel the casters' fit gave, in world units.
-        main_texels = texels[(layers >= 0) & ~plan.sharp, 0]
-        timings["shadow_texel"] = float(np.median(main_texels)) if len(main_texels) else None
-        timings["n_triangles"] = scene.n_triangles
-        # Triangles the shadow pass drew: the small lights' maps at full detail, the others' at caster_detail.
-        # The proxy's count only where one was drawn (counting makes it: seconds for a large mesh).
-        n_main = len(plan.main_lights)
-        full = sum(sm.shadow_triangles(1.0) for sm in scene.meshes if sm.caster)
-        coarse = sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster) if n_main else 0
-        timings["shadow_triangles"] = len(plan.sharp_lights) * full + n_main * coarse
-        timings["device"] = gl.renderer_name
-        timings["lighting_pass"] = self.lighting_pass
-        timings["normals"] = self.normals if positions is not None else None
-        info = {"frame": settings.as_dict(), "pems": pems.summary(),
-                "camera": {"eye": list(camera.eye), "target": list(camera.target), "fov_y_deg": camera.fov_y_deg},
-                "shadow_bytes": sum(a.nbytes for a in arrays.values()) if n_shadowed else 0,
-                "shadowed_lights": n_shadowed,
-                # The contact search's distance in world units (0: none this frame).
-                "contact_radius": contact_radius}
-        return Frame(image, timings, info)
+        return image
 
     def release(self) -> None:
         self.gl.check_thread()

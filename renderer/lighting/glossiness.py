@@ -98,6 +98,11 @@ class LobeTable:
     volumes: np.ndarray              # (K,) peak-1 radial volume at each fractional level
     l2_log_s: np.ndarray = None      # (J,) log of the exponents s where the l2 calibration is tabulated
     l2_levels: np.ndarray = None     # (J,) its levels (non-increasing in s)
+    # The integer levels' inner products the l2 distance is made of (`_l2_terms`): where the best level
+    # jumps between two tabulated exponents (near an integer level), the level of an exponent between
+    # them is found from these directly, not interpolated (a level between the two sides is worse than
+    # both).
+    l2_terms: tuple | None = None
 
     @property
     def n_levels(self) -> int:
@@ -122,7 +127,14 @@ class LobeTable:
             return 0.0
         log_s = -np.log(1.0 - g)
         if log_s <= self.l2_log_s[-1]:
-            return float(np.interp(log_s, self.l2_log_s, self.l2_levels))
+            j = int(np.clip(np.searchsorted(self.l2_log_s, log_s), 1, len(self.l2_log_s) - 1))
+            lo, hi = self.l2_levels[j], self.l2_levels[j - 1]   # non-increasing in s
+            if hi - lo <= 2.0 / STEPS_PER_LEVEL:
+                return float(np.interp(log_s, self.l2_log_s, self.l2_levels))
+            # Between the two tabulated exponents the best level jumps: found for this one, kept
+            # within the two (the table is non-increasing in s).
+            exact = float(_l2_best(self.l2_terms, self.levels_grid, np.array([np.exp(log_s)]))[0])
+            return float(np.clip(exact, lo, hi))
         # Beyond the resolved range: the volume level plus the offset at the last resolved s, shrinking
         # with the volume level so that the mirror stays level 0.
         g_last = 1.0 - np.exp(-self.l2_log_s[-1])
@@ -166,12 +178,12 @@ def lobe_table(face_size: int, kind: Filter | str = Filter.SQRT_COSINE) -> LobeT
     table = LobeTable(face_size, kind, impulse_dir, dirs, omega, responses, grid, np.zeros(0))
     vols = np.array([(table.lobe(level) ** 3 * omega).sum() / 3.0 for level in grid])
     vols = np.maximum.accumulate(vols)  # volume grows with blur; make the inverse well defined
-    log_s, l2 = _l2_calibration(responses, dirs @ impulse_dir, omega, grid, m)
-    return LobeTable(face_size, kind, impulse_dir, dirs, omega, responses, grid, vols, log_s, l2)
+    log_s, l2, terms = _l2_calibration(responses, dirs @ impulse_dir, omega, grid, m)
+    return LobeTable(face_size, kind, impulse_dir, dirs, omega, responses, grid, vols, log_s, l2, terms)
 
 
 def _l2_calibration(responses: np.ndarray, cos_to_impulse: np.ndarray, omega: np.ndarray, grid: np.ndarray,
-                    eval_face: int) -> tuple[np.ndarray, np.ndarray]:
+                    eval_face: int) -> tuple[np.ndarray, np.ndarray, tuple]:
     """The l2 levels (module doc) for exponents s from 1 to the finest lobe the evaluation grid resolves.
 
     With K = ((1 - f) R_lo + f R_hi) / a the normalized kernel at level lo + f (a its integral),
@@ -181,12 +193,22 @@ def _l2_calibration(responses: np.ndarray, cos_to_impulse: np.ndarray, omega: np
     texel = 0.5 * np.pi / eval_face
     s_max = 2.0 / (4.0 * texel) ** 2  # lobe width sqrt(2 / s) >= 4 evaluation texels
     exps = np.geomspace(1.0, s_max, 96)
-    c = np.clip(cos_to_impulse, 0.0, 1.0)
+    terms = _l2_terms(responses, cos_to_impulse, omega)
+    return np.log(exps), np.minimum.accumulate(_l2_best(terms, grid, exps)), terms
+
+
+def _l2_terms(responses: np.ndarray, cos_to_impulse: np.ndarray, omega: np.ndarray) -> tuple:
     rw = responses * omega                                   # (L, M)
-    a = rw.sum(axis=1)                                       # integrals of the integer levels
     n_lev = len(responses)
     q_same = (rw * responses).sum(axis=1)                    # <R_l, R_l>
     q_next = np.array([(rw[k] * responses[min(k + 1, n_lev - 1)]).sum() for k in range(n_lev)])
+    return rw, rw.sum(axis=1), q_same, q_next, np.clip(cos_to_impulse, 0.0, 1.0)
+
+
+def _l2_best(terms: tuple, grid: np.ndarray, exps: np.ndarray) -> np.ndarray:
+    """For each exponent, the level of `grid` whose normalized kernel is closest to the lobe."""
+    rw, a, q_same, q_next, c = terms
+    n_lev = len(a)
     with np.errstate(under="ignore"):
         p = np.stack([rw @ ((s + 1.0) / (2.0 * np.pi) * c ** s) for s in exps], axis=1)   # (L, S): <R_l, T_s>
     lo = np.minimum(np.floor(grid).astype(int), n_lev - 1)
@@ -196,8 +218,7 @@ def _l2_calibration(responses: np.ndarray, cos_to_impulse: np.ndarray, omega: np
     kk = ((1.0 - f[:, 0]) ** 2 * q_same[lo] + 2 * f[:, 0] * (1.0 - f[:, 0]) * q_next[lo]
           + f[:, 0] ** 2 * q_same[hi]) / norm ** 2
     kt = ((1.0 - f) * p[lo] + f * p[hi]) / norm[:, None]     # (K, S)
-    best = grid[np.argmin(kk[:, None] - 2.0 * kt, axis=0)]
-    return np.log(exps), np.minimum.accumulate(best)
+    return grid[np.argmin(kk[:, None] - 2.0 * kt, axis=0)]
 
 
 def level_for_glossiness(g: float, face_size: int, kind: Filter | str = Filter.SQRT_COSINE) -> float:
