@@ -28,12 +28,12 @@ from .scene import Scene
 from .shading.background import BackgroundMap
 from .shading.material import Material
 from .shadows.lights import (
-    SMALL_LIGHT_MAX_SIN,
     blur_sigma_texels,
     fit_light_view_projs,
     pack_lights,
     plan_layers,
     share_sharp_maps,
+    small_lights,
     texel_sizes,
 )
 from .shadows.vsm import ShadowMaps
@@ -198,8 +198,7 @@ def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
     pixel; a CPU rasterizer runs it anyway)."""
     n = len(lights)
     exact_modes = settings.mode in _CLOSED_FORM_MODES
-    # The shader compares the packed float32 sine with the float32 define.
-    small = lights["params"][:, 3] <= np.float32(SMALL_LIGHT_MAX_SIN)
+    small = lights["shadow"][:, 3] > 0.5   # pack_lights' flag, which the lighting pass reads too
     pem_diffuse = np.full(n, not _no_diffuse_pems(settings.mode, settings.diffuse))
     pem_glossy = ~(small & _glossy_closed_form(settings.mode, settings.glossy))
     if exact_modes and settings.glossy == "wide":
@@ -293,8 +292,7 @@ class Renderer:
             if self._owns_gl:
                 self.gl.release()
             raise
-        defines = {"GLOSS_TABLE_SIZE": PEMSet.GLOSS_TABLE_SIZE, "REGIONS_PER_TEXTURE": REGIONS_PER_TEXTURE,
-                   "SMALL_LIGHT_MAX_SIN": float(SMALL_LIGHT_MAX_SIN)}
+        defines = {"GLOSS_TABLE_SIZE": PEMSet.GLOSS_TABLE_SIZE, "REGIONS_PER_TEXTURE": REGIONS_PER_TEXTURE}
         self._defines = defines
         self._shade_progs: dict[tuple, tuple[moderngl.Program, moderngl.VertexArray]] = {}
         self.bg_prog = program(ctx, "shading/background.vert", "shading/background.frag")
@@ -484,7 +482,7 @@ class Renderer:
         # Every light has a map (none in the no-occlusion mode).
         layers = np.arange(n, dtype=np.int32) if shadowed else np.full(n, -1, np.int32)
         disc_radius = regions.disc_radius_rad()
-        small = np.sin(disc_radius) <= SMALL_LIGHT_MAX_SIN
+        small = small_lights(disc_radius)
         relative = regions.energy_luminance / max(float(regions.energy_luminance.mean()), 1e-300)
         k = settings.small_light_scale
         bright = relative >= settings.small_light_min_energy

@@ -157,6 +157,7 @@ def test_the_lighting_pass_visits_every_light_once_grouped_by_kind():
     lights = np.zeros(n, LIGHT_DTYPE)
     small = np.arange(n) % 5 == 0                     # angular radius ~3 degrees, else ~30
     lights["params"][:, 3] = np.where(small, 0.05, 0.5)
+    lights["shadow"][:, 3] = small                    # pack_lights' flag (shadows/lights.py, small_lights)
     lights["shadow"][:, 0] = np.where(np.arange(n) % 7 == 0, -1, 0)   # every 7th without a shadow map
     sharp = small & (np.arange(n) % 2 == 0)
 
@@ -191,7 +192,7 @@ def test_a_uniform_no_source_declares_is_an_error_and_one_a_variant_dropped_is_n
     from renderer.gpu.shaders import program, set_uniform
 
     prog = program(gl.ctx, "shading/background.vert", "shading/lighting.frag",
-                   {"GLOSS_TABLE_SIZE": 257, "REGIONS_PER_TEXTURE": 192, "SMALL_LIGHT_MAX_SIN": 0.1, "MODE": 1,
+                   {"GLOSS_TABLE_SIZE": 257, "REGIONS_PER_TEXTURE": 192, "MODE": 1,
                     "TWO_PEM_TEXTURES": 0})
     try:
         assert "u_contact_radius" not in prog                 # declared under CONTACT_SHADOWS: dropped here

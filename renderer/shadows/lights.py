@@ -224,6 +224,12 @@ def disc_sine(radius_rad) -> np.ndarray:
     return np.sin(np.clip(np.asarray(radius_rad, np.float64), 1e-3, np.pi / 2))
 
 
+def small_lights(radius_rad) -> np.ndarray:
+    """Which lights are small (a sun): the one rule, on the float32 sine the shaders are given; the
+    light plan (sharp maps, closed-form terms) and the lighting pass (pack_lights' shadow.w) read it."""
+    return disc_sine(radius_rad).astype(np.float32) <= np.float32(SMALL_LIGHT_MAX_SIN)
+
+
 def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma, shadow_layer,
                 radius_rad=None, sharp=None, texel=None) -> np.ndarray:
     """Build the std430 array of `struct Light` for n lights; shadow_layer[i] = -1: no shadow map
@@ -244,5 +250,8 @@ def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma
     arr["shadow"][:, 1] = np.asarray(sharp, np.float32) if sharp is not None else 0.0
     texel = np.zeros((n, 2)) if texel is None else np.asarray(texel, np.float64)
     arr["shadow"][:, 2] = texel[:, 0]
+    # Small (a sun): decided here once, on the packed sine the shaders see, and read by both the light
+    # plan (renderer.light_kinds) and the lighting pass.
+    arr["shadow"][:, 3] = small_lights(radius_rad if radius_rad is not None else np.zeros(n))
     arr["params"][:, 1] = texel[:, 1]
     return arr

@@ -9,7 +9,8 @@ struct Light {
     vec4 energy;         // rgb: region energy (radiance x sr); a: luminance energy
     vec4 shadow;         // x: shadow-map layer (-1: none); y: 1 if the map is in the sharp array (a
                          // small light's, small_light_scale times the size), else 0; z: one texel of
-                         // its map in world units
+                         // its map in world units; w: 1 if the light is small (a sun: its disc's sine at
+                         // most SMALL_LIGHT_MAX_SIN, renderer/shadows/lights.py), else 0
 };
 
 // Lights that have a shadow map, in layer order (layer k belongs to light shadow_lights[k]).

@@ -73,9 +73,6 @@ float gloss_level(float g) {
     return mix(level_of_g[k], level_of_g[k + 1], x - float(k));
 }
 
-// SMALL_LIGHT_MAX_SIN (a #define, renderer/shadows/lights.py): lights of angular radius up to ~5.7
-// degrees count as small.
-
 // Accumulators of main(), shared with add_light() (GLSL has no closures).
 vec3 g_geometric_normal = vec3(0.0, 0.0, 1.0);  // the triangle's plane, facing the camera
 vec3 g_to_eye = vec3(0.0, 0.0, 1.0);            // unit, from the pixel's surface point to the eye
@@ -106,12 +103,11 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos, bool pem_diff
     // blocked by the surface for a closed body and by the body under a garment; a shadow map cannot
     // resolve it at the terminator, where the surface is its own occluder at grazing angles. Share of
     // the light's disc above that plane:
-    float sin_r = lights[i].params.w;
     float above = disc_share_above(i, g_geometric_normal);
     // Small lights (a sun): both terms (their terminator is sharp; a large region's share is soft
     // and its PEM's diffuse kernel spreads it anyway); large lights: the glossy term (the lobe's part
     // below the surface, which the reference's visibility removes and the PEM lookup along r does not).
-    bool small = sin_r <= SMALL_LIGHT_MAX_SIN;
+    bool small = lights[i].shadow.w > 0.5;   // decided once, in renderer/shadows/lights.py
     if (small) vis *= above;
     if (pem_diffuse) g_diffuse += vis * pem_d;
     else g_diffuse_exact += vis * diffuse_from_light(i, n);
