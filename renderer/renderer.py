@@ -12,6 +12,7 @@ import os
 import time
 from dataclasses import asdict, dataclass, field
 from enum import Enum
+from typing import TypedDict
 
 import moderngl
 import numpy as np
@@ -156,12 +157,32 @@ class FrameSettings:
         return d
 
 
+class FrameTimings(TypedDict):
+    """What `Renderer.render` measured and did (JSON as it stands: the service and the benchmarks
+    read it by these names)."""
+
+    wall_ms: dict[str, float]        # per stage: upload, shadow_maps, blur, light_tables, geometry, shading, readback
+    gpu_ms: dict[str, float]         # the same stages' GPU time where the driver has timer queries
+    total_wall_ms: float             # the stages' sum
+    frame_wall_ms: float             # the whole call
+    n_lights: int
+    shadowed_lights: int
+    shadow_layers: int               # main-map layers drawn
+    sharp_layers: int                # sharp-map layers drawn (lights sharing one count once)
+    shadow_texel: float | None       # the main maps' median texel, world units
+    n_triangles: int
+    shadow_triangles: int            # triangles the shadow pass drew, proxies counted as drawn
+    device: str                      # the GL renderer
+    lighting_pass: str               # "fragment" or "compute"
+    normals: str | None              # where new positions got their normals ("cpu", "gpu"; None: none came)
+
+
 @dataclass
 class Frame:
     """A rendered frame. image: float32 (H, W, 4) linear HDR RGB + coverage alpha, row 0 at the top."""
 
     image: np.ndarray
-    timings: dict
+    timings: FrameTimings
     settings: dict = field(default_factory=dict)
 
 
@@ -444,7 +465,7 @@ class Renderer:
         image = self._readback_image(fbo, w, h, timer)
         plan, layers, n, n_shadowed, texels = lp.plan, lp.layers, lp.n, lp.n_shadowed, lp.texels
 
-        timings = timer.as_dict()
+        timings: FrameTimings = timer.as_dict()   # the stages; the rest below
         timings["frame_wall_ms"] = (time.perf_counter() - t_frame) * 1e3
         timings["n_lights"] = n
         timings["shadowed_lights"] = n_shadowed

@@ -701,3 +701,15 @@ def test_each_light_sums_its_own_glossy_discs(renderer):
     assert 1e-4 < change < 0.03, change
     np.testing.assert_array_equal(img["pem", 2], img["pem", 1])
 
+
+
+def test_a_frames_timings_are_the_typed_record_they_say_they_are(renderer, sphere_scene):
+    from renderer.renderer import FrameTimings
+
+    pems = renderer.build_pems(np.full((6, 16, 16, 3), 1.0, np.float32), PEMSettings(6))
+    try:
+        frame = renderer.render(sphere_scene, pems, FrameSettings(16, 16), CAM, positions=[sphere().positions])
+    finally:
+        pems.release()
+    assert set(frame.timings) == set(FrameTimings.__annotations__)
+    assert frame.timings["normals"] in ("cpu", "gpu") and frame.timings["frame_wall_ms"] > 0
