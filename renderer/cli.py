@@ -119,26 +119,30 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
                    help="the map behind the garment, or nothing (alpha 0)")
 
 
-def _device_name() -> str:
-    """The GL renderer this machine's frames would run on (a budget must have been measured there)."""
-    from .gpu.context import GLContext
-
-    gl = GLContext()
-    try:
-        return gl.renderer_name
-    finally:
-        gl.release()
-
-
 def resolve_quality(args) -> dict:
     """Quality knobs: a budget (chosen from the measured table), else the preset, over the
     defaults; explicit flags override all (`merge_knobs`). The result says where they came from,
-    and which PEM filter: --filter, else the budget's measured one, else sqrt-cosine."""
-    budget = args.frame_budget_ms is not None or args.error_budget is not None
+    and which PEM filter: --filter, else the budget's measured one, else sqrt-cosine. A budget's
+    result names the GL renderer its table was measured on ("measured_on"): `check_budget_device`
+    holds it against the renderer the frames run on, once there is one."""
+    from .bench.budget import load_table
+
+    table = load_table() if args.frame_budget_ms is not None or args.error_budget is not None else None
     base, measured_filter, where = base_knobs(args.preset, *presets(), args.frame_budget_ms, args.error_budget,
-                                              size=tuple(args.size), device=_device_name() if budget else None)
+                                              table, size=tuple(args.size))
     knobs = merge_knobs(base, {k: getattr(args, k) for k in config.NAMES})
-    return {**knobs, "filter": args.filter or measured_filter or "sqrt-cosine", "source": where}
+    q = {**knobs, "filter": args.filter or measured_filter or "sqrt-cosine", "source": where}
+    if table is not None:
+        q["measured_on"] = table["machine"].get("gl_renderer")
+    return q
+
+
+def check_budget_device(q: dict, renderer) -> None:
+    """A budget's settings only on the device they were measured on (before any work on it)."""
+    from .bench.budget import check_device
+
+    if "measured_on" in q:
+        check_device(q["measured_on"], renderer.gl.renderer_name)
 
 
 def frame_settings(args, q: dict):
@@ -223,6 +227,7 @@ def cmd_render(args) -> int:
     camera = camera_from_args(args, meshes, w / h)
     bg_cube = background_cube(args, env)
     with Renderer() as r:
+        check_budget_device(q, r)
         pems = r.build_pems(env.cube, pem_settings(args, q, materials))
         scene = r.create_scene(meshes, materials)
         background = r.background_map(bg_cube) if bg_cube is not None else None
@@ -288,6 +293,7 @@ def cmd_sequence(args) -> int:
     exposure = args.exposure
     bg_cube = background_cube(args, env)
     with Renderer() as r:
+        check_budget_device(q, r)
         pems = r.build_pems(env.cube, pem_settings(args, q, materials))
         scene = r.create_scene(meshes, materials)
         background = r.background_map(bg_cube) if bg_cube is not None else None

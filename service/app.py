@@ -75,9 +75,6 @@ async def lifespan(app: FastAPI):
     app.state.services = Services(settings, worker, app.state.environments, app.state.scenes, app.state.meshes,
                                   app.state.presets, measured, state)
     await anyio.to_thread.run_sync(worker.start)  # not ready (503s) rather than dead when GL fails
-    if measured is not None and worker.gl_info.get("renderer"):
-        # Budgets are measurements of one device: a request's budget is checked against this one's.
-        app.state.services.measured = {**measured, "applied_on": worker.gl_info["renderer"]}
     try:
         yield
     finally:

@@ -45,7 +45,12 @@ class Services:
         from .schemas import OutputSpec
 
         return resolve_quality(spec, OutputSpec(width=16, height=16), self.presets, self.measured,
-                               self.settings)
+                               self.settings, self.device)
+
+    @property
+    def device(self) -> str | None:
+        """The GL renderer the budgets are checked against (None until the GL thread runs)."""
+        return self.worker.gl_info.get("renderer")
 
     def _lock(self, key: str) -> asyncio.Lock:
         return self._restoring.setdefault(key, asyncio.Lock())
@@ -139,7 +144,7 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
     svc.scenes.check_room()
     env = await find_environment(svc, body.environment_id)
     prepared = await anyio.to_thread.run_sync(prepare_scene, body, svc.presets, svc.measured, svc.meshes,
-                                              svc.settings)
+                                              svc.settings, svc.device)
     q = prepared.quality
     pem = q.pem
     cube = await anyio.to_thread.run_sync(env.cube, q.face_size)

@@ -11,7 +11,6 @@ import numpy as np
 from renderer import config
 from renderer.camera import Camera, frame_meshes
 from renderer.errors import MeshError
-from renderer.lighting.median_cut import regions_per_face
 from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh, z_up_to_y_up
 from renderer.presets import base_knobs, frame_settings, merge_knobs, pem_settings
@@ -38,14 +37,13 @@ class Quality:
 
 
 def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: dict | None,
-                    settings: ServiceSettings) -> Quality:
-    """The request's knobs over its preset's (the stored measured table's, else the defaults) over the
-    defaults (`merge_knobs`), as frame and PEM settings; the PEM set's full chain (a scene narrows it
-    to its materials' levels in `prepare_scene`). Budgets choose from `measured`, the table the presets
-    came from (None: none stored)."""
+                    settings: ServiceSettings, device: str | None = None) -> Quality:
+    """The request's knobs over its preset's (renderer/presets) or its budget's (`merge_knobs`), as
+    frame and PEM settings; the PEM set's full chain (a scene narrows it to its materials' levels in
+    `prepare_scene`). Budgets choose from `measured` (the table read at start-up; None: none stored),
+    measured on `device` (the service's GL renderer; None: not known yet)."""
     name = q.preset.value if q.preset is not None else settings.default_preset
     # A budget chooses the measured setting that meets it, never a guess (InvalidInputError: 422).
-    device = (measured or {}).get("applied_on")   # the service's GL renderer, once its GL thread runs
     base, measured_filter, source = base_knobs(name, presets, None, q.frame_budget_ms, q.error_budget, measured,
                                                size=(out.width, out.height), device=device)
     if measured_filter is not None:   # a budget chose the knobs: no preset name, and its filter unless named
@@ -54,11 +52,7 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: di
     else:
         filter_name = q.filter.value
     knobs = merge_knobs(base, {k: getattr(q, k) for k in q.model_fields_set if k in _KNOBS})
-    regions_per_face(int(knobs["lights"]))  # InvalidInputError naming the valid counts
-
-    fs = int(knobs["face_size"])
-    if fs & (fs - 1):
-        raise InvalidRequestError(f"quality.face_size must be a power of two (4..2048), got {fs}")
+    pem = pem_settings(knobs, filter_name, q.levels)   # checks the PEM set's settings (renderer/config.py)
     for side, value in (("width", out.width), ("height", out.height)):
         if value > settings.max_image_side:
             raise InvalidRequestError(f"output.{side} {value} exceeds the limit {settings.max_image_side} "
@@ -66,8 +60,8 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: di
     frame = frame_settings(knobs, out.width, out.height, bleed_reduction=q.bleed_reduction,
                            mode=ShadingMode(q.mode.value), background=Background(out.background))
     # The shadow maps' memory before any is made, bounded as if every light that may be small were
-    # (at most lights / small_light_min_energy of them carry that multiple of the mean): a request that cannot fit is refused here with the numbers, not by the
-    # GL driver mid-frame.
+    # (at most lights / small_light_min_energy of them carry that multiple of the mean): a request
+    # that cannot fit is refused here with the numbers, not by the GL driver mid-frame.
     n = int(knobs["lights"])
     n_sharp = n if frame.small_light_scale == 1 or frame.small_light_min_energy <= 0 else \
         int(min(n, n / frame.small_light_min_energy))   # min first: n / 1e-320 is inf
@@ -80,12 +74,11 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: di
             f"bytes), over the limit of {settings.max_shadow_map_bytes / 2**30:.1f} GiB "
             "(GARMENT_RENDER_MAX_SHADOW_MAP_BYTES): use fewer lights, a smaller shadow_size or "
             "small_light_scale, or a larger small_light_min_energy")
-    pem = pem_settings(knobs, filter_name, q.levels)
     applied = frame.as_dict()   # the knobs as the frame holds them (enums as their values)
     info = {"preset": name, "source": source, **{k: applied.get(k, knobs[k]) for k in _KNOBS},
             "filter": pem.filter.value,
             "levels": q.levels, "bleed_reduction": frame.bleed_reduction, "mode": frame.mode.value}
-    return Quality(fs, pem, frame, knobs, info)
+    return Quality(knobs["face_size"], pem, frame, knobs, info)
 
 
 def check_counts(n_vertices: int, n_faces: int, role: str, settings: ServiceSettings) -> None:
@@ -175,8 +168,8 @@ class PreparedScene:
 
 
 def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshes: MeshStore,
-                  settings: ServiceSettings) -> PreparedScene:
-    quality = resolve_quality(body.quality, body.output, presets, measured, settings)
+                  settings: ServiceSettings, device: str | None = None) -> PreparedScene:
+    quality = resolve_quality(body.quality, body.output, presets, measured, settings, device)
     specs = [("garment", body.garment)] + ([("body", body.body)] if body.body is not None else [])
     built = [build_mesh(spec, role, body.up, meshes, settings) for role, spec in specs]
     materials = [build_material(spec.material, mesh, role) for (role, spec), mesh in zip(specs, built)]

@@ -68,10 +68,8 @@ def test_a_preset_file_that_misses_a_setting_or_names_an_unknown_one_is_refused(
 
 def test_a_budget_sets_every_measured_knob_unless_a_flag_says_otherwise(monkeypatch):
     import renderer.bench.budget as budget
-    import renderer.cli as cli
     from renderer.cli import build_parser, resolve_quality
 
-    monkeypatch.setattr(cli, "_device_name", lambda: "test")   # the machine BENCH was "measured" on
 
     rows = [dict(_row("a", 24, 30, 0.08)), dict(_row("a", 48, 60, 0.04))]
     rows[1]["settings"] = {**rows[1]["settings"], "sub_lights": 4, "whole_sources": False, "caster_detail": 0.5}
@@ -105,9 +103,6 @@ def test_a_presets_small_light_scale_yields_to_a_large_shadow_map():
 
 def test_a_budget_brings_its_measured_filter_unless_one_is_named(monkeypatch):
     import renderer.bench.budget as budget
-    import renderer.cli as cli
-
-    monkeypatch.setattr(cli, "_device_name", lambda: "test")
     from renderer.cli import build_parser, pem_settings, resolve_quality
     from renderer.shading.material import Material
 
@@ -143,10 +138,8 @@ def test_the_service_chooses_budgets_from_the_table_it_read_at_start_up():
 
 def test_a_budget_for_a_frame_size_the_table_was_not_measured_at_is_refused(monkeypatch):
     import renderer.bench.budget as budget
-    import renderer.cli as cli
     from renderer.cli import build_parser, resolve_quality
 
-    monkeypatch.setattr(cli, "_device_name", lambda: "test")
 
     table = summarize(BENCH)   # measured at 256 x 256
     monkeypatch.setattr(budget, "load_table", lambda path=None: table)
@@ -157,13 +150,18 @@ def test_a_budget_for_a_frame_size_the_table_was_not_measured_at_is_refused(monk
     assert resolve_quality(build_parser().parse_args(["render", "--size", "512x384"]))["lights"] == 48
 
 
-def test_a_budget_measured_on_another_device_is_refused():
-    from renderer.cli import _device_name, build_parser, resolve_quality
+def test_a_budget_measured_on_another_device_is_refused(renderer):
+    from renderer.bench.budget import check_device
+    from renderer.cli import build_parser, check_budget_device, resolve_quality
 
     table = summarize(BENCH)   # measured on "test"
     with pytest.raises(InvalidInputError, match="measured on test; this renderer runs on"):
-        budget_knobs(None, 0.1, table, (256, 256), _device_name())
+        budget_knobs(None, 0.1, table, (256, 256), renderer.gl.renderer_name)
     assert budget_knobs(None, 0.1, table, (256, 256), "test")[0]["lights"] == 24
-    # The package's table was measured on this kind of machine: the command line takes it here.
+    # The package's table was measured on this kind of machine: the command line takes it here, and
+    # would refuse it on another GPU.
     q = resolve_quality(build_parser().parse_args(["render", "--size", "256x256", "--error-budget", "0.3"]))
     assert q["source"].startswith("budget")
+    check_budget_device(q, renderer)
+    with pytest.raises(InvalidInputError, match="this renderer runs on another GPU"):
+        check_device(q["measured_on"], "another GPU")

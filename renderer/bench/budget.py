@@ -77,6 +77,16 @@ def choose(table: dict, frame_budget_ms: float | None = None, error_budget: floa
     return min(entries, key=lambda e: (e["worst_rel_rmse"], e["median_frame_ms"]))
 
 
+def check_device(measured_on: str | None, device: str | None) -> None:
+    """A budget's table, measured on the GL renderer `measured_on`, applied on `device` (None: not
+    known, not checked): another device is refused."""
+    if device is not None and measured_on is not None and device != measured_on:
+        raise InvalidInputError(
+            f"budgets choose from settings measured on {measured_on}; this renderer runs on {device}, where their "
+            "times and errors were not measured: name a preset, or store a table measured on this device "
+            "(garment-render bench --store)")
+
+
 def budget_knobs(frame_budget_ms: float | None, error_budget: float | None,
                  table: dict | None | str = STORED, size: tuple[int, int] | None = None,
                  device: str | None = None) -> tuple[dict, str, str]:
@@ -89,12 +99,7 @@ def budget_knobs(frame_budget_ms: float | None, error_budget: float | None,
     if table is None:
         raise InvalidInputError("budgets choose from the measured table (renderer/bench/measured.json), and none "
                                 "is stored: run `garment-render bench --store` first, or name a preset")
-    measured_on = table["machine"].get("gl_renderer")
-    if device is not None and measured_on is not None and device != measured_on:
-        raise InvalidInputError(
-            f"budgets choose from settings measured on {measured_on}; this renderer runs on {device}, where their "
-            "times and errors were not measured: name a preset, or store a table measured on this device "
-            "(garment-render bench --store)")
+    check_device(table["machine"].get("gl_renderer"), device)
     measured = table.get("size")
     if size is not None and measured is not None and tuple(size) != (measured, measured):
         raise InvalidInputError(

@@ -218,7 +218,7 @@ async def render_once(
     env = await find_environment(svc, body.environment_id)
     t0 = time.perf_counter()
     prepared = await anyio.to_thread.run_sync(prepare_scene, body, svc.presets, svc.measured, svc.meshes,
-                                              settings)
+                                              settings, svc.device)
     decode_ms = (time.perf_counter() - t0) * 1e3
     q = prepared.quality
     cube = await anyio.to_thread.run_sync(env.cube, q.face_size)
