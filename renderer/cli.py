@@ -11,8 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from . import config
+from .config import RETIRED
 from .errors import InvalidInputError, RenderError
-from .presets import PRESET_NAMES, RETIRED, base_knobs, merge_knobs, presets
+from .presets import PRESET_NAMES, base_knobs, merge_knobs, presets
 from .presets import frame_settings as presets_frame_settings
 from .presets import pem_settings as presets_pem_settings
 
@@ -40,7 +41,7 @@ def _size(text: str) -> tuple[int, int]:
 
 
 class _Retired(argparse.Action):
-    """A flag of a setting that went: refused with what replaced it (presets.RETIRED)."""
+    """A flag of a setting that went: refused with what replaced it (config.RETIRED)."""
 
     def __init__(self, option_strings, dest, reason: str = "", **kw):
         super().__init__(option_strings, dest, nargs="?", help=argparse.SUPPRESS, **kw)

@@ -156,6 +156,29 @@ PEM_SETTINGS = tuple(s.name for s in SETTINGS if s.invalidates == "pem set")
 FRAME_SETTINGS = tuple(n for n in NAMES if n not in PEM_SETTINGS)
 
 
+# Settings that went because they did not pay on the broad benchmark's held-out scenes
+# (docs/broad-benchmark.md, "Settings removed"): what a request or flag naming one is told.
+RETIRED = {
+    "needed_levels": "removed: the PEM set always keeps only the levels the scene's materials read (the same image)",
+    "horizon": "removed: the shading normal's plane no longer blocks every light (it raised the error held out)",
+    "terminator": "removed: always on (a small light below a triangle's own plane lights neither term)",
+    "sharp_max_maps": "removed: no effect held out; small_light_min_energy chooses the lights with sharp maps",
+    "sharp_normal_offset_texels": "removed: the sharp maps take normal_offset_texels, in their own texels",
+    "sharp_full_detail_deg": "removed: every sharp map draws the casters at full detail",
+    "shadow_threshold": "removed: every light has a shadow map (dim lights without one lowered the error nowhere "
+                        "held out)",
+    "sh_unshadowed": "removed with shadow_threshold: every light has a shadow map",
+    "glossy_horizon": "removed: always per light (each light's glossy term keeps the share of its disc above the "
+                      "triangle's plane)",
+    "calibration": "removed: g maps to the level of the closest normalized kernel (l2)",
+}
+
+
+def retired(name: str) -> str | None:
+    """What replaced a removed setting (None: not removed)."""
+    return RETIRED.get(name)
+
+
 def check(name: str, value) -> object:
     return BY_NAME[name].check(value)
 

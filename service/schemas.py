@@ -9,7 +9,6 @@ from typing import Annotated, Any, Literal
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, create_model, model_validator
 
 from renderer import config
-from renderer.presets import retired
 
 
 class Preset(str, Enum):
@@ -94,8 +93,8 @@ class _QualityBase(_Strict):
     def _no_retired_settings(cls, data: Any) -> Any:
         if isinstance(data, dict):
             for name in data:
-                if retired(name):
-                    raise ValueError(f"quality.{name}: {retired(name)}")
+                if config.retired(name):
+                    raise ValueError(f"quality.{name}: {config.retired(name)}")
         return data
 
 

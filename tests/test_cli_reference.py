@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from renderer.cli import COMMON_FLAGS, build_parser, cli_reference
-from renderer.presets import RETIRED
+from renderer.config import RETIRED
 
 ROOT = Path(__file__).resolve().parents[1]
 

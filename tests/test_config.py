@@ -88,3 +88,8 @@ def test_the_bench_sweeps_every_setting_that_declares_values_and_each_value_is_v
         for value in st.sweep:
             for name, v in (value.items() if isinstance(value, dict) else [(st.name, value)]):
                 config.check(name, v)
+
+
+def test_a_removed_setting_is_no_longer_one_and_says_what_replaced_it():
+    assert config.RETIRED and not set(config.RETIRED) & set(config.NAMES)
+    assert all(reason.startswith("removed") and len(reason) > 20 for reason in config.RETIRED.values())

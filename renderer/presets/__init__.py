@@ -12,28 +12,6 @@ from pathlib import Path
 from .. import config
 from ..errors import InvalidInputError
 
-# Settings that went because they did not pay on the broad benchmark's held-out scenes
-# (docs/broad-benchmark.md, "Settings removed"): what a request or flag naming one is told.
-RETIRED = {
-    "needed_levels": "removed: the PEM set always keeps only the levels the scene's materials read (the same image)",
-    "horizon": "removed: the shading normal's plane no longer blocks every light (it raised the error held out)",
-    "terminator": "removed: always on (a small light below a triangle's own plane lights neither term)",
-    "sharp_max_maps": "removed: no effect held out; small_light_min_energy chooses the lights with sharp maps",
-    "sharp_normal_offset_texels": "removed: the sharp maps take normal_offset_texels, in their own texels",
-    "sharp_full_detail_deg": "removed: every sharp map draws the casters at full detail",
-    "shadow_threshold": "removed: every light has a shadow map (dim lights without one lowered the error nowhere "
-                        "held out)",
-    "sh_unshadowed": "removed with shadow_threshold: every light has a shadow map",
-    "glossy_horizon": "removed: always per light (each light's glossy term keeps the share of its disc above the "
-                      "triangle's plane)",
-    "calibration": "removed: g maps to the level of the closest normalized kernel (l2)",
-}
-
-
-def retired(name: str) -> str | None:
-    """What replaced a removed setting (None: not removed)."""
-    return RETIRED.get(name)
-
 
 def knob_defaults() -> dict:
     """Every quality setting (renderer/config.py) and its default, in the registry's order."""
@@ -79,7 +57,7 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 
 
 # `table=STORED`: read the package's measured table now (renderer/bench/measured.json); a long-running
-# caller passes the table it read at start-up (None: none was stored), so that its presets and budgets agree.
+# caller passes the table it read at start-up (None: none was stored), so that every budget chooses from one.
 STORED = "stored"
 
 
