@@ -241,20 +241,25 @@ class _LightPlan:
     projection's texel size, and the packed records the shaders read."""
 
     regions: object
-    n: int
     lo: np.ndarray
     hi: np.ndarray
     layers: np.ndarray
     disc_radius: np.ndarray
-    k: int
     plan: object
     shadow_dirs: np.ndarray
     sizes: np.ndarray
     sigma: np.ndarray
     blur: bool
-    n_shadowed: int
     texels: np.ndarray
     lights: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return self.regions.n_regions
+
+    @property
+    def n_shadowed(self) -> int:
+        return int((self.layers >= 0).sum())
 
 
 LIGHTING_PASSES = ("fragment", "compute")
@@ -523,17 +528,15 @@ class Renderer:
         # with a blur the fit's margin follows each light's own width).
         sharp_layer = plan.layer[plan.sharp]
         vp[plan.sharp] = vp[plan.sharp_lights[sharp_layer]]
-        n_shadowed = int((layers >= 0).sum())
         texels = texel_sizes(vp, sizes)
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
                              sigma, plan.layer, disc_radius, plan.sharp, texels)
-        return _LightPlan(regions, n, lo, hi, layers, disc_radius, k, plan, shadow_dirs, sizes, sigma, blur,
-                          n_shadowed, texels, lights)
+        return _LightPlan(regions, lo, hi, layers, disc_radius, plan, shadow_dirs, sizes, sigma, blur, texels, lights)
 
     def _shadow_pass(self, scene: Scene, settings: FrameSettings, lp: _LightPlan, lights_buf: moderngl.Buffer,
                      timer: StageTimer) -> dict[str, ShadowMaps]:
         """Every shadowed light's moments: the main maps and the small lights' sharp maps."""
-        plan, k, blur = lp.plan, lp.k, lp.blur
+        plan, k, blur = lp.plan, settings.small_light_scale, lp.blur
         # The main array (casters at caster_detail; a proxy is made only when one is drawn: a large
         # mesh's takes seconds), then the small lights' array (casters at full detail).
         casters = [sm for sm in scene.meshes if sm.caster]
@@ -559,7 +562,6 @@ class Renderer:
         """The nearest surface's position, normals and material per pixel (gbuffer.frag)."""
         gl, ctx = self.gl, self.gl.ctx
         with gl.stage(timer, "geometry"):
-            # Geometry pass: nearest surface's position, normals and material per pixel.
             gbuf_fbo.use()
             ctx.viewport = (0, 0, w, h)
             # w = -1 marks a pixel no surface covers (a covered one's are >= 0: specular weight,
