@@ -81,11 +81,13 @@ class Setting:
             return bool(value)
         if not isinstance(value, numbers.Integral if self.type is int else numbers.Real) or not math.isfinite(value):
             raise bad
-        if self.lights_rule:
-            k = value / 6
-            if not (1 <= k and int(k) == k and not int(k) & (int(k) - 1) and value <= MAX_LIGHTS):
-                raise bad
-            return int(value)
+        if self.lights_rule:   # the median cut's own rule (6 * 2^k), within the registry's range
+            from .lighting.median_cut import regions_per_face
+
+            try:
+                regions_per_face(int(value))
+            except InvalidInputError:
+                raise bad from None
         if value < self.minimum or value > self.maximum or (self.above_minimum and value == self.minimum):
             raise bad
         if self.power_of_two and int(value) & (int(value) - 1):
