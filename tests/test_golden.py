@@ -3,15 +3,14 @@ a refactor keeps the images; a change meant to alter them stores them anew
 (`python -m renderer.bench.golden --store`) and says so."""
 
 import numpy as np
-from conftest import HDRI
 
 from renderer.bench.golden import GOLDEN_FILE, golden_frames
 from renderer.reference import relative_rmse
 
 
-def test_the_bench_scenes_render_their_stored_frames():
+def test_the_bench_scenes_render_their_stored_frames(renderer):
     stored = np.load(GOLDEN_FILE)
-    frames = golden_frames(include_shared=HDRI.is_dir())
+    frames = golden_frames(renderer)
     assert set(frames) <= set(stored.files) and len(frames) >= 3
     for key, image in frames.items():
         want = stored[key].astype(np.float32)

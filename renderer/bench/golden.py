@@ -19,17 +19,20 @@ GOLDEN_SIZE = 48
 GOLDEN_FILE = Path(__file__).resolve().parents[2] / "tests" / "data" / "golden-frames.npz"
 
 
-def golden_frames(include_shared: bool = True) -> dict[str, np.ndarray]:
+def golden_frames(renderer=None) -> dict[str, np.ndarray]:
     """scene/preset -> the frame (GOLDEN_SIZE^2, RGBA float32) of the bundled scene and, when the
-    shared assets are there, the four newton-shirt scenes, at every preset."""
+    shared assets are there, the four newton-shirt scenes, at every preset; on `renderer` (None: one
+    of its own)."""
+    from contextlib import nullcontext
+
     from ..camera import frame_meshes
     from ..presets import PRESET_NAMES, preset, preset_frame, preset_pems
     from ..renderer import Renderer
     from .scenes import bundled_scene, shared_scenes
 
-    scenes = [bundled_scene()] + (shared_scenes() if include_shared else [])
+    scenes = [bundled_scene()] + shared_scenes()   # shared_scenes: none without the shared assets
     out = {}
-    with Renderer() as r:
+    with nullcontext(renderer) if renderer is not None else Renderer() as r:
         for bs in scenes:
             scene = r.create_scene(bs.meshes, bs.materials)
             camera = frame_meshes(bs.meshes, 1.0)
