@@ -48,7 +48,7 @@ class _Retired(argparse.Action):
         self.reason = reason
 
     def __call__(self, parser, namespace, values, option_string=None):
-        parser.error(f"{option_string}: {self.reason}")
+        parser.error(f"{option_string}: {self.reason}; leave the flag out")
 
 
 # The flags `--help` lists (the scripts' contract and the few a user reasons about); `--help-all`

@@ -94,7 +94,7 @@ class _QualityBase(_Strict):
         if isinstance(data, dict):
             for name in data:
                 if config.retired(name):
-                    raise ValueError(f"quality.{name}: {config.retired(name)}")
+                    raise ValueError(f"quality.{name}: {config.retired(name)}; leave the field out")
         return data
 
 
