@@ -9,12 +9,11 @@ from typing import Annotated, Any, Literal
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, create_model, model_validator
 
 from renderer import config
+from renderer.presets import PRESET_NAMES
 
 
-class Preset(str, Enum):
-    FAST = "fast"
-    BALANCED = "balanced"
-    ACCURATE = "accurate"
+Preset = Enum("Preset", {name.upper(): name for name in PRESET_NAMES}, type=str)
+Preset.__doc__ = "A quality preset (renderer/presets/*.toml)."
 
 
 class FilterName(str, Enum):
@@ -77,7 +76,7 @@ def _registry_field(st: config.Setting):
 class _QualityBase(_Strict):
     """A preset, refined by explicit knobs (each overrides the preset's value)."""
 
-    preset: Preset | None = Field(None, description="fast | balanced | accurate; default: the service's default")
+    preset: Preset | None = Field(None, description=" | ".join(PRESET_NAMES) + "; default: the service's default")
     frame_budget_ms: float | None = Field(None, gt=0.0, description="instead of a preset: the most accurate setting "
                                           "measured within this frame time (the stored benchmark table)")
     error_budget: float | None = Field(None, gt=0.0, description="instead of a preset: the fastest setting measured "

@@ -12,6 +12,8 @@ from typing import Literal
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from renderer.presets import PRESET_NAMES
+
 
 class ServiceSettings(BaseSettings):
     """Every limit of the service. Sizes in bytes, times in seconds."""
@@ -58,6 +60,6 @@ class ServiceSettings(BaseSettings):
         # required empty one that no client sends.
         return None if v is None or not v.get_secret_value() else v
 
-    default_preset: Literal["fast", "balanced", "accurate"] = "balanced"
+    default_preset: Literal[PRESET_NAMES] = "balanced"
     png_compress_level: int = Field(1, ge=0, le=9, description="zlib level of served PNGs (1: ~3x faster than 6)")
     startup_timeout_s: float = Field(60.0, gt=0, description="wait for the GL context at startup")

@@ -18,6 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import httpx
 
+from renderer.presets import PRESET_NAMES
 from service.client import RenderClient
 
 from .cloth import sheet
@@ -43,7 +44,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--resolution", type=int, default=56, help="cloth grid vertices per side")
     p.add_argument("--substeps", type=int, default=ClothSettings.substeps, help="simulation substeps per frame")
     p.add_argument("--size", type=_size, default=(512, 512), help="image size WxH")
-    p.add_argument("--preset", default="fast", choices=("fast", "balanced", "accurate"))
+    p.add_argument("--preset", default="fast", choices=PRESET_NAMES)
     p.add_argument("--views", default="front", help=f"comma-separated, one scene each: {', '.join(VIEWS)}")
     p.add_argument("--format", default="png", choices=("png", "exr", "json"), help="image format asked for")
     p.add_argument("--env", help="an .exr/.hdr environment map; default: the bundled procedural studio")

@@ -13,6 +13,7 @@ from conftest import HDRI, needs_assets
 from renderer.bench import broad, catalogue
 from renderer.bench.catalogue import MAPS, Scene, fit_body_inside, scenes, split
 from renderer.bench.scenes import TARGET_PROBES
+from renderer.presets import PRESET_NAMES
 
 
 def test_the_split_is_a_rule_not_a_choice():
@@ -114,7 +115,7 @@ def _row(scene, preset, size=256, **metrics):
 def test_misses_name_the_scene_the_target_and_the_factor():
     rows = [_row("a", "balanced", rel_rmse=0.1), _row("b", "balanced", artefact_share=0.01),
             _row("c", "fast", frame_ms=100.0, equal_error_speedup=5.0), _row("d", "balanced", size=128, rel_rmse=1.0),
-            _row("e", "accurate")]
+            _row("e", "accurate"), _row("f", "paper", rel_rmse=1.0)]
     misses = {(m["scene"], m["metric"]): m["factor"] for m in broad.target_misses(rows)}
     assert misses == {("a", "rel_rmse"): pytest.approx(2.0), ("b", "artefact_share"): pytest.approx(2.0),
                       ("c", "frame_ms"): pytest.approx(2.0), ("c", "equal_error_speedup"): pytest.approx(2.0)}
@@ -128,8 +129,9 @@ def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path):
     cfg = broad.BroadConfig(frames=1, frames_small=1, spp_small=8, spp_large=8, workers=1, cache=str(tmp_path / "refs"))
     rows = broad.run_broad(tmp_path / "out", cfg, log=lambda *_: None, only=only)
     # The held-out satin scene also runs balanced with each knob variant (KNOB_SMALL_FABRIC).
-    assert len(rows) == 2 * 3 + len(broad.KNOB_VARIANTS)
-    assert {r.preset for r in rows if ":" not in r.preset} == set(catalogue.PRESETS)
+    assert len(rows) == 2 * len(PRESET_NAMES) + len(broad.KNOB_VARIANTS)
+    # Every preset, the paper's among them; the targets are the other three's.
+    assert {r.preset for r in rows if ":" not in r.preset} == set(PRESET_NAMES) == set(catalogue.PRESETS) | {"paper"}
     assert {r.preset.split(":")[1] for r in rows if ":" in r.preset} == set(broad.KNOB_VARIANTS)
     assert all(r.scene == only[1].name for r in rows if ":" in r.preset)
     rows = [r for r in rows if ":" not in r.preset]

@@ -41,7 +41,7 @@ def test_the_presets_are_their_files_whatever_the_measured_table_holds(monkeypat
     from renderer.presets import PRESET_DIR, presets
 
     found, source = presets()
-    assert "renderer/presets" in source and set(found) == {"fast", "balanced", "accurate"}
+    assert "renderer/presets" in source and set(found) == {"fast", "balanced", "accurate", "paper"}
     for name, knobs in found.items():
         text = (PRESET_DIR / f"{name}.toml").read_text()
         assert f"lights = {knobs['lights']}" in text
