@@ -51,11 +51,26 @@ class Camera:
         return m
 
     def view_proj(self, aspect: float, centre: np.ndarray, radius: float) -> np.ndarray:
-        """View-projection with near/far planes fitted around the scene's bounding sphere."""
-        dist = float(np.linalg.norm(np.asarray(self.eye) - centre))
-        far = dist + 2.0 * radius
-        near = max(dist - 2.0 * radius, far * 1e-4)
-        return self.projection(aspect, near, far) @ self.view()
+        """View-projection with near/far planes fitted around the scene's bounding sphere.
+
+        The depth range is at least a thousandth of the distance either side of the centre, so that
+        near < far also for a scene far thinner than its distance (a point-sized one), where
+        dist +- 2 radius would round to one value; the near plane is at least far / 10^4 (depth
+        precision). InvalidInputError when the float32 matrix the shaders get cannot hold the scene
+        (a size or distance beyond float32's range)."""
+        dist = float(np.linalg.norm(np.asarray(self.eye, np.float64) - np.asarray(centre, np.float64)))
+        half_depth = max(2.0 * float(radius), 1e-3 * dist)
+        far = dist + half_depth
+        near = max(dist - half_depth, far * 1e-4)
+        with np.errstate(all="ignore"):
+            m = self.projection(aspect, near, far) @ self.view()
+            m32 = m.astype(np.float32)
+        if not (far > near > 0.0 and np.isfinite(m32).all() and m32[2, 3] != 0.0 and m32[1, 1] != 0.0):
+            raise InvalidInputError(
+                f"the scene (radius {float(radius):.3g} m, {dist:.3g} m from the camera) is outside what the "
+                "float32 projection can hold; positions are in metres, and the camera must not sit at the scene's "
+                "centre")
+        return m
 
 
 def default_camera(centre: np.ndarray, radius: float, aspect: float = 1.0, fov_y_deg: float = 35.0,

@@ -25,6 +25,10 @@ from .errors import InvalidInputError, MeshError
 # GL index and draw counts are 32-bit signed (GLsizei / GLint), so neither may reach 2**31.
 MAX_INDEX_COUNT = 2**31 - 1
 MAX_VERTEX_COUNT = 2**31 - 1
+# Largest vertex coordinate (metres): every product of two coordinates (a squared distance, the
+# projection's far * near) then stays within float32's range (2^120 < 2^128), so that no matrix the
+# renderer uploads overflows. A garment is metres across; 2^60 m is 10^18.
+MAX_COORDINATE = 2.0**60
 
 # A triangle whose height over its longest edge is below this ratio has no usable normal at float32
 # precision; it counts as degenerate in `MeshStats` (it is kept and adds ~nothing to vertex normals).
@@ -241,6 +245,17 @@ def _finite_float32(a: np.ndarray, name: str, what: str) -> np.ndarray:
             f"{tuple(float(v) for v in np.asarray(a[first], np.float64))}); values beyond float32 range count as Inf. "
             "Fix the source frame (a diverged simulation?) before sending it"
         )
+    big = np.abs(p) > MAX_COORDINATE
+    if big.any():
+        first = int(np.flatnonzero(big.any(axis=1))[0])
+        raise MeshError(
+            f"mesh '{name}': {what} has coordinates beyond +-{MAX_COORDINATE:.3g} in {int(big.any(axis=1).sum())} of "
+            f"{p.shape[0]} vertices (first at vertex {first}: {tuple(float(v) for v in p[first])}); positions are "
+            "in metres, and beyond that bound the renderer's float32 matrices overflow")
+    if p.shape[0] > 1 and not (p != p[0]).any():
+        raise MeshError(
+            f"mesh '{name}': {what}: all {p.shape[0]} vertices coincide at {tuple(float(v) for v in p[0])}, so "
+            "there is no surface to render (a collapsed or zeroed simulation frame?)")
     p.setflags(write=False)
     return p
 

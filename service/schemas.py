@@ -11,7 +11,6 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, create_model,
 from renderer import config
 from renderer.presets import PRESET_NAMES
 
-
 Preset = Enum("Preset", {name.upper(): name for name in PRESET_NAMES}, type=str)
 Preset.__doc__ = "A quality preset (renderer/presets/*.toml)."
 

@@ -73,6 +73,14 @@ def paper(*size, **settings):
     return FrameSettings(*size, **{**base, **settings})
 
 
+def paper_pems(*args, **settings):
+    """PEMSettings with the paper's plain median cut (no source kept whole) under `settings`, as
+    `paper()` is for FrameSettings; PEMSettings() itself is the balanced preset's."""
+    from renderer.lighting.pem import PEMSettings
+
+    return PEMSettings(*args, **{"whole_sources": False, **settings})
+
+
 def sphere(radius=0.5, *, centre=(0, 0, 0), subdivisions=4) -> Mesh:
     s = trimesh.creation.icosphere(subdivisions, radius)
     return Mesh.from_arrays(np.asarray(s.vertices) + centre, np.asarray(s.faces), name="sphere")

@@ -40,12 +40,14 @@ def test_every_setting_reaches_the_frame_or_the_pem_set_the_command_line_and_the
             assert config.check(k, v) == v
 
 
-def test_the_frame_defaults_to_balanced_and_the_registry_holds_the_papers_choices():
-    f, balanced = FrameSettings(), preset("balanced")
+def test_the_frame_and_the_pems_default_to_balanced_and_the_paper_preset_is_the_registrys_defaults():
+    f, pem, balanced = FrameSettings(), PEMSettings(), preset("balanced")
     for name in config.FRAME_SETTINGS:
         assert getattr(f, name) == balanced[name], name
         config.check(name, config.BY_NAME[name].default)
+    assert (pem.n_lights, pem.whole_sources) == (balanced["lights"], balanced["whole_sources"]) == (48, True)
     paper = {name: config.BY_NAME[name].default for name in config.NAMES}
+    assert paper == preset("paper")
     assert (paper["diffuse"], paper["glossy"], paper["sub_lights"], paper["whole_sources"]) == ("pem", "pem", 1, False)
 
 

@@ -2,11 +2,10 @@
 
 import numpy as np
 import pytest
-from conftest import paper, sun_sky_cube
+from conftest import paper, paper_pems, sun_sky_cube
 
 from renderer.envmap import environment_from_array
 from renderer.errors import EnvironmentMapError, MeshError
-from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
 from renderer.procedural import ground_plane, uv_sphere
 from renderer.renderer import Background
@@ -19,7 +18,7 @@ def _frame(renderer, meshes, cube, materials=None, settings=SMALL, n_lights=24, 
     """One frame of a scene made for it: PEMs of `pem` (else n_lights with the defaults), `camera`
     (else the default framing)."""
     scene = renderer.create_scene(meshes, materials or [Material((0.8, 0.4, 0.3), 0.5, 0.8)] * len(meshes))
-    pems = renderer.build_pems(cube, pem or PEMSettings(n_lights))
+    pems = renderer.build_pems(cube, pem or paper_pems(n_lights))
     try:
         return renderer.render(scene, pems, settings, camera)
     finally:
@@ -258,3 +257,40 @@ def test_16k_map_gives_the_image_of_its_2k_version(renderer):
     assert cov.mean() > 0.3
     a, b = images[0][cov][:, :3], images[1][cov][:, :3]
     assert np.abs(a - b).mean() < 1e-3 * a.mean(), np.abs(a - b).mean() / a.mean()
+
+
+@pytest.mark.parametrize("dist, radius", [(3.0, 1e-30), (3.0, 0.0), (1e-20, 1e-30), (1e9, 1.0), (1e15, 1e-3)])
+def test_the_camera_fits_a_depth_range_to_any_scene_without_dividing_by_zero(dist, radius):
+    from renderer.camera import Camera
+
+    m = Camera((0.0, 0.0, dist), (0.0, 0.0, 0.0)).view_proj(1.0, np.zeros(3), radius)
+    assert np.isfinite(m.astype(np.float32)).all()
+    # The scene's centre lands inside the depth range: clip z within +-w.
+    clip = m @ np.array([0.0, 0.0, 0.0, 1.0])
+    assert abs(clip[2]) < clip[3]
+
+
+def test_a_projection_float32_cannot_hold_is_refused_by_name():
+    from renderer.camera import Camera
+    from renderer.errors import InvalidInputError
+
+    with pytest.raises(InvalidInputError, match="float32"):
+        Camera((3e38, 3e38, 3e38), (0.0, 0.0, 0.0)).view_proj(1.0, np.zeros(3), 1.0)  # 5e38 m away
+
+
+@pytest.mark.parametrize("value", [0.0, 1.0, -2.5])
+def test_a_mesh_whose_vertices_all_coincide_is_refused_by_name(value):
+    from renderer.errors import MeshError
+
+    with pytest.raises(MeshError, match="all 3 vertices coincide"):
+        Mesh.from_arrays(np.full((3, 3), value), [[0, 1, 2]])
+
+
+def test_coordinates_beyond_the_bound_are_refused_by_name():
+    from renderer.errors import MeshError
+    from renderer.mesh import MAX_COORDINATE
+
+    p = np.eye(3) * 2 * MAX_COORDINATE
+    with pytest.raises(MeshError, match="beyond"):
+        Mesh.from_arrays(p, [[0, 1, 2]])
+    Mesh.from_arrays(np.eye(3) * MAX_COORDINATE, [[0, 1, 2]])   # at the bound: fine

@@ -7,11 +7,10 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import paper, plane, sphere, sun_sky_cube
+from conftest import paper, paper_pems, plane, sphere, sun_sky_cube
 
 from renderer.camera import Camera
 from renderer.errors import InvalidInputError
-from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
 from renderer.renderer import Background, FrameSettings
 from renderer.shading.material import Material
@@ -44,7 +43,7 @@ def sun_scene(renderer):
                         ground=(0, 0, 0))
     scene = renderer.create_scene([sphere(0.4, centre=(0.0, 0.8, 0.0)), plane(3.0)],
                                   [Material((0.5, 0.5, 0.5)), Material((0.8, 0.8, 0.8))])
-    pems = renderer.build_pems(cube, PEMSettings(24))
+    pems = renderer.build_pems(cube, paper_pems(24))
     yield scene, pems
     pems.release()
     scene.release()
@@ -267,7 +266,7 @@ def test_sharp_maps_draw_the_casters_at_full_detail_and_the_main_maps_the_proxy(
         cube[(d @ s) > np.cos(np.radians(radius))] = radiance
     scene = renderer.create_scene([sphere(0.4, centre=(0.0, 0.8, 0.0), subdivisions=5), plane(3.0)],
                                   [Material((0.5, 0.5, 0.5)), Material((0.8, 0.8, 0.8))])
-    pems = renderer.build_pems(cube, PEMSettings(48, whole_sources=True))
+    pems = renderer.build_pems(cube, paper_pems(48, whole_sources=True))
     cam = Camera((0.0, 3.0, 2.5), (0.0, 0.2, 0.0), fov_y_deg=50.0)
     try:
         def frame(detail):

@@ -49,19 +49,26 @@ REGIONS_PER_TEXTURE = 192
 MAX_TEXTURES = 2
 
 
+def _balanced(name: str):
+    from ..presets import preset
+
+    return preset("balanced")[name]
+
+
 @dataclass(frozen=True)
 class PEMSettings:
-    """Everything that changes a PEM set (and so its cache key)."""
+    """Everything that changes a PEM set (and so its cache key). The light count and the median cut
+    default to the balanced preset's (renderer/presets/balanced.toml), as FrameSettings' do."""
 
-    n_lights: int = 48
+    n_lights: int = _balanced("lights")
     filter: Filter = Filter.SQRT_COSINE
     levels: int | None = None  # None: the full chain down to 1x1 faces
     # Finest level stored: the levels above it are computed on the way down but not kept, since no
     # lookup of the scene needs them (`finest_level_needed`). 0: the whole chain, mirror included.
     base_level: int = 0
     # The median cut keeps compact bright sources (a sun) whole (lighting/median_cut.py); off: the
-    # paper's plain median cut. Every preset turns it on (renderer/presets/*.toml).
-    whole_sources: bool = False
+    # paper's plain median cut. Every preset but paper turns it on (renderer/presets/*.toml).
+    whole_sources: bool = _balanced("whole_sources")
 
     def key(self) -> tuple:
         return (self.n_lights, self.filter.value, self.levels, self.base_level, self.whole_sources)
