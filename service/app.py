@@ -22,7 +22,7 @@ from renderer.bench.budget import load_table
 from renderer.presets import presets as renderer_presets
 
 from .errors import install_error_handlers
-from .limits import BodyLimitMiddleware
+from .limits import RequestGate
 from .metrics import ServiceMetrics
 from .operations import Services
 from .registry import EnvironmentStore, MeshStore, SceneStore
@@ -93,7 +93,9 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     install_error_handlers(app)
-    app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_upload_bytes)
+    token = settings.token.get_secret_value() if settings.token is not None else None
+    media_types = (*environments.ENV_MEDIA_TYPES, *meshes.MESH_MEDIA_TYPES, "application/json")
+    app.add_middleware(RequestGate, max_bytes=settings.max_upload_bytes, token=token, media_types=media_types)
     app.include_router(health.router)
     app.include_router(health.stats_router)
     app.include_router(environments.router)

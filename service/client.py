@@ -11,8 +11,11 @@ simulation frame's positions (numpy in) and get the image (numpy or PIL out) wit
             frame = c.send_frame(scene["id"], p)
             frame.array(), frame.pil(), frame.timings       # uint8 (H, W, 3|4); PIL image; {stage: ms}
 
-A 503 (queue full) is retried after its Retry-After delay, up to `max_retries` times; other errors
-raise `ServiceError` with the service's message.
+A 503 (queue full, not ready) is retried after its Retry-After delay, up to `max_retries` times; a
+connection that fails before any answer came (a keep-alive connection the server had just closed, a
+reset) is retried up to `max_transport_retries` times for every request but a scene's registration,
+which is not idempotent (a retry could register it twice). Other errors raise `ServiceError` with the
+service's message.
 """
 
 from __future__ import annotations
@@ -94,11 +97,13 @@ def _as_f32(a, what: str) -> bytes:
 
 class RenderClient:
     def __init__(self, base_url: str, token: str | None = None, timeout: float = 300.0, max_retries: int = 50,
-                 max_retry_wait_s: float = 5.0, http: httpx.Client | None = None):
+                 max_retry_wait_s: float = 5.0, http: httpx.Client | None = None, max_transport_retries: int = 3):
         headers = {"Authorization": f"Bearer {token}"} if token else {}
         self.http = http or httpx.Client(base_url=base_url, headers=headers, timeout=timeout)
         self.max_retries, self.max_retry_wait_s = max_retries, max_retry_wait_s
+        self.max_transport_retries = max_transport_retries
         self.retries = 0  # 503 answers retried so far
+        self.transport_retries = 0  # requests sent again after their connection failed without an answer
 
     def close(self) -> None:
         self.http.close()
@@ -110,10 +115,19 @@ class RenderClient:
         self.close()
 
     # -- plumbing ----------------------------------------------------------------------------------
-    def _request(self, method: str, url: str, **kw) -> tuple[httpx.Response, int]:
-        retries = 0
+    def _request(self, method: str, url: str, idempotent: bool = True, **kw) -> tuple[httpx.Response, int]:
+        retries = failed = 0
         while True:
-            r = self.http.request(method, url, **kw)
+            try:
+                r = self.http.request(method, url, **kw)
+            except (httpx.RemoteProtocolError, httpx.ReadError, httpx.WriteError, httpx.ConnectError):
+                # No answer came: the request may be sent again if doing it twice does no harm.
+                if not idempotent or failed >= self.max_transport_retries:
+                    raise
+                failed += 1
+                self.transport_retries += 1
+                time.sleep(0.05 * 2 ** failed)
+                continue
             if r.status_code == 503 and retries < self.max_retries:
                 retries += 1
                 self.retries += 1
@@ -212,7 +226,7 @@ class RenderClient:
 
     def create_scene(self, environment_id: str, **kw) -> dict:
         """kw: positions, faces, uvs, material, mesh_id, body (a mesh_spec dict), camera, quality, output, up, name."""
-        return self._json("POST", "/scenes", json=self.scene_spec(environment_id, **kw))
+        return self._json("POST", "/scenes", idempotent=False, json=self.scene_spec(environment_id, **kw))
 
     def delete_scene(self, scene_id: str) -> None:
         self._request("DELETE", f"/scenes/{scene_id}")

@@ -529,8 +529,10 @@ def test_bearer_token_on_every_endpoint_but_health(strict_server):
         assert httpx.get(url + path, headers={"Authorization": "Bearer s3cret"}).status_code == 200
     r = httpx.post(url + "/scenes/x/frames", content=b"1234", headers=OCTET)
     assert r.status_code == 401
-    for path in ("/health/live", "/health/ready", "/metrics"):
+    for path in ("/health/live", "/health/ready", "/view", "/openapi.json"):
         assert httpx.get(url + path).status_code == 200
+    assert_error(httpx.get(url + "/metrics"), 401, "bearer token")
+    assert "garment_render" in httpx.get(url + "/metrics", headers={"Authorization": "Bearer s3cret"}).text
 
 
 def test_request_timeout_is_504_and_the_service_goes_on(strict_server, tmp_path):

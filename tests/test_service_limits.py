@@ -3,6 +3,8 @@ time before its work starts, degenerate input refused with a 422 that names it, 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import httpx
 import numpy as np
 import pytest
@@ -96,3 +98,148 @@ def test_a_mesh_file_that_is_not_utf8_is_read(http, fmt):
     r = http.post("/meshes", content=text.encode("latin-1"), headers=OCTET, params={"format": fmt})
     assert r.status_code == 201, r.text
     assert r.json()["n_faces"] == (2 if fmt == "obj" else 1)
+
+
+# -- the gate: the headers are judged before the body is read ---------------------------------------
+
+@pytest.fixture(scope="module")
+def token_server(tmp_path_factory):
+    srv = ServiceProcess(tmp_path_factory.mktemp("token"), token="s3cret", max_upload_bytes=256 << 20)
+    yield srv
+    srv.stop()
+
+
+def _headers_only(url: str, request: bytes, timeout_s: float = 10.0) -> bytes:
+    """Send a request's headers and none of its body; what the server answers within the timeout."""
+    import socket
+    from urllib.parse import urlsplit
+
+    u = urlsplit(url)
+    with socket.create_connection((u.hostname, u.port), timeout=timeout_s) as s:
+        s.sendall(request)
+        data = b""
+        while b"\r\n\r\n" not in data:
+            chunk = s.recv(65536)
+            if not chunk:
+                break
+            data += chunk
+        head, _, rest = data.partition(b"\r\n\r\n")
+        return head + b"\r\n\r\n" + rest
+
+
+@pytest.mark.parametrize("auth, want", [(b"", b"401"), (b"Authorization: Bearer wrong\r\n", b"401"),
+                                        (b"Authorization: Bearer s3cret\r\nContent-Type: text/html\r\n", b"415")])
+def test_a_refusal_on_the_headers_comes_before_the_body(token_server, auth, want):
+    # 200 MB announced and never sent: a server that read the body first would wait for it.
+    body_type = b"" if b"Content-Type" in auth else b"Content-Type: application/octet-stream\r\n"
+    answer = _headers_only(token_server.url, b"POST /environments HTTP/1.1\r\nHost: x\r\nContent-Length: 200000000\r\n"
+                           + body_type + auth + b"\r\n")
+    status_line = answer.split(b"\r\n", 1)[0]
+    assert want in status_line, answer[:300]
+    assert b"connection: close" in answer.lower()
+
+
+def test_unauthenticated_large_bodies_do_not_grow_the_service(token_server):
+    import concurrent.futures as cf
+
+    def rss_mb() -> float:
+        text = (Path("/proc") / str(token_server.proc.pid) / "status").read_text()
+        return int(next(line for line in text.splitlines() if line.startswith("VmRSS")).split()[1]) / 1024
+
+    chunk = b"\0" * (1 << 20)
+
+    def upload():
+        def body():
+            for _ in range(100):   # 100 MB each, streamed
+                yield chunk
+        try:
+            return httpx.post(token_server.url + "/environments", content=body(), headers=OCTET, timeout=60).status_code
+        except httpx.TransportError:   # the server answered 401 and closed while we were still sending
+            return 401
+
+    before = rss_mb()
+    with cf.ThreadPoolExecutor(4) as pool:
+        codes = list(pool.map(lambda _: upload(), range(4)))
+    assert codes == [401] * 4
+    assert rss_mb() - before < 50, f"RSS {before:.0f} -> {rss_mb():.0f} MB"
+    assert token_server.alive()
+
+
+# -- a 5xx answers properly; the client sends again what got no answer -------------------------------
+
+def test_an_unexpected_error_is_a_500_that_keeps_the_connection_usable():
+    import threading
+
+    import uvicorn
+    from fastapi import FastAPI
+
+    from service.errors import install_error_handlers
+    from service.limits import RequestGate
+
+    app = FastAPI()
+    install_error_handlers(app)
+    app.add_middleware(RequestGate, max_bytes=1 << 20, token=None, media_types=("application/json",))
+
+    @app.get("/boom")
+    async def boom():
+        raise RuntimeError("an unforeseen failure")
+
+    @app.get("/ok")
+    async def ok():
+        return {"ok": True}
+
+    from service_server import free_port
+
+    port = free_port()
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="critical"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    try:
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10) as c:
+            for _ in range(100):
+                try:
+                    c.get("/ok")
+                    break
+                except httpx.TransportError:
+                    import time
+                    time.sleep(0.05)
+            for _ in range(5):   # the same keep-alive connection, answer after answer
+                r = c.get("/boom")
+                assert_error(r, 500, "RuntimeError", "an unforeseen failure", "still up")
+                assert r.headers.get("connection", "").lower() != "close"
+                assert c.get("/ok").json() == {"ok": True}
+    finally:
+        server.should_exit = True
+        thread.join(10)
+
+
+def test_the_client_sends_again_a_request_whose_connection_failed_before_an_answer():
+    import socket
+    import threading
+
+    from service.client import RenderClient
+
+    listener = socket.create_server(("127.0.0.1", 0))
+    port = listener.getsockname()[1]
+    seen = []
+
+    def serve():
+        for k in range(2):
+            conn, _ = listener.accept()
+            with conn:
+                seen.append(conn.recv(65536).split(b"\r\n", 1)[0])
+                if k == 0:   # reset, no answer
+                    conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, b"\x01\x00\x00\x00\x00\x00\x00\x00")
+                    continue
+                body = b'{"status": "ok"}'
+                conn.sendall(b"HTTP/1.1 200 OK\r\nContent-Type: application/json\r\nContent-Length: "
+                             + str(len(body)).encode() + b"\r\nConnection: close\r\n\r\n" + body)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    with RenderClient(f"http://127.0.0.1:{port}") as client:
+        assert client.live() == {"status": "ok"}
+        assert client.transport_retries == 1
+    thread.join(5)
+    listener.close()
+    assert seen == [b"GET /health/live HTTP/1.1"] * 2

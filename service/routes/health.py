@@ -1,5 +1,5 @@
-"""Operations: liveness, readiness (the GL context is up and its thread runs), Prometheus metrics
-(no token needed), and service statistics as JSON (token needed, like every other resource)."""
+"""Operations: liveness and readiness (no token needed: a load balancer's probes), Prometheus metrics
+and service statistics as JSON (token needed, like every other resource, when the service has one)."""
 
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ async def ready(worker: WorkerDep) -> JSONResponse:
     return JSONResponse({"status": "not ready", "detail": reason}, status_code=503, headers={"Retry-After": "5"})
 
 
-@router.get("/metrics", summary="Prometheus metrics", response_class=Response,
+@stats_router.get("/metrics", summary="Prometheus metrics", response_class=Response,
             responses={200: {"content": {CONTENT_TYPE_LATEST: {}}}})
 async def metrics(m: MetricsDep) -> Response:
     return Response(m.render(), media_type=CONTENT_TYPE_LATEST)
