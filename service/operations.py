@@ -22,7 +22,7 @@ from .errors import ConflictError, NotFoundError, PayloadTooLargeError, QueueFul
 from .registry import EnvironmentRecord, EnvironmentStore, MeshStore, PemInfo, SceneMeshInfo, SceneRecord, SceneStore
 from .schemas import MeshSpec, QualitySpec, SceneCreate
 from .settings import ServiceSettings
-from .specs import Quality, prepare_scene, resolve_quality
+from .specs import Quality, check_pem_cost, prepare_scene, resolve_quality
 from .state import StateDir
 from .worker import GLResources, RenderWorker
 
@@ -44,8 +44,10 @@ class Services:
     def quality(self, spec: QualitySpec) -> Quality:
         from .schemas import OutputSpec
 
-        return resolve_quality(spec, OutputSpec(width=16, height=16), self.presets, self.measured,
-                               self.settings, self.device)
+        q = resolve_quality(spec, OutputSpec(width=16, height=16), self.presets, self.measured,
+                            self.settings, self.device)
+        check_pem_cost(q.face_size, q.pem, self.settings)   # the whole chain: what an upload builds
+        return q
 
     @property
     def device(self) -> str | None:

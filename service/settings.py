@@ -42,7 +42,17 @@ class ServiceSettings(BaseSettings):
     queue_size: int = Field(8, ge=1, description="jobs waiting for the GL thread; beyond it: 503 + Retry-After")
     request_timeout_s: float = Field(120.0, gt=0, description="wait for the GL thread (queue + render), then 504")
 
-    pem_cache_bytes: int = Field(1 << 30, ge=0, description="GPU memory of PEM sets kept resident (LRU)")
+    pem_cache_bytes: int = Field(1 << 30, ge=0, description="GPU memory of PEM sets kept resident (LRU); a set "
+                                 "larger than this is refused before it is built")
+    max_pem_build_bytes: int = Field(2 << 30, ge=1 << 20, description="most memory one PEM set's build may hold at "
+                                     "once, GPU and host together (renderer.lighting.pem.pem_cost), the copy for "
+                                     "the disk cache included")
+    max_pem_build_s: float = Field(30.0, gt=0, description="longest estimated build of one PEM set (its texels x "
+                                   "lights x pem_build_ns_per_texel_light), during which no frame renders")
+    pem_build_ns_per_texel_light: float = Field(
+        150.0, gt=0, description="the PEM build's time per texel and light, for that estimate: measured 57-127 ns "
+                                 "on 2-core llvmpipe for sets of 10^7 texel-lights and more; /stats reports the "
+                                 "rate of this device's builds so far")
     pem_cache_dir: Path | None = Field(None, description="PEM sets persisted here; None: memory only")
     pem_cache_disk_bytes: int = Field(4 << 30, ge=0, description="bytes of PEM sets kept in pem_cache_dir "
                                                                   "(least recently used deleted first)")

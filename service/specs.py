@@ -4,14 +4,14 @@ so that the GL job that creates a scene cannot fail half-way on bad input."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from renderer import config
 from renderer.camera import Camera, frame_meshes
 from renderer.errors import MeshError
-from renderer.lighting.pem import PEMSettings
+from renderer.lighting.pem import PEMSettings, pem_cost
 from renderer.mesh import Mesh, z_up_to_y_up
 from renderer.presets import base_knobs, frame_settings, merge_knobs, pem_settings
 from renderer.renderer import Background, FrameSettings, ShadingMode
@@ -79,6 +79,40 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: di
             "filter": pem.filter.value,
             "levels": q.levels, "bleed_reduction": frame.bleed_reduction, "mode": frame.mode.value}
     return Quality(knobs["face_size"], pem, frame, knobs, info)
+
+
+def _pem_over(face_size: int, pem: PEMSettings, settings: ServiceSettings) -> list[str]:
+    """The limits a PEM set of these settings exceeds, each with its value and the limit."""
+    cost = pem_cost(face_size, pem, export=settings.pem_cache_dir is not None)
+    seconds = cost.texel_lights * settings.pem_build_ns_per_texel_light * 1e-9
+    over = []
+    if settings.pem_cache_bytes > 0 and cost.stored_bytes > settings.pem_cache_bytes:
+        over.append(f"its {cost.stored_bytes / 2**20:.0f} MiB exceed the PEM cache's {settings.pem_cache_bytes / 2**20:.0f} "
+                    "MiB (GARMENT_RENDER_PEM_CACHE_BYTES)")
+    if cost.peak_bytes > settings.max_pem_build_bytes:
+        over.append(f"its build would hold {cost.peak_bytes / 2**20:.0f} MiB at once, over the "
+                    f"{settings.max_pem_build_bytes / 2**20:.0f} MiB of GARMENT_RENDER_MAX_PEM_BUILD_BYTES")
+    if seconds > settings.max_pem_build_s:
+        over.append(f"its build would take about {seconds:.0f} s ({cost.texel_lights / 1e6:.0f} M texel-lights at "
+                    f"{settings.pem_build_ns_per_texel_light:g} ns), over the {settings.max_pem_build_s:g} s of "
+                    "GARMENT_RENDER_MAX_PEM_BUILD_S")
+    return over
+
+
+def check_pem_cost(face_size: int, pem: PEMSettings, settings: ServiceSettings) -> None:
+    """Refuse (422) a PEM set beyond the service's limits from its settings alone, before any of it is
+    allocated, naming each limit and the face size and light count that would fit."""
+    over = _pem_over(face_size, pem, settings)
+    if not over:
+        return
+    faces = [f for f in (face_size >> k for k in range(1, 12)) if f >= 4 and not _pem_over(f, pem, settings)]
+    counts = [n for n in (pem.n_lights >> k for k in range(1, 8)) if n >= 6 and n % 6 == 0
+              and not _pem_over(face_size, replace(pem, n_lights=n), settings)]
+    fits = [f"face_size {faces[0]}" for f in faces[:1]] + [f"lights {counts[0]}" for f in counts[:1]]
+    raise InvalidRequestError(
+        f"the PEM set of face_size {face_size} with {pem.n_lights} lights is refused before it is built: "
+        + "; ".join(over) + (f". What would fit: {' or '.join(fits)}" if fits else "")
+        + " (or raise the limit)")
 
 
 def check_counts(n_vertices: int, n_faces: int, role: str, settings: ServiceSettings) -> None:
@@ -181,6 +215,7 @@ def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshe
     # The scene's PEM set: only the levels its materials' glossiness reads.
     quality.pem = pem_settings(quality.knobs, quality.pem.filter, quality.pem.levels, materials)
     quality.info["base_level"] = quality.pem.base_level
+    check_pem_cost(quality.face_size, quality.pem, settings)
     detail = quality.frame.caster_detail
     proxies = ({detail: [caster_proxy_isolated(m.positions, m.faces, detail) if c else None
                          for m, c in zip(built, casters)]}

@@ -27,7 +27,7 @@ from typing import Any, TypeVar
 
 from renderer.cache import CacheStats, PEMCache
 from renderer.errors import GLContextError
-from renderer.lighting.pem import PEMSet, PEMSettings
+from renderer.lighting.pem import PEMSet, PEMSettings, pem_cost
 from renderer.renderer import Renderer
 from renderer.shading.background import BackgroundMap
 
@@ -50,6 +50,10 @@ class GLResources:
     renderer: Renderer
     cache: PEMCache
     backgrounds: OrderedDict = field(default_factory=OrderedDict)
+    # The measured time of this device's PEM builds per texel and light (pem_cost), a moving average
+    # over builds of 10^6 texel-lights and more (None: none yet): what GARMENT_RENDER_PEM_BUILD_NS_PER_TEXEL_LIGHT
+    # estimates.
+    pem_build_ns_per_texel_light: float | None = None
 
     def background(self, content_hash: str, cube) -> BackgroundMap:
         """The background map of an environment (`renderer.shading.background`), made on first use
@@ -79,6 +83,11 @@ class GLResources:
             return pems, "memory"
         if after.disk_hits > before["disk_hits"]:
             return pems, "disk"
+        work = pem_cost(cube.shape[1], settings).texel_lights
+        if work >= 1e6:
+            rate = pems.build_ms * 1e6 / work
+            old = self.pem_build_ns_per_texel_light
+            self.pem_build_ns_per_texel_light = rate if old is None else 0.8 * old + 0.2 * rate
         return pems, "built"
 
 
@@ -175,6 +184,12 @@ class RenderWorker:
     @property
     def busy(self) -> bool:
         return self._running_since is not None
+
+    @property
+    def pem_build_ns_per_texel_light(self) -> float | None:
+        """The measured rate of this device's PEM builds (GLResources), None before the first."""
+        gl = self._gl
+        return gl.pem_build_ns_per_texel_light if gl is not None else None
 
     def cache_stats(self) -> CacheStats:
         """A copy of the PEM cache statistics (ints read without a lock: a snapshot, possibly one job stale)."""

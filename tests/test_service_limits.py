@@ -243,3 +243,61 @@ def test_the_client_sends_again_a_request_whose_connection_failed_before_an_answ
     thread.join(5)
     listener.close()
     assert seen == [b"GET /health/live HTTP/1.1"] * 2
+
+
+# -- a PEM set's cost is known from its settings, and refused before it is built ----------------------
+
+@pytest.fixture(scope="module")
+def tight_server(tmp_path_factory):
+    """PEM limits small enough that sets a test builds in a second are on either side of them."""
+    srv = ServiceProcess(tmp_path_factory.mktemp("tight"), pem_cache_bytes=128 << 20, max_pem_build_bytes=256 << 20,
+                         max_pem_build_s=1.5)
+    yield srv
+    srv.stop()
+
+
+@pytest.mark.parametrize("params, words", [
+    ({"face_size": 512, "lights": 12}, ["face_size 512", "MiB exceed the PEM cache's 128 MiB",
+                                        "GARMENT_RENDER_PEM_CACHE_BYTES", "would fit: face_size 256"]),
+    ({"face_size": 128, "lights": 192}, ["192 lights", "GARMENT_RENDER_PEM_CACHE_BYTES", "GARMENT_RENDER_MAX_PEM_BUILD_S",
+                                         "would fit: face_size 64 or lights 48"]),
+    ({"face_size": 256, "lights": 24}, ["would take about 2 s", "GARMENT_RENDER_MAX_PEM_BUILD_S"]),
+])
+def test_a_pem_set_beyond_the_limits_is_refused_before_it_is_built(tight_server, tmp_path, params, words):
+    import time
+
+    data, name = environment_bytes(tmp_path)
+    with httpx.Client(base_url=tight_server.url, timeout=120) as http:
+        before = http.get("/stats").json()["jobs"]
+        t0 = time.perf_counter()
+        r = http.post("/environments", content=data, headers=OCTET, params={"name": name, "preset": "fast", **params})
+        assert_error(r, 422, "refused before it is built", *words)
+        assert time.perf_counter() - t0 < 5.0
+        assert http.get("/stats").json()["jobs"]["done"] == before["done"]   # nothing reached the GL thread
+        # What the answer says fits, fits.
+        fit = r.json()["detail"].split("What would fit: ")[1].split(" or ")[0].split()
+        ok = http.post("/environments", content=data, headers=OCTET,
+                       params={"name": name, "preset": "fast", **params, fit[0]: int(fit[1])})
+        assert ok.status_code in (200, 201), ok.text
+        assert http.get("/stats").json()["pem_builds"]["ns_per_texel_light_measured"] is not None
+
+
+def test_a_scene_whose_pem_set_is_too_costly_is_refused(http, env_id, mesh):
+    body = scene_body(env_id, mesh)
+    body["quality"] = {"preset": "fast", "lights": 384, "face_size": 512, "shadow_size": 64, "small_light_scale": 1}
+    assert_error(http.post("/scenes", json=body), 422, "refused before it is built", "384 lights")
+
+
+def test_the_pem_cost_is_the_set_s_memory(renderer):
+    from renderer.envmap import environment_from_array, studio_environment
+    from renderer.lighting.pem import PEMSettings, pem_cost
+
+    env = environment_from_array(studio_environment(128), "latlong", 32, name="studio")
+    for settings in (PEMSettings(12), PEMSettings(24, base_level=2), PEMSettings(6, levels=3)):
+        pems = renderer.build_pems(env.cube, settings)
+        try:
+            cost = pem_cost(32, settings, export=True)
+            assert cost.stored_bytes == pems.nbytes
+            assert cost.peak_bytes > cost.stored_bytes + sum(a.nbytes for a in pems.export().values())
+        finally:
+            pems.release()

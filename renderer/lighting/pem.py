@@ -80,6 +80,46 @@ class PEMSettings:
         return replace(self, base_level=finest_level_needed(face_size, self.filter, g_max, calibration, self.levels))
 
 
+@dataclass(frozen=True)
+class PEMCost:
+    """What a PEM set takes, from its settings alone (`pem_cost`; nothing is allocated).
+
+    stored_bytes: the GPU memory of its chain (PEMSet.nbytes: the stored levels of every light's
+    RGBA16F cube and the RGBA32F normalizer), what a cache holds. peak_bytes: the most memory the
+    build holds at once, GPU and host together (the chain, the map's texture, the source cube and
+    its weighted copy on both sides, the labels, the batch scratch, and with `export` the float16
+    copy written to a disk cache plus the float32 read of its largest level). texel_lights: the
+    chain's texels, every level computed (those above the base level too), times the lights: what
+    the build's time grows with."""
+
+    stored_bytes: int
+    peak_bytes: int
+    texel_lights: int
+
+
+def pem_cost(face_size: int, settings: PEMSettings, export: bool = False) -> PEMCost:
+    """The cost of the PEM set of a (6, face_size, face_size) cube for `settings` (see PEMCost)."""
+    n, lights = int(face_size), int(settings.n_lights)
+    full = mip_levels(n)
+    levels = full if settings.levels is None else int(np.clip(settings.levels, 1, full))
+    base = min(int(settings.base_level), levels - 1)
+    texels = [6 * max(1, n >> lv) ** 2 for lv in range(levels)]
+    stored_texels = sum(texels[base:])
+    stored = lights * stored_texels * 8 + stored_texels * 16
+    face = 6 * n * n
+    per_region_bytes = 6 * max(1, (n // 2) ** 2) * 16
+    batch = int(max(1, min(REGIONS_PER_TEXTURE, SCRATCH_BUDGET_BYTES // (2 * per_region_bytes))))
+    # Host: the float32 cube, its brightest channel, the weighted RGBA copy, the labels, the median
+    # cut's float64 sums and the normalizer's chain and RGBA upload copy; GPU: the map's texture, the
+    # weighted copy and labels again, two scratch buffers.
+    build = face * (12 + 4 + 16 + 4 + 32 + 16 + 16) + face * (12 + 16 + 4) + 2 * batch * per_region_bytes
+    peak = stored + build
+    if export:   # the float16 copy, and while a level is read: one texture's float32 and the level's parts
+        peak += lights * stored_texels * 8 + min(lights, REGIONS_PER_TEXTURE) * texels[base] * 16 \
+            + lights * texels[base] * 8
+    return PEMCost(stored, peak, lights * sum(texels))
+
+
 class PEMSet:
     """The GPU-resident PEMs of one environment map. Owns its texture; `release()` frees it."""
 
@@ -238,7 +278,9 @@ class PEMSet:
     def export(self) -> dict[str, np.ndarray]:
         """Everything needed to restore this set without rebuilding (the stored half floats, the
         scales, the partition): arrays for np.savez. Restore with PEMSet(gl, cube, settings, stored=...)."""
-        out = {f"level_{level}": self.read_level_raw(level).astype(np.float16)
+        # Each texture's level read and halved on its own: the float32 of the whole level never exists.
+        out = {f"level_{level}": np.concatenate([t.read_level(level - self.base_level).astype(np.float16)
+                                                 for t in self.textures])
                for level in range(self.base_level, self.levels)}
         out.update({"regions_" + k: getattr(self.regions, k) for k in RegionSet.__dataclass_fields__})
         out["scale"] = self.scale
