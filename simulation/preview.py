@@ -18,11 +18,12 @@ FLOOR_ALBEDO = (0.45, 0.45, 0.45)
 
 def render_preview(out: Path | str, garment: tuple[np.ndarray, np.ndarray, np.ndarray],
                    body: tuple[np.ndarray, np.ndarray], floor: tuple[np.ndarray, np.ndarray],
-                   eye: tuple[float, float, float], target: tuple[float, float, float] = (0.0, 1.0, 0.0),
-                   size: tuple[int, int] = (512, 512), fov_y_deg: float = 38.0) -> Path:
-    """Render one PNG. garment: (positions (V, 3), faces (F, 3), uvs (V, 2)); body, floor:
-    (positions, faces); metres, Y-up, faces counter-clockwise seen from outside. eye, target: the
-    camera (metres)."""
+                   views: list[tuple[tuple[float, float, float], tuple[float, float, float]]],
+                   height: int = 512, fov_y_deg: float = 38.0) -> Path:
+    """Render one PNG with the views side by side, each height x height pixels, one exposure for
+    all. garment: (positions (V, 3), faces (F, 3), uvs (V, 2)); body, floor: (positions, faces);
+    metres, Y-up, faces counter-clockwise seen from outside. views: (eye, target) per view,
+    metres."""
     from renderer.camera import Camera
     from renderer.cli import build_parser, frame_settings, pem_settings, png_image, resolve_quality
     from renderer.envmap import environment_from_array, studio_environment
@@ -31,7 +32,7 @@ def render_preview(out: Path | str, garment: tuple[np.ndarray, np.ndarray, np.nd
     from renderer.shading.material import Material
     from renderer.shading.tonemap import ToneCurve, auto_exposure_ev, write_png
 
-    w, h = size
+    w = h = int(height)
     args = build_parser().parse_args(["render", "--preset", "fast", "--size", f"{w}x{h}", "--background", "black"])
     q = resolve_quality(args)
     env = environment_from_array(studio_environment(1024), "latlong", q["face_size"], name="studio (bundled)")
@@ -39,14 +40,16 @@ def render_preview(out: Path | str, garment: tuple[np.ndarray, np.ndarray, np.nd
               Mesh.from_arrays(*floor, name="floor")]
     materials = [Material(GARMENT_ALBEDO, 0.35, 0.75), Material(BODY_ALBEDO, 0.05, 0.3),
                  Material(FLOOR_ALBEDO, 0.0, 0.2)]
-    camera = Camera(eye, target, fov_y_deg=fov_y_deg)
+    images = []
     with Renderer() as r:
         pems = r.build_pems(env.cube, pem_settings(args, q, materials))
         scene = r.create_scene(meshes, materials, casters=[True, True, False])
-        frame = r.render(scene, pems, frame_settings(args, q), camera)
+        for eye, target in views:
+            frame = r.render(scene, pems, frame_settings(args, q), Camera(eye, target, fov_y_deg=fov_y_deg))
+            images.append(png_image(frame.image, False))
         scene.release()
         pems.release()
-    img = png_image(frame.image, False)
+    img = np.concatenate(images, axis=1)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_png(out, img, auto_exposure_ev(img[..., :3], img[..., 3]), ToneCurve("filmic"))
