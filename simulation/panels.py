@@ -367,6 +367,22 @@ def _springs(faces: np.ndarray, st: np.ndarray, spacing: float) -> tuple[np.ndar
     return st_pairs, np.array(shear, np.int64).reshape(-1, 2), np.array(sorted(bend), np.int64).reshape(-1, 2)
 
 
+def _tethers(structural: Springs, shear: Springs, anchors: np.ndarray, n: int) -> Springs:
+    """Each vertex tethered to its nearest anchor along the pattern's structural and shear edges,
+    the rest length that path's length (Dijkstra): never shorter than the cloth between them, so a
+    tether only acts once the cloth between has stretched. A vertex no anchor reaches has none."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    pairs = np.concatenate([structural.pairs, shear.pairs])
+    rest = np.concatenate([structural.rest_m, shear.rest_m])
+    graph = coo_matrix((rest, (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
+    dist, _, source = dijkstra(graph, directed=False, indices=anchors, min_only=True, return_predecessors=True)
+    reached = np.isfinite(dist) & (dist > 0)
+    vertex = np.flatnonzero(reached)
+    return Springs(np.stack([vertex, source[vertex]], -1).astype(np.int32), dist[vertex])
+
+
 def dress(spacing_m: float = 0.025, pattern: DressPattern = DressPattern()) -> Garment:
     """The sleeveless dress of `pattern`, its panels gridded at `spacing_m` (metres between grid
     columns and rows) and placed around `mannequin()`, with its side and shoulder seams.
@@ -415,9 +431,11 @@ def dress(spacing_m: float = 0.025, pattern: DressPattern = DressPattern()) -> G
     centre_u = np.where(panel == FRONT, 0.25, 0.75)
     uvs = np.stack([centre_u + flat[:, 0] * scale, flat[:, 1] * scale], -1)
     all_seams = np.concatenate(list(seams.values()))
+    anchors = np.concatenate([seams["shoulder +x"].reshape(-1), seams["shoulder -x"].reshape(-1)])
     cloth = ClothMesh(positions=xyz, faces=faces.astype(np.int32), uvs=uvs, structural=springs(structural),
                       shear=springs(shear), bend=springs(bend),
-                      seams=Springs(all_seams, np.zeros(len(all_seams))))
+                      seams=Springs(all_seams, np.zeros(len(all_seams))),
+                      tethers=_tethers(springs(structural), springs(shear), anchors, len(st)))
     e1, e2 = flat[faces[:, 1]] - flat[faces[:, 0]], flat[faces[:, 2]] - flat[faces[:, 0]]
     assert np.all(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] > 0), "a pattern triangle is not counter-clockwise"
     return Garment(cloth, flat, panel, seams)

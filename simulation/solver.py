@@ -18,6 +18,12 @@ spring; the compliance is in metres per newton and does not depend on the subste
 A seam (two vertices that sewing joins, `ClothMesh.seams`) is a spring of rest length L = 0: the
 same step pulls its two ends together, n being the direction from one to the other.
 
+Tethers (long range attachments, Kim, Chentanez, Mueller, "Long Range Attachments", SCA 2012):
+a vertex that hangs from an anchor (a dress from its shoulder seams) may not be farther from it than
+its geodesic distance on the pattern; where it is, it alone moves back onto that sphere, once per
+substep after the springs. Hanging from a long chain of inextensible springs, the vertices far down
+would otherwise see the chain stretch by what a few Gauss-Seidel passes leave unsolved.
+
 The springs of one colour share no vertex (a greedy edge colouring, done once), so one colour is
 solved exactly like sequential Gauss-Seidel but with one vectorised update.
 """
@@ -167,6 +173,8 @@ class ClothSim:
             for _ in range(s.iterations - 1):  # extra passes hold the weight of the cloth at the contacts
                 for g in self._structural:
                     self._solve(p, g)
+            if self.cloth.tethers is not None:
+                self._tether(p, self.cloth.tethers)
             if s.edge_collisions:
                 self._push_out_edges(p)
             p, contact, normal = self.body.push_out(p, s.thickness_m)
@@ -206,6 +214,15 @@ class ClothSim:
             np.add.at(count, ends[:, e], 1.0)
         hit = count > 0
         p[hit] += total[hit] / count[hit, None]
+
+    @staticmethod
+    def _tether(p: np.ndarray, tethers: Springs) -> None:
+        i, a = tethers.pairs[:, 0], tethers.pairs[:, 1]
+        d = p[i] - p[a]
+        length = np.sqrt(np.einsum("ij,ij->i", d, d))
+        over = length > tethers.rest_m
+        scale = (length[over] - tethers.rest_m[over]) / length[over]
+        p[i[over]] -= scale[:, None] * d[over]
 
     def _colour_groups(self, springs: Springs, alpha_tilde: float) -> list[_Group]:
         out = []
