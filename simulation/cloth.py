@@ -22,8 +22,11 @@ class Springs:
 
 @dataclass(frozen=True)
 class ClothMesh:
-    """positions (V, 3) float64 rest state; faces (F, 3) int32 counter-clockwise seen from +Y;
-    uvs (V, 2) in [0, 1]; structural, shear and bend springs."""
+    """positions (V, 3) float64 start state; faces (F, 3) int32 counter-clockwise seen from the
+    cloth's outer side (+Y for a sheet, away from the body for a garment); uvs (V, 2) in [0, 1];
+    structural, shear and bend springs; seams: pairs of vertices that sewing joins (rest length 0),
+    None for a single piece of cloth; tethers: (vertex, anchor) pairs whose distance may not exceed
+    the rest length (the geodesic distance on the pattern), None for none."""
 
     positions: np.ndarray
     faces: np.ndarray
@@ -31,6 +34,8 @@ class ClothMesh:
     structural: Springs
     shear: Springs
     bend: Springs
+    seams: Springs | None = None
+    tethers: Springs | None = None
 
     @property
     def n_vertices(self) -> int:

@@ -15,6 +15,15 @@ Each substep of length h (Macklin, Storey, Lu et al., "Small Steps in Physics Si
 multipliers l start at 0, so dl = -C / (w_i + w_j + a~).) A compliance of 0 is an inextensible
 spring; the compliance is in metres per newton and does not depend on the substep count.
 
+A seam (two vertices that sewing joins, `ClothMesh.seams`) is a spring of rest length L = 0: the
+same step pulls its two ends together, n being the direction from one to the other.
+
+Tethers (long range attachments, Kim, Chentanez, Mueller, "Long Range Attachments", SCA 2012):
+a vertex that hangs from an anchor (a dress from its shoulder seams) may not be farther from it than
+its geodesic distance on the pattern; where it is, it alone moves back onto that sphere, once per
+substep after the springs. Hanging from a long chain of inextensible springs, the vertices far down
+would otherwise see the chain stretch by what a few Gauss-Seidel passes leave unsolved.
+
 The springs of one colour share no vertex (a greedy edge colouring, done once), so one colour is
 solved exactly like sequential Gauss-Seidel but with one vectorised update.
 """
@@ -35,19 +44,23 @@ GRAVITY_M_S2 = np.array([0.0, -9.81, 0.0])
 class ClothSettings:
     """Material and integration settings.
 
-    density_kg_m2: cloth mass per area. Compliances (m/N) per spring kind: 0 is inextensible.
+    density_kg_m2: cloth mass per area. Compliances (m/N) per spring kind: 0 is inextensible; a
+    seam (rest length 0) with compliance 0 closes in one substep, a soft one pulls its two edges
+    together over several frames.
     damping_per_s: air damping of all velocities. drag_per_s: damping of the velocity along the
     cloth's normal (air resistance: a falling sheet of 0.2 kg/m^2 reaches about 1.6 m/s, and
     g / 1.6 m/s ~ 6 /s). friction: share of the tangential motion removed at a contact per substep.
     thickness_m: the distance the cloth keeps from the body proxy and floor. edge_collisions: also
     collide the midpoints of structural springs. frame_dt_s, substeps: a frame's time step and its
-    substeps. iterations: passes over the structural springs per substep (shear and bend: one).
+    substeps. iterations: passes over the structural springs and seams per substep (shear and
+    bend: one).
     """
 
     density_kg_m2: float = 0.2
     structural_compliance: float = 0.0
     shear_compliance: float = 1e-4
     bend_compliance: float = 5e-3
+    seam_compliance: float = 0.0
     damping_per_s: float = 0.3
     drag_per_s: float = 6.0
     friction: float = 0.4
@@ -90,7 +103,8 @@ class _Group:
 @dataclass(frozen=True)
 class FrameStats:
     """What one frame did: simulated time, energies (J), the largest and mean relative stretch of the
-    structural springs, the deepest penetration of the body proxy and floor (m, >= 0), contacts."""
+    structural springs, the deepest penetration of the body proxy and floor (m, >= 0), contacts, and
+    the widest gap of a seam (m; 0 without seams)."""
 
     time_s: float
     kinetic_j: float
@@ -100,6 +114,7 @@ class FrameStats:
     max_penetration_m: float
     contacts: int
     step_ms: float
+    max_seam_gap_m: float = 0.0
 
     @property
     def energy_j(self) -> float:
@@ -125,6 +140,12 @@ class ClothSim:
             self._groups += self._colour_groups(springs, compliance / (h * h))
             if springs is cloth.structural:
                 self._structural = list(self._groups)
+        if cloth.seams is not None and len(cloth.seams.pairs):
+            # Seams carry the weight of what hangs below them (a dress hangs from its shoulder seams):
+            # they take the structural springs' extra passes too.
+            seams = self._colour_groups(cloth.seams, settings.seam_compliance / (h * h))
+            self._groups += seams
+            self._structural += seams
         self._contact = np.zeros(len(self.x), bool)
 
     @property
@@ -152,6 +173,8 @@ class ClothSim:
             for _ in range(s.iterations - 1):  # extra passes hold the weight of the cloth at the contacts
                 for g in self._structural:
                     self._solve(p, g)
+            if self.cloth.tethers is not None:
+                self._tether(p, self.cloth.tethers)
             if s.edge_collisions:
                 self._push_out_edges(p)
             p, contact, normal = self.body.push_out(p, s.thickness_m)
@@ -192,6 +215,15 @@ class ClothSim:
         hit = count > 0
         p[hit] += total[hit] / count[hit, None]
 
+    @staticmethod
+    def _tether(p: np.ndarray, tethers: Springs) -> None:
+        i, a = tethers.pairs[:, 0], tethers.pairs[:, 1]
+        d = p[i] - p[a]
+        length = np.sqrt(np.einsum("ij,ij->i", d, d))
+        over = length > tethers.rest_m
+        scale = (length[over] - tethers.rest_m[over]) / length[over]
+        p[i[over]] -= scale[:, None] * d[over]
+
     def _colour_groups(self, springs: Springs, alpha_tilde: float) -> list[_Group]:
         out = []
         for c in colour_springs(springs.pairs, len(self.x)):
@@ -217,12 +249,17 @@ class ClothSim:
         stretch = length / st.rest_m - 1.0
         floor = self.body.floor_y if self.body.floor_y is not None else 0.0
         sd = self.body.signed_distance(self.x)
+        seams = self.cloth.seams
+        gap = 0.0
+        if seams is not None and len(seams.pairs):
+            gap = float(np.linalg.norm(self.x[seams.pairs[:, 0]] - self.x[seams.pairs[:, 1]], axis=1).max())
         return FrameStats(
             time_s=self.time_s,
             kinetic_j=float(0.5 * np.sum(self.mass_kg * np.einsum("ij,ij->i", self.v, self.v))),
             potential_j=float(np.sum(self.mass_kg * -GRAVITY_M_S2[1] * (self.x[:, 1] - floor))),
             max_stretch=float(stretch.max()), mean_stretch=float(np.abs(stretch).mean()),
-            max_penetration_m=float(max(0.0, -sd.min())), contacts=int(self._contact.sum()), step_ms=step_ms)
+            max_penetration_m=float(max(0.0, -sd.min())), contacts=int(self._contact.sum()), step_ms=step_ms,
+            max_seam_gap_m=gap)
 
 
 def _mesh_area(x: np.ndarray, faces: np.ndarray) -> float:
