@@ -76,7 +76,7 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--repair", action="store_true", help="replace NaN/Inf/negative texels instead of failing")
     g.add_argument("--mesh", type=Path, action="append", default=[],
                    help="mesh file (PLY/OBJ/GLB); the first is the garment, others (e.g. the body) follow; "
-                        "default: bundled procedural dress and body")
+                        "default: the bundled dress, draped on a mannequin over a floor")
     g.add_argument("--up", choices=["y", "z"], default="y", help="up axis of the mesh files")
     g.add_argument("--mesh-scale", type=float, default=1.0, help="scale applied to the mesh files (e.g. 0.01 for cm)")
     g.add_argument("--albedo", type=_floats(3), default=(0.8, 0.2, 0.2), help="garment diffuse reflectance r,g,b")
@@ -160,24 +160,30 @@ def pem_settings(args, q: dict, materials):
     return presets_pem_settings(q, q["filter"], args.levels, materials)
 
 
+# The bundled default scene's floor: a matte mid grey.
+FLOOR_MATERIAL = (0.45, 0.45, 0.45), 0.0, 0.3
+
+
 def load_scene_inputs(args, face_size: int):
-    """Environment map and meshes + materials from the arguments (or the bundled defaults)."""
+    """Environment map, meshes, materials and which meshes cast shadows, from the arguments (or
+    the bundled defaults: the studio, and the draped dress on the mannequin over a floor that only
+    receives shadows, `procedural.default_scene`)."""
     from .envmap import environment_from_array, load_environment, studio_environment
     from .mesh import load_mesh
-    from .procedural import procedural_body, procedural_garment
+    from .procedural import default_scene
     from .shading.material import Material
 
     if args.env is not None:
         env = load_environment(args.env, layout=args.layout, face_size=face_size, repair=args.repair)
     else:
         env = environment_from_array(studio_environment(1024), "latlong", face_size, name="studio (bundled)")
-    if args.mesh:
-        meshes = [load_mesh(p, up=args.up, scale=args.mesh_scale) for p in args.mesh]
-    else:
-        meshes = [procedural_garment(), procedural_body()]
     garment = Material(args.albedo, args.specular, args.glossiness)
     body = Material(args.body_albedo, 0.1, 0.3)
-    return env, meshes, [garment] + [body] * (len(meshes) - 1)
+    if args.mesh:
+        meshes = [load_mesh(p, up=args.up, scale=args.mesh_scale) for p in args.mesh]
+        return env, meshes, [garment] + [body] * (len(meshes) - 1), [True] * len(meshes)
+    meshes, casters = default_scene()
+    return env, meshes, [garment, body, Material(*FLOOR_MATERIAL)], casters
 
 
 def background_cube(args, env):
@@ -221,16 +227,16 @@ def cmd_render(args) -> int:
 
     t_start = time.perf_counter()
     q = resolve_quality(args)
-    env, meshes, materials = load_scene_inputs(args, q["face_size"])
+    env, meshes, materials, casters = load_scene_inputs(args, q["face_size"])
     t_loaded = time.perf_counter()
     w, h = args.size
     settings = frame_settings(args, q)
-    camera = camera_from_args(args, meshes, w / h)
+    camera = camera_from_args(args, [m for m, c in zip(meshes, casters) if c], w / h)   # a floor is not framed
     bg_cube = background_cube(args, env)
     with Renderer() as r:
         check_budget_device(q, r)
         pems = r.build_pems(env.cube, pem_settings(args, q, materials))
-        scene = r.create_scene(meshes, materials)
+        scene = r.create_scene(meshes, materials, casters=casters)
         background = r.background_map(bg_cube) if bg_cube is not None else None
         frame = r.render(scene, pems, settings, camera, background=background)
         if background is not None:
@@ -273,7 +279,7 @@ def cmd_sequence(args) -> int:
         raise SystemExit("error: sequence needs --out DIR (the folder for the numbered frames)")
     q = resolve_quality(args)
     args.mesh = list(args.body or [])
-    env, extra_meshes, materials = load_scene_inputs(args, q["face_size"])
+    env, extra_meshes, materials, _ = load_scene_inputs(args, q["face_size"])
     if not args.body:
         extra_meshes = []
     # The first material is the garment's, the last the body's (load_scene_inputs' convention).
@@ -349,9 +355,9 @@ def cmd_reference(args) -> int:
     from .shading.tonemap import ToneCurve, auto_exposure_ev, write_png
 
     face = args.face_size or 256  # the reference reads the map itself: a fine cube by default
-    env, meshes, materials = load_scene_inputs(args, face)
+    env, meshes, materials, casters = load_scene_inputs(args, face)
     w, h = args.size
-    camera = camera_from_args(args, meshes, w / h)
+    camera = camera_from_args(args, [m for m, c in zip(meshes, casters) if c], w / h)
     t0 = time.perf_counter()
     ref = render_reference(meshes, materials, env.cube, camera, w, h, args.spp, seed=args.seed)
     wall = time.perf_counter() - t0

@@ -10,6 +10,8 @@ into (a, b, c) = (P[i,j], P[i,j+1], P[i+1,j]) and (b, d, c) with d = P[i+1,j+1]:
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from .errors import InvalidInputError
@@ -176,3 +178,19 @@ def procedural_body(n_lat: int = 24, n_lon: int = 32) -> Mesh:
     parts = [_ellipsoid(c, r, n_lat, n_lon) for c, r in (_TORSO, _HIPS, _HEAD)]
     parts += [_capsule(a, b, r, n_lat, n_lon) for a, b, r in (_NECK, *_LEGS)]
     return _union(parts, "procedural_body")
+
+
+# The bundled default scene: a dress sewn from two panels and draped on a mannequin by the project's
+# cloth simulation, the mannequin's smooth render mesh and a floor (`python -m simulation.dress --store`).
+DEFAULT_SCENE_FILE = Path(__file__).parent / "data" / "default_scene.npz"
+
+
+def default_scene() -> tuple[list[Mesh], list[bool]]:
+    """The meshes of the bundled default scene (garment, body, floor; metres, Y-up, the floor at
+    y = 0, the figure facing +Z) and which cast shadows: the floor only receives them, so that the
+    shadow maps are fitted to the dress and the body."""
+    with np.load(DEFAULT_SCENE_FILE) as z:
+        meshes = [Mesh.from_arrays(z["garment_positions"], z["garment_faces"], z["garment_uvs"], name="dress"),
+                  Mesh.from_arrays(z["body_positions"], z["body_faces"], name="mannequin"),
+                  Mesh.from_arrays(z["floor_positions"], z["floor_faces"], name="floor")]
+    return meshes, [True, True, False]

@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
 # Sets everything up, starts the render service and a cloth simulation that posts every frame to it
-# (a sheet dropped onto a mannequin, lit by the bundled procedural studio), and prints the address of
+# (a dress sewn from two panels, draped on a mannequin, lit by the bundled procedural studio), and prints the address of
 # the viewer page that shows the latest frame of each scene with its timings. Ctrl-C stops both.
 #
 #   bash scripts/demo.sh [--host 127.0.0.1] [--port 8000] [--frames N] [--size 512x512] [--preset fast]
-#                        [--views front,three-quarter] [--resolution 56] [--env MAP.hdr]
+#                        [--views front,three-quarter] [--spacing 0.025] [--env MAP.hdr]
 #   bash scripts/demo.sh --still    # the one-frame render of the bundled default to out/demo.png
 #
 # Options other than --host, --port and --still go to `python -m simulation.demo` (see its --help);
-# --frames 0 (the default) simulates until Ctrl-C, dropping the cloth again every 90 frames.
+# --frames 0 (the default) simulates until Ctrl-C, draping the dress anew every 90 frames.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 

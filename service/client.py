@@ -214,18 +214,21 @@ class RenderClient:
     def scene_spec(self, environment_id: str, positions=None, faces=None, uvs=None, material: dict | None = None,
                    mesh_id: str | None = None, body: dict | None = None, camera: dict | None = None,
                    quality: dict | None = None, output: dict | None = None, up: str = "y",
-                   name: str = "scene") -> dict:
+                   name: str = "scene", floor: dict | None = None) -> dict:
         spec = {"name": name, "environment_id": environment_id, "up": up,
                 "garment": self.mesh_spec(positions, faces, uvs, material, mesh_id, name="garment"),
                 "quality": quality or {}, "output": output or {}}
         if body is not None:
             spec["body"] = body
+        if floor is not None:
+            spec["floor"] = floor
         if camera is not None:
             spec["camera"] = camera
         return spec
 
     def create_scene(self, environment_id: str, **kw) -> dict:
-        """kw: positions, faces, uvs, material, mesh_id, body (a mesh_spec dict), camera, quality, output, up, name."""
+        """kw: positions, faces, uvs, material, mesh_id, body and floor (mesh_spec dicts), camera, quality,
+        output, up, name."""
         return self._json("POST", "/scenes", idempotent=False, json=self.scene_spec(environment_id, **kw))
 
     def delete_scene(self, scene_id: str) -> None:

@@ -177,7 +177,8 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
                 inline[role] = MeshSpec(name=mesh.name, positions=_to_scene_up(mesh.positions, body.up),
                                         faces=mesh.faces.tolist(),
                                         uvs=None if mesh.uvs is None else mesh.uvs.tolist(), material=spec.material,
-                                        cast_shadows=spec.cast_shadows)
+                                        **{k: spec.cast_shadows for k in ("cast_shadows",)
+                                           if k in spec.model_fields_set})
         stored = body.model_copy(update=inline)
         # Only what the request named: a restored scene resolves its preset again, and a knob it
         # left to the preset must stay the preset's (a full dump would pin every schema default).

@@ -198,7 +198,7 @@ class MeshStore:
 
 @dataclass
 class SceneMeshInfo:
-    role: str  # "garment" or "body"
+    role: str  # "garment", "body" or "floor"
     name: str
     n_vertices: int
     n_faces: int

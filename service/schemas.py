@@ -159,6 +159,9 @@ class SceneCreate(_Strict):
     up: Literal["y", "z"] = Field("y", description="up axis of inline positions, every frame and the camera")
     garment: MeshSpec
     body: MeshSpec | None = None
+    floor: MeshSpec | None = Field(None, description="a mesh under the others that takes their shadows and, "
+                                   "unless its cast_shadows says otherwise, casts none: the shadow maps then fit "
+                                   "the garment and the body; it never moves")
     camera: CameraSpec | None = Field(None, description="default: frames the initial meshes from +Z (fixed)")
     quality: QualitySpec = Field(default_factory=QualitySpec)
     output: OutputSpec = Field(default_factory=OutputSpec)

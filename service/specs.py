@@ -204,11 +204,16 @@ class PreparedScene:
 def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshes: MeshStore,
                   settings: ServiceSettings, device: str | None = None) -> PreparedScene:
     quality = resolve_quality(body.quality, body.output, presets, measured, settings, device)
-    specs = [("garment", body.garment)] + ([("body", body.body)] if body.body is not None else [])
+    specs = [("garment", body.garment)] + [(role, getattr(body, role)) for role in ("body", "floor")
+                                           if getattr(body, role) is not None]
     built = [build_mesh(spec, role, body.up, meshes, settings) for role, spec in specs]
     materials = [build_material(spec.material, mesh, role) for (role, spec), mesh in zip(specs, built)]
-    camera = build_camera(body.camera, body.up, built, body.output.width / body.output.height)
-    casters = [spec.cast_shadows for _, spec in specs]
+    # A floor casts nothing unless its spec says so.
+    casters = [spec.cast_shadows if role != "floor" or "cast_shadows" in spec.model_fields_set else False
+               for role, spec in specs]
+    # The default camera frames what casts (a floor that only receives would push it far back).
+    framed = [m for m, c in zip(built, casters) if c] or built
+    camera = build_camera(body.camera, body.up, framed, body.output.width / body.output.height)
     if not any(casters):
         raise InvalidRequestError("cast_shadows is false on every mesh, so nothing would cast a shadow: set "
                                   "cast_shadows: true on the garment (a floor alone may be false)")

@@ -138,7 +138,7 @@ def _project(body: BodyProxy, p: np.ndarray, blend_m: float, cell_m: float, step
     return p
 
 
-def floor_mesh(body: BodyProxy, size_m: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
+def floor_mesh(body: BodyProxy, size_m: float = 30.0) -> tuple[np.ndarray, np.ndarray]:
     """The floor y = body.floor_y as a square of side size_m centred under the figure: positions
     (4, 3) float32, faces (2, 3) int32, counter-clockwise seen from +Y."""
     if body.floor_y is None:

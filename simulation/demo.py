@@ -1,10 +1,12 @@
-"""Drop a cloth onto a mannequin and have a running render service draw every frame.
+"""Drape a dress, sewn from two panels, on a mannequin and have a running render service draw every
+frame: the garment and the mannequin cast shadows on each other, the floor only receives them.
 
     python -m simulation.demo --server http://127.0.0.1:8000 --frames 120
 
 The simulation of frame k+1 runs while the service renders frame k (one frame in flight). Every
-`--drape-frames` frames the cloth is lifted and dropped again; `--frames 0` runs until interrupted.
-Each frame prints its simulation time, the service's render time and the round trip.
+`--drape-frames` frames the dress is put back on its placed panels and hangs again; `--frames 0`
+runs until interrupted. Each frame prints its simulation time, the service's render time and the
+round trip.
 """
 
 from __future__ import annotations
@@ -15,16 +17,19 @@ import signal
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 
 import httpx
 
 from renderer.presets import PRESET_NAMES
 from service.client import RenderClient
 
-from .cloth import sheet
+from .body_mesh import body_mesh, floor_mesh
+from .dress import DRESS_SETTINGS, SETTLE_FRAMES
 from .feed import FRONT, THREE_QUARTER, DrapeFeed, upload_studio_environment
+from .panels import Garment, dress
 from .proxy import mannequin
-from .solver import ClothSettings, ClothSim
+from .solver import ClothSim
 
 VIEWS = {"front": FRONT, "three-quarter": THREE_QUARTER}
 
@@ -40,9 +45,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--server", default="http://127.0.0.1:8000", help="the render service's base URL")
     p.add_argument("--token", default=os.environ.get("GARMENT_RENDER_TOKEN"), help="bearer token, if the service has one")
     p.add_argument("--frames", type=int, default=0, help="frames to render; 0: until interrupted")
-    p.add_argument("--drape-frames", type=int, default=90, help="frames per drop (then the cloth is dropped again)")
-    p.add_argument("--resolution", type=int, default=56, help="cloth grid vertices per side")
-    p.add_argument("--substeps", type=int, default=ClothSettings.substeps, help="simulation substeps per frame")
+    p.add_argument("--drape-frames", type=int, default=90, help="frames per drape (then the dress hangs anew)")
+    p.add_argument("--spacing", type=float, default=0.025, help="the dress panels' grid spacing, metres")
+    p.add_argument("--substeps", type=int, default=DRESS_SETTINGS.substeps, help="simulation substeps per frame")
     p.add_argument("--size", type=_size, default=(512, 512), help="image size WxH")
     p.add_argument("--preset", default="fast", choices=PRESET_NAMES)
     p.add_argument("--views", default="front", help=f"comma-separated, one scene each: {', '.join(VIEWS)}")
@@ -69,18 +74,21 @@ def wait_ready(client: RenderClient, timeout_s: float) -> None:
         time.sleep(0.25)
 
 
-def new_simulation(args: argparse.Namespace) -> ClothSim:
-    return ClothSim(sheet(args.resolution), mannequin(), ClothSettings(substeps=args.substeps))
+def new_simulation(args: argparse.Namespace, garment: Garment) -> ClothSim:
+    """The dress as sewn, on the mannequin: each run drapes it from its placed panels."""
+    return ClothSim(garment.cloth, mannequin(), replace(DRESS_SETTINGS, substeps=args.substeps))
 
 
 def run(args: argparse.Namespace) -> int:
     with RenderClient(args.server, token=args.token) as client:
         wait_ready(client, args.wait)
         env = client.upload_environment(args.env) if args.env else upload_studio_environment(client)
-        sim = new_simulation(args)
+        garment = dress(args.spacing)
+        sim = new_simulation(args, garment)
         views = tuple(VIEWS[v] for v in args.views.split(","))
         feed = DrapeFeed(client, sim, env["id"], views=views, quality={"preset": args.preset},
-                         output={"width": args.size[0], "height": args.size[1]}, format=args.format)
+                         output={"width": args.size[0], "height": args.size[1]}, format=args.format,
+                         garment=garment, body=body_mesh(sim.body), floor=floor_mesh(sim.body))
         print(f"demo: {sim.cloth.n_vertices} cloth vertices, {len(sim.cloth.faces)} triangles; scenes "
               f"{', '.join(feed.scene_ids)} on {args.server}", flush=True)
         with ThreadPoolExecutor(1, thread_name_prefix="post") as pool:
@@ -89,11 +97,13 @@ def run(args: argparse.Namespace) -> int:
             while args.frames <= 0 or k + 1 < args.frames:
                 k += 1
                 if k % args.drape_frames == 0:
-                    sim = feed.sim = new_simulation(args)
+                    sim = feed.sim = new_simulation(args, garment)
                     sim_ms = 0.0
                 else:
                     sim_ms = sim.step_frame().step_ms
-                positions = sim.positions
+                    if k % args.drape_frames <= SETTLE_FRAMES:   # as `dress.drape` settles the placed panels
+                        sim.v[:] = 0.0
+                positions = sim.x.copy()
                 _report(pending[0], pending[1].result(), pending[2])
                 pending = (k, pool.submit(feed.post, k, positions), sim_ms)
             _report(pending[0], pending[1].result(), pending[2])

@@ -2,10 +2,13 @@
 deterministic (no randomness; the same arguments give the same positions, bit for bit).
 
     python -m simulation.dress --out dress.npz [--png dress.png]
+    python -m simulation.dress --store       # the bundled default scene (renderer/data/default_scene.npz)
 
 writes the draped dress as one mesh, each seam's two vertices merged (positions float32 (V, 3)
 metres Y-up, faces int32 (F, 3) counter-clockwise seen from outside, uvs float32 (V, 2)), and,
-with --png, a still of it on the mannequin from the front and three-quarter views.
+with --png, a still of it on the mannequin from the front and three-quarter views. --store writes
+the dress with the mannequin's render mesh and the floor as the renderer's bundled default scene
+(`renderer.procedural.default_scene`): run it after a change to the dress, the cloth or the body.
 """
 
 from __future__ import annotations
@@ -25,6 +28,8 @@ from .solver import ClothSettings, ClothSim, FrameStats
 # The dress's cloth: the solver's defaults. Damping and drag are what bring it to rest in the frames
 # `drape` runs; structural springs and seams are inextensible.
 DRESS_SETTINGS = ClothSettings()
+# Frames at the start of a drape whose velocities are zeroed (see `drape`).
+SETTLE_FRAMES = 5
 
 
 @dataclass(frozen=True)
@@ -54,7 +59,7 @@ class Drape:
         return self.garment.sewn(self.positions)
 
 
-def drape(spacing_m: float = 0.025, frames: int = 90, settle_frames: int = 5,
+def drape(spacing_m: float = 0.025, frames: int = 90, settle_frames: int = SETTLE_FRAMES,
           settings: ClothSettings = DRESS_SETTINGS, pattern: DressPattern | None = None,
           body: BodyProxy | None = None) -> Drape:
     """Sew the dress and let it hang on `body` (default `mannequin()`) for `frames` frames of
@@ -78,7 +83,9 @@ def drape(spacing_m: float = 0.025, frames: int = 90, settle_frames: int = 5,
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m simulation.dress", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--out", type=Path, required=True, help="the draped dress (.npz: positions, faces, uvs)")
+    p.add_argument("--out", type=Path, help="the draped dress (.npz: positions, faces, uvs)")
+    p.add_argument("--store", action="store_true",
+                   help="write the bundled default scene: the dress, the mannequin and the floor")
     p.add_argument("--png", type=Path, help="also a still of the dress on the mannequin (needs OpenGL 4.5)")
     p.add_argument("--spacing", type=float, default=0.025, help="the panels' grid spacing, metres")
     p.add_argument("--frames", type=int, default=90, help="frames to simulate")
@@ -86,10 +93,33 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+def default_scene_arrays(d: Drape) -> dict[str, np.ndarray]:
+    """The arrays of the bundled default scene (renderer.procedural.default_scene): the draped
+    dress (garment_*), the mannequin's render mesh (body_*) and the floor (floor_*), float32
+    positions in metres Y-up and int32 faces."""
+    from .body_mesh import body_mesh, floor_mesh
+
+    positions, faces, uvs = d.sewn()
+    body_p, body_f = body_mesh(d.body)
+    floor_p, floor_f = floor_mesh(d.body)
+    return {"garment_positions": positions, "garment_faces": faces, "garment_uvs": uvs,
+            "body_positions": np.asarray(body_p, np.float32), "body_faces": np.asarray(body_f, np.int32),
+            "floor_positions": np.asarray(floor_p, np.float32), "floor_faces": np.asarray(floor_f, np.int32)}
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    if args.out is None and not args.store:
+        raise SystemExit("error: give --out PATH.npz, --store, or both")
     d = drape(args.spacing, args.frames)
     positions, faces, uvs = d.sewn()
+    if args.store:
+        from renderer.procedural import DEFAULT_SCENE_FILE
+
+        np.savez_compressed(DEFAULT_SCENE_FILE, **default_scene_arrays(d))
+        print(f"dress: stored the default scene in {DEFAULT_SCENE_FILE}")
+    if args.out is None:
+        return 0
     args.out.parent.mkdir(parents=True, exist_ok=True)
     np.savez(args.out, positions=positions, faces=faces, uvs=uvs)
     last = d.stats[-1]

@@ -18,6 +18,7 @@ import numpy as np
 
 from service.client import FrameResult, RenderClient
 
+from .panels import Garment
 from .solver import ClothSim
 
 
@@ -40,6 +41,7 @@ THREE_QUARTER = View("three-quarter", eye=(-2.4, 1.9, 2.2), target=(0.0, 0.95, 0
 # Satin-like red cloth; matte grey body and floor.
 GARMENT_MATERIAL = {"albedo": [0.55, 0.06, 0.07], "specular": 0.35, "glossiness": 0.75}
 BODY_MATERIAL = {"albedo": [0.62, 0.60, 0.58], "specular": 0.05, "glossiness": 0.3}
+FLOOR_MATERIAL = {"albedo": [0.45, 0.45, 0.45], "specular": 0.0, "glossiness": 0.3}
 
 
 def upload_studio_environment(client: RenderClient, width: int = 1024) -> dict:
@@ -54,8 +56,11 @@ def upload_studio_environment(client: RenderClient, width: int = 1024) -> dict:
 
 @dataclass
 class DrapeFeed:
-    """Registers one scene per view (garment = the cloth, body = the proxy's mesh and the floor) and
-    posts the cloth's current positions to each. `format`: png | exr | json (the answer's image)."""
+    """Registers one scene per view and posts the cloth's current positions to each. The garment is
+    the simulated cloth, or with `garment` (a sewn `panels.Garment`) its render mesh, seams merged;
+    the body is `body` (positions, faces) or else the proxy's capsules with their floor quad, and
+    `floor` (positions, faces) a floor that takes shadows and casts none. `format`: png | exr | json
+    (the answer's image)."""
 
     client: RenderClient
     sim: ClothSim
@@ -65,22 +70,33 @@ class DrapeFeed:
     output: dict = field(default_factory=lambda: {"width": 512, "height": 512})
     format: str = "png"
     name: str = "drape"
+    garment: Garment | None = None
+    body: tuple[np.ndarray, np.ndarray] | None = None
+    floor: tuple[np.ndarray, np.ndarray] | None = None
     scene_ids: list[str] = field(default_factory=list)
 
     def __post_init__(self):
-        body_positions, body_faces = self.sim.body.mesh()
-        cloth = self.sim.cloth
+        body_positions, body_faces = self.body if self.body is not None else self.sim.body.mesh()
+        positions, faces, uvs = self._render_mesh(self.sim.x)
+        extra = {}
+        if self.floor is not None:
+            extra["floor"] = self.client.mesh_spec(*self.floor, material=FLOOR_MATERIAL, name="floor")
         for view in self.views:
             scene = self.client.create_scene(
                 self.environment_id, name=f"{self.name} ({view.name})", up="y",
-                positions=self.sim.positions, faces=cloth.faces, uvs=cloth.uvs, material=GARMENT_MATERIAL,
+                positions=positions, faces=faces, uvs=uvs, material=GARMENT_MATERIAL,
                 body=self.client.mesh_spec(body_positions, body_faces, material=BODY_MATERIAL, name="body"),
-                camera=view.camera(), quality=self.quality, output=self.output)
+                camera=view.camera(), quality=self.quality, output=self.output, **extra)
             self.scene_ids.append(scene["id"])
+
+    def _render_mesh(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if self.garment is not None:
+            return self.garment.sewn(x)
+        return np.asarray(x, np.float32), self.sim.cloth.faces, self.sim.cloth.uvs
 
     def post(self, frame_index: int, positions: np.ndarray | None = None) -> list[FrameResult]:
         """Send one frame (default: the simulation's current positions) to every view's scene."""
-        p = self.sim.positions if positions is None else positions
+        p = self._render_mesh(self.sim.x if positions is None else positions)[0]
         return [self.client.send_frame(sid, p, format=self.format, frame_index=frame_index)
                 for sid in self.scene_ids]
 

@@ -159,3 +159,20 @@ def test_body_mesh_is_closed_outward_and_on_the_proxy():
     fp, ff = floor_mesh(body)
     n = _face_normals(fp.astype(np.float64), ff)
     assert np.all(n[:, 1] > 0) and np.allclose(fp[:, 1], body.floor_y)
+
+
+def test_the_bundled_default_scene_is_the_drape_it_says_it_is():
+    """renderer/data/default_scene.npz is what `python -m simulation.dress --store` makes now."""
+    from renderer.procedural import default_scene
+    from simulation.dress import default_scene_arrays, drape
+
+    meshes, casters = default_scene()
+    assert [m.name for m in meshes] == ["dress", "mannequin", "floor"] and casters == [True, True, False]
+    made = default_scene_arrays(drape())
+    for mesh, role in zip(meshes, ("garment", "body", "floor")):
+        np.testing.assert_array_equal(mesh.faces, made[f"{role}_faces"])
+        np.testing.assert_allclose(mesh.positions, made[f"{role}_positions"], atol=1e-4)   # 0.1 mm
+    # The figure stands on the floor, facing +Z, the dress between its shoulders and its knees.
+    dress_p, body_p, floor_p = (np.asarray(m.positions) for m in meshes)
+    assert np.all(floor_p[:, 1] == 0.0) and body_p[:, 1].min() >= -0.01
+    assert 1.3 < dress_p[:, 1].max() < 1.6 and 0.2 < dress_p[:, 1].min() < 0.7

@@ -55,7 +55,8 @@ def test_the_wheel_carries_every_shader_and_data_file(wheel):
     assert shaders and shaders <= names, sorted(shaders - names)
     assert {"renderer/bench/measured.json", "service/viewer.html"} <= names
     presets = {p.relative_to(ROOT).as_posix() for p in (ROOT / "renderer" / "presets").glob("*.toml")}
-    assert len(presets) == 3 and presets <= names
+    assert len(presets) == 4 and presets <= names
+    assert "renderer/data/default_scene.npz" in names   # the bundled default scene
     modules = {p.relative_to(ROOT).as_posix() for top in ("renderer", "service", "simulation")
                for p in (ROOT / top).rglob("*.py")}
     assert modules <= names, sorted(modules - names)

@@ -670,6 +670,30 @@ def test_a_floor_that_casts_no_shadow(http, env_upload, mesh, tmp_path):
     assert_error(http.post("/render", json=body), 422, "cast_shadows")
 
 
+def test_the_floor_field_is_a_receiver_that_is_not_framed(http, env_upload, mesh, tmp_path):
+    lo, hi = np.asarray(mesh.positions, np.float64).min(axis=0), np.asarray(mesh.positions, np.float64).max(axis=0)
+    span = 10.0 * float((hi - lo).max())   # far wider than the garment: framed, it would shrink the garment
+    c = [float(x) for x in 0.5 * (lo + hi)]
+    y = float(lo[1]) - 0.05
+    floor = {"positions": [[c[0] - span, y, c[2] - span], [c[0] + span, y, c[2] - span],
+                           [c[0] + span, y, c[2] + span], [c[0] - span, y, c[2] + span]],
+             "faces": [[0, 2, 1], [0, 3, 2]], "material": {"albedo": [0.5, 0.5, 0.5]}}
+    as_floor = scene_body(env_upload[0]["id"], mesh, floor=floor)
+    as_body = scene_body(env_upload[0]["id"], mesh, body={**floor, "cast_shadows": False})
+    images = []
+    for body in (as_floor, as_body):
+        r = http.post("/scenes", json=body)
+        assert r.status_code == 201, r.text
+        info = r.json()
+        images.append(png_array(post_frame(http, info["id"], mesh.positions).content))
+        assert http.delete(f"/scenes/{info['id']}").status_code == 204
+    # The same scene either way: the floor casts nothing unless it says so, and the camera frames the garment.
+    assert [m["role"] for m in info["meshes"]] == ["garment", "body"]
+    np.testing.assert_array_equal(images[0], images[1])
+    covered = images[0][..., 3] > 0 if images[0].shape[-1] == 4 else np.ones(images[0].shape[:2], bool)
+    assert covered.mean() > 0.5   # the floor fills the lower part of the frame
+
+
 def test_the_background_comes_from_the_map_at_its_own_resolution(http, env_upload, mesh, tmp_path):
     # The scene's PEM faces are 32 texels (2.8 degrees a texel); the background behind the garment is
     # drawn from the source map itself, against which it is measured (supersampled over each pixel).

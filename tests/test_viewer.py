@@ -156,7 +156,7 @@ def test_demo_script_serves_the_page_and_stops_on_ctrl_c(tmp_path):
     sends it) stops the service and the simulation."""
     port = free_port()
     proc = subprocess.Popen(["bash", "scripts/demo.sh", "--port", str(port), "--frames", "4", "--size", "64x64",
-                             "--resolution", "16"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                             "--spacing", "0.06"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True, start_new_session=True)
     lines: list[str] = []
     try:

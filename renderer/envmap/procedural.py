@@ -19,8 +19,9 @@ _WARM_GREY = np.array([0.60, 0.55, 0.50])
 
 def studio_environment(width: int = 512) -> np.ndarray:
     """A photo studio: dim warm-grey walls brightening upwards, a darker floor, a slightly blue overhead,
-    and three softboxes: key (radiance ~50) upper front-left, fill (~10) low front-right, rim (~25) high
-    behind the subject. float32 (width/2, width, 3)."""
+    a lit seamless backdrop (radiance ~2, light grey behind a subject seen from the front), and three
+    softboxes: key (radiance ~50) upper front-left, fill (~10) low front-right, rim (~25) high behind
+    the subject. float32 (width/2, width, 3)."""
     h, w = _check_width(width)
     d = _pixel_dirs(h, w)
     y = d[..., 1:2]
@@ -29,6 +30,13 @@ def studio_environment(width: int = 512) -> np.ndarray:
     overhead = np.array([0.30, 0.34, 0.42])
     up = _smoothstep(0.6, 0.9, y)
     img = np.where(y >= 0.0, (1.0 - up) * walls + up * overhead, floor)
+    # The backdrop: a paper roll behind the subject (-Z) curving into the floor, lit evenly, its edges
+    # soft (the light falls off over ~15 degrees). What a camera in front sees behind the garment.
+    azimuth = np.degrees(np.arctan2(d[..., 0:1], -d[..., 2:3]))           # 0 behind the subject
+    elevation = np.degrees(np.arcsin(np.clip(y, -1.0, 1.0)))
+    backdrop = _smoothstep(70.0, 55.0, np.abs(azimuth)) * _smoothstep(-40.0, -25.0, elevation) \
+        * _smoothstep(60.0, 45.0, elevation)
+    img = (1.0 - backdrop) * img + backdrop * (2.0 * _WARM_GREY / _WARM_GREY.mean())
 
     # (azimuth phi, elevation, width, height in degrees, radiance RGB); phi as in `layouts`:
     # phi = 0 is -Z (behind the subject), +-180 is +Z (front), -90 is -X (camera left).
