@@ -85,3 +85,16 @@ async def raw_body(request: Request, accepted: tuple[str, ...], what: str) -> by
 
 
 OCTET_STREAM = "application/octet-stream"
+
+
+async def _until_disconnected(request: Request) -> None:
+    while (await request.receive())["type"] != "http.disconnect":
+        pass
+
+
+def client_gone(request: Request):
+    """A future done when the client of `request` closes its connection (its body already read);
+    cancel it when the answer is sent."""
+    import asyncio
+
+    return asyncio.ensure_future(_until_disconnected(request))

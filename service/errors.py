@@ -95,6 +95,12 @@ class RenderTimeoutError(ServiceError):
     status, code = 504, "timeout"
 
 
+class ClientGoneError(ServiceError):
+    """The client closed its connection before the answer (nginx's 499): nothing is sent; counted."""
+
+    status, code = 499, "client_closed_request"
+
+
 def _renderer_status(exc: RenderError) -> tuple[int, str]:
     # Order matters: the most specific class first.
     if isinstance(exc, EnvironmentMapError):

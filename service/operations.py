@@ -105,7 +105,7 @@ async def ensure_pem_set(worker: RenderWorker, env: EnvironmentRecord, face_size
         pems, source = gl.pem_set(env.content_hash, cube, pem_settings)
         env.note_pem_set(key, face_size, pem_settings, pems, source)
 
-    await worker.call(job)
+    await worker.call(job, what=f"the PEM set of {env.id} at {face_size}^2 x {pem_settings.n_lights} lights")
     return env.pem_sets[key]
 
 
@@ -167,7 +167,7 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
                                               proxies=prepared.proxies)
         svc.scenes.add(record)  # here, so a scene made just before a request timeout is still listed (and freed)
 
-    await svc.worker.call(job)
+    await svc.worker.call(job, what=f"the registration of scene {record.id}")
     if svc.state is not None and scene_id is None:
         # Stored with every mesh inline (an uploaded file may be unknown to the process that restores it).
         inline = {}
@@ -232,7 +232,7 @@ async def delete_scene(svc: Services, scene_id: str) -> None:
             rec.gpu = None
 
     try:
-        await svc.worker.call(job)
+        await svc.worker.call(job, what=f"the release of scene {scene_id}")
     except QueueFullError:  # keep it registered: the client retries the delete
         rec.released = False
         svc.scenes.add(rec)

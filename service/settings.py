@@ -41,6 +41,9 @@ class ServiceSettings(BaseSettings):
 
     queue_size: int = Field(8, ge=1, description="jobs waiting for the GL thread; beyond it: 503 + Retry-After")
     request_timeout_s: float = Field(120.0, gt=0, description="wait for the GL thread (queue + render), then 504")
+    ready_max_busy_s: float = Field(30.0, gt=0, description="/health/ready answers 503 while the GL thread has "
+                                    "been on one job (a PEM build, a batch) longer than this, or the queue is "
+                                    "full, so that a load balancer routes new work elsewhere")
 
     pem_cache_bytes: int = Field(1 << 30, ge=0, description="GPU memory of PEM sets kept resident (LRU); a set "
                                  "larger than this is refused before it is built")

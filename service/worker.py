@@ -25,13 +25,15 @@ from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
+import numpy as np
+
 from renderer.cache import CacheStats, PEMCache
 from renderer.errors import GLContextError
 from renderer.lighting.pem import PEMSet, PEMSettings, pem_cost
 from renderer.renderer import Renderer
 from renderer.shading.background import BackgroundMap
 
-from .errors import NotReadyError, QueueFullError, RenderTimeoutError
+from .errors import ClientGoneError, NotReadyError, QueueFullError, RenderTimeoutError
 from .settings import ServiceSettings
 
 log = logging.getLogger("service.worker")
@@ -98,6 +100,7 @@ class Job:
     fn: Callable[[GLResources], Any]
     future: Future
     enqueued: float
+    what: str = "job"   # what it does, for readiness and logs ("frame of scene_...", "PEM set ...")
     started: float = 0.0
     finished: float = 0.0
 
@@ -118,6 +121,7 @@ class WorkerStats:
     jobs_done: int = 0
     jobs_failed: int = 0
     jobs_rejected: int = 0
+    jobs_abandoned: int = 0   # dropped from the queue because their client went away
     busy_ms_total: float = 0.0
     run_ms_ema: float = 0.0  # exponential moving average of a job's run time (Retry-After estimate)
     cache: dict = field(default_factory=dict)
@@ -140,6 +144,7 @@ class RenderWorker:
         self.normals_on_gpu = False
         self.stats = WorkerStats()
         self._running_since: float | None = None
+        self._running: Job | None = None
         self._cleanup: list[Callable[[GLResources], None]] = []
 
     # -- lifecycle (called from the app's lifespan) ---------------------------------------------
@@ -185,6 +190,24 @@ class RenderWorker:
     def busy(self) -> bool:
         return self._running_since is not None
 
+    def current_job(self) -> tuple[str, float] | None:
+        """What the GL thread runs now and for how many seconds (None: idle)."""
+        job, since = self._running, self._running_since
+        if job is None or since is None:
+            return None
+        return job.what, time.perf_counter() - since
+
+    def overloaded(self) -> str | None:
+        """Why this process should get no new work now (None: it should): its queue is full, or
+        the GL thread has been on one job longer than GARMENT_RENDER_READY_MAX_BUSY_S."""
+        if self._queue.qsize() >= self.settings.queue_size:
+            return f"the render queue is full ({self.settings.queue_size} jobs waiting)"
+        current = self.current_job()
+        if current is not None and current[1] > self.settings.ready_max_busy_s:
+            return (f"the render thread has been busy for {current[1]:.1f} s with {current[0]}, over "
+                    f"GARMENT_RENDER_READY_MAX_BUSY_S = {self.settings.ready_max_busy_s:g} s")
+        return None
+
     @property
     def pem_build_ns_per_texel_light(self) -> float | None:
         """The measured rate of this device's PEM builds (GLResources), None before the first."""
@@ -196,35 +219,50 @@ class RenderWorker:
         return CacheStats(**self._gl.cache.stats.as_dict()) if self._gl is not None else CacheStats()
 
     # -- submitting ------------------------------------------------------------------------------
-    def submit(self, fn: Callable[[GLResources], T]) -> Job:
+    def submit(self, fn: Callable[[GLResources], T], what: str = "job") -> Job:
         """Queue `fn` for the GL thread; QueueFullError (503) when the queue is full."""
         if not self.ready:
             reason = self.startup_error or "the render worker is not running"
             raise NotReadyError(f"the renderer is not ready: {reason}")
-        job = Job(fn, Future(), time.perf_counter())
+        job = Job(fn, Future(), time.perf_counter(), what)
         try:
             self._queue.put_nowait(job)
         except queue.Full:
             self.stats.jobs_rejected += 1
-            depth = self.settings.queue_size + (1 if self.busy else 0)
-            retry = max(1.0, depth * self.stats.run_ms_ema / 1e3)
             raise QueueFullError(
                 f"the render queue is full ({self.settings.queue_size} jobs waiting for the GL thread); "
-                f"retry after the Retry-After delay, or run more service processes", retry) from None
+                f"retry after the Retry-After delay, or run more service processes", self.retry_after_s()) from None
         return job
 
-    async def call(self, fn: Callable[[GLResources], T], timeout: float | None = None) -> JobResult:
-        """Run `fn` on the GL thread and await it; a job still queued at the timeout is dropped."""
-        job = self.submit(fn)
+    def retry_after_s(self) -> int:
+        """Seconds until the work ahead is likely done: the queued jobs at the moving average of a
+        job's run time, plus what the current job has left of it (at least 1)."""
+        ema_s = self.stats.run_ms_ema / 1e3
+        ahead = self._queue.qsize() * ema_s
+        current = self.current_job()
+        if current is not None:
+            ahead += max(ema_s - current[1], 0.0)
+        return max(1, int(np.ceil(ahead)))
+
+    async def call(self, fn: Callable[[GLResources], T], timeout: float | None = None, what: str = "job",
+                   abandoned: asyncio.Future | None = None) -> JobResult:
+        """Run `fn` on the GL thread and await it; a job still queued at the timeout, or when
+        `abandoned` completes first (its client went away: `deps.client_gone`), is dropped."""
+        job = self.submit(fn, what)
         fut = job.future
         timeout = self.settings.request_timeout_s if timeout is None else timeout
-        try:
-            value = await asyncio.wait_for(asyncio.wrap_future(fut), timeout)
-        except TimeoutError:
+        result = asyncio.wrap_future(fut)
+        waits = {result} | ({abandoned} if abandoned is not None else set())
+        done, _ = await asyncio.wait(waits, timeout=timeout, return_when=asyncio.FIRST_COMPLETED)
+        if result not in done:
             fut.cancel()  # only succeeds while queued; a running job finishes and is discarded
+            if abandoned is not None and abandoned in done:
+                self.stats.jobs_abandoned += 1
+                raise ClientGoneError(f"the client went away before its {what} ran; dropped")
             raise RenderTimeoutError(
                 f"no answer from the GL thread within {timeout:g} s (queue depth {self.queue_depth}); "
-                "lower the quality or the image size, or raise GARMENT_RENDER_REQUEST_TIMEOUT_S") from None
+                "lower the quality or the image size, or raise GARMENT_RENDER_REQUEST_TIMEOUT_S")
+        value = result.result()
         return JobResult(value, job.queue_ms, (job.finished - job.started) * 1e3)
 
     # -- the GL thread -----------------------------------------------------------------------------
@@ -249,7 +287,7 @@ class RenderWorker:
                 if not job.future.set_running_or_notify_cancel():
                     continue  # timed out while queued
                 job.started = time.perf_counter()
-                self._running_since = job.started
+                self._running, self._running_since = job, job.started
                 try:
                     result = job.fn(self._gl)
                 except BaseException as exc:  # noqa: BLE001 - every failure goes back to its request
@@ -261,7 +299,7 @@ class RenderWorker:
                     self.stats.jobs_done += 1
                     job.future.set_result(result)
                 finally:
-                    self._running_since = None
+                    self._running, self._running_since = None, None
                 run_ms = (job.finished - job.started) * 1e3
                 self.stats.busy_ms_total += run_ms
                 ema = self.stats.run_ms_ema

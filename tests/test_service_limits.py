@@ -23,7 +23,7 @@ def assert_error(r: httpx.Response, status: int, *words: str) -> None:
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("limits")
-    srv = ServiceProcess(tmp, queue_size=4)
+    srv = ServiceProcess(tmp, queue_size=4, ready_max_busy_s=0.5)
     yield srv
     srv.stop()
 
@@ -301,3 +301,68 @@ def test_the_pem_cost_is_the_set_s_memory(renderer):
             assert cost.peak_bytes > cost.stored_bytes + sum(a.nbytes for a in pems.export().values())
         finally:
             pems.release()
+
+
+# -- abandoned work is dropped; readiness says what the render thread does ----------------------------
+
+def _batch_bytes(mesh, n: int) -> bytes:
+    # Every frame a little different, so that none is a copy of the one before.
+    base = np.asarray(mesh.positions, np.float32)
+    return b"".join((base + np.float32(1e-4 * k)).astype("<f4").tobytes() for k in range(n))
+
+
+def test_a_batch_whose_client_left_is_stopped_between_frames(server, http, scene_id, mesh):
+    import socket
+    import time
+    from urllib.parse import urlsplit
+
+    first = post_frame(http, scene_id, mesh.positions)
+    assert first.status_code == 200
+    before = int(first.headers["X-Frame-Sequence"])
+    abandoned = http.get("/stats").json()["jobs"]["abandoned"]
+    body = _batch_bytes(mesh, 600)
+    u = urlsplit(server.url)
+    with socket.create_connection((u.hostname, u.port)) as s:
+        s.sendall(f"POST /scenes/{scene_id}/frames/batch HTTP/1.1\r\nHost: x\r\nContent-Type: "
+                  f"application/octet-stream\r\nContent-Length: {len(body)}\r\n\r\n".encode() + body)
+        time.sleep(1.0)   # the batch is rendering; its client leaves
+    t0 = time.perf_counter()
+    r = post_frame(http, scene_id, mesh.positions)
+    waited = time.perf_counter() - t0
+    assert r.status_code == 200, r.text
+    assert waited < 3.0, f"the next frame waited {waited:.1f} s behind the abandoned batch"
+    sequence = int(r.headers["X-Frame-Sequence"])
+    assert sequence - before < 300, f"{sequence - before} sequence numbers spent, most on frames nobody received"
+    assert http.get("/stats").json()["jobs"]["abandoned"] == abandoned + 1
+
+
+def test_readiness_turns_503_while_the_render_thread_is_held_and_says_by_what(server, http, scene_id, mesh):
+    import threading
+    import time
+
+    assert http.get("/health/ready").json()["current_job"] is None
+    body = _batch_bytes(mesh, 200)
+    answer = {}
+
+    def batch():
+        with httpx.Client(base_url=server.url, timeout=120) as c:
+            answer["r"] = c.post(f"/scenes/{scene_id}/frames/batch", content=body, headers=OCTET)
+
+    thread = threading.Thread(target=batch)
+    thread.start()
+    seen = None
+    deadline = time.monotonic() + 60
+    while thread.is_alive() and time.monotonic() < deadline:
+        r = http.get("/health/ready")
+        if r.status_code == 503:
+            seen = r
+            break
+        time.sleep(0.05)
+    thread.join(120)
+    assert answer["r"].status_code == 200
+    assert seen is not None, "readiness never said the thread was held"
+    info = seen.json()
+    assert info["status"] == "busy" and "batch of 200 frames" in info["current_job"]["what"]
+    assert info["current_job"]["age_s"] > 0.5 and "GARMENT_RENDER_READY_MAX_BUSY_S" in info["detail"]
+    assert int(seen.headers["retry-after"]) >= 1
+    assert http.get("/health/ready").status_code == 200   # free again

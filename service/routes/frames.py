@@ -28,8 +28,8 @@ from fastapi import APIRouter, Depends, Header, Query, Request, Response
 from renderer.cache import cache_key
 
 from ..codecs import FrameArrays, check_frame_size, decode_frame, frame_nbytes, parse_layout
-from ..deps import OCTET_STREAM, MetricsDep, ServicesDep, SettingsDep, WorkerDep, raw_body, require_token
-from ..errors import InvalidRequestError, PayloadTooLargeError, RenderTimeoutError
+from ..deps import OCTET_STREAM, MetricsDep, ServicesDep, SettingsDep, WorkerDep, client_gone, raw_body, require_token
+from ..errors import ClientGoneError, InvalidRequestError, PayloadTooLargeError, RenderTimeoutError
 from ..operations import find_environment, find_scene
 from ..pipeline import (
     encode_async,
@@ -82,7 +82,11 @@ async def post_frame(
     blocks = parse_layout(x_frame_layout or layout, scene)
     body = await raw_body(request, (OCTET_STREAM,), "a frame of vertex positions")
     arrays = await anyio.to_thread.run_sync(decode_frame, body, blocks, scene, not worker.normals_on_gpu)
-    result = await worker.call(render_job(scene, arrays))
+    gone = client_gone(request)
+    try:
+        result = await worker.call(render_job(scene, arrays), what=f"a frame of {scene.id}", abandoned=gone)
+    finally:
+        gone.cancel()
     frame, source = result.value
     sequence = scene.count_frames()
     enc = await encode_async(frame, fmt, scene.output, exposure, settings.png_compress_level, json_image)
@@ -157,18 +161,27 @@ async def post_batch(
                 return
             loop.call_soon_threadsafe(ready.put_nowait, (i, out, (time.perf_counter() - t0) * 1e3))
 
-    submitted = worker.submit(job)
+    submitted = worker.submit(job, what=f"a batch of {n_frames} frames of {scene.id}")
     results: list[dict] = []
     zip_buf = io.BytesIO()
     zf = zipfile.ZipFile(zip_buf, "w", zipfile.ZIP_STORED) if format is BatchFormat.ZIP else None
     totals: dict[str, float] = {}
+    # A client that leaves stops the batch between two frames (the GL job checks `stop`), or drops
+    # it while queued: no frame nobody receives is rendered, and no sequence number is spent on one.
+    gone = client_gone(request)
     try:
         for k in range(n_frames):
-            try:
-                i, out, job_ms = await asyncio.wait_for(ready.get(), settings.request_timeout_s)
-            except TimeoutError:
-                raise RenderTimeoutError(f"batch frame {k} took longer than {settings.request_timeout_s:g} s") \
-                    from None
+            getter = asyncio.ensure_future(ready.get())
+            done, _ = await asyncio.wait({getter, gone}, timeout=settings.request_timeout_s,
+                                         return_when=asyncio.FIRST_COMPLETED)
+            if getter not in done:
+                getter.cancel()
+                submitted.future.cancel()
+                if gone in done:
+                    worker.stats.jobs_abandoned += 1
+                    raise ClientGoneError(f"the client left batch of {n_frames} frames after {k}; the rest dropped")
+                raise RenderTimeoutError(f"batch frame {k} took longer than {settings.request_timeout_s:g} s")
+            i, out, job_ms = getter.result()
             if isinstance(out, BaseException):
                 raise out
             frame, source = out
@@ -194,6 +207,7 @@ async def post_batch(
             frames_in[i] = None  # free the decoded arrays as we go
     finally:
         stop = True
+        gone.cancel()
     totals["total"] = (time.perf_counter() - t_start) * 1e3
     totals = {k: round(v, 3) for k, v in totals.items()}
     headers = {"Server-Timing": server_timing(totals), "X-Frame-Count": str(n_frames), "Cache-Control": "no-store"}
@@ -235,7 +249,11 @@ async def render_once(
         finally:
             scene.release()
 
-    result = await worker.call(job)
+    gone = client_gone(request)
+    try:
+        result = await worker.call(job, what="a one-shot render", abandoned=gone)
+    finally:
+        gone.cancel()
     frame, source = result.value
     enc = await encode_async(frame, fmt, body.output.model_dump(), exposure, settings.png_compress_level, json_image)
     timings = frame_timings(frame, decode_ms, 0.0, result.queue_ms, result.run_ms, enc.encode_ms, t_start)

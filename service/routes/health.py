@@ -20,13 +20,22 @@ async def live() -> dict:
     return {"status": "ok"}
 
 
-@router.get("/health/ready", summary="The GL context is up and the render thread runs (else 503)",
-            responses={503: {"description": "not ready; the body says why"}})
+@router.get("/health/ready", summary="Ready for new work: the GL context is up, its thread runs, the queue has "
+            "room and no job has held the thread beyond GARMENT_RENDER_READY_MAX_BUSY_S (else 503)",
+            responses={503: {"description": "not ready; the body says why, with the current job and its age"}})
 async def ready(worker: WorkerDep) -> JSONResponse:
-    if worker.ready:
-        return JSONResponse({"status": "ready", "gl": worker.gl_info, "queue_depth": worker.queue_depth})
-    reason = str(worker.startup_error) if worker.startup_error else "the render thread is not running"
-    return JSONResponse({"status": "not ready", "detail": reason}, status_code=503, headers={"Retry-After": "5"})
+    current = worker.current_job()
+    state = {"queue_depth": worker.queue_depth,
+             "current_job": None if current is None else {"what": current[0], "age_s": round(current[1], 3)}}
+    if not worker.ready:
+        reason = str(worker.startup_error) if worker.startup_error else "the render thread is not running"
+        return JSONResponse({"status": "not ready", "detail": reason, **state}, status_code=503,
+                            headers={"Retry-After": "5"})
+    busy = worker.overloaded()
+    if busy is not None:
+        return JSONResponse({"status": "busy", "detail": busy, "gl": worker.gl_info, **state}, status_code=503,
+                            headers={"Retry-After": str(worker.retry_after_s())})
+    return JSONResponse({"status": "ready", "gl": worker.gl_info, **state})
 
 
 @stats_router.get("/metrics", summary="Prometheus metrics", response_class=Response,
@@ -41,8 +50,10 @@ async def stats(worker: WorkerDep, settings: SettingsDep, envs: EnvironmentsDep,
     w = worker.stats
     return {
         "ready": worker.ready, "gl": worker.gl_info, "process": {"pid": os.getpid()},
-        "queue": {"depth": worker.queue_depth, "capacity": settings.queue_size, "busy": worker.busy},
+        "queue": {"depth": worker.queue_depth, "capacity": settings.queue_size, "busy": worker.busy,
+                  "current_job": worker.current_job()},
         "jobs": {"done": w.jobs_done, "failed": w.jobs_failed, "rejected": w.jobs_rejected,
+                 "abandoned": w.jobs_abandoned,
                  "busy_ms_total": round(w.busy_ms_total, 1), "run_ms_ema": round(w.run_ms_ema, 2)},
         "pem_builds": {"ns_per_texel_light_measured": worker.pem_build_ns_per_texel_light,
                        "ns_per_texel_light_assumed": settings.pem_build_ns_per_texel_light,
