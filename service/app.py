@@ -54,7 +54,7 @@ async def lifespan(app: FastAPI):
     # while the service runs applies after a restart). The presets are the package's files.
     measured = load_table()
     app.state.presets, app.state.presets_source = renderer_presets()
-    app.state.environments = EnvironmentStore(settings.max_environments)
+    app.state.environments = EnvironmentStore(settings.max_environments, settings.max_environment_bytes)
     app.state.scenes = SceneStore(settings.max_scenes)
     app.state.meshes = MeshStore(settings.max_meshes)
     worker = RenderWorker(settings)

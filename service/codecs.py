@@ -253,13 +253,16 @@ def uploaded_file(data: bytes, extension: str, prefix: str):
         path.unlink(missing_ok=True)
 
 
-def decode_hdr(data: bytes, kind: str, name: str, max_pixels: int) -> np.ndarray:
-    """Decode an uploaded .exr/.hdr file into float32 (H, W, 3) with the renderer's readers."""
+def decode_hdr(data: bytes, kind: str, name: str, max_pixels: int, room=None) -> np.ndarray:
+    """Decode an uploaded .exr/.hdr file into float32 (H, W, 3) with the renderer's readers, after
+    its header's size passed `max_pixels` and `room(bytes, what)` (the environments' memory budget)."""
     dims = hdr_dimensions(data, kind)
     if dims is not None and dims[0] * dims[1] > max_pixels:
         raise PayloadTooLargeError(
             f"environment map {name!r} is {dims[0]}x{dims[1]} = {dims[0] * dims[1]} pixels, more than the limit "
             f"{max_pixels} (GARMENT_RENDER_MAX_ENV_PIXELS); downscale it (a 2k lat-long map is plenty for lighting)")
+    if dims is not None and room is not None:
+        room(dims[0] * dims[1] * 12, f"environment map {name!r} ({dims[0]}x{dims[1]}, decoded)")
     with uploaded_file(data, kind, "upload-") as path:
         try:
             return read_hdr_image(path)

@@ -72,7 +72,8 @@ async def add_environment(svc: Services, data: bytes, layout: str, repair: bool,
         kind = sniff_hdr_kind(data)
         label = name or f"upload-{file_sha[:8]}.{kind}"
         t0 = time.perf_counter()
-        pixels = await anyio.to_thread.run_sync(decode_hdr, data, kind, label, svc.settings.max_env_pixels)
+        pixels = await anyio.to_thread.run_sync(decode_hdr, data, kind, label, svc.settings.max_env_pixels,
+                                                svc.environments.check_room)
         if pixels.shape[0] * pixels.shape[1] > svc.settings.max_env_pixels:
             raise PayloadTooLargeError(
                 f"environment map {label!r} has {pixels.shape[1]}x{pixels.shape[0]} pixels, more than the limit "

@@ -59,11 +59,22 @@ class EnvironmentRecord:
     pem_sets: dict[str, PemInfo] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
+    # The store whose memory budget this record's cubes count against (set by EnvironmentStore.add).
+    store: EnvironmentStore | None = field(default=None, repr=False)
+
+    @property
+    def nbytes(self) -> int:
+        """The memory this map keeps: its decoded source and every cube made of it."""
+        return int(self.pixels.nbytes + sum(c.nbytes for c in list(self.cubes.values())))
+
     def cube(self, face_size: int) -> np.ndarray:
-        """The cube map at `face_size` (resampled once, then kept); call off the GL thread."""
+        """The cube map at `face_size` (resampled once, then kept, within the store's memory budget:
+        ConflictError beyond it); call off the GL thread."""
         with self._lock:
             cube = self.cubes.get(face_size)
             if cube is None:
+                if self.store is not None:
+                    self.store.check_room(6 * face_size * face_size * 12, f"a {face_size}^2 cube of {self.id}")
                 env = self._resample(face_size)
                 cube = self.cubes[face_size] = env.cube
             return cube
@@ -91,11 +102,30 @@ class EnvironmentRecord:
 
 
 class EnvironmentStore:
-    def __init__(self, max_environments: int):
+    """The environment maps of this process, at most `max_environments` of them keeping at most
+    `max_bytes` of memory together (their decoded sources and cubes, `EnvironmentRecord.nbytes`)."""
+
+    def __init__(self, max_environments: int, max_bytes: int | None = None):
         self.max_environments = max_environments
+        self.max_bytes = max_bytes
         self._by_id: OrderedDict[str, EnvironmentRecord] = OrderedDict()
         self._by_file: dict[tuple, str] = {}
         self._lock = threading.Lock()
+
+    @property
+    def nbytes(self) -> int:
+        return sum(r.nbytes for r in self.list())
+
+    def check_room(self, more_bytes: int, what: str) -> None:
+        """ConflictError (409) when `more_bytes` more would pass the memory budget, before they are made."""
+        if self.max_bytes is None:
+            return
+        held = self.nbytes
+        if held + more_bytes > self.max_bytes:
+            raise ConflictError(
+                f"{what} needs {more_bytes / 2**20:.0f} MiB, and the environment maps held take "
+                f"{held / 2**20:.0f} of the {self.max_bytes / 2**20:.0f} MiB they may keep "
+                "(GARMENT_RENDER_MAX_ENVIRONMENT_BYTES); delete one with DELETE /environments/{id}, or send a smaller map")
 
     def find_file(self, file_sha256: str, layout: str, repair: bool) -> EnvironmentRecord | None:
         with self._lock:
@@ -115,6 +145,7 @@ class EnvironmentStore:
             if existing is not None:
                 return existing, False
             self._by_id[record.id] = record
+            record.store = self
             return record, True
 
     def get(self, env_id: str) -> EnvironmentRecord:

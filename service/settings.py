@@ -33,7 +33,12 @@ class ServiceSettings(BaseSettings):
                                       "ask for: lights x (shadow_size x small_light_scale)^2 x 32 bytes (moments "
                                       "and blur scratch, two shadow groups' RGBA32F; every light counted at the "
                                       "small lights' size)")
-    max_env_pixels: int = Field(64 << 20, ge=64, description="largest uploaded environment map, width x height")
+    max_env_pixels: int = Field(16 << 20, ge=64, description="largest uploaded environment map, width x height, "
+                                "read from the file's header before it is decoded (16 Mi: a 4k lat-long map and "
+                                "more; decoding one of 64 Mi took 20 s and 3.4 GB)")
+    max_environment_bytes: int = Field(2 << 30, ge=1 << 20, description="memory the environment maps may keep "
+                                       "together (each one's decoded source and cubes); an upload or a cube "
+                                       "beyond it is refused (409) before it is decoded or made")
     max_batch_frames: int = Field(1000, ge=1)
     max_scenes: int = Field(64, ge=1)
     max_environments: int = Field(32, ge=1)

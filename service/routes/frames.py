@@ -18,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import io
 import json
+import threading
 import time
 import zipfile
 from typing import Annotated
@@ -100,6 +101,10 @@ async def post_frame(
     return response
 
 
+# Frames a batch's GL job renders ahead of the handler that encodes them: one being encoded, one ready.
+BATCH_FRAMES_AHEAD = 2
+
+
 @router.post("/scenes/{scene_id}/frames/batch", response_class=Response, openapi_extra=_FRAME_BODY,
              responses={200: {"content": {"application/json": {}, "application/zip": {}}}},
              summary="Render a sequence of frames (F x the frame's bytes) in one request")
@@ -148,9 +153,15 @@ async def post_batch(
     loop = asyncio.get_running_loop()
     ready: asyncio.Queue = asyncio.Queue()
     stop = False
+    # The GL thread renders at most BATCH_FRAMES_AHEAD frames ahead of their encoding, so that a batch
+    # holds a few images at a time, not all of them (a slow encoder, a slow client).
+    credits = threading.Semaphore(BATCH_FRAMES_AHEAD)
 
     def job(gl: GLResources) -> None:
         for i, arrays in enumerate(frames_in):
+            while not credits.acquire(timeout=0.05):
+                if stop:
+                    return
             if stop:
                 return
             t0 = time.perf_counter()
@@ -174,12 +185,12 @@ async def post_batch(
             getter = asyncio.ensure_future(ready.get())
             done, _ = await asyncio.wait({getter, gone}, timeout=settings.request_timeout_s,
                                          return_when=asyncio.FIRST_COMPLETED)
-            if getter not in done:
+            if gone.done() or getter not in done:   # a client gone wins over a frame ready (the GL thread runs ahead)
                 getter.cancel()
                 submitted.future.cancel()
-                if gone in done:
+                if gone.done():
                     worker.stats.jobs_abandoned += 1
-                    raise ClientGoneError(f"the client left batch of {n_frames} frames after {k}; the rest dropped")
+                    raise ClientGoneError(f"the client left a batch of {n_frames} frames after {k}; the rest dropped")
                 raise RenderTimeoutError(f"batch frame {k} took longer than {settings.request_timeout_s:g} s")
             i, out, job_ms = getter.result()
             if isinstance(out, BaseException):
@@ -205,6 +216,7 @@ async def post_batch(
             else:
                 results.append(frame_payload(scene.id, i, frame, enc, timings, source, scene.quality))
             frames_in[i] = None  # free the decoded arrays as we go
+            credits.release()
     finally:
         stop = True
         gone.cancel()

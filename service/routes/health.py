@@ -62,4 +62,5 @@ async def stats(worker: WorkerDep, settings: SettingsDep, envs: EnvironmentsDep,
                       "disk_dir": str(settings.pem_cache_dir) if settings.pem_cache_dir else None,
                       **worker.cache_stats().as_dict()},
         "counts": {"environments": len(envs), "scenes": len(scenes), "meshes": len(meshes.list())},
+        "environments": {"bytes": envs.nbytes, "max_bytes": settings.max_environment_bytes},
     }
