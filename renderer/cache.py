@@ -3,8 +3,10 @@ budget (the least recently used files go first: a hit renews its file's time).
 
 Key: the environment map's content hash, the cube face size, every PEM setting (light count, filter,
 levels) and a format version, so a change to any of them, or to the build code's output format,
-never returns a stale set. Disk entries are written atomically (temporary file + rename); an
-unreadable entry is rebuilt and replaced, never trusted.
+never returns a stale set. Disk entries are written atomically (temporary file + rename) and carry
+their key, checked on load; an unreadable entry, or one found under another set's name, is rebuilt
+and replaced, never trusted. A set larger than the disk budget is not written (it would evict every
+other entry), and the temporaries of writers killed mid-write are removed when a cache opens.
 """
 
 from __future__ import annotations
@@ -20,14 +22,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_file
+from .atomic import TEMPORARY_PREFIX, atomic_file, remove_orphaned_temporaries
 from .gpu.context import GLContext
 from .lighting.pem import PEMSet, PEMSettings
 
 log = logging.getLogger(__name__)
 
 # Bump when the stored arrays or the build's numerical output change.
-FORMAT_VERSION = 3  # 2: solid-angle weighted chains (A = chain(L * w)); 3: regions carry mean_cos
+# 2: solid-angle weighted chains (A = chain(L * w)); 3: regions carry mean_cos; 4: entries carry their key.
+FORMAT_VERSION = 4
 
 
 @dataclass
@@ -42,6 +45,10 @@ class CacheStats:
     build_ms_total: float = 0.0
     entries: int = 0
     bytes: int = 0
+    disk_key_mismatches: int = 0    # entries whose stored key is not their name's (copied, renamed): rebuilt
+    disk_too_large: int = 0         # sets not written: larger alone than the disk budget
+    temporaries_removed: int = 0    # orphaned temporaries of killed writers removed at start-up
+    temporary_bytes_removed: int = 0
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -67,10 +74,14 @@ class PEMCache:
         self.gl, self.max_bytes, self.name = gl, int(max_bytes), name
         self.disk_max_bytes = int(disk_max_bytes)
         self.disk_dir = Path(disk_dir) if disk_dir else None
-        if self.disk_dir:
-            self.disk_dir.mkdir(parents=True, exist_ok=True)
         self._entries: OrderedDict[str, PEMSet] = OrderedDict()
         self.stats = CacheStats()
+        if self.disk_dir:
+            self.disk_dir.mkdir(parents=True, exist_ok=True)
+            n, size = remove_orphaned_temporaries(self.disk_dir)
+            self.stats.temporaries_removed, self.stats.temporary_bytes_removed = n, size
+            if n:
+                log.warning("removed %d orphaned temporaries (%d bytes) from %s", n, size, self.disk_dir)
 
     def get(self, content_hash: str, cube: np.ndarray, settings: PEMSettings) -> PEMSet:
         """The PEM set of `cube` (identified by `content_hash`) for `settings`: from memory, from
@@ -108,6 +119,11 @@ class PEMCache:
         try:
             with np.load(path, allow_pickle=False) as data:
                 stored = {k: data[k] for k in data.files}
+            found = str(stored.pop("cache_key", ""))
+            if found != key:   # another set's file under this name (copied, renamed): never trusted
+                log.warning("PEM cache entry %s holds the set of key %r; rebuilding it", path, found or None)
+                self.stats.disk_key_mismatches += 1
+                return None
             pems = PEMSet(self.gl, cube, settings, stored=stored)
         except Exception as exc:  # a truncated or foreign file: rebuild rather than trust it
             log.warning("PEM cache entry %s is unreadable (%s); rebuilding it", path, exc)
@@ -124,9 +140,17 @@ class PEMCache:
         path = self._path(key)
         if path is None:
             return
+        arrays = pems.export()
+        size = sum(a.nbytes for a in arrays.values())
+        if size > self.disk_max_bytes:   # it would evict every other entry and still not fit
+            log.warning("PEM set %s (%d bytes) is larger than the disk budget (%d bytes); not stored",
+                        key, size, self.disk_max_bytes)
+            self.stats.disk_too_large += 1
+            return
+        arrays["cache_key"] = np.array(key)   # checked on load against the name it is found under
         try:
             with atomic_file(path) as f:
-                np.savez(f, **pems.export())
+                np.savez(f, **arrays)
         except OSError as exc:
             log.warning("could not write PEM cache entry %s: %s", path, exc)
             self.stats.disk_errors += 1
@@ -137,16 +161,20 @@ class PEMCache:
         """Delete the least recently used entries until the directory's entries fit disk_max_bytes
         (never `keep`, the entry just written). Another process may delete or use them meanwhile: a
         file gone is skipped, and a reader that still holds one open keeps its data."""
-        entries = []
+        entries, writing = [], 0
         for path in self.disk_dir.iterdir():
-            if not _ENTRY_NAME.match(path.name):
+            temporary = path.name.startswith(TEMPORARY_PREFIX)
+            if not (temporary or _ENTRY_NAME.match(path.name)):
                 continue
             try:
                 st = path.stat()
             except OSError:
                 continue
-            entries.append((st.st_mtime, st.st_size, path))
-        total = sum(size for _, size, _ in entries)
+            if temporary:   # being written (by another process): counted, never evicted
+                writing += st.st_size
+            else:
+                entries.append((st.st_mtime, st.st_size, path))
+        total = writing + sum(size for _, size, _ in entries)
         for _, size, path in sorted(entries, key=lambda e: e[0]):
             if total <= self.disk_max_bytes:
                 break

@@ -5,6 +5,7 @@ which is how several worker processes, or a restarted service, share them)."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import time
 from dataclasses import dataclass, field
@@ -39,7 +40,7 @@ class Services:
     presets: dict
     measured: dict | None   # the measured table read at start-up (None: none stored)
     state: StateDir | None = None
-    _restoring: dict[str, asyncio.Lock] = field(default_factory=dict)
+    _restoring: dict[str, tuple[asyncio.Lock, int]] = field(default_factory=dict)
 
     def quality(self, spec: QualitySpec) -> Quality:
         from .schemas import OutputSpec
@@ -54,8 +55,26 @@ class Services:
         """The GL renderer the budgets are checked against (None until the GL thread runs)."""
         return self.worker.gl_info.get("renderer")
 
-    def _lock(self, key: str) -> asyncio.Lock:
-        return self._restoring.setdefault(key, asyncio.Lock())
+    @contextlib.asynccontextmanager
+    async def _lock(self, key: str):
+        """One restoration of `key` at a time; the lock goes when its last user leaves (a lookup of
+        an unknown id leaves nothing behind). The event loop is one thread: no lock guards the dict."""
+        lock, users = self._restoring.get(key, (None, 0))
+        lock = lock or asyncio.Lock()
+        self._restoring[key] = (lock, users + 1)
+        try:
+            async with lock:
+                yield
+        finally:
+            lock, users = self._restoring[key]
+            if users <= 1:
+                del self._restoring[key]
+            else:
+                self._restoring[key] = (lock, users - 1)
+
+    @property
+    def restorations_pending(self) -> int:
+        return len(self._restoring)
 
 
 # -- environments ----------------------------------------------------------------------------------

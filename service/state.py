@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from renderer.atomic import atomic_file
+from renderer.atomic import atomic_file, remove_orphaned_temporaries
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
@@ -34,6 +34,12 @@ class StateDir:
         self.scenes = self.root / "scenes"
         self.environments.mkdir(parents=True, exist_ok=True)
         self.scenes.mkdir(parents=True, exist_ok=True)
+        # What writers killed mid-write left behind (no live process holds their lock).
+        self.temporaries_removed = sum(remove_orphaned_temporaries(d)[0] for d in (self.environments, self.scenes))
+
+    def scene_ids(self) -> list[str]:
+        """The ids of the stored scenes (any process may restore them)."""
+        return sorted(p.stem for p in self.scenes.glob("*.json"))
 
     # -- environments ----------------------------------------------------------------------------
     def save_environment(self, env_id: str, data: bytes, meta: dict) -> None:

@@ -93,10 +93,45 @@ def test_disk_cache_keeps_within_its_bytes_least_recently_used_first(gl, tmp_pat
     assert cache.stats.disk_evictions == 2
 
 
-def test_an_entry_larger_than_the_disk_budget_is_still_written(gl, tmp_path):
-    cache = PEMCache(gl, disk_dir=tmp_path, disk_max_bytes=0)
-    cache.get("a", _cube(1), paper_pems(6))
-    cache.get("b", _cube(2), paper_pems(6))
-    # Only the newest stays: the set just built is what the next restart needs.
-    assert [p.stem for p in tmp_path.glob("*.npz")] == [cache_key("b", 16, paper_pems(6))]
+def test_an_entry_larger_than_the_disk_budget_is_not_written_and_evicts_nothing(gl, tmp_path):
+    PEMCache(gl, disk_dir=tmp_path).get("a", _cube(1), paper_pems(6))
+    (a,) = tmp_path.glob("*.npz")
+    cache = PEMCache(gl, disk_dir=tmp_path, disk_max_bytes=a.stat().st_size)
+    cache.get("b", _cube(2), paper_pems(12))    # twice a's size: it alone would not fit
+    assert list(tmp_path.glob("*.npz")) == [a] and cache.stats.disk_too_large == 1
     cache.clear()
+
+
+def test_an_entry_under_another_sets_name_is_rebuilt_not_trusted(gl, tmp_path):
+    cache = PEMCache(gl, disk_dir=tmp_path)
+    cache.get("a", _cube(1), paper_pems(6))
+    want = np.array(cache.get("b", _cube(2), paper_pems(6)).regions.directions)
+    path_a, path_b = (tmp_path / f"{cache_key(h, 16, paper_pems(6))}.npz" for h in "ab")
+    path_b.write_bytes(path_a.read_bytes())      # a's set copied under b's key
+    cache.clear()
+    fresh = PEMCache(gl, disk_dir=tmp_path)
+    pems = fresh.get("b", _cube(2), paper_pems(6))
+    assert fresh.stats.disk_key_mismatches == 1 and fresh.stats.builds == 1 and fresh.stats.disk_hits == 0
+    np.testing.assert_array_equal(pems.regions.directions, want)   # b's lights, not a's
+    fresh.clear()
+    again = PEMCache(gl, disk_dir=tmp_path)      # the rebuilt entry replaced the copy
+    again.get("b", _cube(2), paper_pems(6))
+    assert again.stats.disk_hits == 1 and again.stats.disk_key_mismatches == 0
+    again.clear()
+
+
+def test_orphaned_temporaries_are_removed_when_a_cache_opens_and_live_ones_kept(gl, tmp_path):
+    import fcntl
+    import os
+
+    orphan = tmp_path / ".tmp-orphan"
+    orphan.write_bytes(b"\0" * 1000)            # its writer was killed: nobody holds its lock
+    live = tmp_path / ".tmp-live"
+    fd = os.open(live, os.O_CREAT | os.O_WRONLY)
+    fcntl.flock(fd, fcntl.LOCK_EX)               # a writer in another process, still writing
+    try:
+        cache = PEMCache(gl, disk_dir=tmp_path)
+        assert not orphan.exists() and live.exists()
+        assert (cache.stats.temporaries_removed, cache.stats.temporary_bytes_removed) == (1, 1000)
+    finally:
+        os.close(fd)

@@ -421,3 +421,35 @@ def test_the_environments_memory_is_one_budget(env_budget_server, tmp_path):
     assert httpx.delete(url + f"/environments/{first.json()['id']}").status_code == 204
     r = httpx.post(url + "/environments", content=b, headers=OCTET, params=params, timeout=60)
     assert r.status_code == 201, r.text
+
+
+# -- the disk cache: orphans of killed writers go, entries are checked against their key ----------------
+
+def test_a_restarted_service_cleans_orphans_and_rebuilds_an_entry_under_the_wrong_key(tmp_path):
+    from renderer.envmap import sky_environment, studio_environment
+
+    cache = tmp_path / "pem-cache"
+    a = _exr(tmp_path / "a.exr", studio_environment(256))
+    b = _exr(tmp_path / "b.exr", sky_environment(256))
+    params = {"preset": "fast", "lights": 6, "face_size": 16}
+    srv = ServiceProcess(tmp_path, pem_cache_dir=cache)
+    try:
+        ids = [httpx.post(srv.url + "/environments", content=m, headers=OCTET, params=params, timeout=60).json()
+               for m in (a, b)]
+        keys = [env["pem_sets"][0]["key"] for env in ids]
+    finally:
+        srv.stop()
+    (cache / f"{keys[1]}.npz").write_bytes((cache / f"{keys[0]}.npz").read_bytes())   # a's set under b's key
+    (cache / ".tmp-killed-writer").write_bytes(b"\0" * 4096)                           # what kill -9 leaves
+    srv = ServiceProcess(tmp_path, pem_cache_dir=cache)
+    try:
+        stats = httpx.get(srv.url + "/stats").json()["pem_cache"]
+        assert (stats["temporaries_removed"], stats["temporary_bytes_removed"]) == (1, 4096)
+        assert not (cache / ".tmp-killed-writer").exists()
+        r = httpx.post(srv.url + "/environments", content=b, headers=OCTET, params=params, timeout=60)
+        assert r.status_code == 201, r.text
+        assert r.json()["pem_sets"][0]["source"] == "built"      # not a's set from the copied file
+        stats = httpx.get(srv.url + "/stats").json()["pem_cache"]
+        assert stats["disk_key_mismatches"] == 1 and stats["disk_hits"] == 0
+    finally:
+        srv.stop()

@@ -110,3 +110,30 @@ def test_a_restored_scene_keeps_an_uploaded_floor_that_casts_nothing(tmp_path):
         assert after.content == before.content
     finally:
         second.stop()
+
+
+def test_a_restarted_service_lists_its_stored_scenes_and_unknown_ids_leave_nothing_behind(tmp_path):
+    data, name = environment_bytes(tmp_path)
+    mesh = garment(16)
+    settings = {"state_dir": tmp_path / "state", "pem_cache_dir": tmp_path / "cache"}
+    first = ServiceProcess(tmp_path, **settings)
+    try:
+        env = httpx.post(first.url + "/environments", content=data, headers=OCTET,
+                         params={"name": name, "lights": 12, "face_size": 32}, timeout=60).json()
+        made = sorted(httpx.post(first.url + "/scenes", json=scene_body(env["id"], mesh), timeout=60).json()["id"]
+                      for _ in range(2))
+    finally:
+        first.stop()
+    (tmp_path / "state" / "scenes" / ".tmp-killed").write_bytes(b"{")   # a scene write cut short
+    second = ServiceProcess(tmp_path, **settings)
+    try:
+        listed = httpx.get(second.url + "/scenes", timeout=60).json()
+        assert sorted(s["id"] for s in listed) == made
+        with httpx.Client(base_url=second.url, timeout=30) as c:
+            for k in range(300):
+                assert c.post(f"/scenes/scene_nope{k}/frames", content=b"\0" * 12, headers=OCTET).status_code == 404
+        state = httpx.get(second.url + "/stats").json()["state"]
+        assert state["restorations_pending"] == 0 and state["stored_scenes"] == 2
+        assert state["temporaries_removed"] == 1
+    finally:
+        second.stop()

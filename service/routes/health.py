@@ -9,7 +9,16 @@ from fastapi import APIRouter, Depends, Response
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST
 
-from ..deps import EnvironmentsDep, MeshesDep, MetricsDep, ScenesDep, SettingsDep, WorkerDep, require_token
+from ..deps import (
+    EnvironmentsDep,
+    MeshesDep,
+    MetricsDep,
+    ScenesDep,
+    ServicesDep,
+    SettingsDep,
+    WorkerDep,
+    require_token,
+)
 
 router = APIRouter(tags=["health"])
 stats_router = APIRouter(tags=["health"], dependencies=[Depends(require_token)])
@@ -46,9 +55,12 @@ async def metrics(m: MetricsDep) -> Response:
 
 @stats_router.get("/stats", summary="Queue, GL thread, PEM cache and registry statistics as JSON")
 async def stats(worker: WorkerDep, settings: SettingsDep, envs: EnvironmentsDep, scenes: ScenesDep,
-                meshes: MeshesDep) -> dict:
+                meshes: MeshesDep, svc: ServicesDep) -> dict:
     w = worker.stats
     return {
+        "state": None if svc.state is None else {
+            "dir": str(svc.state.root), "stored_scenes": len(svc.state.scene_ids()),
+            "restorations_pending": svc.restorations_pending, "temporaries_removed": svc.state.temporaries_removed},
         "ready": worker.ready, "gl": worker.gl_info, "process": {"pid": os.getpid()},
         "queue": {"depth": worker.queue_depth, "capacity": settings.queue_size, "busy": worker.busy,
                   "current_job": worker.current_job()},

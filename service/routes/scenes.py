@@ -5,15 +5,21 @@ by id in any process (operations.find_scene)."""
 
 from __future__ import annotations
 
+import logging
+
 from fastapi import APIRouter, Depends, Response, status
+
+from renderer.errors import RenderError
 
 from .. import operations
 from ..deps import ScenesDep, ServicesDep, require_token
+from ..errors import ConflictError, NotFoundError, ServiceError
 from ..registry import SceneRecord
 from ..schemas import SceneCreate, SceneInfo, SceneMeshOut
 from ..specs import camera_dict
 from .environments import pem_set_info
 
+log = logging.getLogger("service.scenes")
 router = APIRouter(prefix="/scenes", tags=["scenes"], dependencies=[Depends(require_token)])
 
 
@@ -36,8 +42,23 @@ async def create_scene(body: SceneCreate, svc: ServicesDep) -> SceneInfo:
     return scene_info(await operations.create_scene(svc, body))
 
 
-@router.get("", response_model=list[SceneInfo], summary="List the scenes of this process")
-async def list_scenes(scenes: ScenesDep) -> list[SceneInfo]:
+@router.get("", response_model=list[SceneInfo],
+            summary="List the scenes: this process's, and with a state directory every stored one (restored here)")
+async def list_scenes(scenes: ScenesDep, svc: ServicesDep) -> list[SceneInfo]:
+    """With GARMENT_RENDER_STATE_DIR, a scene stored by another process or before a restart is
+    restored on the way (as a frame for it would), up to GARMENT_RENDER_MAX_SCENES; one that cannot
+    be (its environment was deleted) is left out and logged."""
+    if svc.state is not None:
+        held = {s.id for s in scenes.list()}
+        for scene_id in svc.state.scene_ids():
+            if scene_id in held:
+                continue
+            try:
+                await operations.find_scene(svc, scene_id)
+            except ConflictError:   # GARMENT_RENDER_MAX_SCENES reached: the rest stay stored
+                break
+            except (NotFoundError, RenderError, ServiceError) as exc:
+                log.warning("stored scene %s cannot be restored: %s", scene_id, exc)
     return [scene_info(s) for s in scenes.list()]
 
 
