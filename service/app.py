@@ -24,6 +24,7 @@ from renderer.presets import presets as renderer_presets
 from .errors import install_error_handlers
 from .limits import RequestGate
 from .metrics import ServiceMetrics
+from .openapi import install_openapi
 from .operations import Services
 from .registry import EnvironmentStore, MeshStore, SceneStore
 from .routes import environments, frames, health, meshes, scenes, viewer
@@ -93,6 +94,7 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     install_error_handlers(app)
+    install_openapi(app, token_set=settings.token is not None)
     token = settings.token.get_secret_value() if settings.token is not None else None
     media_types = (*environments.ENV_MEDIA_TYPES, *meshes.MESH_MEDIA_TYPES, "application/json")
     app.add_middleware(RequestGate, max_bytes=settings.max_upload_bytes, token=token, media_types=media_types)

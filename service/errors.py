@@ -148,6 +148,15 @@ def count_error(app, response: JSONResponse, code: str) -> None:
         metrics.errors.labels(str(response.status_code), code).inc()
 
 
+def _allowed_methods(request: Request) -> list[str]:
+    methods: set[str] = set()
+    for route in request.app.routes:
+        regex, route_methods = getattr(route, "path_regex", None), getattr(route, "methods", None)
+        if regex is not None and route_methods and regex.match(request.url.path):
+            methods |= set(route_methods)
+    return sorted(methods)
+
+
 def install_error_handlers(app: FastAPI) -> None:
     async def on_error(request: Request, exc: Exception) -> JSONResponse:
         response = response_for(exc)
@@ -164,7 +173,11 @@ def install_error_handlers(app: FastAPI) -> None:
         detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
         if exc.status_code == 404 and detail == "Not Found":
             detail = f"no such endpoint: {request.method} {request.url.path} (see /docs)"
-        response = error_response(exc.status_code, code, detail, getattr(exc, "headers", None))
+        headers = dict(getattr(exc, "headers", None) or {})
+        if exc.status_code == 405:   # every method the path takes, not only its first route's
+            headers["Allow"] = ", ".join(_allowed_methods(request))
+            detail = f"{request.method} is not one of the methods of {request.url.path}: {headers['Allow']}"
+        response = error_response(exc.status_code, code, detail, headers or None)
         count_error(request.app, response, code)
         return response
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 from enum import Enum
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, create_model, model_validator
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, create_model, model_validator
 
 from renderer import config
 from renderer.presets import PRESET_NAMES
@@ -68,8 +68,23 @@ def _registry_field(st: config.Setting):
         return None if value is None else st.check(value)   # InvalidInputError is a ValueError: a 422
 
     strict = {} if st.choices is not None else {"strict": True}
-    kind = Annotated[base, Field(**strict, **bounds), AfterValidator(checked)]
+    extra = {}
+    if st.type is int and (st.lights_rule or st.power_of_two):   # the registry's rule in the schema too
+        lo = max(int(st.minimum), 1)
+        allowed = [6 << k for k in range(12) if lo <= 6 << k <= st.maximum] if st.lights_rule else \
+            [1 << k for k in range(16) if lo <= 1 << k <= st.maximum]
+        extra = {"json_schema_extra": {"enum": allowed}}
+    validators = [BeforeValidator(_whole)] if st.type is int else []
+    kind = Annotated[base, *validators, Field(**strict, **bounds, **extra), AfterValidator(checked)]
     return (kind | None, Field(None, description=f"{st.doc}; {st.limits()} (null: the preset's)"))
+
+
+def _whole(value):
+    """A JSON number with no fraction (340.0) is an integer, as JSON Schema has it; a string or a
+    boolean is not, nor is 340.5 (then the strict int refuses it by name)."""
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return value
 
 
 class _QualityBase(_Strict):
@@ -129,8 +144,20 @@ class MaterialSpec(_Strict):
     gloss_map: list[list[list[float]]] | None = None
 
 
+# The rule of MeshSpec._one_source in the schema: a mesh_id and no inline arrays, or both arrays and
+# no mesh_id (an absent field or null counts as not given).
+_ONE_SOURCE = {"oneOf": [
+    {"required": ["mesh_id"], "properties": {"mesh_id": {"type": "string"}, "positions": {"type": "null"},
+                                             "faces": {"type": "null"}}},
+    {"required": ["positions", "faces"], "properties": {"positions": {"type": "array"}, "faces": {"type": "array"},
+                                                        "mesh_id": {"type": "null"}}},
+]}
+
+
 class MeshSpec(_Strict):
     """Either `mesh_id` (a file uploaded with POST /meshes) or inline `positions` + `faces`."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra=_ONE_SOURCE)
 
     mesh_id: str | None = None
     name: str | None = None

@@ -14,6 +14,8 @@ from typing import Annotated
 import anyio
 import numpy as np
 from fastapi import APIRouter, Depends, Query, Request, Response, status
+from fastapi.exceptions import RequestValidationError
+from pydantic import ValidationError
 
 from .. import operations
 from ..deps import OCTET_STREAM, EnvironmentsDep, ScenesDep, ServicesDep, raw_body, require_token
@@ -30,6 +32,11 @@ ENV_MEDIA_TYPES = (OCTET_STREAM, "image/x-exr", "image/aces", "application/x-exr
 
 _BINARY_BODY = {"requestBody": {"required": True, "content": {
     t: {"schema": {"type": "string", "format": "binary"}} for t in (OCTET_STREAM, "image/x-exr", "image/vnd.radiance")}}}
+
+
+def _enum_of(name: str) -> dict:
+    """The values a query parameter of the quality registry takes, for the schema (as QualitySpec's)."""
+    return {"enum": QualitySpec.model_json_schema()["properties"][name]["anyOf"][0]["enum"]}
 
 
 def pem_set_info(env: EnvironmentRecord, info: PemInfo, with_lights: bool) -> PemSetInfo:
@@ -68,8 +75,8 @@ async def upload_environment(
     repair: Annotated[bool, Query(description="replace NaN/Inf/negative texels instead of refusing the map")] = False,
     name: Annotated[str | None, Query(max_length=200)] = None,
     preset: Preset | None = None,
-    lights: Annotated[int | None, Query(ge=6, le=384)] = None,
-    face_size: Annotated[int | None, Query(ge=4, le=2048)] = None,
+    lights: Annotated[int | None, Query(ge=6, le=384, json_schema_extra=_enum_of("lights"))] = None,
+    face_size: Annotated[int | None, Query(ge=4, le=2048, json_schema_extra=_enum_of("face_size"))] = None,
     filter: FilterName = FilterName.SQRT_COSINE,
     levels: Annotated[int | None, Query(ge=1, le=12)] = None,
 ) -> EnvironmentInfo:
@@ -77,7 +84,11 @@ async def upload_environment(
     image/vnd.radiance). The query's quality knobs choose the PEM set built now (default: the service's
     default preset); scenes may ask for other sets later."""
     data = await raw_body(request, ENV_MEDIA_TYPES, "an environment map")
-    quality = svc.quality(QualitySpec(preset=preset, lights=lights, face_size=face_size, filter=filter, levels=levels))
+    try:
+        spec = QualitySpec(preset=preset, lights=lights, face_size=face_size, filter=filter, levels=levels)
+    except ValidationError as exc:   # the registry's rules (6 * 2^k lights, power-of-two faces): a 422 naming them
+        raise RequestValidationError(exc.errors()) from None
+    quality = svc.quality(spec)
     env, cached = await add_environment(svc, data, layout.value, repair, name, quality.face_size)
     await ensure_pem_set(svc.worker, env, quality.face_size, quality.pem)
     if cached:
