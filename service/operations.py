@@ -162,7 +162,32 @@ def _to_scene_up(positions: np.ndarray, up: str) -> list:
     return p.tolist()
 
 
+async def release_idle_scenes(svc: Services) -> int:
+    """Release the scenes idle beyond GARMENT_RENDER_SCENE_IDLE_TIMEOUT_S from this process (their
+    stored copy, with a state directory, stays: the next frame restores them). Returns how many."""
+    idle_s = svc.settings.scene_idle_timeout_s
+    released = 0
+    for rec in svc.scenes.idle(idle_s):
+        try:
+            svc.scenes.pop(rec.id)
+        except NotFoundError:
+            continue
+        rec.released = True
+        svc.scenes.note_expired(rec.id, idle_s)
+
+        def job(gl: GLResources, rec=rec) -> None:
+            if rec.gpu is not None:
+                rec.gpu.release()
+                rec.gpu = None
+
+        await svc.worker.call(job, what=f"the release of idle scene {rec.id}")
+        released += 1
+    return released
+
+
 async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = None) -> SceneRecord:
+    if len(svc.scenes) >= svc.scenes.max_scenes:
+        await release_idle_scenes(svc)
     svc.scenes.check_room()
     env = await find_environment(svc, body.environment_id)
     prepared = await anyio.to_thread.run_sync(prepare_scene, body, svc.presets, svc.measured, svc.meshes,

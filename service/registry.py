@@ -274,6 +274,7 @@ class SceneRecord:
     released: bool = False
     frames_rendered: int = 0
     created: float = field(default_factory=time.time)
+    last_used: float = field(default_factory=time.monotonic)   # its last frame or lookup (monotonic s)
     latest: LatestFrame | None = None
     _arrivals: deque = field(default_factory=lambda: deque(maxlen=30), repr=False)  # time.monotonic() of frames
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
@@ -303,10 +304,26 @@ class SceneRecord:
 
 
 class SceneStore:
+    # Ids of scenes released for idleness remembered (the most recent), so that their 404 says so.
+    EXPIRED_REMEMBERED = 4096
+
     def __init__(self, max_scenes: int):
         self.max_scenes = max_scenes
         self._by_id: dict[str, SceneRecord] = {}
+        self._expired: OrderedDict[str, float] = OrderedDict()
         self._lock = threading.Lock()
+
+    def idle(self, idle_s: float) -> list[SceneRecord]:
+        """The scenes unused (no frame, no lookup) for more than `idle_s` seconds, longest idle first."""
+        now = time.monotonic()
+        with self._lock:
+            return sorted((r for r in self._by_id.values() if now - r.last_used > idle_s), key=lambda r: r.last_used)
+
+    def note_expired(self, scene_id: str, idle_s: float) -> None:
+        with self._lock:
+            self._expired[scene_id] = idle_s
+            while len(self._expired) > self.EXPIRED_REMEMBERED:
+                self._expired.popitem(last=False)
 
     @staticmethod
     def new_id() -> str:
@@ -327,8 +344,13 @@ class SceneStore:
         with self._lock:
             rec = self._by_id.get(scene_id)
         if rec is None or rec.released:
+            idle = self._expired.get(scene_id)
+            if idle is not None:
+                raise NotFoundError(f"scene {scene_id!r} was released after {idle:.0f} s without a frame "
+                                    "(GARMENT_RENDER_SCENE_IDLE_TIMEOUT_S); register it again with POST /scenes")
             raise NotFoundError(f"unknown scene id {scene_id!r}; register the scene with POST /scenes "
-                                "(scenes do not survive a restart of the service)")
+                                "(without a state directory, scenes do not survive a restart of the service)")
+        rec.last_used = time.monotonic()
         return rec
 
     def pop(self, scene_id: str) -> SceneRecord:

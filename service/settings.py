@@ -41,6 +41,9 @@ class ServiceSettings(BaseSettings):
                                        "beyond it is refused (409) before it is decoded or made")
     max_batch_frames: int = Field(1000, ge=1)
     max_scenes: int = Field(64, ge=1)
+    scene_idle_timeout_s: float = Field(600.0, gt=0, description="a scene with no frame nor lookup for this long "
+                                        "is released when a new scene needs its slot (with a state directory it "
+                                        "is restored on its next use; without one its id answers 404 saying so)")
     max_environments: int = Field(32, ge=1)
     max_meshes: int = Field(32, ge=1, description="uploaded mesh files kept for scene registration")
 

@@ -453,3 +453,26 @@ def test_a_restarted_service_cleans_orphans_and_rebuilds_an_entry_under_the_wron
         assert stats["disk_key_mismatches"] == 1 and stats["disk_hits"] == 0
     finally:
         srv.stop()
+
+
+def test_idle_scenes_give_their_slots_to_new_ones(tmp_path):
+    import time
+
+    srv = ServiceProcess(tmp_path, max_scenes=2, scene_idle_timeout_s=1.0)
+    try:
+        with httpx.Client(base_url=srv.url, timeout=60) as http:
+            data, name = environment_bytes(tmp_path)
+            env = http.post("/environments", content=data, headers=OCTET,
+                            params={"name": name, "lights": 12, "face_size": 32, "preset": "fast"}).json()["id"]
+            mesh = garment(8)
+            a, b = (http.post("/scenes", json=scene_body(env, mesh)).json()["id"] for _ in range(2))
+            assert_error(http.post("/scenes", json=scene_body(env, mesh)), 409, "GARMENT_RENDER_MAX_SCENES")
+            time.sleep(1.3)
+            assert post_frame(http, a, mesh.positions).status_code == 200    # a is in use again; b is idle
+            c = http.post("/scenes", json=scene_body(env, mesh))
+            assert c.status_code == 201, c.text
+            assert_error(post_frame(http, b, mesh.positions), 404, "released after", "SCENE_IDLE_TIMEOUT_S")
+            assert post_frame(http, a, mesh.positions).status_code == 200
+            assert sorted(s["id"] for s in http.get("/scenes").json()) == sorted([a, c.json()["id"]])
+    finally:
+        srv.stop()
