@@ -27,6 +27,7 @@ from .errors import (
     UnsupportedMediaTypeError,
     response_for,
 )
+from .logs import REQUEST_ID, request_id_from
 
 # After refusing a body, keep reading (and discarding) up to this many bytes so that the client, still
 # sending, gets the answer instead of a reset connection; beyond it the connection is simply closed.
@@ -48,6 +49,14 @@ class RequestGate:
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
         headers = dict(scope.get("headers", ()))
+        request_id = request_id_from(headers.get(b"x-request-id"))
+        REQUEST_ID.set(request_id)   # every log line of this request carries it (logs.py)
+        outer_send = send
+
+        async def send(message):   # every answer says which request it is
+            if message["type"] == "http.response.start":
+                message = {**message, "headers": [*message.get("headers", ()), (b"x-request-id", request_id.encode())]}
+            await outer_send(message)
         refusal, declared = self._check_headers(scope, headers)
         if refusal is not None:
             return await self._refuse(scope, receive, send, refusal, declared)

@@ -14,6 +14,7 @@ import os
 import uvicorn
 
 from .app import create_app
+from .logs import log_config
 from .settings import ServiceSettings
 
 
@@ -30,9 +31,12 @@ def serve(host: str | None = None, port: int | None = None, settings: ServiceSet
                 value = settings.token.get_secret_value()
             os.environ.setdefault(f"GARMENT_RENDER_{name.upper()}", str(value))
         uvicorn.run("service.app:create_app", factory=True, host=host, port=port, workers=workers,
-                    log_level=log_level)
+                    log_level=log_level, log_config=log_config(settings.log_format, log_level),
+                    timeout_graceful_shutdown=settings.shutdown_timeout_s)
     else:
-        uvicorn.run(create_app(settings), host=host, port=port, log_level=log_level)
+        uvicorn.run(create_app(settings), host=host, port=port, log_level=log_level,
+                    log_config=log_config(settings.log_format, log_level),
+                    timeout_graceful_shutdown=settings.shutdown_timeout_s)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -29,7 +29,8 @@ def free_port() -> int:
 
 
 class ServiceProcess:
-    def __init__(self, log_dir: Path, workers: int = 1, wait_for: str = "ready", **settings):
+    def __init__(self, log_dir: Path, workers: int = 1, wait_for: str = "ready", log_level: str = "warning",
+                 **settings):
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.log_path = Path(log_dir) / f"service-{self.port}.log"
@@ -38,7 +39,7 @@ class ServiceProcess:
         self._log = open(self.log_path, "wb")
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "service.main", "--host", "127.0.0.1", "--port", str(self.port),
-             "--log-level", "warning", "--workers", str(workers)], cwd=ROOT, env=env, stdout=self._log, stderr=subprocess.STDOUT)
+             "--log-level", log_level, "--workers", str(workers)], cwd=ROOT, env=env, stdout=self._log, stderr=subprocess.STDOUT)
         self._wait_ready(wait_for)
 
     def _wait_ready(self, wait_for: str, timeout: float = 60.0) -> None:

@@ -476,3 +476,59 @@ def test_idle_scenes_give_their_slots_to_new_ones(tmp_path):
             assert sorted(s["id"] for s in http.get("/scenes").json()) == sorted([a, c.json()["id"]])
     finally:
         srv.stop()
+
+
+# -- what an operator reads: request ids on answers and log lines, JSON logs -----------------------------
+
+def test_every_answer_and_log_line_carries_the_request_id(tmp_path):
+    import json
+
+    srv = ServiceProcess(tmp_path, log_level="info", log_format="json")
+    try:
+        mine = httpx.get(srv.url + "/scenes/scn_nope", headers={"X-Request-Id": "sim-42.frame-7"})
+        assert mine.status_code == 404 and mine.headers["x-request-id"] == "sim-42.frame-7"
+        made = httpx.get(srv.url + "/health/live", headers={"X-Request-Id": "bad id\twith spaces"})
+        rid = made.headers["x-request-id"]
+        assert len(rid) == 16 and int(rid, 16) >= 0          # an unusable id is replaced by one of ours
+        refused = httpx.post(srv.url + "/environments", content=b"x", headers={"Content-Type": "text/html"})
+        assert refused.status_code == 415 and refused.headers["x-request-id"]
+    finally:
+        srv.stop()
+    lines = [json.loads(line) for line in srv.log_path.read_text().splitlines() if line.startswith("{")]
+    assert lines and all({"time", "level", "logger", "request_id", "message"} <= set(x) for x in lines)
+    ids = {x["request_id"] for x in lines if x["logger"] == "uvicorn.access"}
+    assert {"sim-42.frame-7", rid} <= ids
+
+
+def test_a_terminated_service_finishes_the_requests_in_flight_and_takes_no_new_ones(tmp_path, mesh):
+    import signal
+    import threading
+    import time
+
+    srv = ServiceProcess(tmp_path, shutdown_timeout_s=60)
+    try:
+        with httpx.Client(base_url=srv.url, timeout=120) as http:
+            data, name = environment_bytes(tmp_path)
+            env = http.post("/environments", content=data, headers=OCTET,
+                            params={"name": name, "lights": 12, "face_size": 32, "preset": "fast"}).json()["id"]
+            sid = http.post("/scenes", json=scene_body(env, mesh, output={"width": 128, "height": 128})).json()["id"]
+        answer = {}
+
+        def batch():
+            with httpx.Client(base_url=srv.url, timeout=120) as c:
+                answer["r"] = c.post(f"/scenes/{sid}/frames/batch", content=_batch_bytes(mesh, 300), headers=OCTET)
+
+        thread = threading.Thread(target=batch)
+        thread.start()
+        time.sleep(0.5)
+        srv.proc.send_signal(signal.SIGTERM)
+        time.sleep(0.3)
+        with pytest.raises(httpx.TransportError):   # the listener is closed: no new work
+            httpx.get(srv.url + "/health/live", timeout=2)
+        thread.join(120)
+        r = answer["r"]
+        assert r.status_code == 200 and r.json()["n_frames"] == 300   # the batch in flight was answered whole
+        # A clean exit; uvicorn re-raises the signal it handled once it has shut down.
+        assert srv.proc.wait(60) in (0, -signal.SIGTERM)
+    finally:
+        srv.stop()
