@@ -15,6 +15,7 @@ import uvicorn
 
 from .app import create_app
 from .logs import log_config
+from .protocol import HeaderTimeoutProtocol
 from .settings import ServiceSettings
 
 
@@ -32,11 +33,12 @@ def serve(host: str | None = None, port: int | None = None, settings: ServiceSet
             os.environ.setdefault(f"GARMENT_RENDER_{name.upper()}", str(value))
         uvicorn.run("service.app:create_app", factory=True, host=host, port=port, workers=workers,
                     log_level=log_level, log_config=log_config(settings.log_format, log_level),
-                    timeout_graceful_shutdown=settings.shutdown_timeout_s)
+                    timeout_graceful_shutdown=settings.shutdown_timeout_s, http=HeaderTimeoutProtocol)
     else:
+        protocol = type("HeaderTimeoutProtocol", (HeaderTimeoutProtocol,), {"header_timeout_s": settings.header_timeout_s})
         uvicorn.run(create_app(settings), host=host, port=port, log_level=log_level,
                     log_config=log_config(settings.log_format, log_level),
-                    timeout_graceful_shutdown=settings.shutdown_timeout_s)
+                    timeout_graceful_shutdown=settings.shutdown_timeout_s, http=protocol)
 
 
 def main(argv: list[str] | None = None) -> None:

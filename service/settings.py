@@ -84,6 +84,9 @@ class ServiceSettings(BaseSettings):
     default_preset: Literal[PRESET_NAMES] = "balanced"
     png_compress_level: int = Field(1, ge=0, le=9, description="zlib level of served PNGs (1: ~3x faster than 6)")
     startup_timeout_s: float = Field(60.0, gt=0, description="wait for the GL context at startup")
+    header_timeout_s: float = Field(10.0, gt=0, description="a connection that does not complete a request's "
+                                    "line and headers this long after it opened (or after its last answer) is "
+                                    "closed (service/protocol.py)")
     shutdown_timeout_s: float = Field(30.0, gt=0, description="on SIGTERM/SIGINT: new connections are refused and "
                                       "requests in flight get this long to finish before they are cut")
     log_format: Literal["text", "json"] = Field("text", description="log lines as text or one JSON object each; "

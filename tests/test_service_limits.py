@@ -532,3 +532,28 @@ def test_a_terminated_service_finishes_the_requests_in_flight_and_takes_no_new_o
         assert srv.proc.wait(60) in (0, -signal.SIGTERM)
     finally:
         srv.stop()
+
+
+def test_a_connection_that_sends_no_headers_in_time_is_closed(tmp_path):
+    import socket
+    import time
+    from urllib.parse import urlsplit
+
+    srv = ServiceProcess(tmp_path, header_timeout_s=0.5)
+    try:
+        u = urlsplit(srv.url)
+        idle, trickle = (socket.create_connection((u.hostname, u.port), timeout=5) for _ in range(2))
+        trickle.sendall(b"GET /health/live HTTP/1.1\r\nHo")     # one byte at a time, never done
+        t0 = time.perf_counter()
+        for s in (idle, trickle):
+            assert s.recv(1024) == b""                            # closed by the server
+            s.close()
+        assert time.perf_counter() - t0 < 3.0
+        # A client that completes its headers in time is served, on the same kind of connection.
+        with socket.create_connection((u.hostname, u.port), timeout=5) as s:
+            s.sendall(b"GET /health/live HTTP/1.1\r\nHost: x\r\n\r\n")
+            assert s.recv(1024).startswith(b"HTTP/1.1 200")
+            time.sleep(1.0)                                       # then idles past the deadline: closed
+            assert s.recv(1024) == b""
+    finally:
+        srv.stop()
