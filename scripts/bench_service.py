@@ -35,6 +35,7 @@ ASSETS = ROOT.parent / "shared" / "assets"
 SIM = ASSETS / "sim" / "newton_shirt_drape_60f.npz"
 ENV = ASSETS / "hdri" / "pisa.hdr"
 
+from renderer.presets import PRESET_NAMES  # noqa: E402
 from service.client import RenderClient  # noqa: E402
 
 
@@ -81,7 +82,7 @@ def main() -> int:
     p.add_argument("--quick", action="store_true", help="20 overhead frames, 4 x 10 concurrent, 200 memory frames")
     p.add_argument("--url", help="benchmark a running service instead of starting one")
     p.add_argument("--token")
-    p.add_argument("--preset", default="balanced", choices=["fast", "balanced", "accurate"])
+    p.add_argument("--preset", default="balanced", choices=PRESET_NAMES)
     p.add_argument("--size", type=int, default=512)
     p.add_argument("--clients", type=int, default=4)
     p.add_argument("--frames", type=int, help="frames per client in the concurrency phase (default 100)")

@@ -562,3 +562,12 @@ def test_a_connection_that_sends_no_headers_in_time_is_closed(tmp_path):
             assert s.recv(1024) == b""
     finally:
         srv.stop()
+
+
+def test_every_service_setting_is_documented_with_its_default():
+    from service.settings import ServiceSettings, reference_table
+
+    stored = (Path(__file__).resolve().parents[1] / "docs" / "service-settings.md").read_text()
+    assert stored == reference_table(), "docs/service-settings.md is stale: regenerate it with " \
+                                        "service.settings.reference_table()"
+    assert all(f.description for f in ServiceSettings.model_fields.values())
