@@ -219,3 +219,17 @@ def test_l2_calibration_is_the_nearest_kernel_among_its_neighbours(g, kind):
     for other in (level - 0.25, level + 0.25):
         if 0.0 <= other <= table.n_levels - 1:
             assert here <= _l2_distance(table, other, g) * 1.01 + 1e-12, (level, other)
+
+
+def test_large_faces_calibrate_without_dividing_by_zero_one_level_deeper_per_doubling():
+    import warnings
+
+    from renderer.lighting.filters import Filter
+    from renderer.lighting.glossiness import lobe_table
+
+    gs = (0.0, 0.3, 0.6, 0.9)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")   # the mirror level of a 512^2 face has no weight on the samples
+        levels = {n: [lobe_table(n, Filter.SQRT_COSINE).level_for_glossiness(g) for g in gs] for n in (256, 512, 1024)}
+    for small, large in ((256, 512), (512, 1024)):
+        assert all(abs(b - a - 1.0) < 0.1 for a, b in zip(levels[small], levels[large])), levels

@@ -215,10 +215,15 @@ def _l2_best(terms: tuple, grid: np.ndarray, exps: np.ndarray) -> np.ndarray:
     hi = np.minimum(lo + 1, n_lev - 1)
     f = (grid - lo)[:, None]
     norm = (1.0 - f[:, 0]) * a[lo] + f[:, 0] * a[hi]
+    # A grid point whose kernel has no weight on the sampled directions (the mirror level of a large
+    # face, narrower than the samples) cannot be fitted: it is left out rather than divided by zero.
+    ok = norm > 0
+    safe = np.where(ok, norm, 1.0)
     kk = ((1.0 - f[:, 0]) ** 2 * q_same[lo] + 2 * f[:, 0] * (1.0 - f[:, 0]) * q_next[lo]
-          + f[:, 0] ** 2 * q_same[hi]) / norm ** 2
-    kt = ((1.0 - f) * p[lo] + f * p[hi]) / norm[:, None]     # (K, S)
-    return grid[np.argmin(kk[:, None] - 2.0 * kt, axis=0)]
+          + f[:, 0] ** 2 * q_same[hi]) / safe ** 2
+    kt = ((1.0 - f) * p[lo] + f * p[hi]) / safe[:, None]     # (K, S)
+    cost = np.where(ok[:, None], kk[:, None] - 2.0 * kt, np.inf)
+    return grid[np.argmin(cost, axis=0)]
 
 
 def level_for_glossiness(g: float, face_size: int, kind: Filter | str = Filter.SQRT_COSINE) -> float:
