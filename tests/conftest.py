@@ -95,3 +95,12 @@ def plane(size=4.0, y=0.0) -> Mesh:
 def covered(frame) -> np.ndarray:
     """Pixels a mesh covers (alpha > 0.5) of a rendered or reference frame."""
     return frame.image[..., 3] > 0.5
+
+
+@pytest.fixture(scope="module")
+def http(server):
+    """An HTTP client of the module's `server` fixture (a real service: tests/service_server.py)."""
+    import httpx
+
+    with httpx.Client(base_url=server.url, timeout=120) as c:
+        yield c

@@ -91,6 +91,19 @@ def garment(resolution: int = 32):
     return procedural_garment(resolution)
 
 
+# What the service tests upload a map with: few lights on small faces, so that its PEM set builds fast.
+SMALL_ENV_PARAMS = {"lights": 12, "face_size": 32, "preset": "fast"}
+
+
+def upload_environment(http: httpx.Client, tmp_dir: Path) -> tuple[dict, bytes, str]:
+    """Upload `environment_bytes` with SMALL_ENV_PARAMS: (the answer, the file's bytes, its name)."""
+    data, name = environment_bytes(tmp_dir)
+    r = http.post("/environments", content=data, headers={"Content-Type": "application/octet-stream"},
+                  params={"name": name, **SMALL_ENV_PARAMS})
+    assert r.status_code == 201, r.text
+    return r.json(), data, name
+
+
 def scene_body(env_id: str, mesh, **extra) -> dict:
     body = {"name": "test", "environment_id": env_id,
             "garment": {"positions": np.asarray(mesh.positions).tolist(), "faces": np.asarray(mesh.faces).tolist(),

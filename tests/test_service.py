@@ -18,7 +18,15 @@ import httpx
 import numpy as np
 import pytest
 from PIL import Image
-from service_server import FAST_QUALITY, SMALL_OUTPUT, ServiceProcess, environment_bytes, garment, scene_body
+from service_server import (
+    FAST_QUALITY,
+    SMALL_OUTPUT,
+    ServiceProcess,
+    environment_bytes,
+    garment,
+    scene_body,
+    upload_environment,
+)
 
 OCTET = {"Content-Type": "application/octet-stream"}
 MAX_UPLOAD = 4 << 20
@@ -33,18 +41,8 @@ def server(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def http(server):
-    with httpx.Client(base_url=server.url, timeout=120) as c:
-        yield c
-
-
-@pytest.fixture(scope="module")
 def env_upload(http, tmp_path_factory):
-    data, name = environment_bytes(tmp_path_factory.mktemp("env"))
-    r = http.post("/environments", content=data, headers=OCTET,
-                  params={"name": name, "lights": 12, "face_size": 32, "preset": "fast"})
-    assert r.status_code == 201, r.text
-    return r.json(), data, name
+    return upload_environment(http, tmp_path_factory.mktemp("env"))
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
-from service_server import ServiceProcess, environment_bytes, garment, scene_body
+from service_server import ServiceProcess, environment_bytes, garment, scene_body, upload_environment
 
 OCTET = {"Content-Type": "application/octet-stream"}
 
@@ -29,18 +29,8 @@ def server(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def http(server):
-    with httpx.Client(base_url=server.url, timeout=120) as c:
-        yield c
-
-
-@pytest.fixture(scope="module")
 def env_id(http, tmp_path_factory):
-    data, name = environment_bytes(tmp_path_factory.mktemp("env"))
-    r = http.post("/environments", content=data, headers=OCTET,
-                  params={"name": name, "lights": 12, "face_size": 32, "preset": "fast"})
-    assert r.status_code == 201, r.text
-    return r.json()["id"]
+    return upload_environment(http, tmp_path_factory.mktemp("env"))[0]["id"]
 
 
 @pytest.fixture(scope="module")
@@ -461,9 +451,7 @@ def test_idle_scenes_give_their_slots_to_new_ones(tmp_path):
     srv = ServiceProcess(tmp_path, max_scenes=2, scene_idle_timeout_s=1.0)
     try:
         with httpx.Client(base_url=srv.url, timeout=60) as http:
-            data, name = environment_bytes(tmp_path)
-            env = http.post("/environments", content=data, headers=OCTET,
-                            params={"name": name, "lights": 12, "face_size": 32, "preset": "fast"}).json()["id"]
+            env = upload_environment(http, tmp_path)[0]["id"]
             mesh = garment(8)
             a, b = (http.post("/scenes", json=scene_body(env, mesh)).json()["id"] for _ in range(2))
             assert_error(http.post("/scenes", json=scene_body(env, mesh)), 409, "GARMENT_RENDER_MAX_SCENES")
@@ -508,9 +496,7 @@ def test_a_terminated_service_finishes_the_requests_in_flight_and_takes_no_new_o
     srv = ServiceProcess(tmp_path, shutdown_timeout_s=60)
     try:
         with httpx.Client(base_url=srv.url, timeout=120) as http:
-            data, name = environment_bytes(tmp_path)
-            env = http.post("/environments", content=data, headers=OCTET,
-                            params={"name": name, "lights": 12, "face_size": 32, "preset": "fast"}).json()["id"]
+            env = upload_environment(http, tmp_path)[0]["id"]
             sid = http.post("/scenes", json=scene_body(env, mesh, output={"width": 128, "height": 128})).json()["id"]
         answer = {}
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import httpx
 import numpy as np
-from service_server import ServiceProcess, environment_bytes, garment, scene_body
+from service_server import ServiceProcess, environment_bytes, garment, scene_body, upload_environment
 
 OCTET = {"Content-Type": "application/octet-stream"}
 
@@ -113,15 +113,13 @@ def test_a_restored_scene_keeps_an_uploaded_floor_that_casts_nothing(tmp_path):
 
 
 def test_a_restarted_service_lists_its_stored_scenes_and_unknown_ids_leave_nothing_behind(tmp_path):
-    data, name = environment_bytes(tmp_path)
     mesh = garment(16)
     settings = {"state_dir": tmp_path / "state", "pem_cache_dir": tmp_path / "cache"}
     first = ServiceProcess(tmp_path, **settings)
     try:
-        env = httpx.post(first.url + "/environments", content=data, headers=OCTET,
-                         params={"name": name, "lights": 12, "face_size": 32}, timeout=60).json()
-        made = sorted(httpx.post(first.url + "/scenes", json=scene_body(env["id"], mesh), timeout=60).json()["id"]
-                      for _ in range(2))
+        with httpx.Client(base_url=first.url, timeout=60) as http:
+            env = upload_environment(http, tmp_path)[0]
+            made = sorted(http.post("/scenes", json=scene_body(env["id"], mesh)).json()["id"] for _ in range(2))
     finally:
         first.stop()
     (tmp_path / "state" / "scenes" / ".tmp-killed").write_bytes(b"{")   # a scene write cut short
