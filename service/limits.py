@@ -5,8 +5,8 @@ On the headers alone, before one byte of the body is read:
   2. the Content-Type of a request that carries a body, against every type some endpoint takes: 415
      (each endpoint then checks its own, `deps.raw_body`);
   3. the declared Content-Length against `max_upload_bytes`: 413.
-Then the body is streamed against the same limit (a chunked upload that grows beyond it: 413) and
-replayed to the app, so every endpoint, JSON ones included, is covered.
+Then the body streams through to the app, counted against the same limit (a chunked upload that
+grows beyond it: 413), so every endpoint, JSON ones included, is covered and the gate holds none of it.
 
 A refusal before the body was read closes the connection (`Connection: close`): the unread body
 would otherwise be taken for the next request. An exception that escapes the app is answered here
@@ -61,43 +61,43 @@ class RequestGate:
         if refusal is not None:
             return await self._refuse(scope, receive, send, refusal, declared)
 
-        limit = self.max_bytes
-        chunks, total, more = [], 0, True
-        while more:
-            message = await receive()
-            if message["type"] == "http.disconnect":
-                return  # the client went away; nothing to answer
-            body = message.get("body", b"")
-            total += len(body)
-            more = message.get("more_body", False)
-            if total > limit:
-                exc = PayloadTooLargeError(self._too_large(scope, f"more than {limit} bytes streamed"))
-                return await self._refuse(scope, receive, send, exc, _DRAIN_FACTOR * limit - total if more else 0)
-            chunks.append(body)
-        body = b"".join(chunks)
-        del chunks
-        replayed = False
+        # The body streams through to the app, counted against the limit as it comes: the gate holds
+        # none of it. Past the limit the app's receive sees the client gone, whatever it answers to
+        # that is dropped, and the gate answers 413.
+        limit, total, over, more = self.max_bytes, 0, False, False
 
-        async def replay():
-            nonlocal replayed
-            if not replayed:
-                replayed = True
-                return {"type": "http.request", "body": body, "more_body": False}
-            return await receive()
+        async def counted():
+            nonlocal total, over, more
+            if over:
+                return {"type": "http.disconnect"}
+            message = await receive()
+            if message["type"] == "http.request":
+                total += len(message.get("body", b""))
+                if total > limit:
+                    over = True
+                    more = message.get("more_body", False)
+                    return {"type": "http.disconnect"}
+            return message
 
         started = False
 
         async def tracked_send(message):
             nonlocal started
+            if over:
+                return   # the app's answer to a body cut short: replaced by the 413 below
             started = started or message["type"] == "http.response.start"
             await send(message)
 
         try:
-            await self.app(scope, replay, tracked_send)
+            await self.app(scope, counted, tracked_send)
         except Exception as exc:  # noqa: BLE001 - answered here, on a connection that stays usable
             if started:
                 raise
-            await self._answer(scope, receive, send, exc, close=False)
+            if not over:
+                return await self._answer(scope, receive, send, exc, close=False)
+        if over and not started:
+            exc = PayloadTooLargeError(self._too_large(scope, f"more than {limit} bytes streamed"))
+            await self._refuse(scope, receive, send, exc, _DRAIN_FACTOR * limit - total if more else 0)
 
     def _check_headers(self, scope, headers: dict) -> tuple[ServiceError | None, int]:
         """The first refusal the headers call for (None: none) and the body bytes to drain after it."""

@@ -378,6 +378,10 @@ def test_oversized_uploads_are_413(http, scene):
 
     r = http.post("/environments", content=chunks(), headers=OCTET)
     assert_error(r, 413, "streamed", str(MAX_UPLOAD))
+    # A JSON body streams through to the app the same way: past the limit it is a 413, not a parse error.
+    r = http.post("/scenes", content=chunks(), headers={"Content-Type": "application/json"})
+    assert_error(r, 413, "streamed", str(MAX_UPLOAD))
+    assert http.get("/health/live").status_code == 200
 
 
 def test_service_and_cache_survive_bad_input(http, server, scene, mesh):
