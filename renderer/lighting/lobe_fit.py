@@ -11,7 +11,8 @@ is fitted, in the least-squares sense over the sphere, by a normalized Phong lob
 
 which is exactly the kind of lobe a PEM level prefilters (renderer/lighting/glossiness.py maps an
 exponent to a level). Greedily, each further lobe fits what the ones before left (the residual
-slice). Last, the paper's energy correction scales the weights so that the lobes reflect, over the
+slice), on the axis, among the paper's section 6 places (the mirror direction, tilts towards the
+normal, the normal, the view), that leaves the least error. Last, the paper's energy correction scales the weights so that the lobes reflect, over the
 upper hemisphere, exactly what the slice does: its hemispherical reflectivity.
 
 Orientation: the view lies in the x-z plane at elevation theta_v from the normal n = +z, v =
@@ -86,13 +87,6 @@ class PolarGrid:
         return cls(axis, theta, phi, dirs, d_omega)
 
 
-def sample_slice(fn: Callable, theta_v: float, grid: PolarGrid, **material) -> np.ndarray:
-    """p(l) = f(v, l) (n.l) of a BRDF of renderer.shading.brdf (its luminance: the mean of RGB) on
-    the grid's directions (T, P); 0 below the horizon."""
-    v = view_direction(theta_v)
-    return fn(N, v, grid.dirs, **material).mean(axis=-1)
-
-
 def profile(values: np.ndarray, kind: str) -> np.ndarray:
     """The slice reduced to a curve over theta (T,): its peak, average or minimum over the azimuth."""
     if kind == "peak":
@@ -136,32 +130,68 @@ def fit_profile(theta: np.ndarray, d_theta_omega: np.ndarray, target: np.ndarray
     return error(s)[1], s
 
 
+def fibonacci_sphere(count: int = 200_000) -> tuple[np.ndarray, float]:
+    """Nearly uniform directions (count, 3), each standing for 4 pi / count sr."""
+    k = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * k / count
+    phi = np.pi * (1.0 + 5.0 ** 0.5) * k
+    r = np.sqrt(1.0 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1), 4.0 * np.pi / count
+
+
+_SPHERE = fibonacci_sphere()
+
+
+def lobe_values(lobes, dirs: np.ndarray) -> np.ndarray:
+    """The sum of the lobes at `dirs` (..., 3), 0 below the horizon."""
+    out = np.zeros(dirs.shape[:-1])
+    for w, s, axis in lobes:
+        out += w * phong_profile(np.arccos(np.clip(dirs @ axis, -1.0, 1.0)), s)
+    return np.where(dirs @ N > 0.0, out, 0.0)
+
+
+def candidate_axes(theta_v: float, steps: int = 4) -> list[np.ndarray]:
+    """Where a lobe may sit (the paper's section 6): on the great circle from the mirror direction r
+    of the view to the normal (r itself, off-specular tilts towards n, n), and on the view itself (the
+    back-scattering of sheen at grazing angles)."""
+    v = view_direction(theta_v)
+    r = 2.0 * (v @ N) * N - v
+    axes = []
+    for t in np.linspace(0.0, 1.0, steps + 1):
+        a = (1.0 - t) * r + t * N
+        axes.append(a / np.linalg.norm(a))
+    axes.append(v)
+    return axes
+
+
 def fit_lobes(fn: Callable, theta_v: float, count: int = 1, kind: str = "average", axis: np.ndarray | None = None,
-              grid: PolarGrid | None = None, **material) -> Fit:
-    """`count` lobes about `axis` (default: the mirror direction of the view) fitted greedily to the
-    slice of `fn` at view elevation theta_v (radians), with the energy correction."""
+              **material) -> Fit:
+    """`count` lobes fitted greedily to the slice of `fn` at view elevation theta_v (radians), with
+    the energy correction. Each lobe sits on `axis` when given, else on whichever of
+    `candidate_axes` leaves the least error over the hemisphere."""
     if count < 1:
         raise ValueError(f"count must be >= 1, got {count}")
     v = view_direction(theta_v)
-    axis = 2.0 * (v @ N) * N - v if axis is None else np.asarray(axis, np.float64)
-    grid = grid or PolarGrid.about(axis)
-    values = sample_slice(fn, theta_v, grid, **material)
-    upper = (grid.dirs @ N) > 0.0
-    d_omega = np.broadcast_to(grid.d_omega, values.shape)
-    reflectivity = float(np.sum(values * d_omega))          # the slice is 0 below the horizon
-    ring = grid.d_omega[:, 0] * len(grid.phi)                 # the solid angle of each theta ring
-    residual = values.copy()
-    fitted = np.zeros_like(values)
-    lobes = []
+    dirs, d_omega = _SPHERE
+    target = fn(N, v, dirs, **material).mean(axis=-1)       # the slice on the sphere (0 below the horizon)
+    reflectivity = float(target.sum() * d_omega)
+    axes = [np.asarray(axis, np.float64) / np.linalg.norm(axis)] if axis is not None else candidate_axes(theta_v)
+    lobes: list[tuple[float, float, np.ndarray]] = []
     for _ in range(count):
-        w, s = fit_profile(grid.theta, ring, profile(residual, kind))
-        lobe = w * np.broadcast_to(phong_profile(grid.theta, s)[:, None], values.shape) * upper
-        fitted += lobe
-        residual = np.maximum(residual - lobe, 0.0)
-        lobes.append((w, s))
+        best = None
+        for a in axes:
+            grid = PolarGrid.about(a)
+            values = fn(N, v, grid.dirs, **material).mean(axis=-1)
+            residual = np.maximum(values - lobe_values(lobes, grid.dirs), 0.0)
+            w, s = fit_profile(grid.theta, grid.d_omega[:, 0] * len(grid.phi), profile(residual, kind))
+            trial = lobes + [(w, s, a)]
+            err = float(np.sum((lobe_values(trial, dirs) - target) ** 2))
+            if best is None or err < best[0]:
+                best = (err, trial)
+        lobes = best[1]
     # The paper's energy correction: the lobes reflect over the hemisphere what the slice does.
-    energy = float(np.sum(fitted * d_omega))
+    fitted = lobe_values(lobes, dirs)
+    energy = float(fitted.sum() * d_omega)
     scale = reflectivity / energy if energy > 0 else 0.0
-    fitted *= scale
-    rms = np.sqrt(np.sum((fitted - values) ** 2 * d_omega) / max(np.sum(values ** 2 * d_omega), 1e-300))
-    return Fit(tuple(Lobe(w * scale, s, tuple(float(c) for c in axis)) for w, s in lobes), reflectivity, float(rms))
+    rms = np.sqrt(np.sum((scale * fitted - target) ** 2) / max(float(np.sum(target ** 2)), 1e-300))
+    return Fit(tuple(Lobe(w * scale, s, tuple(float(c) for c in a)) for w, s, a in lobes), reflectivity, float(rms))
