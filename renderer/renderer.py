@@ -25,6 +25,7 @@ from .gpu.context import GLContext, StageTimer
 from .gpu.shaders import compute_shader, program, set_uniform
 from .lighting.pem import REGIONS_PER_TEXTURE, PEMSet, PEMSettings
 from .mesh import Mesh
+from .presets import balanced
 from .scene import Scene
 from .shading.background import BackgroundMap
 from .shading.material import Material
@@ -57,13 +58,6 @@ _MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_
 
 
 
-def _default(name: str):
-    """A setting's FrameSettings default: the balanced preset's (renderer/presets/balanced.toml)."""
-    from .presets import preset
-
-    return preset("balanced")[name]
-
-
 class Background(str, Enum):
     ENVIRONMENT = "env"
     BLACK = "black"
@@ -84,59 +78,59 @@ class FrameSettings:
 
     width: int = 512
     height: int = 512
-    shadow_size: int = _default("shadow_size")
-    blur_scale: float = _default("blur_scale")  # the paper's per-light blur, its scale (0: hard shadows, every preset)
+    shadow_size: int = balanced("shadow_size")
+    blur_scale: float = balanced("blur_scale")  # the paper's per-light blur, its scale (0: hard shadows, every preset)
     bleed_reduction: float = 0.2
     # Shadow-map bias, in each map's own texels (main and sharp maps alike): the lookup pushed off the
     # surface along the normal, and the least deviation of the depths under a texel (Chebyshev's
     # variance floor). Chosen on the benchmark scenes (docs/benchmarks.md, the bias rows). Only
     # against the receiver's own shadow group (renderer/scene.py): the other group's casters are
     # compared without it.
-    normal_offset_texels: float = _default("normal_offset_texels")
-    min_sigma_texels: float = _default("min_sigma_texels")
+    normal_offset_texels: float = balanced("normal_offset_texels")
+    min_sigma_texels: float = balanced("min_sigma_texels")
     # Contact shadows (full mode; lighting.frag): occluders within this many main-map texels of a
     # surface, found in the geometry pass's positions along screen lines: those the maps' bias skips
     # (the collar over the neck) and the near ones a 256^2 map drawn from a proxy blurs (a fold's
     # lips). 0: off (the paper). Chosen on the benchmark scenes (docs/benchmarks.md).
-    contact_shadow_texels: float = _default("contact_shadow_texels")
+    contact_shadow_texels: float = balanced("contact_shadow_texels")
     # Share of the casters' triangles the shadow pass draws (shadows/proxy.py; 1: the meshes
     # themselves): the pass costs per triangle on a CPU rasterizer.
-    caster_detail: float = _default("caster_detail")
+    caster_detail: float = balanced("caster_detail")
     # Small lights (a sun; angular radius <= ~6 degrees) get shadow maps k times shadow_size per side,
     # in an array of their own, drawn at full caster detail: their shadows are sharp. 1: the same maps
     # as every other light.
-    small_light_scale: int = _default("small_light_scale")
+    small_light_scale: int = balanced("small_light_scale")
     # Of the small lights, only those carrying at least this many times the mean light's energy get
     # the sharp maps; the others are shadowed like the large lights (their edges, dim, cost more than
     # they show: docs/benchmarks.md). Relative to the mean, so that a sun split into more regions at
     # more lights keeps its sharp maps. 0: every small light.
-    small_light_min_energy: float = _default("small_light_min_energy")
+    small_light_min_energy: float = balanced("small_light_min_energy")
     # Large lights with at least small_light_min_energy x the mean energy get the sharp maps too (the
     # bright sky beside a sun, an overcast sky's brightest patches: their energy is more concentrated
     # than their region). Only with small_light_min_energy > 0.
-    sharp_large_lights: bool = _default("sharp_large_lights")
+    sharp_large_lights: bool = balanced("sharp_large_lights")
     # Sharp lights within this many degrees (at most MAX_SHARP_SHARE_DEG) of a brighter sharp light
     # whose disc theirs overlaps share its map, drawn along the group's energy-weighted direction (a sun
     # the median cut split into regions a degree apart; each keeps its own direction and energy for
     # shading). 0: one map each.
-    sharp_share_deg: float = _default("sharp_share_deg")
+    sharp_share_deg: float = balanced("sharp_share_deg")
     # Each region's glossy term in closed form (full and no-occlusion modes; glossy "wide";
     # with "pem" no glossy term is in closed form and this does nothing) summed over this many discs:
     # its texels cut further by the same median cut (lighting/median_cut.py, SubLights), its
     # visibility, diffuse term and PEMs still the region's.
     # 1: one disc per region (the paper's one light per region). A power of two, at most
     # MAX_SUB_LIGHTS. Chosen on the benchmark scenes (docs/benchmarks.md, the sub_lights rows).
-    sub_lights: int = _default("sub_lights")
+    sub_lights: int = balanced("sub_lights")
     # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level)
     # or "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups).
-    diffuse: str = _default("diffuse")
+    diffuse: str = balanced("diffuse")
     # Where the glossy term comes from: "pem" (the paper: PEM_i along the reflection vector at the level
     # of g) or "wide" (small lights, angular radius <= ~6 degrees, from their disc through the Phong
     # lobe in closed form, and the large lights too wherever the lobe is wider than their disc,
     # 1 / s >= a^2 / 4: there the PEM's coarse MIP levels are the larger error; a narrow lobe reads the
     # PEM's fine levels, which hold the region's detail). In every mode with closed-form terms, each
     # light's glossy term loses the part of its disc below the triangle's own plane (lighting.frag).
-    glossy: str = _default("glossy")
+    glossy: str = balanced("glossy")
     mode: ShadingMode = ShadingMode.FULL
     background: Background = Background.ENVIRONMENT
 

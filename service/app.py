@@ -64,9 +64,7 @@ async def lifespan(app: FastAPI):
     def release_scenes(gl: GLResources) -> None:
         for rec in app.state.scenes.list():
             rec.released = True
-            if rec.gpu is not None:
-                rec.gpu.release()
-                rec.gpu = None
+            rec.release_gpu()
 
     worker.on_shutdown(release_scenes)
     app.state.metrics = ServiceMetrics(worker, lambda: {

@@ -3,13 +3,15 @@ the bearer-token check, and raw request bodies with a content-type check."""
 
 from __future__ import annotations
 
-import secrets
+import asyncio
+import contextlib
 from typing import Annotated
 
 from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from .errors import InvalidRequestError, UnauthorizedError, UnsupportedMediaTypeError
+from .errors import InvalidRequestError, UnsupportedMediaTypeError
+from .limits import bearer_refusal
 from .metrics import ServiceMetrics
 from .operations import Services
 from .registry import EnvironmentStore, MeshStore, SceneStore
@@ -56,16 +58,17 @@ ServicesDep = Annotated[Services, Depends(get_services)]
 _bearer = HTTPBearer(auto_error=False, description="GARMENT_RENDER_TOKEN, when the service sets one")
 
 
-def require_token(settings: SettingsDep,
-                  credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)]) -> None:
-    """Every router but health depends on this; a no-op when no token is configured."""
+def require_token(request: Request, settings: SettingsDep,
+                  _: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)]) -> None:
+    """Every router but health depends on this (which also declares the bearer scheme in the OpenAPI
+    document); the request gate has checked the same on the headers already, by the same rule
+    (`limits.bearer_refusal`). A no-op when no token is configured."""
     if settings.token is None:
         return
-    if credentials is None:
-        raise UnauthorizedError("this service needs a bearer token: send 'Authorization: Bearer <token>'")
-    expected = settings.token.get_secret_value().encode()
-    if not secrets.compare_digest(credentials.credentials.encode(), expected):
-        raise UnauthorizedError("wrong bearer token")
+    refusal = bearer_refusal(request.headers.get("authorization", "").encode("latin-1"),
+                             settings.token.get_secret_value().encode())
+    if refusal is not None:
+        raise refusal
 
 
 def media_type(request: Request) -> str:
@@ -92,9 +95,12 @@ async def _until_disconnected(request: Request) -> None:
         pass
 
 
-def client_gone(request: Request):
-    """A future done when the client of `request` closes its connection (its body already read);
-    cancel it when the answer is sent."""
-    import asyncio
-
-    return asyncio.ensure_future(_until_disconnected(request))
+@contextlib.asynccontextmanager
+async def client_gone(request: Request):
+    """A future done when the client of `request` closes its connection (its body already read),
+    watched while the block runs."""
+    gone = asyncio.ensure_future(_until_disconnected(request))
+    try:
+        yield gone
+    finally:
+        gone.cancel()

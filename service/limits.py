@@ -39,6 +39,16 @@ PUBLIC_PATHS = frozenset({"/health/live", "/health/ready", "/", "/view", "/docs"
                           "/openapi.json"})
 
 
+def bearer_refusal(authorization: bytes, token: bytes) -> UnauthorizedError | None:
+    """The 401 an Authorization header value calls for against the service's token (None: it passes)."""
+    scheme, _, given = authorization.partition(b" ")
+    if scheme.lower() != b"bearer" or not given.strip():
+        return UnauthorizedError("this service needs a bearer token: send 'Authorization: Bearer <token>'")
+    if not secrets.compare_digest(given.strip(), token):
+        return UnauthorizedError("wrong bearer token: send the service's GARMENT_RENDER_TOKEN")
+    return None
+
+
 class RequestGate:
     def __init__(self, app, max_bytes: int, token: str | None, media_types: tuple[str, ...]):
         self.app, self.max_bytes = app, int(max_bytes)
@@ -102,12 +112,9 @@ class RequestGate:
     def _check_headers(self, scope, headers: dict) -> tuple[ServiceError | None, int]:
         """The first refusal the headers call for (None: none) and the body bytes to drain after it."""
         if self.token is not None and scope.get("path", "") not in PUBLIC_PATHS:
-            auth = headers.get(b"authorization", b"")
-            scheme, _, given = auth.partition(b" ")
-            if scheme.lower() != b"bearer" or not given:
-                return UnauthorizedError("this service needs a bearer token: send 'Authorization: Bearer <token>'"), 0
-            if not secrets.compare_digest(given.strip(), self.token):
-                return UnauthorizedError("wrong bearer token"), 0
+            refusal = bearer_refusal(headers.get(b"authorization", b""), self.token)
+            if refusal is not None:
+                return refusal, 0
         declared = None
         if b"content-length" in headers:
             try:

@@ -174,13 +174,7 @@ async def release_idle_scenes(svc: Services) -> int:
             continue
         rec.released = True
         svc.scenes.note_expired(rec.id, idle_s)
-
-        def job(gl: GLResources, rec=rec) -> None:
-            if rec.gpu is not None:
-                rec.gpu.release()
-                rec.gpu = None
-
-        await svc.worker.call(job, what=f"the release of idle scene {rec.id}")
+        await svc.worker.call(lambda gl, rec=rec: rec.release_gpu(), what=f"the release of idle scene {rec.id}")
         released += 1
     return released
 
@@ -270,14 +264,8 @@ async def delete_scene(svc: Services, scene_id: str) -> None:
         svc.state.delete_scene(scene_id)
         return
     rec.released = True  # frames still queued for it answer 404
-
-    def job(gl: GLResources) -> None:
-        if rec.gpu is not None:
-            rec.gpu.release()
-            rec.gpu = None
-
     try:
-        await svc.worker.call(job, what=f"the release of scene {scene_id}")
+        await svc.worker.call(lambda gl: rec.release_gpu(), what=f"the release of scene {scene_id}")
     except QueueFullError:  # keep it registered: the client retries the delete
         rec.released = False
         svc.scenes.add(rec)

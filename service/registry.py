@@ -279,6 +279,12 @@ class SceneRecord:
     _arrivals: deque = field(default_factory=lambda: deque(maxlen=30), repr=False)  # time.monotonic() of frames
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
+    def release_gpu(self) -> None:
+        """Free the scene's GPU objects (on the GL thread only; again is a no-op)."""
+        if self.gpu is not None:
+            self.gpu.release()
+            self.gpu = None
+
     def count_frames(self, n: int = 1) -> int:
         with self._lock:
             self.frames_rendered += n

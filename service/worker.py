@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import queue
 import threading
 import time
@@ -24,8 +25,6 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
-
-import numpy as np
 
 from renderer.cache import CacheStats, PEMCache
 from renderer.errors import GLContextError
@@ -242,7 +241,7 @@ class RenderWorker:
         current = self.current_job()
         if current is not None:
             ahead += max(ema_s - current[1], 0.0)
-        return max(1, int(np.ceil(ahead)))
+        return max(1, math.ceil(ahead))
 
     async def call(self, fn: Callable[[GLResources], T], timeout: float | None = None, what: str = "job",
                    abandoned: asyncio.Future | None = None) -> JobResult:

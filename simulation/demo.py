@@ -20,11 +20,11 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import httpx
+import numpy as np
 
 from renderer.presets import PRESET_NAMES
 from service.client import RenderClient
 
-from .body_mesh import body_mesh, floor_mesh
 from .dress import DRESS_SETTINGS, SETTLE_FRAMES
 from .feed import FRONT, THREE_QUARTER, DrapeFeed, upload_studio_environment
 from .panels import Garment, dress
@@ -79,6 +79,15 @@ def new_simulation(args: argparse.Namespace, garment: Garment) -> ClothSim:
     return ClothSim(garment.cloth, mannequin(), replace(DRESS_SETTINGS, substeps=args.substeps))
 
 
+def _stored_body_and_floor() -> dict:
+    """The mannequin's render mesh and the floor as the bundled default scene stores them (made from
+    `mannequin()` by `python -m simulation.dress --store`), not polygonized again at every start."""
+    from renderer.procedural import default_scene
+
+    meshes, _ = default_scene()
+    return {role: (np.asarray(m.positions), np.asarray(m.faces)) for role, m in zip(("body", "floor"), meshes[1:])}
+
+
 def run(args: argparse.Namespace) -> int:
     with RenderClient(args.server, token=args.token) as client:
         wait_ready(client, args.wait)
@@ -88,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         views = tuple(VIEWS[v] for v in args.views.split(","))
         feed = DrapeFeed(client, sim, env["id"], views=views, quality={"preset": args.preset},
                          output={"width": args.size[0], "height": args.size[1]}, format=args.format,
-                         garment=garment, body=body_mesh(sim.body), floor=floor_mesh(sim.body))
+                         garment=garment, **_stored_body_and_floor())
         print(f"demo: {sim.cloth.n_vertices} cloth vertices, {len(sim.cloth.faces)} triangles; scenes "
               f"{', '.join(feed.scene_ids)} on {args.server}", flush=True)
         with ThreadPoolExecutor(1, thread_name_prefix="post") as pool:

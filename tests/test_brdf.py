@@ -6,21 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from renderer.lighting.lobe_fit import fibonacci_sphere
 from renderer.shading import brdf
 
 N = np.array([0.0, 0.0, 1.0])
 
 
-def sphere_dirs(count: int = 400_000) -> tuple[np.ndarray, float]:
-    """A Fibonacci sphere: nearly uniform directions (count, 3), each standing for 4 pi / count sr."""
-    k = np.arange(count) + 0.5
-    z = 1.0 - 2.0 * k / count
-    phi = np.pi * (1.0 + 5.0 ** 0.5) * k
-    r = np.sqrt(1.0 - z * z)
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1), 4.0 * np.pi / count
-
-
-DIRS, DOMEGA = sphere_dirs()
+DIRS, DOMEGA = fibonacci_sphere(400_000)
 
 
 def view(theta_deg: float) -> np.ndarray:

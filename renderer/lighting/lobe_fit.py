@@ -21,6 +21,7 @@ Orientation: the view lies in the x-z plane at elevation theta_v from the normal
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -139,7 +140,12 @@ def fibonacci_sphere(count: int = 200_000) -> tuple[np.ndarray, float]:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1), 4.0 * np.pi / count
 
 
-_SPHERE = fibonacci_sphere()
+@functools.cache
+def _sphere() -> tuple[np.ndarray, float]:
+    """The directions the fit's error and energy are judged on, made on first use (4.8 MB)."""
+    dirs, d_omega = fibonacci_sphere()
+    dirs.setflags(write=False)
+    return dirs, d_omega
 
 
 def lobe_values(lobes, dirs: np.ndarray) -> np.ndarray:
@@ -172,25 +178,29 @@ def fit_lobes(fn: Callable, theta_v: float, count: int = 1, kind: str = "average
     if count < 1:
         raise ValueError(f"count must be >= 1, got {count}")
     v = view_direction(theta_v)
-    dirs, d_omega = _SPHERE
+    dirs, d_omega = _sphere()
     target = fn(N, v, dirs, **material).mean(axis=-1)       # the slice on the sphere (0 below the horizon)
     reflectivity = float(target.sum() * d_omega)
     axes = [np.asarray(axis, np.float64) / np.linalg.norm(axis)] if axis is not None else candidate_axes(theta_v)
+    # Each axis's grid, the slice on it and the lobes so far there: made once, not once per lobe.
+    grids = [PolarGrid.about(a) for a in axes]
+    on_grid = [[fn(N, v, g.dirs, **material).mean(axis=-1), np.zeros(g.dirs.shape[:-1])] for g in grids]
     lobes: list[tuple[float, float, np.ndarray]] = []
+    fitted = np.zeros(len(dirs))                             # the lobes so far on the sphere
     for _ in range(count):
         best = None
-        for a in axes:
-            grid = PolarGrid.about(a)
-            values = fn(N, v, grid.dirs, **material).mean(axis=-1)
-            residual = np.maximum(values - lobe_values(lobes, grid.dirs), 0.0)
+        for a, grid, (values, so_far) in zip(axes, grids, on_grid):
+            residual = np.maximum(values - so_far, 0.0)
             w, s = fit_profile(grid.theta, grid.d_omega[:, 0] * len(grid.phi), profile(residual, kind))
-            trial = lobes + [(w, s, a)]
-            err = float(np.sum((lobe_values(trial, dirs) - target) ** 2))
+            trial = fitted + lobe_values([(w, s, a)], dirs)
+            err = float(np.sum((trial - target) ** 2))
             if best is None or err < best[0]:
-                best = (err, trial)
-        lobes = best[1]
+                best = (err, (w, s, a), trial)
+        _, lobe, fitted = best
+        lobes.append(lobe)
+        for grid, pair in zip(grids, on_grid):
+            pair[1] = pair[1] + lobe_values([lobe], grid.dirs)
     # The paper's energy correction: the lobes reflect over the hemisphere what the slice does.
-    fitted = lobe_values(lobes, dirs)
     energy = float(fitted.sum() * d_omega)
     scale = reflectivity / energy if energy > 0 else 0.0
     rms = np.sqrt(np.sum((scale * fitted - target) ** 2) / max(float(np.sum(target ** 2)), 1e-300))

@@ -21,6 +21,7 @@ from ..errors import InvalidInputError
 from ..gpu.context import GLContext, StageTimer
 from ..gpu.rawgl import GL_RGBA16F, GL_RGBA32F, CubeMapArray
 from ..gpu.shaders import compute_shader
+from ..presets import balanced
 from ..shadows.lights import disc_sine
 from .filters import Filter, taps_1d
 from .glossiness import Calibration, LobeTable, lobe_table
@@ -49,10 +50,14 @@ REGIONS_PER_TEXTURE = 192
 MAX_TEXTURES = 2
 
 
-def _balanced(name: str):
-    from ..presets import preset
-
-    return preset("balanced")[name]
+def _scratch_batch(n: int) -> tuple[int, int]:
+    """The regions one batch of the build filters at once and the bytes of one region's scratch level
+    (two float32 buffers of a batch fit SCRATCH_BUDGET_BYTES; a batch never straddles two textures)."""
+    per_region_bytes = 6 * max(1, (n // 2) ** 2) * 16
+    batch = int(max(1, min(REGIONS_PER_TEXTURE, SCRATCH_BUDGET_BYTES // (2 * per_region_bytes))))
+    while REGIONS_PER_TEXTURE % batch:
+        batch -= 1
+    return batch, per_region_bytes
 
 
 @dataclass(frozen=True)
@@ -60,7 +65,7 @@ class PEMSettings:
     """Everything that changes a PEM set (and so its cache key). The light count and the median cut
     default to the balanced preset's (renderer/presets/balanced.toml), as FrameSettings' do."""
 
-    n_lights: int = _balanced("lights")
+    n_lights: int = balanced("lights")
     filter: Filter = Filter.SQRT_COSINE
     levels: int | None = None  # None: the full chain down to 1x1 faces
     # Finest level stored: the levels above it are computed on the way down but not kept, since no
@@ -68,7 +73,7 @@ class PEMSettings:
     base_level: int = 0
     # The median cut keeps compact bright sources (a sun) whole (lighting/median_cut.py); off: the
     # paper's plain median cut. Every preset but paper turns it on (renderer/presets/*.toml).
-    whole_sources: bool = _balanced("whole_sources")
+    whole_sources: bool = balanced("whole_sources")
 
     def key(self) -> tuple:
         return (self.n_lights, self.filter.value, self.levels, self.base_level, self.whole_sources)
@@ -107,8 +112,7 @@ def pem_cost(face_size: int, settings: PEMSettings, export: bool = False) -> PEM
     stored_texels = sum(texels[base:])
     stored = lights * stored_texels * 8 + stored_texels * 16
     face = 6 * n * n
-    per_region_bytes = 6 * max(1, (n // 2) ** 2) * 16
-    batch = int(max(1, min(REGIONS_PER_TEXTURE, SCRATCH_BUDGET_BYTES // (2 * per_region_bytes))))
+    batch, per_region_bytes = _scratch_batch(n)
     # Host: the float32 cube, its brightest channel, the weighted RGBA copy, the labels, the median
     # cut's float64 sums and the normalizer's chain and RGBA upload copy; GPU: the map's texture, the
     # weighted copy and labels again, two scratch buffers.
@@ -219,10 +223,7 @@ class PEMSet:
         buffers = [ctx.buffer(env4.tobytes()),
                    ctx.buffer(np.ascontiguousarray(self.regions.labels, np.int32).tobytes()),
                    ctx.buffer((1.0 / self.scale).astype(np.float32).tobytes())]
-        per_region_bytes = 6 * max(1, (n // 2) ** 2) * 16
-        batch = int(max(1, min(REGIONS_PER_TEXTURE, SCRATCH_BUDGET_BYTES // (2 * per_region_bytes))))
-        while REGIONS_PER_TEXTURE % batch:  # a batch never straddles two textures
-            batch -= 1
+        batch, per_region_bytes = _scratch_batch(n)
         buffers.append(ctx.buffer(reserve=batch * per_region_bytes))  # binding 3: filtered level
         buffers.append(ctx.buffer(reserve=batch * per_region_bytes))  # binding 4: reduced level
         progs = {}

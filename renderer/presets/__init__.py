@@ -97,6 +97,11 @@ def presets() -> tuple[dict, str]:
         f"preset files renderer/presets/*.toml, version {PRESET_VERSION}"
 
 
+def balanced(name: str):
+    """A setting's default in the Python API (FrameSettings, PEMSettings): the balanced preset's."""
+    return _presets()["balanced"][name]
+
+
 def preset(name: str) -> dict:
     """One preset's settings (a copy)."""
     if name not in PRESET_NAMES:

@@ -83,11 +83,8 @@ async def post_frame(
     blocks = parse_layout(x_frame_layout or layout, scene)
     body = await raw_body(request, (OCTET_STREAM,), "a frame of vertex positions")
     arrays = await anyio.to_thread.run_sync(decode_frame, body, blocks, scene, not worker.normals_on_gpu)
-    gone = client_gone(request)
-    try:
+    async with client_gone(request) as gone:
         result = await worker.call(render_job(scene, arrays), what=f"a frame of {scene.id}", abandoned=gone)
-    finally:
-        gone.cancel()
     frame, source = result.value
     sequence = scene.count_frames()
     enc = await encode_async(frame, fmt, scene.output, exposure, settings.png_compress_level, json_image)
@@ -179,47 +176,46 @@ async def post_batch(
     totals: dict[str, float] = {}
     # A client that leaves stops the batch between two frames (the GL job checks `stop`), or drops
     # it while queued: no frame nobody receives is rendered, and no sequence number is spent on one.
-    gone = client_gone(request)
     try:
-        for k in range(n_frames):
-            getter = asyncio.ensure_future(ready.get())
-            done, _ = await asyncio.wait({getter, gone}, timeout=settings.request_timeout_s,
-                                         return_when=asyncio.FIRST_COMPLETED)
-            if gone.done() or getter not in done:   # a client gone wins over a frame ready (the GL thread runs ahead)
-                getter.cancel()
-                submitted.future.cancel()
-                if gone.done():
-                    worker.stats.jobs_abandoned += 1
-                    raise ClientGoneError(f"the client left a batch of {n_frames} frames after {k}; the rest dropped")
-                raise RenderTimeoutError(f"batch frame {k} took longer than {settings.request_timeout_s:g} s")
-            i, out, job_ms = getter.result()
-            if isinstance(out, BaseException):
-                raise out
-            frame, source = out
-            queue_ms = submitted.queue_ms if k == 0 else 0.0
-            t_frame = time.perf_counter()
-            enc = await encode_async(frame, ImageFormat.JSON if zf is None else json_image, scene.output,
-                                     exposure, settings.png_compress_level, json_image)
-            arrays = frames_in[i]
-            timings = frame_timings(frame, arrays.decode_ms, arrays.normals_ms, max(queue_ms, 0.0), job_ms,
-                                    enc.encode_ms, t_frame)
-            for key, v in timings.items():
-                totals[key] = totals.get(key, 0.0) + v
-            metrics.observe_frame("batch", format.value, timings)
-            sequence = scene.count_frames()
-            keep_latest(scene, i, sequence, frame, enc, timings)
-            if zf is not None:
-                ext = "exr" if enc.media_type == "image/x-exr" else "png"
-                zf.writestr(f"frame_{i:05d}.{ext}", enc.content)
-                results.append({"frame_index": i, "sequence": sequence, "exposure_ev": enc.exposure_ev,
-                                "timings_ms": timings})
-            else:
-                results.append(frame_payload(scene.id, i, frame, enc, timings, source, scene.quality))
-            frames_in[i] = None  # free the decoded arrays as we go
-            credits.release()
+        async with client_gone(request) as gone:
+            for k in range(n_frames):
+                getter = asyncio.ensure_future(ready.get())
+                done, _ = await asyncio.wait({getter, gone}, timeout=settings.request_timeout_s,
+                                             return_when=asyncio.FIRST_COMPLETED)
+                if gone.done() or getter not in done:   # a client gone wins over a frame ready (the GL thread runs ahead)
+                    getter.cancel()
+                    submitted.future.cancel()
+                    if gone.done():
+                        worker.stats.jobs_abandoned += 1
+                        raise ClientGoneError(f"the client left a batch of {n_frames} frames after {k}; the rest dropped")
+                    raise RenderTimeoutError(f"batch frame {k} took longer than {settings.request_timeout_s:g} s")
+                i, out, job_ms = getter.result()
+                if isinstance(out, BaseException):
+                    raise out
+                frame, source = out
+                queue_ms = submitted.queue_ms if k == 0 else 0.0
+                t_frame = time.perf_counter()
+                enc = await encode_async(frame, ImageFormat.JSON if zf is None else json_image, scene.output,
+                                         exposure, settings.png_compress_level, json_image)
+                arrays = frames_in[i]
+                timings = frame_timings(frame, arrays.decode_ms, arrays.normals_ms, max(queue_ms, 0.0), job_ms,
+                                        enc.encode_ms, t_frame)
+                for key, v in timings.items():
+                    totals[key] = totals.get(key, 0.0) + v
+                metrics.observe_frame("batch", format.value, timings)
+                sequence = scene.count_frames()
+                keep_latest(scene, i, sequence, frame, enc, timings)
+                if zf is not None:
+                    ext = "exr" if enc.media_type == "image/x-exr" else "png"
+                    zf.writestr(f"frame_{i:05d}.{ext}", enc.content)
+                    results.append({"frame_index": i, "sequence": sequence, "exposure_ev": enc.exposure_ev,
+                                    "timings_ms": timings})
+                else:
+                    results.append(frame_payload(scene.id, i, frame, enc, timings, source, scene.quality))
+                frames_in[i] = None  # free the decoded arrays as we go
+                credits.release()
     finally:
         stop = True
-        gone.cancel()
     totals["total"] = (time.perf_counter() - t_start) * 1e3
     totals = {k: round(v, 3) for k, v in totals.items()}
     headers = {"Server-Timing": server_timing(totals), "X-Frame-Count": str(n_frames), "Cache-Control": "no-store"}
@@ -261,11 +257,8 @@ async def render_once(
         finally:
             scene.release()
 
-    gone = client_gone(request)
-    try:
+    async with client_gone(request) as gone:
         result = await worker.call(job, what="a one-shot render", abandoned=gone)
-    finally:
-        gone.cancel()
     frame, source = result.value
     enc = await encode_async(frame, fmt, body.output.model_dump(), exposure, settings.png_compress_level, json_image)
     timings = frame_timings(frame, decode_ms, 0.0, result.queue_ms, result.run_ms, enc.encode_ms, t_start)

@@ -13,7 +13,7 @@ from renderer.errors import RenderError
 
 from .. import operations
 from ..deps import ScenesDep, ServicesDep, require_token
-from ..errors import ConflictError, NotFoundError, ServiceError
+from ..errors import ConflictError, ServiceError
 from ..registry import SceneRecord
 from ..schemas import SceneCreate, SceneInfo, SceneMeshOut
 from ..specs import camera_dict
@@ -57,7 +57,7 @@ async def list_scenes(scenes: ScenesDep, svc: ServicesDep) -> list[SceneInfo]:
                 await operations.find_scene(svc, scene_id)
             except ConflictError:   # GARMENT_RENDER_MAX_SCENES reached: the rest stay stored
                 break
-            except (NotFoundError, RenderError, ServiceError) as exc:
+            except (RenderError, ServiceError) as exc:   # NotFoundError among them: its environment is gone
                 log.warning("stored scene %s cannot be restored: %s", scene_id, exc)
     return [scene_info(s) for s in scenes.list()]
 
