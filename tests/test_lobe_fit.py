@@ -27,12 +27,18 @@ def test_one_lobe_reproduces_a_phong_lobe(exponent, kind):
 def test_the_lobes_reflect_what_the_slice_reflects_and_more_lobes_fit_better(name, fn, material):
     theta_v = np.radians(45.0)
     fits = [fit_lobes(fn, theta_v, k, **material) for k in (1, 2)]
+    dirs, d_omega = fibonacci_sphere()
+    v = np.array([np.sin(theta_v), 0.0, np.cos(theta_v)])
+    # The slice's reflectivity, by an independent quadrature (the fit judges on a polar grid about r).
+    reflectivity = float(fn(np.array([0.0, 0.0, 1.0]), v, dirs, **material).mean(axis=-1).sum() * d_omega)
     for fit in fits:
+        assert fit.reflectivity == pytest.approx(reflectivity, rel=5e-3)
         # The energy correction: the fitted lobes' energy over the hemisphere is the slice's reflectivity.
-        dirs, d_omega = fibonacci_sphere()
         lobes = [(lobe.weight, lobe.exponent, np.array(lobe.axis)) for lobe in fit.lobes]
-        assert float(lobe_values(lobes, dirs).sum() * d_omega) == pytest.approx(fit.reflectivity, rel=1e-9)
+        assert float(lobe_values(lobes, dirs).sum() * d_omega) == pytest.approx(fit.reflectivity, rel=5e-3)
         assert 0.0 < fit.reflectivity <= 1.0
+        # The joint refinement never leaves more error than the paper's greedy lobes.
+        assert fit.rel_rms <= fit.greedy_rel_rms + 1e-12
     assert fits[1].rel_rms <= fits[0].rel_rms + 1e-12
 
 

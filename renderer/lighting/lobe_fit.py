@@ -12,8 +12,10 @@ is fitted, in the least-squares sense over the sphere, by a normalized Phong lob
 which is exactly the kind of lobe a PEM level prefilters (renderer/lighting/glossiness.py maps an
 exponent to a level). Greedily, each further lobe fits what the ones before left (the residual
 slice), on the axis, among the paper's section 6 places (the mirror direction, tilts towards the
-normal, the normal, the view), that leaves the least error. Last, the paper's energy correction scales the weights so that the lobes reflect, over the
-upper hemisphere, exactly what the slice does: its hemispherical reflectivity.
+normal, the normal, the view, and angles between), that leaves the least error. A joint nonlinear
+least-squares refinement of all lobes follows (our addition; the greedy error is kept beside it).
+Last, the paper's energy correction scales the weights so that the lobes reflect, over the upper
+hemisphere, exactly what the slice does: its hemispherical reflectivity.
 
 Orientation: the view lies in the x-z plane at elevation theta_v from the normal n = +z, v =
 (sin theta_v, 0, cos theta_v).
@@ -21,7 +23,6 @@ Orientation: the view lies in the x-z plane at elevation theta_v from the normal
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -46,11 +47,13 @@ class Lobe:
 @dataclass(frozen=True)
 class Fit:
     """The lobes of one slice, the slice's hemispherical reflectivity (what the lobes reflect after
-    the energy correction) and the relative RMS error of the fit over the hemisphere."""
+    the energy correction) and the relative RMS error of the fit over the hemisphere (after the joint
+refinement; greedy_rel_rms: the paper's greedy lobes alone, also energy-corrected)."""
 
     lobes: tuple[Lobe, ...]
     reflectivity: float
     rel_rms: float
+    greedy_rel_rms: float = float("nan")
 
 
 def view_direction(theta_v: float) -> np.ndarray:
@@ -140,14 +143,6 @@ def fibonacci_sphere(count: int = 200_000) -> tuple[np.ndarray, float]:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1), 4.0 * np.pi / count
 
 
-@functools.cache
-def _sphere() -> tuple[np.ndarray, float]:
-    """The directions the fit's error and energy are judged on, made on first use (4.8 MB)."""
-    dirs, d_omega = fibonacci_sphere()
-    dirs.setflags(write=False)
-    return dirs, d_omega
-
-
 def lobe_values(lobes, dirs: np.ndarray) -> np.ndarray:
     """The sum of the lobes at `dirs` (..., 3), 0 below the horizon."""
     out = np.zeros(dirs.shape[:-1])
@@ -156,52 +151,137 @@ def lobe_values(lobes, dirs: np.ndarray) -> np.ndarray:
     return np.where(dirs @ N > 0.0, out, 0.0)
 
 
-def candidate_axes(theta_v: float, steps: int = 4) -> list[np.ndarray]:
-    """Where a lobe may sit (the paper's section 6): on the great circle from the mirror direction r
-    of the view to the normal (r itself, off-specular tilts towards n, n), and on the view itself (the
-    back-scattering of sheen at grazing angles)."""
+def axis_at(psi: float) -> np.ndarray:
+    """The unit direction at angle psi from the normal in the plane of n and v, positive towards v:
+    the mirror direction r is psi = -theta_v, the normal 0, the view +theta_v (the paper's section 6
+    places, and every direction between them)."""
+    return np.array([np.sin(psi), 0.0, np.cos(psi)])
+
+
+def candidate_axes(theta_v: float, steps: int = 12) -> list[float]:
+    """The angles psi (see `axis_at`) a greedy lobe is tried at: r, n and v themselves, and `steps`
+    + 1 angles across the whole plane from one horizon to the other (the off-specular tilts of a
+    microfacet lobe towards the normal, the back-scattering of sheen near the view)."""
+    psis = np.concatenate([[-theta_v, 0.0, theta_v], np.linspace(-0.5 * np.pi, 0.5 * np.pi, steps + 1)])
+    return [float(p) for p in np.unique(np.round(psis, 12))]
+
+
+# Bounds of the refinement: an exponent from wider than a cosine to a near mirror; an axis anywhere
+# in the plane of n and v above the horizon.
+_LOG_S = (np.log(0.05), np.log(2.0e6))
+
+
+def _judge_grid(theta_v: float) -> PolarGrid:
+    """The grid the error and the energy are judged on: polar about the mirror direction, where GGX
+    lobes are narrowest (its first cells are 1e-5 rad wide, so a near-mirror lobe is resolved; a
+    Fibonacci sphere of 2e5 points is spaced 0.45 degrees)."""
     v = view_direction(theta_v)
-    r = 2.0 * (v @ N) * N - v
-    axes = []
-    for t in np.linspace(0.0, 1.0, steps + 1):
-        a = (1.0 - t) * r + t * N
-        axes.append(a / np.linalg.norm(a))
-    axes.append(v)
-    return axes
+    return PolarGrid.about(2.0 * (v @ N) * N - v, n_theta=320, n_phi=96)
+
+
+def _lobe_sum(params: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """sum of the lobes (log w, log s, psi) * k at dirs (..., 3), 0 below the horizon."""
+    out = np.zeros(dirs.shape[:-1])
+    for lw, ls, psi in params.reshape(-1, 3):
+        out += np.exp(lw) * phong_profile(np.arccos(np.clip(dirs @ axis_at(psi), -1.0, 1.0)), np.exp(ls))
+    return np.where(dirs[..., 2] > 0.0, out, 0.0)
 
 
 def fit_lobes(fn: Callable, theta_v: float, count: int = 1, kind: str = "average", axis: np.ndarray | None = None,
-              **material) -> Fit:
-    """`count` lobes fitted greedily to the slice of `fn` at view elevation theta_v (radians), with
-    the energy correction. Each lobe sits on `axis` when given, else on whichever of
-    `candidate_axes` leaves the least error over the hemisphere."""
+              refine: bool = True, **material) -> Fit:
+    """`count` lobes fitted to the slice of `fn` at view elevation theta_v (radians), then the energy
+    correction.
+
+    The paper's greedy fit first: each lobe fits the `kind` profile of what the ones before left, on
+    `axis` when given, else at whichever of `candidate_axes` leaves the least error. Then (refine)
+    all lobes' weights, exponents and (without `axis`) angles together by nonlinear least squares
+    over the hemisphere, started from the greedy lobes: the greedy fit never revisits a lobe, so the
+    first one, fitted alone, is too wide once a second takes the tail. `greedy_rel_rms` keeps the
+    paper's own error."""
     if count < 1:
         raise ValueError(f"count must be >= 1, got {count}")
     v = view_direction(theta_v)
-    dirs, d_omega = _sphere()
-    target = fn(N, v, dirs, **material).mean(axis=-1)       # the slice on the sphere (0 below the horizon)
-    reflectivity = float(target.sum() * d_omega)
-    axes = [np.asarray(axis, np.float64) / np.linalg.norm(axis)] if axis is not None else candidate_axes(theta_v)
-    # Each axis's grid, the slice on it and the lobes so far there: made once, not once per lobe.
-    grids = [PolarGrid.about(a) for a in axes]
+    judge = _judge_grid(theta_v)
+    cell = np.broadcast_to(judge.d_omega, judge.dirs.shape[:-1])
+    target = fn(N, v, judge.dirs, **material).mean(axis=-1)      # the slice (0 below the horizon)
+    reflectivity = float(np.sum(target * cell))
+    norm = max(float(np.sum(target ** 2 * cell)), 1e-300)
+    if axis is not None:
+        axis = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+        psis = [float(np.arctan2(axis[0], axis[2]))]
+    else:
+        psis = candidate_axes(theta_v)
+    grids = [PolarGrid.about(axis_at(p), n_theta=256, n_phi=64) for p in psis]
     on_grid = [[fn(N, v, g.dirs, **material).mean(axis=-1), np.zeros(g.dirs.shape[:-1])] for g in grids]
-    lobes: list[tuple[float, float, np.ndarray]] = []
-    fitted = np.zeros(len(dirs))                             # the lobes so far on the sphere
+    params: list[float] = []
+    fitted = np.zeros(target.shape)
     for _ in range(count):
         best = None
-        for a, grid, (values, so_far) in zip(axes, grids, on_grid):
+        for psi, grid, (values, so_far) in zip(psis, grids, on_grid):
             residual = np.maximum(values - so_far, 0.0)
             w, s = fit_profile(grid.theta, grid.d_omega[:, 0] * len(grid.phi), profile(residual, kind))
-            trial = fitted + lobe_values([(w, s, a)], dirs)
-            err = float(np.sum((trial - target) ** 2))
+            if w <= 0.0:
+                continue
+            lobe = [np.log(w), np.log(s), psi]
+            trial = fitted + _lobe_sum(np.array(lobe), judge.dirs)
+            err = float(np.sum((trial - target) ** 2 * cell))
             if best is None or err < best[0]:
-                best = (err, (w, s, a), trial)
+                best = (err, lobe, trial)
+        if best is None:   # nothing left to fit
+            break
         _, lobe, fitted = best
-        lobes.append(lobe)
+        params += lobe
         for grid, pair in zip(grids, on_grid):
-            pair[1] = pair[1] + lobe_values([lobe], grid.dirs)
-    # The paper's energy correction: the lobes reflect over the hemisphere what the slice does.
-    energy = float(fitted.sum() * d_omega)
+            pair[1] = pair[1] + _lobe_sum(np.array(lobe), grid.dirs)
+    if not params:
+        return Fit((), reflectivity, 1.0, 1.0)
+    x0 = np.array(params)
+    greedy_rms = _corrected_rms(x0, judge.dirs, target, cell, reflectivity, norm)
+    if refine:
+        x0 = _refine(x0, judge.dirs, target, cell, reflectivity, fixed_axis=axis is not None)
+    scaled = x0.reshape(-1, 3).copy()
+    energy = float(np.sum(_lobe_sum(x0, judge.dirs) * cell))
+    scaled[:, 0] += np.log(reflectivity / energy) if energy > 0 and reflectivity > 0 else 0.0
+    rms = _corrected_rms(x0, judge.dirs, target, cell, reflectivity, norm)
+    # Narrowest first: the same order at every view and roughness, so that tables interpolate.
+    order = np.argsort(-scaled[:, 1])
+    lobes = tuple(Lobe(float(np.exp(lw)), float(np.exp(ls)), tuple(float(c) for c in axis_at(psi)))
+                  for lw, ls, psi in scaled[order])
+    return Fit(lobes, reflectivity, rms, greedy_rms)
+
+
+def _corrected_rms(x, dirs, target, cell, reflectivity, norm) -> float:
+    """The relative RMS error over the hemisphere after the energy correction."""
+    fitted = _lobe_sum(x, dirs)
+    energy = float(np.sum(fitted * cell))
     scale = reflectivity / energy if energy > 0 else 0.0
-    rms = np.sqrt(np.sum((scale * fitted - target) ** 2) / max(float(np.sum(target ** 2)), 1e-300))
-    return Fit(tuple(Lobe(w * scale, s, tuple(float(c) for c in a)) for w, s, a in lobes), reflectivity, float(rms))
+    return float(np.sqrt(np.sum((scale * fitted - target) ** 2 * cell) / norm))
+
+
+def _refine(x0: np.ndarray, dirs, target, cell, reflectivity: float, fixed_axis: bool) -> np.ndarray:
+    """The lobes' parameters that minimize the error *after* the energy correction (so the weights'
+    common scale is free; the relative weights, exponents and angles are what is fitted)."""
+    from scipy.optimize import least_squares
+
+    up = dirs[..., 2] > 0.0
+    d, t, c = dirs[up], target[up], cell[up]
+    sw = np.sqrt(c)
+    k = len(x0) // 3
+    free = np.ones(len(x0), bool)
+    if fixed_axis:
+        free[2::3] = False
+    lo = np.tile([-60.0, _LOG_S[0], -0.5 * np.pi], k)
+    hi = np.tile([10.0, _LOG_S[1], 0.5 * np.pi], k)
+    x0 = np.clip(x0, lo + 1e-9, hi - 1e-9)
+
+    def residual(y):
+        x = x0.copy()
+        x[free] = y
+        fitted = _lobe_sum(x, d)
+        energy = float(np.sum(fitted * c))
+        return sw * ((reflectivity / energy if energy > 0 else 0.0) * fitted - t)
+
+    res = least_squares(residual, x0[free], bounds=(lo[free], hi[free]), x_scale="jac", max_nfev=200)
+    x = x0.copy()
+    x[free] = res.x
+    return x if np.sum(residual(res.x) ** 2) <= np.sum(residual(x0[free]) ** 2) else x0
