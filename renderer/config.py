@@ -150,6 +150,9 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("sub_lights", int, 1, "discs per region in the closed-form glossy term (1: the paper's one light)",
             "shading", "shader variant", 1, MAX_SUB_LIGHTS, power_of_two=True,
             sweep=(1, 4, 8)),
+    Setting("lobes", int, 2, "fitted lobes per layer of a physically based material (GGX, sheen): one PEM lookup "
+            "per light each (Kautz and McCool's fit; Phong materials have one)", "shading", "shader variant", 1,
+            2, sweep=(1, 2)),
 )
 BY_NAME = {s.name: s for s in SETTINGS}
 NAMES = tuple(BY_NAME)

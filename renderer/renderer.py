@@ -23,6 +23,7 @@ from .config import MAX_SHADOW_SIDE
 from .errors import InvalidInputError
 from .gpu.context import GLContext, StageTimer
 from .gpu.shaders import compute_shader, program, set_uniform
+from .lighting import material_lobes
 from .lighting.pem import REGIONS_PER_TEXTURE, PEMSet, PEMSettings
 from .mesh import Mesh
 from .presets import balanced
@@ -131,6 +132,10 @@ class FrameSettings:
     # PEM's fine levels, which hold the region's detail). In every mode with closed-form terms, each
     # light's glossy term loses the part of its disc below the triangle's own plane (lighting.frag).
     glossy: str = balanced("glossy")
+    # Lobes per layer of a physically based material (Kautz and McCool's fit, renderer/lighting/
+    # material_lobes.py): GGX's and, where the scene has sheen, sheen's. Each lobe is one more PEM
+    # lookup per light. Phong materials have one lobe whatever this says.
+    lobes: int = balanced("lobes")
     mode: ShadingMode = ShadingMode.FULL
     background: Background = Background.ENVIRONMENT
 
@@ -330,19 +335,21 @@ class Renderer:
             self._programs["normals"] = compute_shader(ctx, "mesh/normals.comp")
 
     def _shade_variant(self, mode: ShadingMode, diffuse: str, two_textures: bool,
-                       glossy: str = "pem", contact: bool = False, sub_lights: int = 1
+                       glossy: str = "pem", contact: bool = False, sub_lights: int = 1,
+                       lobes: tuple[int, int] | None = None
                        ) -> tuple[moderngl.Program | moderngl.ComputeShader, moderngl.VertexArray | None]:
         """The lighting program of a mode and diffuse source (a full-screen pass over the geometry
         pass's targets), compiled on first use (one variant each; the diffuse source matters to the
         full and no-occlusion modes only); `two_textures`: the PEM set spans two textures (more than
         REGIONS_PER_TEXTURE regions), whose second needs loops of its own; `sub_lights`: discs per
         region in the glossy closed form (FrameSettings.sub_lights; 1 where no glossy term is in
-        closed form, `_glossy_closed_form`)."""
+        closed form, `_glossy_closed_form`); `lobes`: (GGX lobes, sheen lobes) of a scene with a
+        physically based material (None: Phong materials only, one lobe a pixel)."""
         closed = _no_diffuse_pems(mode, diffuse)
         wide = glossy == "wide" and mode in _CLOSED_FORM_MODES
         contact = contact and mode is ShadingMode.FULL
         compute = self.lighting_pass == "compute"
-        key = (mode, diffuse if closed else "pem", two_textures, wide, contact, compute, sub_lights)
+        key = (mode, diffuse if closed else "pem", two_textures, wide, contact, compute, sub_lights, lobes)
         if key not in self._shade_progs:
             defines = {**self._defines, "MODE": _MODE_INDEX[mode], "TWO_PEM_TEXTURES": int(two_textures)}
             if wide:
@@ -351,6 +358,10 @@ class Renderer:
                 defines["DIFFUSE_LIGHTS"] = 1   # no diffuse PEM lookups
             if sub_lights > 1:
                 defines["SUB_LIGHTS"] = sub_lights
+            if lobes is not None:
+                defines.update(PBR=1, LOBES_GGX=lobes[0], LOBES_SHEEN=lobes[1], TABLE_R=len(material_lobes.ROUGHNESS),
+                               TABLE_J=len(material_lobes.THETA_V), TABLE_R0=f"{material_lobes.ROUGHNESS[0]:.9g}",
+                               TABLE_THETA_MAX=f"{material_lobes.THETA_V[-1]:.9g}")
             if contact:
                 defines.update(CONTACT_SHADOWS=1, CONTACT_SLICES=CONTACT_SLICES, CONTACT_STEPS=CONTACT_STEPS)
             if compute:
@@ -373,6 +384,9 @@ class Renderer:
         """`proxies`: caster proxies (shadows/proxy.py) made in advance off the GL thread, per detail
         one face array per mesh (None: made on first use); a 4M-triangle mesh takes seconds."""
         materials = materials or [Material() for _ in meshes]
+        if any(isinstance(m, Material) and m.is_pbr for m in materials) and "gbuffer_pbr" not in self._programs:
+            self._programs["gbuffer_pbr"] = program(self.gl.ctx, "shading/surface.vert", "shading/gbuffer.frag",
+                                                    {"PBR": 1})
         return Scene(self.gl, meshes, materials, self._programs, casters, proxies)
 
     def _shadow_maps_for(self, which: str, size: int, n_lights: int, groups: int) -> ShadowMaps:
@@ -385,10 +399,12 @@ class Renderer:
             sm = self._shadow_maps[which] = ShadowMaps(self.gl, size, n_lights, self._shadow_prog, groups)
         return sm
 
-    def _target_for(self, w: int, h: int) -> tuple[moderngl.Framebuffer, moderngl.Framebuffer, list[moderngl.Texture]]:
+    def _target_for(self, w: int, h: int, pbr: bool = False
+                    ) -> tuple[moderngl.Framebuffer, moderngl.Framebuffer, list[moderngl.Texture]]:
         """(image framebuffer, geometry-pass framebuffer, geometry-pass textures) of an image size;
-        the two framebuffers share one depth buffer."""
-        if self._target is None or self._target[0] != (w, h):
+        the two framebuffers share one depth buffer. `pbr`: a fifth target for the physically based
+        materials' parameters (gbuffer.frag)."""
+        if self._target is None or self._target[0] != (w, h, pbr):
             if self._target is not None:
                 for obj in self._target[1]:
                     obj.release()
@@ -398,12 +414,12 @@ class Renderer:
             depth = ctx.depth_renderbuffer((w, h))
             # position + specular, normal + glossiness, geometric normal, albedo: 32-bit floats, so
             # that g = 1 - 1e-7 and positions far from the origin keep their precision.
-            gbuf = [ctx.texture((w, h), 4, dtype="f4") for _ in range(4)]
+            gbuf = [ctx.texture((w, h), 4, dtype="f4") for _ in range(5 if pbr else 4)]
             for t in gbuf:
                 t.filter = (moderngl.NEAREST, moderngl.NEAREST)
             image_fbo = ctx.framebuffer([color], depth)
             gbuf_fbo = ctx.framebuffer(gbuf, depth)
-            self._target = ((w, h), (image_fbo, gbuf_fbo, color, depth, *gbuf))
+            self._target = ((w, h, pbr), (image_fbo, gbuf_fbo, color, depth, *gbuf))
         objs = self._target[1]
         return objs[0], objs[1], list(objs[4:])
 
@@ -450,7 +466,7 @@ class Renderer:
         lights_buf = self._buffer("lights", lp.lights.tobytes())
         arrays = self._shadow_pass(scene, settings, lp, lights_buf, timer)
 
-        fbo, gbuf_fbo, gbuf = self._target_for(w, h)
+        fbo, gbuf_fbo, gbuf = self._target_for(w, h, scene.has_pbr)
         vp_bytes = view_proj.T.astype(np.float32).tobytes()
         # The PEM set's tables the shading pass reads (the glossy discs), made once per set when a
         # frame first asks for them: that frame reports them as their own stage.
@@ -564,7 +580,7 @@ class Renderer:
             ctx.enable(moderngl.DEPTH_TEST)
             ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
             ctx.depth_func = "<"
-            g = self.gbuffer_prog
+            g = self._programs["gbuffer_pbr"] if scene.has_pbr else self.gbuffer_prog
             g["u_view_proj"].write(vp_bytes)
             set_uniform(g, "u_camera_pos", tuple(float(x) for x in camera.eye))
             for sm in scene.meshes:
@@ -614,8 +630,13 @@ class Renderer:
             ctx.enable(moderngl.DEPTH_TEST)
             ctx.depth_func = ">"
             contact = settings.contact_shadow_texels > 0 and n_shadowed > 0
+            lobes = (settings.lobes, settings.lobes if scene.has_sheen else 0) if scene.has_pbr else None
             p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE, settings.glossy,
-                                         contact, discs)
+                                         contact, discs, lobes)
+            if lobes is not None:
+                self._lobe_table(*lobes).bind_to_storage_buffer(7)
+                gbuf[4].use(location=13)
+                set_uniform(p, "u_sheen_offset", len(material_lobes.load().packed("ggx", lobes[0])))
             contact_radius = 0.0
             if "u_contact_radius" in p:
                 # In main-map texels (the maps whose bias hides the contact), else the sharp maps', of
@@ -660,6 +681,15 @@ class Renderer:
             ctx.depth_func = "<"
             ctx.disable(moderngl.DEPTH_TEST)
         return contact_radius
+
+    def _lobe_table(self, ggx: int, sheen: int) -> moderngl.Buffer:
+        """The fitted lobes the PBR variant reads (lobes.glsl): the GGX table, then the sheen table."""
+        key = f"lobes_{ggx}_{sheen}"
+        if key not in self._buffers:
+            tables = material_lobes.load()
+            parts = [tables.packed("ggx", ggx)] + ([tables.packed("sheen", sheen)] if sheen else [])
+            self._buffers[key] = self.gl.ctx.buffer(np.concatenate(parts).tobytes())
+        return self._buffers[key]
 
     def _readback_image(self, fbo, w: int, h: int, timer: StageTimer) -> np.ndarray:
         t0 = time.perf_counter()

@@ -123,12 +123,15 @@ class SceneMesh:
     """One mesh's buffers, vertex arrays and material textures; owned by its `Scene`."""
 
     def __init__(self, gl: GLContext, mesh: Mesh, material: Material, programs: dict, caster: bool,
-                 proxy_faces: dict[float, np.ndarray] | None = None, group: int = 0):
-        """`group`: the mesh's shadow group (Scene), 0 or 1 for a caster, RECEIVER_ONLY otherwise."""
+                 proxy_faces: dict[float, np.ndarray] | None = None, group: int = 0, pbr: bool = False):
+        """`group`: the mesh's shadow group (Scene), 0 or 1 for a caster, RECEIVER_ONLY otherwise;
+        `pbr`: the scene has a physically based material, so every mesh carries its parameters
+        (zeros for a Phong one) to the geometry pass's PBR variant (programs["gbuffer_pbr"])."""
         ctx = gl.ctx
         self.mesh, self.material, self.caster, self.group = mesh, material, caster, group
         self.n_vertices = mesh.positions.shape[0]
         albedo, mat = material.vertex_arrays(self.n_vertices)
+        pbr_values, sheen = material.pbr_arrays(self.n_vertices) if pbr else (None, None)
         albedo_map, gloss_map = material.maps()
         if (albedo_map is not None or gloss_map is not None) and mesh.uvs is None:
             raise MeshError(f"mesh {mesh.name!r} has material maps but no UVs")
@@ -151,6 +154,7 @@ class SceneMesh:
         self.vbo_albedo = ctx.buffer(albedo.tobytes())
         self.vbo_mat = ctx.buffer(mat.tobytes())
         self.vbo_uv = ctx.buffer(np.ascontiguousarray(uvs, np.float32).tobytes())
+        self.vbo_pbr = [ctx.buffer(pbr_values.tobytes()), ctx.buffer(sheen.tobytes())] if pbr else []
         self.ibo = ctx.buffer(np.ascontiguousarray(mesh.faces, np.int32).tobytes())
         # New positions' normals on the GPU (programs["normals"], Renderer's `normals`): the faces
         # around each vertex, made on the first frame that needs them.
@@ -166,10 +170,13 @@ class SceneMesh:
         # Coarser casters for the shadow pass (shadows/proxy.py): given (made off the GL thread by a
         # caller that knows the detail it will use), else made on first use per detail.
         self._proxies: dict[float, tuple[moderngl.Buffer, moderngl.VertexArray, int]] = {}
-        self.vao_gbuffer = ctx.vertex_array(programs["gbuffer"], [
-            (self.vbo_pos, "3f", "in_position"), (self.vbo_nrm, "3f", "in_normal"),
-            (self.vbo_albedo, "3f", "in_albedo"), (self.vbo_mat, "2f", "in_material"),
-            (self.vbo_uv, "2f", "in_uv")], index_buffer=self.ibo, index_element_size=4, skip_errors=True)
+        attributes = [(self.vbo_pos, "3f", "in_position"), (self.vbo_nrm, "3f", "in_normal"),
+                      (self.vbo_albedo, "3f", "in_albedo"), (self.vbo_mat, "2f", "in_material"),
+                      (self.vbo_uv, "2f", "in_uv")]
+        if pbr:
+            attributes += [(self.vbo_pbr[0], "4f", "in_pbr"), (self.vbo_pbr[1], "3f", "in_sheen")]
+        self.vao_gbuffer = ctx.vertex_array(programs["gbuffer_pbr" if pbr else "gbuffer"], attributes,
+                                            index_buffer=self.ibo, index_element_size=4, skip_errors=True)
 
     def shadow_vao(self, detail: float = 1.0) -> moderngl.VertexArray:
         """The casters' vertex array for the shadow pass at a share `detail` of the triangles (the
@@ -243,7 +250,7 @@ class SceneMesh:
             ibo.release()
         self._proxies = {}
         for obj in (self.vao_shadow, self.vao_gbuffer, self.vbo_pos, self.vbo_nrm, self.vbo_albedo, self.vbo_mat,
-                    self.vbo_uv, self.ibo, *self.textures):
+                    self.vbo_uv, self.ibo, *self.vbo_pbr, *self.textures):
             obj.release()
 
 
@@ -263,6 +270,10 @@ class Scene:
         groups = shadow_groups(casters)
         self.gl = gl
         self.meshes: list[SceneMesh] = []
+        # A physically based material anywhere: the geometry and lighting passes' PBR variants, and
+        # whether any has a sheen layer (its lobes are compiled in only then).
+        self.has_pbr = any(mat.is_pbr for mat in materials)
+        self.has_sheen = any(mat.has_sheen() for mat in materials)
         try:
             for detail, faces in (proxies or {}).items():
                 if len(faces) != len(meshes):
@@ -270,7 +281,7 @@ class Scene:
                                     f"{len(meshes)} meshes")
             for k, (m, mat, c) in enumerate(zip(meshes, materials, casters)):
                 given = {d: faces[k] for d, faces in (proxies or {}).items() if faces[k] is not None}
-                self.meshes.append(SceneMesh(gl, m, mat, programs, c, given, groups[k]))
+                self.meshes.append(SceneMesh(gl, m, mat, programs, c, given, groups[k], self.has_pbr))
             # How many shadow groups cast (0-2): one casting mesh needs one pair of moments a texel.
             self.shadow_groups = len({sm.group for sm in self.meshes if sm.caster})
             # The glossiest lookup any pixel can make (Material.max_glossiness; 0: no glossy lobe).

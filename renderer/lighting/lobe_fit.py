@@ -171,7 +171,7 @@ def candidate_axes(theta_v: float, steps: int = 12) -> list[float]:
 _LOG_S = (np.log(0.05), np.log(2.0e6))
 
 
-def _judge_grid(theta_v: float) -> PolarGrid:
+def judge_grid(theta_v: float) -> PolarGrid:
     """The grid the error and the energy are judged on: polar about the mirror direction, where GGX
     lobes are narrowest (its first cells are 1e-5 rad wide, so a near-mirror lobe is resolved; a
     Fibonacci sphere of 2e5 points is spaced 0.45 degrees)."""
@@ -201,7 +201,7 @@ def fit_lobes(fn: Callable, theta_v: float, count: int = 1, kind: str = "average
     if count < 1:
         raise ValueError(f"count must be >= 1, got {count}")
     v = view_direction(theta_v)
-    judge = _judge_grid(theta_v)
+    judge = judge_grid(theta_v)
     cell = np.broadcast_to(judge.d_omega, judge.dirs.shape[:-1])
     target = fn(N, v, judge.dirs, **material).mean(axis=-1)      # the slice (0 below the horizon)
     reflectivity = float(np.sum(target * cell))

@@ -62,6 +62,7 @@ import numpy as np
 from ..camera import Camera, bounds_sphere
 from ..errors import InvalidInputError, MeshError
 from ..mesh import FALLBACK_NORMAL, Mesh, bounds, vertex_normals
+from ..shading import brdf
 from ..shading.material import Material
 from .envsampling import EnvironmentSampler
 
@@ -171,6 +172,8 @@ class _SceneArrays:
     normals: np.ndarray     # float64 (V, 3), `vertex_normals` of each mesh
     albedo: np.ndarray      # float64 (V, 3)
     material: np.ndarray    # float64 (V, 2) = (specular, glossiness)
+    pbr: np.ndarray         # float64 (V, 4) = (metallic, roughness, sheen roughness, 1) (zeros: Phong)
+    sheen: np.ndarray       # float64 (V, 3) sheen colour
     uvs: np.ndarray         # float64 (V, 2) (zeros for meshes without UVs)
     face_mesh: np.ndarray   # int64 (T,) the mesh of each triangle
     maps: tuple             # per mesh: (albedo_map or None, gloss_map or None)
@@ -184,13 +187,16 @@ class _SceneArrays:
         meshes, materials = list(meshes), list(materials)
         if not meshes or len(meshes) != len(materials):
             raise InvalidInputError(f"need one material per mesh; got {len(meshes)} meshes, {len(materials)} materials")
-        pos, faces, nrm, alb, mat, uvs, face_mesh, maps = [], [], [], [], [], [], [], []
+        pos, faces, nrm, alb, mat, uvs, face_mesh, maps, pbr, sheen = [], [], [], [], [], [], [], [], [], []
         offset = 0
         for i, (mesh, material) in enumerate(zip(meshes, materials)):
             if not isinstance(mesh, Mesh) or not isinstance(material, Material):
                 raise InvalidInputError("meshes must be renderer.mesh.Mesh and materials renderer.shading.Material")
             n = mesh.n_vertices
             a, m = material.vertex_arrays(n)
+            p, sh = material.pbr_arrays(n)
+            pbr.append(p)
+            sheen.append(sh)
             albedo_map, gloss_map = material.maps()
             if (albedo_map is not None or gloss_map is not None) and mesh.uvs is None:
                 raise MeshError(f"mesh {mesh.name!r} has material maps but no UVs")
@@ -209,8 +215,8 @@ class _SceneArrays:
         def cat(parts):
             return np.concatenate(parts).astype(np.float64)
 
-        return cls(positions, faces, cat(nrm), cat(alb), cat(mat), cat(uvs), np.concatenate(face_mesh),
-                   tuple(maps), RayMeshIntersector(tm))
+        return cls(positions, faces, cat(nrm), cat(alb), cat(mat), cat(pbr), cat(sheen), cat(uvs),
+                   np.concatenate(face_mesh), tuple(maps), RayMeshIntersector(tm))
 
 
 @dataclass
@@ -224,6 +230,9 @@ class _Surface:
     albedo: np.ndarray     # (N, 3)
     specular: np.ndarray   # (N,)
     glossiness: np.ndarray  # (N,)
+    v: np.ndarray | None = None       # (N, 3) towards the eye
+    pbr: np.ndarray | None = None     # (N, 4) metallic, roughness, sheen roughness, flag (> 0.5: pbr)
+    sheen: np.ndarray | None = None   # (N, 3) sheen colour
 
 
 def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np.ndarray) -> _Surface:
@@ -263,7 +272,8 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
             albedo[sel] *= _texture_bilinear(albedo_map, uv)
         if gloss_map is not None:
             material[sel] = _texture_bilinear(gloss_map, uv)
-    return _Surface(x, n, n_geom, r, albedo, material[:, 0], np.clip(material[:, 1], 0.0, 1.0))
+    return _Surface(x, n, n_geom, r, albedo, material[:, 0], np.clip(material[:, 1], 0.0, 1.0), -dirs,
+                    mix(scene.pbr), mix(scene.sheen))
 
 
 def _texture_bilinear(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -312,9 +322,11 @@ def _integrate(sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: _Surfac
     if n_px == 0:
         return np.zeros((0, 3)), np.zeros((0, 3))
     one_minus_g = 1.0 - surf.glossiness
-    mirror = (surf.specular > 0) & (one_minus_g <= MIRROR_ONE_MINUS_G)
-    has_d = surf.albedo.max(axis=1) > 0
-    has_g = (surf.specular > 0) & ~mirror
+    is_pbr = surf.pbr[:, 3] > 0.5 if surf.pbr is not None else np.zeros(n_px, bool)
+    mirror = (surf.specular > 0) & (one_minus_g <= MIRROR_ONE_MINUS_G) & ~is_pbr
+    has_d = (surf.albedo.max(axis=1) > 0) & ~is_pbr
+    has_g = (surf.specular > 0) & ~mirror & ~is_pbr
+    pbr = _PBRInputs.of(surf) if is_pbr.any() else None
     exponent = 1.0 / np.maximum(one_minus_g, MIRROR_ONE_MINUS_G)
 
     # Batch b holds the samples k = b, b + B, ...: n_b of them. Batches run one after the other, so
@@ -339,7 +351,18 @@ def _integrate(sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: _Surfac
                 # from [j, j + 1) / n_b, its BRDF sample's polar angle from the reversed stratum.
                 u_texel = (j + rng.random(len(j))) / n_b
                 u_lobe = (n_b - 1 - j + rng.random(len(j))) / n_b
-                est = _sample_chunk(sampler, tracer, surf, pix, has_d, has_g, exponent, rng, u_texel, u_lobe)
+                if pbr is None:
+                    est = _sample_chunk(sampler, tracer, surf, pix, has_d, has_g, exponent, rng, u_texel, u_lobe)
+                else:
+                    est = np.zeros((len(pix), 3))
+                    on = is_pbr[pix]
+                    for sel, fn in ((np.flatnonzero(~on), None), (np.flatnonzero(on), pbr)):
+                        if sel.size and fn is None:
+                            est[sel] = _sample_chunk(sampler, tracer, surf, pix[sel], has_d, has_g, exponent, rng,
+                                                     u_texel[sel], u_lobe[sel])
+                        elif sel.size:
+                            est[sel] = _sample_chunk_pbr(sampler, tracer, surf, fn, pix[sel], rng, u_texel[sel],
+                                                         u_lobe[sel])
                 batch_sum[p0:p1] += est.reshape(n_j, p1 - p0, 3).sum(axis=0)
         delta = batch_sum / n_b - mean
         mean += delta * (n_b / (done + n_b))
@@ -400,6 +423,97 @@ def _sample_chunk(sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: _Sur
         need = (q > 0.0) & (radiance.max(axis=1) > 0.0)
         _add_visible(est, need, tracer, x[idx], ng[idx], w, radiance * weight, idx)
     return est
+
+
+@dataclass(frozen=True)
+class _PBRInputs:
+    """The physically based pixels' parameters, all pixels (N, ...): base colour, metallic, alpha
+    (roughness^2, clamped as brdf.py clamps it), roughness, sheen colour and roughness, the sheen
+    layer's albedo at the view (material_lobes: the same E the renderer reads), and the share of
+    BRDF samples drawn from GGX's visible normals (the rest cosine-weighted, for the diffuse and
+    sheen terms)."""
+
+    base: np.ndarray
+    metallic: np.ndarray
+    roughness: np.ndarray
+    sheen: np.ndarray
+    sheen_roughness: np.ndarray
+    sheen_albedo: np.ndarray
+    p_specular: np.ndarray
+
+    @classmethod
+    def of(cls, surf: _Surface) -> _PBRInputs:
+        from ..lighting import material_lobes
+
+        metallic = np.clip(surf.pbr[:, 0], 0.0, 1.0)
+        roughness = np.clip(surf.pbr[:, 1], material_lobes.ROUGHNESS[0], 1.0)
+        sheen_roughness = np.clip(surf.pbr[:, 2], material_lobes.ROUGHNESS[0], 1.0)
+        e = material_lobes.load().sheen_albedo(sheen_roughness, np.clip(_dot(surf.n, surf.v), 0.0, 1.0))
+        return cls(surf.albedo, metallic, roughness, surf.sheen, sheen_roughness, e, 0.5 + 0.4 * metallic)
+
+    def f(self, n, v, w, pix) -> np.ndarray:
+        """The exact BRDF times n.w (M, 3), brdf.pbr."""
+        return brdf.pbr(n, v, w, self.base[pix], self.metallic[pix], self.roughness[pix], self.sheen[pix],
+                        self.sheen_roughness[pix], self.sheen_albedo[pix])
+
+    def pdf(self, n, v, w, pix) -> np.ndarray:
+        """The density of the BRDF-sampling mixture at w (M,)."""
+        h = v + w
+        h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-300)
+        alpha = self.roughness[pix] ** 2
+        spec = brdf.ggx_reflection_pdf(_dot(n, v), np.clip(_dot(n, h), 0.0, 1.0), _dot(v, h), alpha)
+        cosine = np.maximum(_dot(n, w), 0.0) / np.pi
+        ps = self.p_specular[pix]
+        return ps * spec + (1.0 - ps) * cosine
+
+
+def _sample_chunk_pbr(sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: _Surface, mat: _PBRInputs,
+                      pix: np.ndarray, rng: np.random.Generator, u_texel: np.ndarray,
+                      u_lobe: np.ndarray) -> np.ndarray:
+    """One environment sample and one BRDF sample (GGX's visible normals with probability
+    p_specular, else cosine-weighted) per entry of pix, combined by the power heuristic."""
+    m = len(pix)
+    est = np.zeros((m, 3))
+    n, v, x, ng = surf.n[pix], surf.v[pix], surf.x[pix], surf.n_geom[pix]
+
+    w, p_env = sampler.sample(m, rng, u_texel)
+    radiance = sampler.radiance(w)
+    f = mat.f(n, v, w, pix)
+    q = mat.pdf(n, v, w, pix)
+    need = (f.max(axis=1) > 0.0) & (radiance.max(axis=1) > 0.0)
+    _add_visible(est, need, tracer, x, ng, w, radiance * f * (p_env / (p_env ** 2 + q ** 2))[:, None])
+
+    specular = rng.random(m) < mat.p_specular[pix]
+    w = np.empty((m, 3))
+    idx = np.flatnonzero(~specular)
+    if idx.size:
+        w[idx] = _sample_cosine(n[idx], rng, u_lobe[idx])[0]
+    idx = np.flatnonzero(specular)
+    if idx.size:
+        t, b = _basis(n[idx])
+        vi = v[idx]
+        v_local = np.stack([_dot(vi, t), _dot(vi, b), np.maximum(_dot(vi, n[idx]), 1e-6)], axis=1)
+        v_local /= np.linalg.norm(v_local, axis=1, keepdims=True)
+        h_local = brdf.sample_ggx_visible_normals(v_local, mat.roughness[pix[idx]] ** 2, u_lobe[idx], rng.random(idx.size))
+        h = t * h_local[:, :1] + b * h_local[:, 1:2] + n[idx] * h_local[:, 2:]
+        w[idx] = 2.0 * _dot(vi, h)[:, None] * h - vi
+    f = mat.f(n, v, w, pix)
+    q = mat.pdf(n, v, w, pix)
+    radiance, p_env = sampler.radiance_pdf(w)
+    need = (q > 0.0) & (f.max(axis=1) > 0.0) & (radiance.max(axis=1) > 0.0)
+    q_safe = np.where(q > 0.0, q, 1.0)
+    _add_visible(est, need, tracer, x, ng, w, radiance * f * (q_safe / (q_safe ** 2 + p_env ** 2))[:, None])
+    return est
+
+
+def _basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The tangents (t, b) of `_to_world`'s frame about the unit axis (M, 3)."""
+    ax, ay, az = axis[:, 0], axis[:, 1], axis[:, 2]
+    sign = np.where(az >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + az)
+    b = ax * ay * a
+    return (np.stack([1.0 + sign * ax * ax * a, sign * b, -sign * ax], axis=1),
+            np.stack([b, sign + ay * ay * a, -ay], axis=1))
 
 
 def _add_visible(est, need, tracer, x, ng, w, value, idx=None) -> None:

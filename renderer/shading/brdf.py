@@ -124,3 +124,54 @@ def sheen(n, v, lt, colour, roughness) -> np.ndarray:
     vis = 1.0 / (4.0 * (cl + cv - cl * cv))
     w = np.where(up, charlie_distribution(nh, alpha) * vis * nl, 0.0)
     return w[..., None] * _rgb(colour)
+
+
+def pbr(n, v, lt, base, metallic, roughness, sheen_colour, sheen_roughness, sheen_albedo) -> np.ndarray:
+    """A glTF material with KHR_materials_sheen: the Charlie layer over the metallic-roughness model,
+    which the extension scales by 1 - max(sheen colour) E(n.v) (E, `sheen_albedo`: the layer's
+    directional albedo with colour 1 at this view, from renderer/lighting/material_lobes.py), times
+    n.l (..., 3)."""
+    sheen_colour = np.asarray(sheen_colour, np.float64)
+    strength = sheen_colour if sheen_colour.ndim == 0 else sheen_colour.max(axis=-1)
+    below = 1.0 - strength * np.asarray(sheen_albedo, np.float64)
+    return sheen(n, v, lt, sheen_colour, sheen_roughness) + np.asarray(below)[..., None] * ggx(
+        n, v, lt, base, metallic, roughness)
+
+
+def smith_g1(n_v: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """GGX's Smith masking of one direction, 2 n.v / (n.v + sqrt(a^2 + (1 - a^2) (n.v)^2))."""
+    a2 = alpha * alpha
+    return 2.0 * n_v / np.maximum(n_v + np.sqrt(a2 + (1.0 - a2) * n_v * n_v), 1e-300)
+
+
+def sample_ggx_visible_normals(v_local: np.ndarray, alpha: np.ndarray, u1: np.ndarray,
+                               u2: np.ndarray) -> np.ndarray:
+    """Heitz's sampling of GGX's distribution of visible normals ("Sampling the GGX Distribution of
+    Visible Normals", JCGT 2018), in the frame whose z is the normal: v_local (M, 3) with z > 0,
+    uniform u1, u2 (M,); returns the microfacet normals h (M, 3), whose density is
+    D_v(h) = G1(v) max(v.h, 0) D(h) / n.v."""
+    a = alpha[:, None]
+    vh = v_local * np.concatenate([a, a, np.ones_like(a)], axis=1)
+    vh /= np.linalg.norm(vh, axis=1, keepdims=True)
+    lensq = vh[:, 0] ** 2 + vh[:, 1] ** 2
+    safe = np.where(lensq > 0, lensq, 1.0)
+    t1 = np.where((lensq > 0)[:, None], np.stack([-vh[:, 1], vh[:, 0], np.zeros(len(vh))], 1) / np.sqrt(safe)[:, None],
+                  np.array([1.0, 0.0, 0.0]))
+    t2 = np.cross(vh, t1)
+    r = np.sqrt(u1)
+    phi = 2.0 * np.pi * u2
+    p1, p2 = r * np.cos(phi), r * np.sin(phi)
+    s = 0.5 * (1.0 + vh[:, 2])
+    p2 = (1.0 - s) * np.sqrt(np.maximum(1.0 - p1 * p1, 0.0)) + s * p2
+    nh = p1[:, None] * t1 + p2[:, None] * t2 + np.sqrt(np.maximum(1.0 - p1 * p1 - p2 * p2, 0.0))[:, None] * vh
+    h = nh * np.concatenate([a, a, np.ones_like(a)], axis=1)
+    h[:, 2] = np.maximum(h[:, 2], 1e-12)
+    return h / np.linalg.norm(h, axis=1, keepdims=True)
+
+
+def ggx_reflection_pdf(n_v: np.ndarray, n_h: np.ndarray, v_h: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """The density over l = reflect(-v, h) of h drawn by `sample_ggx_visible_normals`:
+    D_v(h) / (4 v.h) = G1(v) D(h) / (4 n.v)."""
+    ok = (n_v > 0) & (v_h > 0)
+    return np.where(ok, smith_g1(np.where(ok, n_v, 1.0), alpha) * ggx_distribution(n_h, alpha)
+                    / (4.0 * np.where(ok, n_v, 1.0)), 0.0)

@@ -1,5 +1,7 @@
 """Materials: a diffuse part and one glossy lobe (Knuth et al. 2014, sec. 3.2), per vertex or from
-texture maps, because woven and knitted fabrics mix yarns of different sheen."""
+texture maps, because woven and knitted fabrics mix yarns of different sheen; or glTF's metallic-
+roughness model under a Charlie sheen layer (model "pbr": renderer/shading/brdf.py, shaded through
+Kautz and McCool's fitted lobes, renderer/lighting/material_lobes.py)."""
 
 from __future__ import annotations
 
@@ -18,13 +20,30 @@ def _finite(name: str, a: np.ndarray, lo: float, hi: float) -> np.ndarray:
     return a
 
 
+MODELS = ("phong", "pbr")
+
+
+def _per_vertex(name: str, value, n_vertices: int, hi: float = 1.0) -> np.ndarray:
+    v = np.asarray(value, np.float32)
+    if v.ndim == 0:
+        v = np.broadcast_to(v, (n_vertices,))
+    if v.shape != (n_vertices,):
+        raise InvalidInputError(f"{name} must be a scalar or have shape ({n_vertices},), got {v.shape}")
+    return _finite(name, v, 0.0, hi)
+
+
 @dataclass(frozen=True)
 class Material:
-    """albedo: diffuse reflectance, linear RGB, (3,) or per vertex (V, 3), in [0, 1].
-    specular: weight of the glossy lobe, scalar or (V,), >= 0.
-    glossiness: the paper's g in [0, 1] (0 diffuse lobe, 1 mirror), scalar or (V,).
+    """model: "phong" (albedo, specular, glossiness: the paper's model) or "pbr" (glTF 2.0
+    metallic-roughness with KHR_materials_sheen: albedo is the base colour).
+    albedo: diffuse reflectance (the base colour for "pbr"), linear RGB, (3,) or per vertex (V, 3), in [0, 1].
+    specular: weight of the glossy lobe, scalar or (V,), >= 0 ("phong").
+    glossiness: the paper's g in [0, 1] (0 diffuse lobe, 1 mirror), scalar or (V,) ("phong").
+    metallic, roughness: glTF's, in [0, 1], scalar or (V,) ("pbr"; a roughness below the lobe
+    tables' first node, 0.05, shades as 0.05).
+    sheen_colour: (3,) or (V, 3) in [0, 1], black for no sheen; sheen_roughness: [0, 1] ("pbr").
     albedo_map: optional (H, W, 3) linear RGB texture that multiplies albedo (needs mesh UVs).
-    gloss_map: optional (H, W, 2) texture of (specular, glossiness) that replaces the two values.
+    gloss_map: optional (H, W, 2) texture of (specular, glossiness) that replaces the two values ("phong").
     """
 
     albedo: tuple | np.ndarray = (0.8, 0.8, 0.8)
@@ -32,9 +51,46 @@ class Material:
     glossiness: float | np.ndarray = 0.5
     albedo_map: np.ndarray | None = None
     gloss_map: np.ndarray | None = None
+    model: str = "phong"
+    metallic: float | np.ndarray = 0.0
+    roughness: float | np.ndarray = 0.5
+    sheen_colour: tuple | np.ndarray = (0.0, 0.0, 0.0)
+    sheen_roughness: float | np.ndarray = 0.5
+
+    def __post_init__(self):
+        if self.model not in MODELS:
+            raise InvalidInputError(f"material model must be one of {', '.join(MODELS)}, got {self.model!r}")
+        if self.model == "pbr" and self.gloss_map is not None:
+            raise InvalidInputError("a gloss_map (specular, glossiness) belongs to the phong model, not pbr")
+
+    @property
+    def is_pbr(self) -> bool:
+        return self.model == "pbr"
+
+    def has_sheen(self) -> bool:
+        return self.is_pbr and bool((np.asarray(self.sheen_colour, np.float64) > 0).any())
+
+    def pbr_arrays(self, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+        """(pbr (V, 4) = (metallic, roughness, sheen roughness, 1), sheen colour (V, 3)) float32,
+        validated; zeros for a Phong material (its pixels' flag is 0)."""
+        if not self.is_pbr:
+            return np.zeros((n_vertices, 4), np.float32), np.zeros((n_vertices, 3), np.float32)
+        out = np.ones((n_vertices, 4), np.float32)
+        for k, name in enumerate(("metallic", "roughness", "sheen_roughness")):
+            out[:, k] = _per_vertex(name, getattr(self, name), n_vertices)
+        sheen = np.asarray(self.sheen_colour, np.float32)
+        if sheen.shape == (3,):
+            sheen = np.broadcast_to(sheen, (n_vertices, 3))
+        if sheen.shape != (n_vertices, 3):
+            raise InvalidInputError(f"sheen_colour must have shape (3,) or ({n_vertices}, 3), got {sheen.shape}")
+        _finite("sheen_colour", sheen, 0.0, 1.0)
+        return out, np.ascontiguousarray(sheen)
 
     def has_glossy_lobe(self) -> bool:
-        """Whether any fragment can have a specular weight above 0 (from the values or the gloss map)."""
+        """Whether any fragment can have a specular weight above 0 (from the values or the gloss map;
+        always for "pbr": a dielectric reflects at least 4 % head-on)."""
+        if self.is_pbr:
+            return True
         if self.gloss_map is not None:
             return bool((np.asarray(self.gloss_map, np.float64)[..., 0] > 0).any())
         return bool((np.asarray(self.specular, np.float64) > 0).any())
@@ -46,6 +102,8 @@ class Material:
         maximum is over all of g as soon as any specular weight is positive."""
         if not self.has_glossy_lobe():
             return 0.0
+        if self.is_pbr:
+            return 1.0   # the fitted lobes reach the finest levels (a smooth metal's)
         if self.gloss_map is not None:
             return float(np.asarray(self.gloss_map, np.float64)[..., 1].max())
         return float(np.max(np.asarray(self.glossiness, np.float64)))
@@ -60,12 +118,9 @@ class Material:
         _finite("albedo", albedo, 0.0, 1.0)
         out = np.empty((n_vertices, 2), np.float32)
         for k, (name, value, hi) in enumerate((("specular", self.specular, 1e3), ("glossiness", self.glossiness, 1.0))):
-            v = np.asarray(value, np.float32)
-            if v.ndim == 0:
-                v = np.broadcast_to(v, (n_vertices,))
-            if v.shape != (n_vertices,):
-                raise InvalidInputError(f"{name} must be a scalar or have shape ({n_vertices},), got {v.shape}")
-            out[:, k] = _finite(name, v, 0.0, hi)
+            out[:, k] = _per_vertex(name, value, n_vertices, hi)
+        if self.is_pbr:
+            out[:] = 0.0   # the pbr model's pixels read their lobes from the tables
         return np.ascontiguousarray(albedo), out
 
     def maps(self) -> tuple[np.ndarray | None, np.ndarray | None]:

@@ -1,6 +1,6 @@
 // The closed-form terms of a light as a disc (lighting.frag): its diffuse term, its glossy term through
-// the Phong lobe (summed over SUB_LIGHTS discs), its share above a plane, and whether the lobe is
-// wider than it. Included by shading/lighting.frag after the lights.
+// a Phong lobe (summed over SUB_LIGHTS discs), its share above a plane, and whether a lobe is wider
+// than it. Included by shading/lighting.frag after the lights.
 
 // The diffuse term from the light itself instead of its PEM: the region as a uniform disc of angular
 // radius a (its mean cosine (1 + cos a) / 2 is the region's, renderer/lighting/median_cut.py) carrying
@@ -43,31 +43,30 @@ struct SubLight { vec4 dir_sin; vec4 energy; };   // unit direction, sine of the
 layout(std430, binding = 6) readonly buffer SubLights { SubLight sub_lights[]; };
 #endif
 
-vec3 g_diffuse_exact = vec3(0.0);   // the closed-form terms, added after the PEM terms' normalization
-vec3 g_glossy_exact = vec3(0.0);
-float g_gloss = 0.0;                // the pixel's glossiness g
-bool g_has_glossy = false;          // specular > 0
+vec3 g_diffuse_exact = vec3(0.0);   // the closed-form diffuse term, added after the PEM terms' normalization
+bool g_has_glossy = false;          // any lobe has weight (a Phong pixel: specular > 0)
 
 // A small light's glossy term without its PEM: the region as a disc of angular radius a carrying its
-// energy E, seen through the normalized Phong lobe of exponent s around r (paper Eq. 3). The disc's
-// spread widens the lobe: in the small-angle (Gaussian) picture cos^s has variance 1 / s per axis and
-// a uniform disc a^2 / 4, which add, so the lobe of exponent s' = 1 / (1 / s + a^2 / 4) carries E.
-// Finite at g = 1 (the mirror): s' is then bounded by the disc's own size.
-vec3 glossy_disc(vec3 l, float sin_a, vec3 energy, vec3 r) {
-    float inv_s = max(1.0 - g_gloss, 0.0);
-    float s = 1.0 / max(inv_s + 0.25 * sin_a * sin_a, 1e-6);
-    float c = clamp(dot(r, l), 0.0, 1.0);   // float32 can reach 1 + 1e-7; s' up to ~4e6
+// energy E, seen through a normalized Phong lobe of exponent s = 1 / inv_s around `axis` (paper Eq. 3;
+// a Phong pixel's one lobe is about r with inv_s = 1 - g, a fitted material's lobes are where the fit
+// put them, lobes.glsl). The disc's spread widens the lobe: in the small-angle (Gaussian) picture cos^s
+// has variance 1 / s per axis and a uniform disc a^2 / 4, which add, so the lobe of exponent
+// s' = 1 / (1 / s + a^2 / 4) carries E. Finite at g = 1 (the mirror): s' is then bounded by the disc's
+// own size.
+vec3 glossy_disc(vec3 l, float sin_a, vec3 energy, vec3 axis, float inv_s) {
+    float s = 1.0 / max(max(inv_s, 0.0) + 0.25 * sin_a * sin_a, 1e-6);
+    float c = clamp(dot(axis, l), 0.0, 1.0);   // float32 can reach 1 + 1e-7; s' up to ~4e6
     return energy * ((s + 1.0) / (2.0 * PI) * pow(c, s));
 }
 
-vec3 glossy_from_light(int i, vec3 r) {
+vec3 glossy_from_light(int i, vec3 axis, float inv_s) {
 #ifdef SUB_LIGHTS
     vec3 sum = vec3(0.0);
     for (int k = i * SUB_LIGHTS; k < (i + 1) * SUB_LIGHTS; ++k)
-        sum += glossy_disc(sub_lights[k].dir_sin.xyz, sub_lights[k].dir_sin.w, sub_lights[k].energy.rgb, r);
+        sum += glossy_disc(sub_lights[k].dir_sin.xyz, sub_lights[k].dir_sin.w, sub_lights[k].energy.rgb, axis, inv_s);
     return sum;
 #else
-    return glossy_disc(lights[i].dir_scale.xyz, lights[i].params.w, lights[i].energy.rgb, r);
+    return glossy_disc(lights[i].dir_scale.xyz, lights[i].params.w, lights[i].energy.rgb, axis, inv_s);
 #endif
 }
 
@@ -81,11 +80,11 @@ float disc_share_above(int i, vec3 normal) {
 // GLOSSY_WIDE (glossy "wide"): a large light's glossy term in closed form too where the lobe is wider
 // than its disc (variance 1 / s >= a^2 / 4, the two spreads of glossy_from_light): there the PEM's
 // coarse MIP levels (a few texels a face) are the larger error; a narrower lobe reads the fine levels,
-// which hold the region's own detail that a disc does not. Per pixel: g may vary.
-bool wide_lobe(int i) {
+// which hold the region's own detail that a disc does not. Per pixel and lobe: inv_s = 1 / s may vary.
+bool wide_lobe(int i, float inv_s) {
 #ifdef GLOSSY_WIDE
     float sin_a = lights[i].params.w;
-    return max(1.0 - g_gloss, 0.0) >= 0.25 * sin_a * sin_a;
+    return max(inv_s, 0.0) >= 0.25 * sin_a * sin_a;
 #else
     return false;
 #endif

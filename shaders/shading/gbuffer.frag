@@ -7,6 +7,13 @@ in vec3 v_ws_normal;
 in vec3 v_albedo;
 in vec2 v_material;
 in vec2 v_uv;
+#ifdef PBR
+// A scene with a physically based material (Material.model "pbr"): its parameters in a fifth target,
+// its sheen colour in the spare channels of the others (lighting.frag reads them back).
+in vec4 v_pbr;
+in vec3 v_sheen;
+layout(location = 4) out vec4 o_pbr;        // metallic, roughness, sheen roughness, 1 (0: Phong)
+#endif
 
 layout(binding = 3) uniform sampler2D u_albedo_map;   // multiplies the vertex albedo
 layout(binding = 4) uniform sampler2D u_gloss_map;    // (specular, glossiness), replaces the vertex values
@@ -38,4 +45,12 @@ void main() {
     o_normal = vec4(n, material.y);
     o_geometric = vec4(geometric, u_shadow_group);
     o_albedo = vec4(albedo, 1.0);
+#ifdef PBR
+    o_pbr = v_pbr.w > 0.5 ? vec4(v_pbr.xyz, 1.0) : vec4(0.0);
+    if (v_pbr.w > 0.5) {
+        o_position.w = v_sheen.r;   // >= 0, so "covered" still reads from w (-1: no surface)
+        o_normal.w = v_sheen.g;
+        o_albedo.a = v_sheen.b;
+    }
+#endif
 }

@@ -6,6 +6,9 @@
 // Diffuse: PEM_i looked up along the normal at the calibrated s = 1 level, times the albedo.
 // Glossy: PEM_i looked up along the reflection vector at the level calibrated for g, times the
 // specular weight. VIS_i is the variance-shadow-map visibility of light i.
+// PBR (a #define: the scene has a glTF metallic-roughness material): a pixel's glossy term is
+// N_LOBES lobes, each a lookup along its own axis at its own level with its own weight, from Kautz
+// and McCool's fitted tables (lobes.glsl); a Phong pixel's one lobe is the one above.
 //
 // MODE (a #define, one program per mode: llvmpipe runs both sides of uniform branches under a mask,
 // so unused modes would cost time): 0 full method, 1 no occlusion, 2 grey AO, 3 colour AO,
@@ -42,6 +45,12 @@ layout(binding = 8) uniform sampler2D u_g_position;         // the geometry pass
 layout(binding = 9) uniform sampler2D u_g_normal;
 layout(binding = 10) uniform sampler2D u_g_geometric;
 layout(binding = 11) uniform sampler2D u_g_albedo;
+#ifdef PBR
+layout(binding = 13) uniform sampler2D u_g_pbr;             // metallic, roughness, sheen roughness, 1 (0: Phong)
+#define N_LOBES (LOBES_GGX + LOBES_SHEEN)
+#else
+#define N_LOBES 1
+#endif
 
 uniform vec3 u_camera_pos;
 uniform int u_n_lights;
@@ -76,24 +85,57 @@ float gloss_level(float g) {
 // Accumulators of main(), shared with add_light() (GLSL has no closures).
 vec3 g_geometric_normal = vec3(0.0, 0.0, 1.0);  // the triangle's plane, facing the camera
 vec3 g_to_eye = vec3(0.0, 0.0, 1.0);            // unit, from the pixel's surface point to the eye
-vec3 g_reflect = vec3(0.0, 0.0, 1.0);           // the view direction reflected about the shading normal
-vec3 g_diffuse = vec3(0.0), g_glossy = vec3(0.0), g_ao_rgb = vec3(0.0), g_ao_norm = vec3(0.0);
+vec3 g_diffuse = vec3(0.0), g_ao_rgb = vec3(0.0), g_ao_norm = vec3(0.0);
+// The pixel's lobes: axis, PEM level, 1 / exponent (the closed forms' width) and weight (rgb), set by
+// main() before the lights; their PEM terms and closed-form terms, summed over the lights.
+vec3 g_lobe_axis[N_LOBES];
+float g_lobe_level[N_LOBES];
+float g_lobe_inv_s[N_LOBES];
+vec3 g_lobe_weight[N_LOBES];
+// A physically based pixel's BRDF is zero below the shading normal's horizon (brdf.py), and its lobes
+// were fitted to that: each light's glossy terms keep the share of its disc above that plane. (The
+// Phong model's lobes are not clipped by n: renderer/reference/montecarlo.py.)
+bool g_clip_lobes = false;
+vec3 g_glossy[N_LOBES];
+vec3 g_glossy_exact[N_LOBES];
 
 #include "shading/discs.glsl"
+#ifdef PBR
+#include "shading/lobes.glsl"
+#endif
 
-// Adds light i, given its PEM looked up along the normal (pem_d, diffuse level) and along the
-// reflection vector (pem_g, level of g), both still divided by the region's scale.
+// Light i's glossy terms, its visibility `vis`: from its PEM lookups (pem_g, still divided by the
+// region's `scale`) or its disc in closed form, per lobe; a small light's on a physically based pixel
+// from the exact BRDF over its disc (lobes.glsl) instead of the lobes.
+void add_glossy(int i, vec3 pem_g[N_LOBES], bool pem_glossy, float vis, float scale, bool small) {
+#ifdef PBR
+    if (g_clip_lobes && small && !pem_glossy) {
+        g_pbr_exact += vis * pbr_from_light(i);
+        return;
+    }
+#endif
+    for (int k = 0; k < N_LOBES; ++k) {
+        if (!pem_glossy || wide_lobe(i, g_lobe_inv_s[k])) {
+            if (g_has_glossy) g_glossy_exact[k] += vis * glossy_from_light(i, g_lobe_axis[k], g_lobe_inv_s[k]);
+        } else {
+            g_glossy[k] += vis * scale * pem_g[k];
+        }
+    }
+}
+
+// Adds light i, given its PEM looked up along the normal (pem_d, diffuse level) and along each lobe's
+// axis (pem_g, the lobe's level), all still divided by the region's scale.
 // pem_diffuse / pem_glossy: the light's terms come from its PEMs (else in closed form); sharp: its map
 // is in the sharp array. Constants of the caller's loop (see main()).
-void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos, bool pem_diffuse, bool pem_glossy, bool sharp) {
+void add_light(int i, vec3 pem_d, vec3 pem_g[N_LOBES], vec3 n, vec3 ws_pos, bool pem_diffuse, bool pem_glossy,
+               bool sharp) {
     float scale = lights[i].dir_scale.w;
     pem_d *= scale;
-    pem_g *= scale;
 #if MODE == 1
     if (!pem_diffuse) g_diffuse_exact += diffuse_from_light(i, n);
     else g_diffuse += pem_d;
-    if (!pem_glossy || wide_lobe(i)) { if (g_has_glossy) g_glossy_exact += glossy_from_light(i, g_reflect); }
-    else g_glossy += pem_g;
+    add_glossy(i, pem_g, pem_glossy, g_clip_lobes ? disc_share_above(i, n) : 1.0, scale,
+               lights[i].shadow.w > 0.5);
 #elif MODE == 0
     float vis = visibility(i, ws_pos, n, sharp);
 #ifdef CONTACT_SHADOWS
@@ -112,11 +154,8 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos, bool pem_diff
     if (pem_diffuse) g_diffuse += vis * pem_d;
     else g_diffuse_exact += vis * diffuse_from_light(i, n);
     if (!small) vis *= above;
-    if (!pem_glossy || wide_lobe(i)) {
-        if (g_has_glossy) g_glossy_exact += vis * glossy_from_light(i, g_reflect);
-    } else {
-        g_glossy += vis * pem_g;
-    }
+    if (g_clip_lobes) vis *= disc_share_above(i, n);
+    add_glossy(i, pem_g, pem_glossy, vis, scale, small);
 #else
     // Ambient-occlusion baselines (paper Fig. 6): unshadowed lighting times an occlusion factor
     // that averages VIS_i with cosine weights, by solid angle (grey) or by energy (colour).
@@ -126,21 +165,25 @@ void add_light(int i, vec3 pem_d, vec3 pem_g, vec3 n, vec3 ws_pos, bool pem_diff
     g_ao_rgb += vis * cosine * w;
     g_ao_norm += cosine * w;
     g_diffuse += pem_d;
-    g_glossy += pem_g;
+    for (int k = 0; k < N_LOBES; ++k) g_glossy[k] += scale * pem_g[k];
 #endif
 }
 
 // One light of a kind: its PEM lookups (region i in u_pem0, or in u_pem1 when in_pem1), then add_light.
-void shade_light(int i, bool pem_diffuse, bool pem_glossy, bool sharp, bool in_pem1, vec3 n, vec3 r, float level_g,
-                 bool glossy, vec3 ws_position) {
-    vec3 pem_d = vec3(0.0), pem_g = vec3(0.0);
+void shade_light(int i, bool pem_diffuse, bool pem_glossy, bool sharp, bool in_pem1, vec3 n, bool glossy,
+                 vec3 ws_position) {
+    vec3 pem_d = vec3(0.0);
+    vec3 pem_g[N_LOBES];
+    for (int k = 0; k < N_LOBES; ++k) pem_g[k] = vec3(0.0);
     if (in_pem1) {
         float layer = float(i - REGIONS_PER_TEXTURE);
         if (pem_diffuse) pem_d = textureLod(u_pem1, vec4(n, layer), u_diffuse_level).rgb;
-        if (pem_glossy && glossy) pem_g = textureLod(u_pem1, vec4(r, layer), level_g).rgb;
+        if (pem_glossy && glossy)
+            for (int k = 0; k < N_LOBES; ++k) pem_g[k] = textureLod(u_pem1, vec4(g_lobe_axis[k], layer), g_lobe_level[k]).rgb;
     } else {
         if (pem_diffuse) pem_d = textureLod(u_pem0, vec4(n, float(i)), u_diffuse_level).rgb;
-        if (pem_glossy && glossy) pem_g = textureLod(u_pem0, vec4(r, float(i)), level_g).rgb;
+        if (pem_glossy && glossy)
+            for (int k = 0; k < N_LOBES; ++k) pem_g[k] = textureLod(u_pem0, vec4(g_lobe_axis[k], float(i)), g_lobe_level[k]).rgb;
     }
     add_light(i, pem_d, pem_g, n, ws_position, pem_diffuse, pem_glossy, sharp);
 }
@@ -165,35 +208,57 @@ void main() {
     vec2 material = vec2(g_pos.w, g_nrm.w);
     vec3 to_eye = normalize(u_camera_pos - ws_position);
     vec3 r = reflect(-to_eye, n);
-    g_reflect = r;
     g_to_eye = to_eye;
 #ifdef CONTACT_SHADOWS
     contact_sectors(ws_position, to_eye, g_geometric_normal, px);
 #endif
-    g_gloss = material.y;
-    float specular = material.x;
-    float level_g = gloss_level(material.y);
+    // The pixel's lobes. A Phong pixel: one about r at the level calibrated for g, weight specular,
+    // over the albedo's diffuse term.
+    for (int k = 0; k < N_LOBES; ++k) {
+        g_lobe_axis[k] = r;
+        g_lobe_level[k] = 0.0;
+        g_lobe_inv_s[k] = 1.0;
+        g_lobe_weight[k] = vec3(0.0);
+        g_glossy[k] = vec3(0.0);
+        g_glossy_exact[k] = vec3(0.0);
+    }
+    vec3 diffuse_weight = albedo;
+    g_lobe_level[0] = gloss_level(material.y);
+    g_lobe_inv_s[0] = max(1.0 - material.y, 0.0);
+    g_lobe_weight[0] = vec3(material.x);
+    bool glossy = material.x > 0.0;
+#ifdef PBR
+    vec4 pbr = texelFetch(u_g_pbr, px, 0);
+    if (pbr.w > 0.5) {
+        // glTF metallic-roughness with sheen: albedo is the base colour; the sheen colour rides in the
+        // targets' spare channels (gbuffer.frag).
+        diffuse_weight = pbr_lobes(n, to_eye, albedo, pbr.x, pbr.y, vec3(material, texelFetch(u_g_albedo, px, 0).a), pbr.z);
+        glossy = true;
+        g_clip_lobes = true;
+    }
+#endif
 
 #if MODE == 4
     {
         // Baseline of the paper's introduction: the N lights used for shading as well as for
         // shadows, each a directional light carrying its region's energy (no PEMs).
-        float s_phong = 1.0 / max(1.0 - material.y, 1e-4);   // Eq. 3, capped so g = 1 stays finite
         for (int i = 0; i < u_n_lights; ++i) {
             vec3 l = lights[i].dir_scale.xyz;
             vec3 e = (lights[i].shadow.y > 0.5 ? visibility(i, ws_position, n, true)
                                                : visibility(i, ws_position, n, false)) * lights[i].energy.rgb;
             g_diffuse += e * max(dot(n, l), 0.0) / PI;
-            g_glossy += e * (s_phong + 1.0) / (2.0 * PI) * pow(max(dot(r, l), 0.0), s_phong);
+            for (int k = 0; k < N_LOBES; ++k) {
+                float s_phong = 1.0 / max(g_lobe_inv_s[k], 1e-4);   // Eq. 3, capped so g = 1 stays finite
+                g_glossy[k] += e * (s_phong + 1.0) / (2.0 * PI) * pow(max(dot(g_lobe_axis[k], l), 0.0), s_phong);
+            }
         }
     }
 #else
-    bool glossy = specular > 0.0;
     g_has_glossy = glossy;
     // One loop per kind of light (see the top): the constants fold the choices away. Only the kinds
     // this variant can have are compiled: without diffuse PEMs (DIFFUSE_LIGHTS) none reads one, and
     // the ambient-occlusion modes read both PEMs of every light (renderer.py, light_kinds).
-#define KIND_LOOP(K) for (int k = (K) == 0 ? 0 : u_kind_end[max((K) - 1, 0)]; k < u_kind_end[K]; ++k) shade_light(light_order[k], ((K) & 1) != 0, ((K) & 2) != 0, ((K) & 4) != 0, ((K) & 8) != 0, n, r, level_g, glossy, ws_position);
+#define KIND_LOOP(K) for (int k = (K) == 0 ? 0 : u_kind_end[max((K) - 1, 0)]; k < u_kind_end[K]; ++k) shade_light(light_order[k], ((K) & 1) != 0, ((K) & 2) != 0, ((K) & 4) != 0, ((K) & 8) != 0, n, glossy, ws_position);
 #if defined(DIFFUSE_LIGHTS)
     KIND_LOOP(0) KIND_LOOP(2) KIND_LOOP(4) KIND_LOOP(6)
 #if TWO_PEM_TEXTURES
@@ -214,15 +279,22 @@ void main() {
     g_diffuse /= textureLod(u_pem_norm, vec4(n, 0.0), u_diffuse_level).r;
 #endif
     g_diffuse += max(g_diffuse_exact, vec3(0.0));
-    if (glossy) g_glossy /= textureLod(u_pem_norm, vec4(r, 0.0), level_g).r;
-    g_glossy += g_glossy_exact;
+    for (int k = 0; k < N_LOBES; ++k) {
+        if (glossy) g_glossy[k] /= textureLod(u_pem_norm, vec4(g_lobe_axis[k], 0.0), g_lobe_level[k]).r;
+        g_glossy[k] += g_glossy_exact[k];
+    }
 #endif
+    vec3 glossy_sum = vec3(0.0);
+    for (int k = 0; k < N_LOBES; ++k) glossy_sum += g_lobe_weight[k] * g_glossy[k];
     if (MODE == 2 || MODE == 3) {
         vec3 ao = g_ao_rgb / max(g_ao_norm, vec3(1e-30));
         g_diffuse *= ao;
-        g_glossy *= ao;
+        glossy_sum *= ao;
     }
-    vec4 color = vec4(albedo * g_diffuse + specular * g_glossy, 1.0);
+#ifdef PBR
+    glossy_sum += g_pbr_exact;
+#endif
+    vec4 color = vec4(diffuse_weight * g_diffuse + glossy_sum, 1.0);
 #ifdef LIGHTING_COMPUTE
     imageStore(o_image, px, color);
 #else

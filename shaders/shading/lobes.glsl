@@ -1,0 +1,131 @@
+// The lobes of a physically based pixel (lighting.frag with PBR defined): Kautz and McCool's fitted
+// tables (renderer/lighting/material_lobes.py), read by roughness and view elevation, bilinear.
+// Included after the globals of lighting.frag.
+//
+// The table (binding 7): the GGX table from 0, the sheen table from u_sheen_offset, each
+// TABLE_R x TABLE_J cells, roughness-major, of 3 scalars then (share, 1 / s, psi) per lobe.
+layout(std430, binding = 7) readonly buffer MaterialLobes { float lobe_table[]; };
+uniform int u_sheen_offset;
+
+const float TABLE_DTHETA = TABLE_THETA_MAX / float(TABLE_J - 1);
+const float TABLE_DR = (1.0 - TABLE_R0) / float(TABLE_R - 1);
+
+// Bilinear weights of (roughness, theta_v) on the nodes: cells (i, j), (i + 1, j), (i, j + 1),
+// (i + 1, j + 1) and their weights.
+struct TableAt { int i; int j; float fx; float fy; };
+
+TableAt table_at(float roughness, float theta) {
+    float x = clamp((roughness - TABLE_R0) / TABLE_DR, 0.0, float(TABLE_R - 1));
+    float y = clamp(theta / TABLE_DTHETA, 0.0, float(TABLE_J - 1));
+    TableAt t;
+    t.i = min(int(x), TABLE_R - 2);
+    t.j = min(int(y), TABLE_J - 2);
+    t.fx = x - float(t.i);
+    t.fy = y - float(t.j);
+    return t;
+}
+
+float table_value(int base, int cell, TableAt t, int field) {
+    int c00 = base + (t.i * TABLE_J + t.j) * cell + field;
+    int di = TABLE_J * cell;
+    return mix(mix(lobe_table[c00], lobe_table[c00 + di], t.fx),
+               mix(lobe_table[c00 + cell], lobe_table[c00 + di + cell], t.fx), t.fy);
+}
+
+// Sets lobe slot `first + k` for each of `count` lobes of the table at `base`, with the energy
+// `energy` split by the lobes' shares; returns nothing (globals of lighting.frag).
+void table_lobes(int base, int count, TableAt t, vec3 n, vec3 tangent, vec3 energy, int first) {
+    int cell = 3 + 3 * count;
+    for (int k = 0; k < count; ++k) {
+        float share = table_value(base, cell, t, 3 + 3 * k);
+        float inv_s = max(table_value(base, cell, t, 4 + 3 * k), 0.0);
+        float psi = table_value(base, cell, t, 5 + 3 * k);
+        g_lobe_axis[first + k] = normalize(cos(psi) * n + sin(psi) * tangent);
+        g_lobe_inv_s[first + k] = inv_s;
+        g_lobe_level[first + k] = gloss_level(1.0 - min(inv_s, 1.0));   // a lobe wider than a cosine: the cosine's level
+        g_lobe_weight[first + k] = share * energy;
+    }
+}
+
+// The pixel's material, for the small lights' exact terms (pbr_from_light).
+vec3 g_pbr_n = vec3(0.0, 0.0, 1.0);
+vec3 g_pbr_f0 = vec3(0.04);
+float g_pbr_alpha = 0.25;
+vec3 g_pbr_sheen = vec3(0.0);
+float g_pbr_sheen_alpha = 0.25;
+float g_pbr_below = 1.0;            // the sheen layer's albedo scaling of the layer below
+vec3 g_pbr_exact = vec3(0.0);       // the small lights' specular and sheen terms, summed
+
+// A small light's specular and sheen terms from the exact BRDF (renderer/shading/brdf.py: GGX with
+// the height-correlated Smith visibility and Schlick's Fresnel, Charlie with Neubelt's visibility) at
+// its disc's centre l, energy E. The disc's spread widens GGX's: in the small-slope picture a disc of
+// angular radius a spreads the half vector uniformly over a / 2, slope variance a^2 / 16 per axis,
+// which adds to GGX's alpha^2 / 2: alpha'^2 = alpha^2 + a^2 / 8 (the same argument as the Phong
+// lobe's in discs.glsl). Sheen is broad: its centre value stands for the disc.
+vec3 pbr_disc(vec3 l, float sin_a, vec3 energy) {
+    vec3 n = g_pbr_n, v = g_to_eye;
+    float nl = dot(n, l);
+    if (nl <= 0.0) return vec3(0.0);
+    float nv = max(dot(n, v), 1e-4);
+    vec3 h = normalize(v + l);
+    float nh = clamp(dot(n, h), 0.0, 1.0), vh = clamp(dot(v, h), 0.0, 1.0);
+    float a2 = g_pbr_alpha * g_pbr_alpha + 0.125 * sin_a * sin_a;
+    float d = nh * nh * (a2 - 1.0) + 1.0;
+    float dist = a2 / (PI * d * d);
+    float vis = 0.5 / max(nl * sqrt(nv * nv * (1.0 - a2) + a2) + nv * sqrt(nl * nl * (1.0 - a2) + a2), 1e-30);
+    vec3 fresnel = g_pbr_f0 + (1.0 - g_pbr_f0) * pow(1.0 - vh, 5.0);
+    vec3 f = g_pbr_below * fresnel * (dist * vis);
+#if LOBES_SHEEN > 0
+    float inv = 1.0 / g_pbr_sheen_alpha;
+    float charlie = (2.0 + inv) * pow(max(1.0 - nh * nh, 0.0), 0.5 * inv) / (2.0 * PI);
+    f += g_pbr_sheen * (charlie / (4.0 * (nl + nv - nl * nv)));
+#endif
+    return energy * f * nl;
+}
+
+vec3 pbr_from_light(int i) {
+#ifdef SUB_LIGHTS
+    vec3 sum = vec3(0.0);
+    for (int k = i * SUB_LIGHTS; k < (i + 1) * SUB_LIGHTS; ++k)
+        sum += pbr_disc(sub_lights[k].dir_sin.xyz, sub_lights[k].dir_sin.w, sub_lights[k].energy.rgb);
+    return sum;
+#else
+    return pbr_disc(lights[i].dir_scale.xyz, lights[i].params.w, lights[i].energy.rgb);
+#endif
+}
+
+// glTF metallic-roughness (base colour, metallic, roughness) under a Charlie sheen layer (colour,
+// roughness): sets the pixel's lobes and returns the weight of its diffuse term.
+vec3 pbr_lobes(vec3 n, vec3 to_eye, vec3 base, float metallic, float roughness, vec3 sheen, float sheen_roughness) {
+    roughness = max(roughness, TABLE_R0);
+    sheen_roughness = max(sheen_roughness, TABLE_R0);
+    float nv = clamp(dot(n, to_eye), 0.0, 1.0);
+    float theta = acos(nv);
+    vec3 tangent = to_eye - nv * n;   // in the plane of n and v, towards v
+    float len = length(tangent);
+    tangent = len > 1e-6 ? tangent / len : (abs(n.z) < 0.9 ? normalize(cross(n, vec3(0.0, 0.0, 1.0)))
+                                                          : normalize(cross(n, vec3(1.0, 0.0, 0.0))));
+    TableAt t = table_at(roughness, theta);
+    int cell = 3 + 3 * LOBES_GGX;
+    float a = table_value(0, cell, t, 0), b = table_value(0, cell, t, 1), c = table_value(0, cell, t, 2);
+    vec3 f0 = mix(vec3(0.04), base, metallic);
+    vec3 specular = f0 * a + b;
+    vec3 diffuse = (1.0 - f0) * (1.0 - metallic) * base * c;
+    g_pbr_n = n;
+    g_pbr_f0 = f0;
+    g_pbr_alpha = roughness * roughness;
+    g_pbr_sheen = sheen;
+    g_pbr_sheen_alpha = sheen_roughness * sheen_roughness;
+#if LOBES_SHEEN > 0
+    TableAt ts = table_at(sheen_roughness, theta);
+    float e_sheen = table_value(u_sheen_offset, 3 + 3 * LOBES_SHEEN, ts, 0);
+    // KHR_materials_sheen's albedo scaling of the layer below.
+    float below = 1.0 - max(max(sheen.r, sheen.g), sheen.b) * e_sheen;
+    specular *= below;
+    diffuse *= below;
+    g_pbr_below = below;
+    table_lobes(u_sheen_offset, LOBES_SHEEN, ts, n, tangent, sheen * e_sheen, LOBES_GGX);
+#endif
+    table_lobes(0, LOBES_GGX, t, n, tangent, specular, 0);
+    return diffuse;
+}
