@@ -82,6 +82,17 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--albedo", type=_floats(3), default=(0.8, 0.2, 0.2), help="garment diffuse reflectance r,g,b")
     g.add_argument("--specular", type=float, default=0.5, help="garment weight of the glossy lobe")
     g.add_argument("--glossiness", type=float, default=0.8, help="garment glossiness g in [0,1] (paper Eq. 3)")
+    g.add_argument("--model", choices=["phong", "pbr"], default="phong",
+                   help="garment material model: phong (albedo, specular, glossiness: the paper's) or pbr (glTF "
+                        "metallic-roughness with sheen; --albedo is the base colour)")
+    g.add_argument("--metallic", type=float, default=0.0, help="pbr: glTF metallic in [0,1]")
+    g.add_argument("--roughness", type=float, default=0.5, help="pbr: glTF roughness in [0,1]")
+    g.add_argument("--sheen-colour", type=_floats(3), default=(0.0, 0.0, 0.0),
+                   help="pbr: KHR_materials_sheen colour r,g,b (0,0,0: no sheen)")
+    g.add_argument("--sheen-roughness", type=float, default=0.5, help="pbr: sheen roughness in [0,1]")
+    g.add_argument("--material", type=Path,
+                   help="garment material from a TOML or JSON file of Material fields (model, albedo, metallic, "
+                        "roughness, sheen_colour, sheen_roughness, specular, glossiness); replaces the flags above")
     g.add_argument("--body-albedo", type=_floats(3), default=(0.55, 0.5, 0.45), help="body diffuse reflectance r,g,b")
     g.add_argument("--camera-eye", type=_floats(3), help="camera position x,y,z (default: framing the scene from +Z)")
     g.add_argument("--camera-target", type=_floats(3), help="point the camera looks at x,y,z")
@@ -164,6 +175,41 @@ def pem_settings(args, q: dict, materials):
 FLOOR_MATERIAL = (0.45, 0.45, 0.45), 0.0, 0.3
 
 
+MATERIAL_FIELDS = ("model", "albedo", "specular", "glossiness", "metallic", "roughness", "sheen_colour",
+                   "sheen_roughness")
+
+
+def garment_material(args):
+    """The garment's Material: from --material (a TOML or JSON table of MATERIAL_FIELDS) or the flags."""
+    from .shading.material import Material
+
+    if getattr(args, "material", None) is None:
+        if args.model == "pbr":
+            return Material(args.albedo, model="pbr", metallic=args.metallic, roughness=args.roughness,
+                            sheen_colour=args.sheen_colour, sheen_roughness=args.sheen_roughness)
+        return Material(args.albedo, args.specular, args.glossiness)
+    path = args.material
+    try:
+        text = path.read_text()
+        if path.suffix.lower() == ".toml":
+            import tomllib
+            fields = tomllib.loads(text)
+        else:
+            fields = json.loads(text)
+    except (OSError, ValueError) as e:
+        raise InvalidInputError(f"cannot read material file '{path}': {e}") from None
+    if not isinstance(fields, dict):
+        raise InvalidInputError(f"material file '{path}' must hold a table of {', '.join(MATERIAL_FIELDS)}")
+    unknown = sorted(set(fields) - set(MATERIAL_FIELDS))
+    if unknown:
+        raise InvalidInputError(f"material file '{path}': unknown field(s) {', '.join(unknown)}; "
+                                f"the fields are {', '.join(MATERIAL_FIELDS)}")
+    material = Material(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
+    material.vertex_arrays(1)
+    material.pbr_arrays(1)
+    return material
+
+
 def load_scene_inputs(args, face_size: int):
     """Environment map, meshes, materials and which meshes cast shadows, from the arguments (or
     the bundled defaults: the studio, and the draped dress on the mannequin over a floor that only
@@ -177,7 +223,7 @@ def load_scene_inputs(args, face_size: int):
         env = load_environment(args.env, layout=args.layout, face_size=face_size, repair=args.repair)
     else:
         env = environment_from_array(studio_environment(1024), "latlong", face_size, name="studio (bundled)")
-    garment = Material(args.albedo, args.specular, args.glossiness)
+    garment = garment_material(args)
     body = Material(args.body_albedo, 0.1, 0.3)
     if args.mesh:
         meshes = [load_mesh(p, up=args.up, scale=args.mesh_scale) for p in args.mesh]
@@ -421,6 +467,12 @@ def cmd_speed(args) -> int:
 def cmd_bench(args) -> int:
     from .bench.run import BenchConfig, run_bench
 
+    if args.materials:
+        from .bench.materials import run as run_materials
+
+        run_materials(args.out, quick=args.quick)
+        print(f"wrote {args.out}/materials.json, materials.md")
+        return 0
     if args.broad:
         from .bench.broad import BroadConfig, run_broad
 
@@ -463,6 +515,15 @@ def cmd_lobes(args) -> int:
     return 0
 
 
+def cmd_brdf_lobes(args) -> int:
+    from .lighting.material_figures import markdown, write_brdf_lobe_report
+
+    s = write_brdf_lobe_report(args.out)
+    print(markdown(s))
+    print(f"wrote {args.out}/brdf_lobes_fig7.png, brdf_lobes_slices.png, brdf_lobes.md, brdf_lobes.json")
+    return 0
+
+
 def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     """The command line; `show_all` False: `render`, `sequence` and `reference` list only COMMON_FLAGS
     in their help (what `--help` shows; `--help-all` shows everything)."""
@@ -491,6 +552,9 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     b.add_argument("--quick", action="store_true", help="a reduced sweep that finishes in minutes on 2 cores")
     b.add_argument("--no-shared", action="store_true", help="bundled scene only (skip ../shared/assets)")
     b.add_argument("--out", type=Path, default=Path("out/bench"))
+    b.add_argument("--materials", action="store_true",
+                   help="the physically based fabrics (1 and 2 fitted lobes) against the reference beside the Phong "
+                        "fabric, on held-out maps (renderer/bench/materials.py)")
     b.add_argument("--broad", action="store_true",
                    help="the presets on every shared map x 3 garments x 3 fabrics x 2 views, a tuning and a held-out "
                         "set reported apart, with the artefact share (writes broad.json/md; about an hour here, "
@@ -540,6 +604,10 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     lo.add_argument("--out", type=Path, default=Path("out/lobes"))
     lo.add_argument("--face-size", type=int, default=128)
     lo.set_defaults(func=cmd_lobes)
+    bl = sub.add_parser("brdf-lobes", help="the physically based BRDFs' lobe fit: rel. RMS against view elevation "
+                                          "and lobe count (Kautz and McCool's Figure 7), and the fitted slices")
+    bl.add_argument("--out", type=Path, default=Path("out/brdf-lobes"))
+    bl.set_defaults(func=cmd_brdf_lobes)
     return p
 
 

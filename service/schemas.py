@@ -142,6 +142,14 @@ class MaterialSpec(_Strict):
     glossiness: float | list[float] = Field(0.5, description="paper's g in [0, 1], scalar or (V,)")
     albedo_map: list[list[list[float]]] | None = None
     gloss_map: list[list[list[float]]] | None = None
+    model: Literal["phong", "pbr"] = Field("phong", description="phong (albedo, specular, glossiness: the paper's) "
+                                           "or pbr (glTF metallic-roughness with KHR_materials_sheen; albedo is the "
+                                           "base colour)")
+    metallic: float | list[float] = Field(0.0, description="pbr: glTF metallic in [0, 1], scalar or (V,)")
+    roughness: float | list[float] = Field(0.5, description="pbr: glTF roughness in [0, 1], scalar or (V,)")
+    sheen_colour: list[float] | list[list[float]] = Field([0.0, 0.0, 0.0], description="pbr: sheen colour, linear "
+                                                          "RGB (3,) or (V, 3); black: no sheen")
+    sheen_roughness: float | list[float] = Field(0.5, description="pbr: sheen roughness in [0, 1], scalar or (V,)")
 
 
 # The rule of MeshSpec._one_source in the schema: a mesh_id and no inline arrays, or both arrays and

@@ -151,10 +151,13 @@ def build_material(spec: MaterialSpec, mesh: Mesh, role: str) -> Material:
     def arr(x):
         return None if x is None else np.asarray(x, np.float32) if _rectangular_any(x) else _ragged(role, x)
 
-    mat = Material(albedo=arr(spec.albedo), specular=arr(spec.specular), glossiness=arr(spec.glossiness),
-                   albedo_map=arr(spec.albedo_map), gloss_map=arr(spec.gloss_map))
     try:
+        mat = Material(albedo=arr(spec.albedo), specular=arr(spec.specular), glossiness=arr(spec.glossiness),
+                       albedo_map=arr(spec.albedo_map), gloss_map=arr(spec.gloss_map), model=spec.model,
+                       metallic=arr(spec.metallic), roughness=arr(spec.roughness), sheen_colour=arr(spec.sheen_colour),
+                       sheen_roughness=arr(spec.sheen_roughness))
         mat.vertex_arrays(mesh.n_vertices)
+        mat.pbr_arrays(mesh.n_vertices)
         mat.maps()
     except ValueError as e:  # InvalidInputError is a ValueError
         raise type(e)(f"{role} material: {e}") from None

@@ -193,6 +193,23 @@ def test_one_shot_render(http, env_upload, mesh):
     assert png_array(base64.b64decode(body["image"]["base64"])).shape[:2] == (64, 64)
 
 
+def test_a_physically_based_garment_renders_and_says_its_lobes(http, env_upload, mesh):
+    """The scene schema takes the glTF material model (model "pbr", per-vertex roughness here); the
+    frame reports the lobes setting it was shaded with."""
+    body = scene_body(env_upload[0]["id"], mesh)
+    body["garment"]["material"] = {"model": "pbr", "albedo": [0.55, 0.07, 0.12], "metallic": 0.0,
+                                   "roughness": np.linspace(0.2, 0.8, mesh.n_vertices).round(4).tolist(),
+                                   "sheen_colour": [0.6, 0.3, 0.35], "sheen_roughness": 0.3}
+    phong = scene_body(env_upload[0]["id"], mesh)
+    images = []
+    for b in (body, phong):
+        r = http.post("/render", json=b, params={"format": "json"})
+        assert r.status_code == 200, r.text
+        assert r.json()["render"]["settings"]["lobes"] == 1   # the fast preset's
+        images.append(png_array(base64.b64decode(r.json()["image"]["base64"])))
+    assert images[0].shape == images[1].shape and not np.array_equal(images[0], images[1])
+
+
 def test_mesh_file_upload_keeps_vertex_order(http, env_upload, mesh, tmp_path):
     import trimesh
 
@@ -295,6 +312,8 @@ def test_bad_frames_are_4xx_naming_the_problem(http, scene, mesh):
     ("unknown_mesh", ["unknown mesh"]),
     ("missing_faces", ["positions and faces"]),
     ("camera_degenerate", ["camera"]),
+    ("bad_metallic", ["metallic", "[0.0, 1.0]"]),
+    ("pbr_gloss_map", ["gloss_map", "phong"]),
 ])
 def test_bad_scenes_are_4xx_naming_the_problem(http, env_upload, mesh, case, words):
     body = scene_body(env_upload[0]["id"], mesh)
@@ -330,6 +349,10 @@ def test_bad_scenes_are_4xx_naming_the_problem(http, env_upload, mesh, case, wor
         del g["faces"]
     elif case == "camera_degenerate":
         body["camera"] = {"eye": [0, 1, 2], "target": [0, 1, 2]}
+    elif case == "bad_metallic":
+        g["material"] = {"model": "pbr", "metallic": 1.5}
+    elif case == "pbr_gloss_map":
+        g["material"] = {"model": "pbr", "gloss_map": [[[0.5, 0.5]]]}
     r = http.post("/scenes", json=body)
     assert_error(r, status, *words)
 

@@ -15,7 +15,8 @@ Two models (renderer/shading/brdf.py), each fitted with its colour factored out:
 - "sheen", KHR_materials_sheen's Charlie layer with colour 1: its lobes and its directional albedo
   E, which also scales the layer below (the extension's albedo scaling, 1 - max(sheen colour) E(n.v)).
 
-Each cell stores, per lobe, its share of the energy, 1 / s (s the lobe's exponent; the shader maps
+Each cell stores, per lobe, its weight relative to the slice's reflectivity (the lobes' parts above
+the horizon sum to 1: the shader clips them there, lighting.frag), 1 / s (s the lobe's exponent; the shader maps
 it to a PEM level through the same calibration as a Phong g = 1 - 1 / s) and its angle psi from the
 normal towards the view (lobe_fit.axis_at). Grids: roughness and view elevation, both uniform;
 lookups between nodes are bilinear, below the first roughness node clamped to it.
@@ -78,9 +79,10 @@ def _cell(job):
     model, i, j, count = job
     fit = fit_cell(model, float(ROUGHNESS[i]), float(THETA_V[j]), count)
     lobes = np.zeros((count, 3))
-    total = sum(lobe.weight for lobe in fit.lobes)
     for k, lobe in enumerate(fit.lobes):
-        lobes[k] = (lobe.weight / total if total > 0 else 0.0, 1.0 / lobe.exponent,
+        # Relative to the reflectivity: the lobes' parts above the horizon sum to 1 (the energy
+        # correction); a lobe that reaches below it weighs more, and the shader clips it there.
+        lobes[k] = (lobe.weight / fit.reflectivity if fit.reflectivity > 0 else 0.0, 1.0 / lobe.exponent,
                     np.arctan2(lobe.axis[0], lobe.axis[2]))
     scalars = ggx_scalars(float(ROUGHNESS[i]), float(THETA_V[j])) if model == "ggx" else (fit.reflectivity, 0.0, 0.0)
     return job, lobes, np.array(scalars), fit.rel_rms, fit.greedy_rel_rms
