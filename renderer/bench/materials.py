@@ -62,7 +62,7 @@ def run(out_dir: Path, quick: bool = False, spp: int = 128, frames: int = 5, log
             ref_cube = environment_cube(scene.map, 256)
             knobs = preset(PRESET)
             pems = r.build_pems(environment_cube(scene.map, int(knobs["face_size"])),
-                                pem_settings(knobs, knobs["filter"], None))
+                                pem_settings(knobs, "sqrt-cosine", None))
             try:
                 for name, material in materials.items():
                     t0 = time.perf_counter()

@@ -448,7 +448,7 @@ class _PBRInputs:
         metallic = np.clip(surf.pbr[:, 0], 0.0, 1.0)
         roughness = np.clip(surf.pbr[:, 1], material_lobes.ROUGHNESS[0], 1.0)
         sheen_roughness = np.clip(surf.pbr[:, 2], material_lobes.ROUGHNESS[0], 1.0)
-        e = material_lobes.load().sheen_albedo(sheen_roughness, np.clip(_dot(surf.n, surf.v), 0.0, 1.0))
+        e = material_lobes.load().sheen_albedo(sheen_roughness, _dot(facing_normal(surf.n, surf.v), surf.v))
         return cls(surf.albedo, metallic, roughness, surf.sheen, sheen_roughness, e, 0.5 + 0.4 * metallic)
 
     def f(self, n, v, w, pix) -> np.ndarray:
@@ -474,7 +474,7 @@ def _sample_chunk_pbr(sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: 
     p_specular, else cosine-weighted) per entry of pix, combined by the power heuristic."""
     m = len(pix)
     est = np.zeros((m, 3))
-    n, v, x, ng = surf.n[pix], surf.v[pix], surf.x[pix], surf.n_geom[pix]
+    n, v, x, ng = facing_normal(surf.n[pix], surf.v[pix]), surf.v[pix], surf.x[pix], surf.n_geom[pix]
 
     w, p_env = sampler.sample(m, rng, u_texel)
     radiance = sampler.radiance(w)
@@ -504,6 +504,22 @@ def _sample_chunk_pbr(sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: 
     q_safe = np.where(q > 0.0, q, 1.0)
     _add_visible(est, need, tracer, x, ng, w, radiance * f * (q_safe / (q_safe ** 2 + p_env ** 2))[:, None])
     return est
+
+
+# A physically based pixel's shading normal is bent towards the view where it faces away by more than
+# this (n.v below it): the BRDF is defined on the normal's hemisphere only, so a normal turned to the
+# seen side that still leans away from the eye (a fold's lip, a silhouette) would reflect nothing.
+# The same rule as shaders/shading/lobes.glsl (facing_normal); Phong pixels keep theirs.
+MIN_N_DOT_V = 0.05
+
+
+def facing_normal(n: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """n where n.v >= MIN_N_DOT_V; else the unit vector in the plane of n and v at n.v = MIN_N_DOT_V."""
+    nv = _dot(n, v)
+    p = n - nv[:, None] * v
+    length = np.linalg.norm(p, axis=1, keepdims=True)
+    bent = np.sqrt(1.0 - MIN_N_DOT_V ** 2) * p / np.maximum(length, 1e-300) + MIN_N_DOT_V * v
+    return np.where((nv < MIN_N_DOT_V)[:, None] & (length > 1e-12), bent, n)
 
 
 def _basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -231,7 +231,8 @@ void main() {
     vec4 pbr = texelFetch(u_g_pbr, px, 0);
     if (pbr.w > 0.5) {
         // glTF metallic-roughness with sheen: albedo is the base colour; the sheen colour rides in the
-        // targets' spare channels (gbuffer.frag).
+        // targets' spare channels (gbuffer.frag). The normal faces the eye (lobes.glsl).
+        n = facing_normal(n, to_eye);
         diffuse_weight = pbr_lobes(n, to_eye, albedo, pbr.x, pbr.y, vec3(material, texelFetch(u_g_albedo, px, 0).a), pbr.z);
         glossy = true;
         g_clip_lobes = true;

@@ -94,8 +94,21 @@ vec3 pbr_from_light(int i) {
 #endif
 }
 
+// The BRDF is defined on the normal's hemisphere only: a normal turned to the seen side that still
+// leans away from the eye (a fold's lip, a silhouette) is bent towards the view until n.v is
+// MIN_N_DOT_V (renderer/reference/montecarlo.py, facing_normal: the same rule).
+const float MIN_N_DOT_V = 0.05;
+
+vec3 facing_normal(vec3 n, vec3 v) {
+    float nv = dot(n, v);
+    vec3 p = n - nv * v;
+    float len = length(p);
+    if (nv >= MIN_N_DOT_V || len <= 1e-12) return n;
+    return sqrt(1.0 - MIN_N_DOT_V * MIN_N_DOT_V) * p / len + MIN_N_DOT_V * v;
+}
+
 // glTF metallic-roughness (base colour, metallic, roughness) under a Charlie sheen layer (colour,
-// roughness): sets the pixel's lobes and returns the weight of its diffuse term.
+// roughness): sets the pixel's lobes and returns the weight of its diffuse term. n: the facing normal.
 vec3 pbr_lobes(vec3 n, vec3 to_eye, vec3 base, float metallic, float roughness, vec3 sheen, float sheen_roughness) {
     roughness = max(roughness, TABLE_R0);
     sheen_roughness = max(sheen_roughness, TABLE_R0);
