@@ -82,9 +82,10 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--albedo", type=_floats(3), default=(0.8, 0.2, 0.2), help="garment diffuse reflectance r,g,b")
     g.add_argument("--specular", type=float, default=0.5, help="garment weight of the glossy lobe")
     g.add_argument("--glossiness", type=float, default=0.8, help="garment glossiness g in [0,1] (paper Eq. 3)")
-    g.add_argument("--model", choices=["phong", "pbr"], default="phong",
+    g.add_argument("--model", choices=["phong", "pbr"],
                    help="garment material model: phong (albedo, specular, glossiness: the paper's) or pbr (glTF "
-                        "metallic-roughness with sheen; --albedo is the base colour)")
+                        "metallic-roughness with sheen; --albedo is the base colour); default: a glTF garment's "
+                        "own material, else phong")
     g.add_argument("--metallic", type=float, default=0.0, help="pbr: glTF metallic in [0,1]")
     g.add_argument("--roughness", type=float, default=0.5, help="pbr: glTF roughness in [0,1]")
     g.add_argument("--sheen-colour", type=_floats(3), default=(0.0, 0.0, 0.0),
@@ -92,7 +93,8 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--sheen-roughness", type=float, default=0.5, help="pbr: sheen roughness in [0,1]")
     g.add_argument("--material", type=Path,
                    help="garment material from a TOML or JSON file of Material fields (model, albedo, metallic, "
-                        "roughness, sheen_colour, sheen_roughness, specular, glossiness); replaces the flags above")
+                        "roughness, sheen_colour, sheen_roughness, specular, glossiness), or a glTF/GLB file's "
+                        "material (metallic-roughness, its textures, KHR_materials_sheen); replaces the flags above")
     g.add_argument("--body-albedo", type=_floats(3), default=(0.55, 0.5, 0.45), help="body diffuse reflectance r,g,b")
     g.add_argument("--camera-eye", type=_floats(3), help="camera position x,y,z (default: framing the scene from +Z)")
     g.add_argument("--camera-target", type=_floats(3), help="point the camera looks at x,y,z")
@@ -183,12 +185,26 @@ def garment_material(args):
     """The garment's Material: from --material (a TOML or JSON table of MATERIAL_FIELDS) or the flags."""
     from .shading.material import Material
 
-    if getattr(args, "material", None) is None:
+    path = getattr(args, "material", None)
+    meshes = getattr(args, "mesh", None) or []
+    if path is None and args.model is None and meshes and meshes[0].suffix.lower() in (".glb", ".gltf"):
+        from .shading.gltf import material_from_gltf
+
+        material = material_from_gltf(meshes[0])   # a garment exported with its fabric renders with it
+        if material is not None:
+            return material
+    if path is None:
         if args.model == "pbr":
             return Material(args.albedo, model="pbr", metallic=args.metallic, roughness=args.roughness,
                             sheen_colour=args.sheen_colour, sheen_roughness=args.sheen_roughness)
         return Material(args.albedo, args.specular, args.glossiness)
-    path = args.material
+    if path.suffix.lower() in (".glb", ".gltf"):
+        from .shading.gltf import material_from_gltf
+
+        material = material_from_gltf(path)
+        if material is None:
+            raise InvalidInputError(f"'{path}' names no material")
+        return material
     try:
         text = path.read_text()
         if path.suffix.lower() == ".toml":

@@ -193,3 +193,147 @@ def test_bad_pbr_materials_are_refused_with_the_limit():
         Material(model="pbr", roughness=np.array([0.2, np.nan, 0.3])).pbr_arrays(3)
     with pytest.raises(InvalidInputError, match=r"sheen_colour must have shape \(3,\) or \(3, 3\)"):
         Material(model="pbr", sheen_colour=(1, 1)).pbr_arrays(3)
+
+
+def test_the_figure_7_report_says_where_the_fit_misses_its_target(tmp_path):
+    from renderer.lighting.material_figures import write_brdf_lobe_report
+
+    s = write_brdf_lobe_report(tmp_path)
+    for name in ("brdf_lobes_fig7.png", "brdf_lobes_slices.png", "brdf_lobes.md", "brdf_lobes.json"):
+        assert (tmp_path / name).stat().st_size > 0
+    text = (tmp_path / "brdf_lobes.md").read_text()
+    for model in material_lobes.MODELS:
+        two = s["models"][model]["2"]
+        assert two["median"] <= s["models"][model]["1"]["median"]   # a second lobe pays on the median
+        verdict = "met" if two["target_met"] else "missed by"
+        assert f"2 lobe(s), {'roughness >= 0.2' if model == 'ggx' else 'every roughness'}" in text and verdict in text
+
+
+def test_a_material_file_or_the_flags_make_the_garment_material(tmp_path):
+    from renderer.cli import build_parser, garment_material
+
+    p = build_parser()
+    args = p.parse_args(["render", "--model", "pbr", "--roughness", "0.3", "--sheen-colour", "0.5,0.4,0.3"])
+    m = garment_material(args)
+    assert m.is_pbr and m.roughness == 0.3 and m.has_sheen()
+    f = tmp_path / "velvet.toml"
+    f.write_text('model = "pbr"\nalbedo = [0.3, 0.05, 0.1]\nroughness = 0.8\nsheen_colour = [0.9, 0.5, 0.6]\n')
+    m = garment_material(p.parse_args(["render", "--material", str(f)]))
+    assert m.is_pbr and m.albedo == (0.3, 0.05, 0.1) and m.sheen_colour == (0.9, 0.5, 0.6)
+    f.write_text('model = "pbr"\nshininess = 3\n')
+    with pytest.raises(InvalidInputError, match="unknown field.*shininess"):
+        garment_material(p.parse_args(["render", "--material", str(f)]))
+    f.write_text('model = "pbr"\nroughness = 2.0\n')
+    with pytest.raises(InvalidInputError, match=r"roughness must lie in \[0.0, 1.0\]"):
+        garment_material(p.parse_args(["render", "--material", str(f)]))
+
+
+def test_the_material_bench_reports_ratios_to_the_phong_fabric():
+    from renderer.bench.materials import PHONG_BASELINE, markdown, summary
+
+    rows = []
+    for scene, phong_err, phong_ms in (("a", 0.10, 100.0), ("b", 0.20, 200.0)):
+        rows.append({"scene": scene, "material": f"phong {PHONG_BASELINE}", "lobes": None, "rel_rmse": phong_err,
+                     "noise_floor": 0.05, "artefact_share": 0.0, "frame_ms": phong_ms, "reference_s": 1.0})
+        rows.append({"scene": scene, "material": "velvet", "lobes": 2, "rel_rmse": 1.5 * phong_err,
+                     "noise_floor": 0.05, "artefact_share": 0.01, "frame_ms": 1.2 * phong_ms, "reference_s": 1.0})
+    s = summary(rows)
+    velvet = next(r for r in s if r["material"] == "velvet")
+    assert velvet["error_ratio"] == pytest.approx(1.5) and velvet["time_ratio"] == pytest.approx(1.2)
+    text = markdown({"machine": {"gl_renderer": "x", "cores": 2, "date": "d"}, "preset": "balanced", "spp": 8,
+                     "frames": 1, "quick": True, "wall_s": 60.0, "rows": rows, "summary": s})
+    assert "velvet: error missed by 1.25x; time met" in text
+
+
+def test_the_stored_figure_7_table_is_what_the_tables_give():
+    from pathlib import Path
+
+    from renderer.lighting.material_figures import markdown, summary
+
+    stored = (Path(__file__).resolve().parent.parent / "docs" / "brdf-lobes.md").read_text()
+    assert stored == markdown(summary()), "docs/brdf-lobes.md is stale: run garment-render brdf-lobes and copy it"
+
+
+def _glb_with_sheen(path, colour=(0.9, 0.5, 0.6), roughness=0.45, textured=True, two_materials=False):
+    """A GLB written by trimesh (a sphere with UVs, a metallic-roughness material and its textures),
+    its JSON then given the sheen extension, as exporters of KHR_materials_sheen write it."""
+    import json
+    import struct
+
+    import trimesh
+    from PIL import Image
+
+    def piece(offset, roughness_factor=0.9):
+        m = trimesh.creation.uv_sphere(0.5, count=(24, 24))
+        m.apply_translation(offset)
+        uv = np.asarray(m.vertices)[:, :2] * 0.5 + 0.5
+        rng = np.random.default_rng(0)
+        kw = {}
+        if textured:
+            kw["baseColorTexture"] = Image.fromarray(rng.integers(60, 200, (8, 8, 3), dtype=np.uint8))
+            mr = np.zeros((8, 8, 3), np.uint8)
+            mr[..., 1], mr[..., 2] = 200, 0   # roughness 0.78 x factor, metallic 0
+            kw["metallicRoughnessTexture"] = Image.fromarray(mr)
+        mat = trimesh.visual.material.PBRMaterial(baseColorFactor=[0.8, 0.6, 0.5, 1.0], metallicFactor=0.0,
+                                                  roughnessFactor=roughness_factor, **kw)
+        m.visual = trimesh.visual.TextureVisuals(uv=uv, material=mat)
+        return m
+
+    scene = trimesh.Scene([piece((0, 0, 0))] + ([piece((2.0, 0, 0), 0.4)] if two_materials else []))
+    data = scene.export(file_type="glb")
+    (n_json,) = struct.unpack_from("<I", data, 12)
+    doc = json.loads(data[20:20 + n_json])
+    rest = data[20 + n_json:]
+    for m in doc["materials"]:
+        # trimesh writes its 8-bit colour; an exporter writes the float the artist chose.
+        m["pbrMetallicRoughness"]["baseColorFactor"] = [0.8, 0.6, 0.5, 1.0]
+        m.setdefault("extensions", {})["KHR_materials_sheen"] = {"sheenColorFactor": list(colour),
+                                                                 "sheenRoughnessFactor": roughness}
+    doc.setdefault("extensionsUsed", []).append("KHR_materials_sheen")
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<I4s", len(text), b"JSON") + text + rest
+    path.write_bytes(struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body)
+    return path
+
+
+def test_a_gltf_garment_brings_its_material_and_renders_like_the_reference(renderer, sun, tmp_path):
+    from renderer.mesh import load_mesh
+    from renderer.shading.gltf import material_from_gltf
+
+    path = _glb_with_sheen(tmp_path / "velvet.glb")
+    m = material_from_gltf(path)
+    assert m.is_pbr and m.metallic == 0.0 and m.roughness == pytest.approx(0.9)
+    assert m.sheen_colour == pytest.approx((0.9, 0.5, 0.6)) and m.sheen_roughness == pytest.approx(0.45)
+    assert m.albedo == pytest.approx((0.8, 0.6, 0.5))   # the file's factor exactly
+    # The base colour texture is sRGB-encoded and is decoded to linear; roughness in G, metallic in B.
+    assert m.albedo_map.shape == (8, 8, 3) and m.albedo_map.max() < (200 / 255) ** 2.2 + 0.01
+    np.testing.assert_allclose(m.metallic_roughness_map[..., 1], 200 / 255, atol=1e-6)
+    np.testing.assert_allclose(m.metallic_roughness_map[..., 0], 0.0)
+    # The command line takes a glTF garment's own material unless told otherwise.
+    from renderer.cli import build_parser, garment_material
+
+    p = build_parser()
+    assert garment_material(p.parse_args(["render", "--mesh", str(path)])).sheen_colour == m.sheen_colour
+    assert not garment_material(p.parse_args(["render", "--mesh", str(path), "--model", "phong"])).is_pbr
+
+    cube, pems = sun
+    mesh = load_mesh(path)
+    scene = renderer.create_scene([mesh], [m])
+    try:
+        frame = renderer.render(scene, pems, FrameSettings(64, 64), CAM)
+    finally:
+        scene.release()
+    ref = render_reference([mesh], [m], cube, CAM, 64, 64, spp=64)
+    assert relative_rmse(frame.image, ref.image) < 0.2
+    # Both read the textures: the mean matches, and differs from the untextured material's.
+    mask = covered(frame) & covered(ref)
+    assert frame.image[mask][:, :3].mean() == pytest.approx(ref.image[mask][:, :3].mean(), rel=0.05)
+
+
+def test_a_gltf_file_with_two_materials_is_refused_with_the_count(tmp_path):
+    from renderer.shading.gltf import material_from_gltf
+
+    path = _glb_with_sheen(tmp_path / "two.glb", textured=False, two_materials=True)
+    with pytest.raises(InvalidInputError, match="uses 2 materials"):
+        material_from_gltf(path)

@@ -176,8 +176,9 @@ class _SceneArrays:
     sheen: np.ndarray       # float64 (V, 3) sheen colour
     uvs: np.ndarray         # float64 (V, 2) (zeros for meshes without UVs)
     face_mesh: np.ndarray   # int64 (T,) the mesh of each triangle
-    maps: tuple             # per mesh: (albedo_map or None, gloss_map or None)
+    maps: tuple             # per mesh: (albedo_map or None, gloss_map / metallic_roughness_map or None)
     intersector: object     # trimesh.ray.ray_pyembree.RayMeshIntersector
+    pbr_meshes: tuple = ()  # per mesh: its material is "pbr"
 
     @classmethod
     def build(cls, meshes: list[Mesh], materials: list[Material]) -> _SceneArrays:
@@ -216,7 +217,8 @@ class _SceneArrays:
             return np.concatenate(parts).astype(np.float64)
 
         return cls(positions, faces, cat(nrm), cat(alb), cat(mat), cat(pbr), cat(sheen), cat(uvs),
-                   np.concatenate(face_mesh), tuple(maps), RayMeshIntersector(tm))
+                   np.concatenate(face_mesh), tuple(maps), RayMeshIntersector(tm),
+                   tuple(m.is_pbr for m in materials))
 
 
 @dataclass
@@ -261,6 +263,8 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
 
     albedo = mix(scene.albedo)
     material = mix(scene.material)
+    pbr = mix(scene.pbr)
+    pbr_of = scene.pbr_meshes
     mesh_of = scene.face_mesh[tri]
     uv_all = mix(scene.uvs) if any(a is not None or g is not None for a, g in scene.maps) else None
     for i, (albedo_map, gloss_map) in enumerate(scene.maps):
@@ -270,10 +274,12 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
         uv = uv_all[sel]
         if albedo_map is not None:
             albedo[sel] *= _texture_bilinear(albedo_map, uv)
-        if gloss_map is not None:
+        if gloss_map is not None and pbr_of[i]:
+            pbr[sel, :2] *= _texture_bilinear(gloss_map, uv)   # glTF's metallic-roughness texture
+        elif gloss_map is not None:
             material[sel] = _texture_bilinear(gloss_map, uv)
     return _Surface(x, n, n_geom, r, albedo, material[:, 0], np.clip(material[:, 1], 0.0, 1.0), -dirs,
-                    mix(scene.pbr), mix(scene.sheen))
+                    pbr, mix(scene.sheen))
 
 
 def _texture_bilinear(img: np.ndarray, uv: np.ndarray) -> np.ndarray:

@@ -44,6 +44,8 @@ class Material:
     sheen_colour: (3,) or (V, 3) in [0, 1], black for no sheen; sheen_roughness: [0, 1] ("pbr").
     albedo_map: optional (H, W, 3) linear RGB texture that multiplies albedo (needs mesh UVs).
     gloss_map: optional (H, W, 2) texture of (specular, glossiness) that replaces the two values ("phong").
+    metallic_roughness_map: optional (H, W, 2) texture of (metallic, roughness) in [0, 1] that
+    multiplies the two values, as glTF's metallicRoughnessTexture does ("pbr").
     """
 
     albedo: tuple | np.ndarray = (0.8, 0.8, 0.8)
@@ -56,12 +58,15 @@ class Material:
     roughness: float | np.ndarray = 0.5
     sheen_colour: tuple | np.ndarray = (0.0, 0.0, 0.0)
     sheen_roughness: float | np.ndarray = 0.5
+    metallic_roughness_map: np.ndarray | None = None
 
     def __post_init__(self):
         if self.model not in MODELS:
             raise InvalidInputError(f"material model must be one of {', '.join(MODELS)}, got {self.model!r}")
         if self.model == "pbr" and self.gloss_map is not None:
             raise InvalidInputError("a gloss_map (specular, glossiness) belongs to the phong model, not pbr")
+        if self.model != "pbr" and self.metallic_roughness_map is not None:
+            raise InvalidInputError("a metallic_roughness_map belongs to the pbr model, not phong")
 
     @property
     def is_pbr(self) -> bool:
@@ -124,7 +129,11 @@ class Material:
         return np.ascontiguousarray(albedo), out
 
     def maps(self) -> tuple[np.ndarray | None, np.ndarray | None]:
-        am, gm = self.albedo_map, self.gloss_map
+        """(albedo map, second map): the gloss map of a Phong material, the metallic-roughness map of
+        a pbr one (both (H, W, 2) in [0, 1]), validated."""
+        am, gm = self.albedo_map, self.gloss_map if not self.is_pbr else self.metallic_roughness_map
+        name = "metallic_roughness_map" if self.is_pbr else "gloss_map"
+        shape = "(metallic, roughness)" if self.is_pbr else "(specular, glossiness)"
         if am is not None:
             am = np.asarray(am, np.float32)
             if am.ndim != 3 or am.shape[2] != 3:
@@ -133,6 +142,6 @@ class Material:
         if gm is not None:
             gm = np.asarray(gm, np.float32)
             if gm.ndim != 3 or gm.shape[2] != 2:
-                raise InvalidInputError(f"gloss_map must be (H, W, 2) = (specular, glossiness), got {gm.shape}")
-            _finite("gloss_map", gm, 0.0, 1.0)
+                raise InvalidInputError(f"{name} must be (H, W, 2) = {shape}, got {gm.shape}")
+            _finite(name, gm, 0.0, 1.0)
         return am, gm

@@ -46,7 +46,9 @@ void main() {
     o_geometric = vec4(geometric, u_shadow_group);
     o_albedo = vec4(albedo, 1.0);
 #ifdef PBR
-    o_pbr = v_pbr.w > 0.5 ? vec4(v_pbr.xyz, 1.0) : vec4(0.0);
+    // A pbr mesh's second map is glTF's metallic-roughness texture: it multiplies the two values.
+    vec2 mr = u_use_gloss_map ? texture(u_gloss_map, v_uv).rg : vec2(1.0);
+    o_pbr = v_pbr.w > 0.5 ? vec4(v_pbr.xy * mr, v_pbr.z, 1.0) : vec4(0.0);
     if (v_pbr.w > 0.5) {
         o_position.w = v_sheen.r;   // >= 0, so "covered" still reads from w (-1: no surface)
         o_normal.w = v_sheen.g;
