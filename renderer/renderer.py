@@ -586,6 +586,8 @@ class Renderer:
             for sm in scene.meshes:
                 sm.albedo_tex.use(location=3)
                 sm.gloss_tex.use(location=4)
+                sm.normal_tex.use(location=5)
+                set_uniform(g, "u_normal_scale", sm.normal_scale)
                 set_uniform(g, "u_use_albedo_map", sm.use_maps[0])
                 set_uniform(g, "u_use_gloss_map", sm.use_maps[1])
                 set_uniform(g, "u_shadow_group", float(sm.group))

@@ -133,7 +133,8 @@ class SceneMesh:
         albedo, mat = material.vertex_arrays(self.n_vertices)
         pbr_values, sheen = material.pbr_arrays(self.n_vertices) if pbr else (None, None)
         albedo_map, gloss_map = material.maps()
-        if (albedo_map is not None or gloss_map is not None) and mesh.uvs is None:
+        normal_map = material.normal_texture()
+        if (albedo_map is not None or gloss_map is not None or normal_map is not None) and mesh.uvs is None:
             raise MeshError(f"mesh {mesh.name!r} has material maps but no UVs")
         uvs = mesh.uvs if mesh.uvs is not None else np.zeros((self.n_vertices, 2), np.float32)
         # Checked before any GL object exists, so that a refused proxy leaks nothing.
@@ -163,7 +164,10 @@ class SceneMesh:
         self.textures = []
         self.albedo_tex = self._texture(ctx, albedo_map, 3, (1.0, 1.0, 1.0))
         self.gloss_tex = self._texture(ctx, gloss_map, 2, (0.0, 0.0))
+        self.normal_tex = self._texture(ctx, normal_map, 3, (0.5, 0.5, 1.0))
         self.use_maps = (albedo_map is not None, gloss_map is not None)
+        # The normal map's scale of x and y; 0: no normal map.
+        self.normal_scale = float(material.normal_scale) if normal_map is not None else 0.0
         self._ctx, self._moments_prog = ctx, programs["moments"]
         self.vao_shadow = ctx.vertex_array(programs["moments"], [(self.vbo_pos, "3f", "in_position")],
                                            index_buffer=self.ibo, index_element_size=4)

@@ -77,20 +77,22 @@ def _sphere_n_dot_v(width: int, height: int) -> np.ndarray:
     return (-np.einsum("ij,ij->i", hit / radius, dirs)).reshape(height, width)
 
 
+@pytest.mark.parametrize("lobes", [1, 2])
 @pytest.mark.parametrize("name", MATERIALS)
-def test_white_furnace_renders_the_directional_albedo(renderer, name):
+def test_white_furnace_renders_the_directional_albedo(renderer, name, lobes):
     """Under a uniform map of radiance L, without occlusion, a pixel is the BRDF's directional albedo
     at its view times L. The split scalars and the lobes' energy correction are exact at the table's
     nodes; what is left: the bilinear lookup between them, the icosphere's facets, and the lobes'
     parts below the horizon, clipped per light (the share of its disc above the plane), not per
-    direction. Measured at 96 lights: within 1 % for n.v >= 0.4, down to -4 % (the metal) at grazing
-    views; at 24 lights the grazing band loses 13 %."""
+    direction. Measured at 96 lights: within 0.5 % for n.v >= 0.4, down to -4 % (the metal) at grazing
+    views, the worst 1 % of pixels 10 % off (the metal, one lobe; 7 % with two); at 24 lights the
+    grazing band loses 13 %."""
     material = MATERIALS[name]
     L = 1.7
     pems = renderer.build_pems(np.full((6, 32, 32, 3), L, np.float32), PEMSettings(n_lights=96))
     scene = renderer.create_scene([sphere()], [material])
     try:
-        frame = renderer.render(scene, pems, FrameSettings(64, 64, mode=ShadingMode.NO_OCCLUSION), CAM)
+        frame = renderer.render(scene, pems, FrameSettings(64, 64, mode=ShadingMode.NO_OCCLUSION, lobes=lobes), CAM)
     finally:
         scene.release()
         pems.release()
@@ -105,7 +107,7 @@ def test_white_furnace_renders_the_directional_albedo(renderer, name):
     front = nv[inside] >= 0.4
     assert np.abs(rel[front].mean(axis=0)).max() < 0.02
     assert np.abs(rel[~front].mean(axis=0)).max() < 0.06
-    assert np.quantile(np.abs(rel), 0.99) < 0.08
+    assert np.quantile(np.abs(rel), 0.99) < 0.12
 
 
 @pytest.mark.parametrize("name", ["metal", "velvet"])
@@ -274,6 +276,7 @@ def _glb_with_sheen(path, colour=(0.9, 0.5, 0.6), roughness=0.45, textured=True,
             mr = np.zeros((8, 8, 3), np.uint8)
             mr[..., 1], mr[..., 2] = 200, 0   # roughness 0.78 x factor, metallic 0
             kw["metallicRoughnessTexture"] = Image.fromarray(mr)
+            kw["normalTexture"] = Image.fromarray(np.full((4, 4, 3), (160, 128, 240), np.uint8))
         mat = trimesh.visual.material.PBRMaterial(baseColorFactor=[0.8, 0.6, 0.5, 1.0], metallicFactor=0.0,
                                                   roughnessFactor=roughness_factor, **kw)
         m.visual = trimesh.visual.TextureVisuals(uv=uv, material=mat)
@@ -310,6 +313,7 @@ def test_a_gltf_garment_brings_its_material_and_renders_like_the_reference(rende
     assert m.albedo_map.shape == (8, 8, 3) and m.albedo_map.max() < (200 / 255) ** 2.2 + 0.01
     np.testing.assert_allclose(m.metallic_roughness_map[..., 1], 200 / 255, atol=1e-6)
     np.testing.assert_allclose(m.metallic_roughness_map[..., 0], 0.0)
+    np.testing.assert_allclose(m.normal_map[0, 0], np.array([160, 128, 240]) / 255, atol=1e-6)   # linear
     # The command line takes a glTF garment's own material unless told otherwise.
     from renderer.cli import build_parser, garment_material
 
@@ -337,3 +341,41 @@ def test_a_gltf_file_with_two_materials_is_refused_with_the_count(tmp_path):
     path = _glb_with_sheen(tmp_path / "two.glb", textured=False, two_materials=True)
     with pytest.raises(InvalidInputError, match="uses 2 materials"):
         material_from_gltf(path)
+
+
+def _uv_sphere():
+    import trimesh
+
+    from renderer.mesh import Mesh
+
+    s = trimesh.creation.uv_sphere(0.5, count=(48, 48))
+    v = np.asarray(s.vertices)
+    uv = np.stack([np.arctan2(v[:, 0], v[:, 2]) / (2 * np.pi) + 0.5, v[:, 1] + 0.5], axis=1)
+    return Mesh.from_arrays(v, np.asarray(s.faces), uv, name="uv-sphere")
+
+
+@pytest.mark.parametrize("model", ["phong", "pbr"])
+def test_a_normal_map_tilts_the_shading_normal_as_the_reference_does(renderer, sun, model):
+    """A flat normal map changes nothing; a map tilted along +u changes the picture, the same way in
+    the renderer (frame from screen derivatives) and the reference (from the triangle's edges)."""
+    cube, pems = sun
+    mesh = _uv_sphere()
+    kw = dict(model="pbr", roughness=0.4) if model == "pbr" else dict(specular=0.4, glossiness=0.8)
+    flat = np.full((4, 4, 3), (0.5, 0.5, 1.0), np.float32)
+    tilted = np.full((4, 4, 3), (0.5 + 0.5 * np.sin(0.5), 0.5, 0.5 + 0.5 * np.cos(0.5)), np.float32)
+    images = {}
+    for name, nm in (("none", None), ("flat", flat), ("tilted", tilted)):
+        material = Material((0.6, 0.5, 0.4), normal_map=nm, **kw)
+        scene = renderer.create_scene([mesh], [material])
+        try:
+            images[name] = renderer.render(scene, pems, FrameSettings(64, 64), CAM).image
+        finally:
+            scene.release()
+    mask = images["none"][..., 3] > 0.5
+    np.testing.assert_allclose(images["flat"][mask], images["none"][mask], rtol=1e-4, atol=1e-5)
+    ref = render_reference([mesh], [Material((0.6, 0.5, 0.4), normal_map=tilted, **kw)], cube, CAM, 64, 64, spp=64)
+    untilted = render_reference([mesh], [Material((0.6, 0.5, 0.4), **kw)], cube, CAM, 64, 64, spp=64)
+    err = relative_rmse(images["tilted"], ref.image)
+    assert err < 0.2
+    assert relative_rmse(images["none"], ref.image) > 1.5 * err   # the tilt is seen, and seen alike
+    assert relative_rmse(untilted.image, ref.image) > 1.5 * err

@@ -44,7 +44,7 @@ ROUGHNESS = np.linspace(0.05, 1.0, 12)
 THETA_V = np.radians(np.linspace(0.0, 88.0, 12))
 TABLE_PATH = Path(__file__).resolve().parent.parent / "data" / "material_lobes.npz"
 # Floats per cell in the shader's table: three scalars (ggx: a, b, c; sheen: E, 0, 0), then per lobe
-# (share, 1 / s, psi).
+# (weight relative to the reflectivity, 1 / s, psi).
 SCALARS = 3
 
 
@@ -90,7 +90,7 @@ def _cell(job):
 
 @dataclass(frozen=True)
 class LobeTables:
-    """arrays["{model}_{count}_lobes"] (R, J, count, 3): per lobe (share, 1 / s, psi);
+    """arrays["{model}_{count}_lobes"] (R, J, count, 3): per lobe (weight / reflectivity, 1 / s, psi);
     arrays["{model}_{count}_scalars"] (R, J, 3); arrays["{model}_{count}_rms"] and "_greedy_rms"
     (R, J): the fit's relative RMS error after / before the joint refinement. roughness (R,),
     theta_v (J,): the nodes."""

@@ -179,6 +179,7 @@ class _SceneArrays:
     maps: tuple             # per mesh: (albedo_map or None, gloss_map / metallic_roughness_map or None)
     intersector: object     # trimesh.ray.ray_pyembree.RayMeshIntersector
     pbr_meshes: tuple = ()  # per mesh: its material is "pbr"
+    normal_maps: tuple = ()  # per mesh: (normal map or None, its scale)
 
     @classmethod
     def build(cls, meshes: list[Mesh], materials: list[Material]) -> _SceneArrays:
@@ -189,6 +190,7 @@ class _SceneArrays:
         if not meshes or len(meshes) != len(materials):
             raise InvalidInputError(f"need one material per mesh; got {len(meshes)} meshes, {len(materials)} materials")
         pos, faces, nrm, alb, mat, uvs, face_mesh, maps, pbr, sheen = [], [], [], [], [], [], [], [], [], []
+        normal_maps = []
         offset = 0
         for i, (mesh, material) in enumerate(zip(meshes, materials)):
             if not isinstance(mesh, Mesh) or not isinstance(material, Material):
@@ -199,7 +201,8 @@ class _SceneArrays:
             pbr.append(p)
             sheen.append(sh)
             albedo_map, gloss_map = material.maps()
-            if (albedo_map is not None or gloss_map is not None) and mesh.uvs is None:
+            normal_maps.append((material.normal_texture(), float(material.normal_scale)))
+            if (albedo_map is not None or gloss_map is not None or normal_maps[-1][0] is not None) and mesh.uvs is None:
                 raise MeshError(f"mesh {mesh.name!r} has material maps but no UVs")
             pos.append(mesh.positions)
             faces.append(mesh.faces.astype(np.int64) + offset)
@@ -218,7 +221,7 @@ class _SceneArrays:
 
         return cls(positions, faces, cat(nrm), cat(alb), cat(mat), cat(pbr), cat(sheen), cat(uvs),
                    np.concatenate(face_mesh), tuple(maps), RayMeshIntersector(tm),
-                   tuple(m.is_pbr for m in materials))
+                   tuple(m.is_pbr for m in materials), tuple(normal_maps))
 
 
 @dataclass
@@ -259,13 +262,18 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
     n = _normalize(mix(scene.normals), fallback=n_geom)
     n_geom = np.where(_dot(n_geom, -dirs)[:, None] < 0.0, -n_geom, n_geom)  # the side the camera sees
     n = np.where(_dot(n, n_geom)[:, None] < 0.0, -n, n)  # two-sided: turned to the seen side, as in gbuffer.frag
+    mesh_of = scene.face_mesh[tri]
+    for i, (normal_map, scale) in enumerate(scene.normal_maps):
+        sel = np.flatnonzero(mesh_of == i) if normal_map is not None else ()
+        if len(sel):
+            n[sel] = _normal_mapped(n[sel], n_geom[sel], e1[sel], e2[sel], scene.uvs[f[sel]], bary[sel], normal_map,
+                                    scale)
     r = dirs - 2.0 * _dot(dirs, n)[:, None] * n
 
     albedo = mix(scene.albedo)
     material = mix(scene.material)
     pbr = mix(scene.pbr)
     pbr_of = scene.pbr_meshes
-    mesh_of = scene.face_mesh[tri]
     uv_all = mix(scene.uvs) if any(a is not None or g is not None for a, g in scene.maps) else None
     for i, (albedo_map, gloss_map) in enumerate(scene.maps):
         sel = np.flatnonzero(mesh_of == i)
@@ -280,6 +288,26 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
             material[sel] = _texture_bilinear(gloss_map, uv)
     return _Surface(x, n, n_geom, r, albedo, material[:, 0], np.clip(material[:, 1], 0.0, 1.0), -dirs,
                     pbr, mix(scene.sheen))
+
+
+def _normal_mapped(n, n_geom, e1, e2, uv_corners, bary, normal_map, scale) -> np.ndarray:
+    """The shading normal through a tangent-space normal map, in the frame gbuffer.frag builds (the
+    surface gradients of u and v in the plane of n, from the triangle's edges here and the screen
+    derivatives there: the same vectors), turned to the seen side as gbuffer.frag turns it."""
+    duv1, duv2 = uv_corners[:, 1] - uv_corners[:, 0], uv_corners[:, 2] - uv_corners[:, 0]
+    dp2perp, dp1perp = np.cross(e2, n), np.cross(n, e1)
+    t = dp2perp * duv1[:, :1] + dp1perp * duv2[:, :1]
+    b = dp2perp * duv1[:, 1:] + dp1perp * duv2[:, 1:]
+    det = _dot(n, np.cross(e1, e2))
+    m = np.maximum(_dot(t, t), _dot(b, b))
+    ok = m > 1e-300
+    s = np.where(det < 0.0, -1.0, 1.0) / np.sqrt(np.where(ok, m, 1.0))
+    uv = np.einsum("nk,nkc->nc", bary, uv_corners)
+    tn = _texture_bilinear(normal_map, uv) * 2.0 - 1.0
+    mapped = s[:, None] * (t * (tn[:, :1] * scale) + b * (tn[:, 1:2] * scale)) + n * tn[:, 2:]
+    mapped = _normalize(mapped, fallback=n)
+    mapped = np.where(_dot(mapped, n_geom)[:, None] < 0.0, -mapped, mapped)
+    return np.where(ok[:, None], mapped, n)
 
 
 def _texture_bilinear(img: np.ndarray, uv: np.ndarray) -> np.ndarray:

@@ -6,10 +6,11 @@ The factors and the extension come from the file's JSON (trimesh keeps the core 
 quantizes its colours to 8 bits); the textures from trimesh's reading of the same file. The base
 colour texture is sRGB-encoded (the specification), decoded to linear here; the metallic-roughness
 texture is linear, roughness in its green and metallic in its blue channel, each multiplying its
-factor.
+factor; the normal texture is tangent-space, its scale kept (Material.normal_map: the tangent frame
+is the triangle's, not MikkTSpace's).
 
-Not read, and said so by a warning: normal and occlusion textures (the renderer shades with the
-mesh's own normals) and the sheen extension's textures (its factors are read). A file whose meshes
+Not read, and said so by a warning: the occlusion texture (the renderer's shadows stand for it) and
+the sheen extension's textures (its factors are read). A file whose meshes
 use more than one material is refused with the count: the renderer takes one material per mesh.
 """
 
@@ -72,12 +73,15 @@ def material_from_gltf(path: str | Path) -> Material | None:
     sheen = spec.get("extensions", {}).get(SHEEN, {})
     sheen_colour = tuple(float(c) for c in sheen.get("sheenColorFactor", [0.0, 0.0, 0.0]))
     sheen_roughness = float(sheen.get("sheenRoughnessFactor", 0.0))
-    left_out = [name for name in ("normalTexture", "occlusionTexture") if name in spec]
+    left_out = [name for name in ("occlusionTexture",) if name in spec]
     left_out += [f"{SHEEN}.{name}" for name in ("sheenColorTexture", "sheenRoughnessTexture") if name in sheen]
 
-    albedo_map = mr_map = None
-    if "baseColorTexture" in pbr or "metallicRoughnessTexture" in pbr:
+    albedo_map = mr_map = normal_map = None
+    normal_scale = float(spec.get("normalTexture", {}).get("scale", 1.0))
+    if "baseColorTexture" in pbr or "metallicRoughnessTexture" in pbr or "normalTexture" in spec:
         core = _trimesh_material(path)
+        if "normalTexture" in spec and getattr(core, "normalTexture", None) is not None:
+            normal_map = _image(core.normalTexture, 3).astype(np.float32)
         if "baseColorTexture" in pbr and getattr(core, "baseColorTexture", None) is not None:
             albedo_map = srgb_to_linear(_image(core.baseColorTexture, 3)).astype(np.float32)
         if "metallicRoughnessTexture" in pbr and getattr(core, "metallicRoughnessTexture", None) is not None:
@@ -87,7 +91,7 @@ def material_from_gltf(path: str | Path) -> Material | None:
         warnings.warn(f"'{path}': not read: {', '.join(left_out)} (docs/materials.md)", stacklevel=2)
     return Material(tuple(np.clip(base, 0.0, 1.0)), model="pbr", metallic=metallic, roughness=roughness,
                     sheen_colour=sheen_colour, sheen_roughness=sheen_roughness, albedo_map=albedo_map,
-                    metallic_roughness_map=mr_map)
+                    metallic_roughness_map=mr_map, normal_map=normal_map, normal_scale=normal_scale)
 
 
 def _trimesh_material(path: Path):

@@ -46,6 +46,10 @@ class Material:
     gloss_map: optional (H, W, 2) texture of (specular, glossiness) that replaces the two values ("phong").
     metallic_roughness_map: optional (H, W, 2) texture of (metallic, roughness) in [0, 1] that
     multiplies the two values, as glTF's metallicRoughnessTexture does ("pbr").
+    normal_map: optional (H, W, 3) tangent-space normal texture in [0, 1] (glTF's normalTexture:
+    x = 2 r - 1 along the direction of growing u, y along growing v, z along the normal), any model;
+    normal_scale scales its x and y. The tangent frame is the triangle's own (the surface gradients
+    of u and v, as the geometry pass's screen derivatives give them), not MikkTSpace's.
     """
 
     albedo: tuple | np.ndarray = (0.8, 0.8, 0.8)
@@ -59,6 +63,8 @@ class Material:
     sheen_colour: tuple | np.ndarray = (0.0, 0.0, 0.0)
     sheen_roughness: float | np.ndarray = 0.5
     metallic_roughness_map: np.ndarray | None = None
+    normal_map: np.ndarray | None = None
+    normal_scale: float = 1.0
 
     def __post_init__(self):
         if self.model not in MODELS:
@@ -67,6 +73,8 @@ class Material:
             raise InvalidInputError("a gloss_map (specular, glossiness) belongs to the phong model, not pbr")
         if self.model != "pbr" and self.metallic_roughness_map is not None:
             raise InvalidInputError("a metallic_roughness_map belongs to the pbr model, not phong")
+        if not (np.isfinite(self.normal_scale) and 0.0 <= self.normal_scale <= 10.0):
+            raise InvalidInputError(f"normal_scale must lie in [0, 10], got {self.normal_scale}")
 
     @property
     def is_pbr(self) -> bool:
@@ -145,3 +153,12 @@ class Material:
                 raise InvalidInputError(f"{name} must be (H, W, 2) = {shape}, got {gm.shape}")
             _finite(name, gm, 0.0, 1.0)
         return am, gm
+
+    def normal_texture(self) -> np.ndarray | None:
+        """The normal map (H, W, 3) float32 in [0, 1], validated (None without one)."""
+        if self.normal_map is None:
+            return None
+        nm = np.asarray(self.normal_map, np.float32)
+        if nm.ndim != 3 or nm.shape[2] != 3:
+            raise InvalidInputError(f"normal_map must be (H, W, 3), got {nm.shape}")
+        return _finite("normal_map", nm, 0.0, 1.0)

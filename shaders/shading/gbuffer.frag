@@ -17,6 +17,8 @@ layout(location = 4) out vec4 o_pbr;        // metallic, roughness, sheen roughn
 
 layout(binding = 3) uniform sampler2D u_albedo_map;   // multiplies the vertex albedo
 layout(binding = 4) uniform sampler2D u_gloss_map;    // (specular, glossiness), replaces the vertex values
+layout(binding = 5) uniform sampler2D u_normal_map;   // tangent-space normals (Material.normal_map)
+uniform float u_normal_scale;                          // its x and y scale; 0: no normal map
 uniform bool u_use_albedo_map;
 uniform bool u_use_gloss_map;
 uniform vec3 u_camera_pos;
@@ -39,6 +41,24 @@ void main() {
     // decides. Where the interpolated normal leans across that plane (a fold seen from inside, a
     // grazing silhouette), it is turned to the seen side even if it then faces slightly away.
     if (dot(n, geometric) < 0.0) n = -n;
+    if (u_normal_scale > 0.0) {
+        // The tangent frame from the surface gradients of u and v (Schüler, "Normal Mapping Without
+        // Precomputed Tangents", 2013): T = grad u, B = grad v in the plane of n, scaled by the larger;
+        // renderer/reference/montecarlo.py builds the same frame from the triangle's edges.
+        vec3 dp1 = dFdx(v_ws_position), dp2 = dFdy(v_ws_position);
+        vec2 duv1 = dFdx(v_uv), duv2 = dFdy(v_uv);
+        vec3 dp2perp = cross(dp2, n), dp1perp = cross(n, dp1);
+        vec3 t = dp2perp * duv1.x + dp1perp * duv2.x;
+        vec3 b = dp2perp * duv1.y + dp1perp * duv2.y;
+        float det = dot(n, cross(dp1, dp2));
+        float m = max(dot(t, t), dot(b, b));
+        if (m > 1e-30) {
+            float s = (det < 0.0 ? -1.0 : 1.0) * inversesqrt(m);
+            vec3 tn = texture(u_normal_map, v_uv).rgb * 2.0 - 1.0;
+            vec3 mapped = normalize(s * (t * (tn.x * u_normal_scale) + b * (tn.y * u_normal_scale)) + n * tn.z);
+            n = dot(mapped, geometric) < 0.0 ? -mapped : mapped;
+        }
+    }
     vec3 albedo = u_use_albedo_map ? v_albedo * texture(u_albedo_map, v_uv).rgb : v_albedo;
     vec2 material = u_use_gloss_map ? texture(u_gloss_map, v_uv).rg : v_material;
     o_position = vec4(v_ws_position, material.x);

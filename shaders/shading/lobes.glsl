@@ -3,7 +3,8 @@
 // Included after the globals of lighting.frag.
 //
 // The table (binding 7): the GGX table from 0, the sheen table from u_sheen_offset, each
-// TABLE_R x TABLE_J cells, roughness-major, of 3 scalars then (share, 1 / s, psi) per lobe.
+// TABLE_R x TABLE_J cells, roughness-major, of 3 scalars then (weight, 1 / s, psi) per lobe, the weight
+// relative to the energy (the lobes are clipped at the horizon, where their parts above it sum to 1).
 layout(std430, binding = 7) readonly buffer MaterialLobes { float lobe_table[]; };
 uniform int u_sheen_offset;
 
@@ -33,17 +34,17 @@ float table_value(int base, int cell, TableAt t, int field) {
 }
 
 // Sets lobe slot `first + k` for each of `count` lobes of the table at `base`, with the energy
-// `energy` split by the lobes' shares; returns nothing (globals of lighting.frag).
+// `energy` times each lobe's relative weight (globals of lighting.frag).
 void table_lobes(int base, int count, TableAt t, vec3 n, vec3 tangent, vec3 energy, int first) {
     int cell = 3 + 3 * count;
     for (int k = 0; k < count; ++k) {
-        float share = table_value(base, cell, t, 3 + 3 * k);
+        float weight = table_value(base, cell, t, 3 + 3 * k);
         float inv_s = max(table_value(base, cell, t, 4 + 3 * k), 0.0);
         float psi = table_value(base, cell, t, 5 + 3 * k);
         g_lobe_axis[first + k] = normalize(cos(psi) * n + sin(psi) * tangent);
         g_lobe_inv_s[first + k] = inv_s;
         g_lobe_level[first + k] = gloss_level(1.0 - min(inv_s, 1.0));   // a lobe wider than a cosine: the cosine's level
-        g_lobe_weight[first + k] = share * energy;
+        g_lobe_weight[first + k] = weight * energy;
     }
 }
 
