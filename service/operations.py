@@ -210,12 +210,12 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
     if svc.state is not None and scene_id is None:
         # Stored with every mesh inline (an uploaded file may be unknown to the process that restores it).
         inline = {}
-        for role, mesh in zip(prepared.roles, prepared.meshes):
+        for role, mesh, material in zip(prepared.roles, prepared.meshes, prepared.material_specs):
             spec: MeshSpec = getattr(body, role)
             if spec.mesh_id is not None:
                 inline[role] = MeshSpec(name=mesh.name, positions=_to_scene_up(mesh.positions, body.up),
                                         faces=mesh.faces.tolist(),
-                                        uvs=None if mesh.uvs is None else mesh.uvs.tolist(), material=spec.material,
+                                        uvs=None if mesh.uvs is None else mesh.uvs.tolist(), material=material,
                                         **{k: spec.cast_shadows for k in ("cast_shadows",)
                                            if k in spec.model_fields_set})
         stored = body.model_copy(update=inline)

@@ -185,6 +185,8 @@ class MeshRecord:
     up: str
     scale: float
     created: float = field(default_factory=time.time)
+    material: object | None = None   # a glTF/GLB file's own Material (renderer/shading/gltf.py)
+    material_notes: str | None = None
 
 
 class MeshStore:

@@ -150,6 +150,11 @@ class MaterialSpec(_Strict):
     sheen_colour: list[float] | list[list[float]] = Field([0.0, 0.0, 0.0], description="pbr: sheen colour, linear "
                                                           "RGB (3,) or (V, 3); black: no sheen")
     sheen_roughness: float | list[float] = Field(0.5, description="pbr: sheen roughness in [0, 1], scalar or (V,)")
+    metallic_roughness_map: list[list[list[float]]] | None = Field(
+        None, description="pbr: (H, W, 2) texture of (metallic, roughness) multiplying the two; needs mesh UVs")
+    normal_map: list[list[list[float]]] | None = Field(
+        None, description="(H, W, 3) tangent-space normal texture in [0, 1] (glTF's); needs mesh UVs")
+    normal_scale: float = Field(1.0, ge=0.0, le=10.0, description="scale of the normal map's x and y")
 
 
 # The rule of MeshSpec._one_source in the schema: a mesh_id and no inline arrays, or both arrays and
@@ -256,6 +261,8 @@ class MeshInfo(BaseModel):
     bounds: tuple[tuple[float, float, float], tuple[float, float, float]]
     n_degenerate: int
     n_unreferenced: int
+    material: str | None = Field(None, description="the file's own material (glTF/GLB), used by a scene that "
+                                 "names this mesh and no material; what of it was not read")
 
 
 class SceneMeshOut(BaseModel):

@@ -146,6 +146,27 @@ def _rectangular(rows: list) -> bool:
     return bool(rows) and len({len(r) for r in rows}) == 1
 
 
+def material_spec_of(m: Material) -> MaterialSpec:
+    """The MaterialSpec of a physically based Material read from a file (gltf.material_from_gltf)."""
+    def listed(x):
+        return None if x is None else np.asarray(x, np.float64).round(6).tolist()
+
+    return MaterialSpec(model=m.model, albedo=listed(m.albedo), metallic=float(m.metallic), roughness=float(m.roughness),
+                        sheen_colour=listed(m.sheen_colour), sheen_roughness=float(m.sheen_roughness),
+                        albedo_map=listed(m.albedo_map), metallic_roughness_map=listed(m.metallic_roughness_map),
+                        normal_map=listed(m.normal_map), normal_scale=float(m.normal_scale))
+
+
+def file_material(spec: MeshSpec, meshes: MeshStore) -> MaterialSpec:
+    """A mesh's material: the one its spec names, else (an uploaded glTF/GLB that carries one) the
+    file's own, else the default."""
+    if spec.mesh_id is not None and "material" not in spec.model_fields_set:
+        rec = meshes.get(spec.mesh_id)
+        if rec.material is not None:
+            return material_spec_of(rec.material)
+    return spec.material
+
+
 def build_material(spec: MaterialSpec, mesh: Mesh, role: str) -> Material:
     """A Material checked against its mesh (shapes, ranges, maps need UVs) before any GL work."""
     def arr(x):
@@ -155,13 +176,16 @@ def build_material(spec: MaterialSpec, mesh: Mesh, role: str) -> Material:
         mat = Material(albedo=arr(spec.albedo), specular=arr(spec.specular), glossiness=arr(spec.glossiness),
                        albedo_map=arr(spec.albedo_map), gloss_map=arr(spec.gloss_map), model=spec.model,
                        metallic=arr(spec.metallic), roughness=arr(spec.roughness), sheen_colour=arr(spec.sheen_colour),
-                       sheen_roughness=arr(spec.sheen_roughness))
+                       sheen_roughness=arr(spec.sheen_roughness), metallic_roughness_map=arr(spec.metallic_roughness_map),
+                       normal_map=arr(spec.normal_map), normal_scale=spec.normal_scale)
         mat.vertex_arrays(mesh.n_vertices)
         mat.pbr_arrays(mesh.n_vertices)
         mat.maps()
+        mat.normal_texture()
     except ValueError as e:  # InvalidInputError is a ValueError
         raise type(e)(f"{role} material: {e}") from None
-    if (spec.albedo_map is not None or spec.gloss_map is not None) and mesh.uvs is None:
+    if any(m is not None for m in (spec.albedo_map, spec.gloss_map, spec.metallic_roughness_map, spec.normal_map)) \
+            and mesh.uvs is None:
         raise InvalidRequestError(f"{role} material has texture maps but the mesh has no UVs; send uvs (V, 2)")
     return mat
 
@@ -202,6 +226,7 @@ class PreparedScene:
     quality: Quality
     casters: list[bool]
     proxies: dict | None = None   # the casters' shadow proxies at the quality's detail, made here (off the GL thread)
+    material_specs: list | None = None   # each mesh's MaterialSpec as used (a glTF file's own, where it applied)
 
 
 def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshes: MeshStore,
@@ -210,7 +235,8 @@ def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshe
     specs = [("garment", body.garment)] + [(role, getattr(body, role)) for role in ("body", "floor")
                                            if getattr(body, role) is not None]
     built = [build_mesh(spec, role, body.up, meshes, settings) for role, spec in specs]
-    materials = [build_material(spec.material, mesh, role) for (role, spec), mesh in zip(specs, built)]
+    material_specs = [file_material(spec, meshes) for _, spec in specs]
+    materials = [build_material(m, mesh, role) for (role, _), m, mesh in zip(specs, material_specs, built)]
     # A floor casts nothing unless its spec says so.
     casters = [spec.cast_shadows if role != "floor" or "cast_shadows" in spec.model_fields_set else False
                for role, spec in specs]
@@ -228,4 +254,4 @@ def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshe
     proxies = ({detail: [caster_proxy_isolated(m.positions, m.faces, detail) if c else None
                          for m, c in zip(built, casters)]}
                if detail < 1.0 else None)
-    return PreparedScene(built, [r for r, _ in specs], materials, camera, quality, casters, proxies)
+    return PreparedScene(built, [r for r, _ in specs], materials, camera, quality, casters, proxies, material_specs)

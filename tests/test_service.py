@@ -210,6 +210,27 @@ def test_a_physically_based_garment_renders_and_says_its_lobes(http, env_upload,
     assert images[0].shape == images[1].shape and not np.array_equal(images[0], images[1])
 
 
+def test_an_uploaded_glb_brings_its_material_unless_the_scene_names_one(http, env_upload, tmp_path):
+    from test_pbr import _glb_with_sheen
+
+    path = _glb_with_sheen(tmp_path / "velvet.glb")
+    r = http.post("/meshes", content=path.read_bytes(), headers=OCTET, params={"format": "glb"})
+    assert r.status_code == 201, r.text
+    info = r.json()
+    assert "pbr: metallic 0, roughness 0.9, sheen (0.9, 0.5, 0.6)" in info["material"]
+    assert "textures: base colour, metallic-roughness, normal" in info["material"]
+    images = []
+    for material in (None, {"albedo": [0.8, 0.6, 0.5]}):
+        body = {"environment_id": env_upload[0]["id"], "garment": {"mesh_id": info["id"]},
+                "quality": FAST_QUALITY, "output": SMALL_OUTPUT}
+        if material is not None:
+            body["garment"]["material"] = material
+        r = http.post("/render", json=body, params={"format": "json"})
+        assert r.status_code == 200, r.text
+        images.append(png_array(base64.b64decode(r.json()["image"]["base64"])))
+    assert not np.array_equal(images[0], images[1])   # the file's velvet, then the named Phong material
+
+
 def test_mesh_file_upload_keeps_vertex_order(http, env_upload, mesh, tmp_path):
     import trimesh
 

@@ -4,12 +4,13 @@ then referenced by `mesh_id` when a scene is registered. Same bytes + options gi
 from __future__ import annotations
 
 import hashlib
+import warnings
 from typing import Annotated, Literal
 
 import anyio
 from fastapi import APIRouter, Depends, Query, Request, Response, status
 
-from renderer.errors import MeshError
+from renderer.errors import InvalidInputError, MeshError
 from renderer.mesh import load_mesh
 
 from ..codecs import uploaded_file
@@ -33,18 +34,39 @@ def mesh_info(rec: MeshRecord) -> MeshInfo:
     s = rec.mesh.stats()
     return MeshInfo(id=rec.id, name=rec.mesh.name, format=rec.format, n_vertices=s.n_vertices, n_faces=s.n_faces,
                     has_uvs=rec.mesh.uvs is not None, bounds=s.bounds, n_degenerate=s.n_degenerate,
-                    n_unreferenced=s.n_unreferenced)
+                    n_unreferenced=s.n_unreferenced, material=_material_summary(rec))
+
+
+def _material_summary(rec: MeshRecord) -> str | None:
+    m = rec.material
+    if m is None:
+        return None
+    maps = [name for name, x in (("base colour", m.albedo_map), ("metallic-roughness", m.metallic_roughness_map),
+                                 ("normal", m.normal_map)) if x is not None]
+    text = (f"pbr: metallic {m.metallic:g}, roughness {m.roughness:g}"
+            + (f", sheen {tuple(round(c, 4) for c in m.sheen_colour)}" if m.has_sheen() else "")
+            + (f", textures: {', '.join(maps)}" if maps else ""))
+    return text + (f" ({rec.material_notes})" if rec.material_notes else "")
 
 
 def _load(data: bytes, fmt: str, up: str, scale: float, name: str):
+    """(the mesh, a glTF file's own material or None, what of that material was not read)."""
+    material, notes = None, None
     with uploaded_file(data, fmt, "mesh-") as path:
         try:
             mesh = load_mesh(path, up=up, scale=scale)
-        except MeshError as e:
-            raise MeshError(str(e).replace(str(path), f"uploaded {fmt.upper()} {name!r}")) from None
+            if fmt in ("glb", "gltf"):
+                from renderer.shading.gltf import material_from_gltf
+
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    material = material_from_gltf(path)
+                notes = "; ".join(str(w.message).replace(str(path), "the file") for w in caught) or None
+        except (MeshError, InvalidInputError) as e:
+            raise type(e)(str(e).replace(str(path), f"uploaded {fmt.upper()} {name!r}")) from None
     from renderer.mesh import Mesh
 
-    return Mesh.from_arrays(mesh.positions, mesh.faces, mesh.uvs, name=name)
+    return Mesh.from_arrays(mesh.positions, mesh.faces, mesh.uvs, name=name), material, notes
 
 
 @router.post("", response_model=MeshInfo, status_code=status.HTTP_201_CREATED,
@@ -65,10 +87,10 @@ async def upload_mesh(
                                   "(or a model/* Content-Type)")
     digest = hashlib.sha256(data + f"|{fmt}|{up}|{scale!r}".encode()).hexdigest()
     label = name or f"mesh-{digest[:8]}"
-    mesh = await anyio.to_thread.run_sync(_load, data, fmt, up, scale, label)
+    mesh, material, notes = await anyio.to_thread.run_sync(_load, data, fmt, up, scale, label)
     check_counts(mesh.n_vertices, mesh.n_faces, label, settings)
     rec = meshes.add(MeshRecord(id="msh_" + digest[:16], mesh=mesh, file_sha256=digest, format=fmt, up=up,
-                                scale=scale))
+                                scale=scale, material=material, material_notes=notes))
     return await anyio.to_thread.run_sync(mesh_info, rec)
 
 
