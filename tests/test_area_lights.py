@@ -89,3 +89,70 @@ def test_a_sun_gives_one_small_light_where_it_is():
     assert light.share > 0.2
     lum = float(np.asarray(light.energy_rgb) @ LUMINANCE_RGB)
     assert lum == pytest.approx(light.share * dec.total_luminance, rel=1e-9)
+
+
+def test_an_area_pem_set_has_a_region_per_light_and_keeps_the_energy(renderer):
+    from renderer.lighting.pem import PEMSet, PEMSettings
+
+    cube, energies = _discs(DISCS[:2], n=64, background=0.2)
+    settings = PEMSettings(n_lights=24, lights_from="area")
+    pems = renderer.build_pems(cube.astype(np.float32), settings)
+    try:
+        regions = pems.regions
+        assert regions.area.sum() == 2 and regions.n_regions == 2 + 12   # the remainder: 12 regions, 14 <= 24
+        omega = cube_solid_angles(64)[..., None]
+        np.testing.assert_allclose(regions.energy_rgb.sum(axis=0), (cube * omega).reshape(-1, 3).sum(axis=0), rtol=1e-5)
+        s = pems.summary()
+        assert s["lights_from"] == "area" and len(s["area_lights"]) == 2
+        assert s["ambient_share"] == pytest.approx(1.0 - sum(x["energy_share"] for x in s["area_lights"]), abs=1e-4)
+        # The closed forms' discs: an area light is one, the remainder's regions are cut without it.
+        discs = np.frombuffer(pems.sub_lights_bytes(2), np.float32).reshape(-1, 2, 4)
+        np.testing.assert_allclose(discs[:, 1, :3].sum(axis=0), regions.energy_rgb.sum(axis=0), rtol=1e-4)
+        # A stored set comes back with its area lights.
+        restored = PEMSet(renderer.gl, cube.astype(np.float32), settings, stored=dict(pems.export()))
+        try:
+            np.testing.assert_array_equal(restored.regions.area, regions.area)
+            np.testing.assert_array_equal(restored.regions.labels, regions.labels)
+        finally:
+            restored.release()
+    finally:
+        pems.release()
+    assert PEMSettings(lights_from="area").key() != PEMSettings().key()
+
+
+def test_a_frame_lit_by_area_lights_matches_the_reference(renderer):
+    """Two discs over a dim grey map: the area decomposition's frame against the Monte Carlo
+    reference of the same map, as close as the median cut's at the same light budget. Measured:
+    0.107 with 14 lights (2 discs + 12 remainder regions) against the median cut's 0.165 with 24
+    (the reference's noise floor 0.07)."""
+    from conftest import CAM, sphere
+
+    from renderer.lighting.pem import PEMSettings
+    from renderer.reference import relative_rmse, render_reference
+    from renderer.renderer import FrameSettings
+    from renderer.shading.material import Material
+
+    cube, _ = _discs([((1, 1, 1), 8.0, 40.0), ((-1, 0.6, 0.3), 12.0, 10.0)], n=64, background=0.1)
+    cube = cube.astype(np.float32)
+    material = Material((0.7, 0.6, 0.5), 0.2, 0.6)
+    floor = _plane()
+    ref = render_reference([sphere(), floor], [material, Material((0.5, 0.5, 0.5))], cube, CAM, 48, 48, spp=64)
+    errors = {}
+    for lights_from in ("median-cut", "area"):
+        pems = renderer.build_pems(cube, PEMSettings(n_lights=24, lights_from=lights_from))
+        scene = renderer.create_scene([sphere(), floor], [material, Material((0.5, 0.5, 0.5))])
+        try:
+            frame = renderer.render(scene, pems, FrameSettings(48, 48), CAM)
+            assert frame.settings["pems"]["lights_from"] == lights_from
+            errors[lights_from] = relative_rmse(frame.image, ref.image)
+        finally:
+            scene.release()
+            pems.release()
+    assert errors["area"] < 0.25 and errors["area"] < 1.5 * errors["median-cut"], errors
+
+
+def _plane():
+    from renderer.mesh import Mesh
+
+    p = np.array([[-1.5, -0.5, -1.5], [1.5, -0.5, -1.5], [1.5, -0.5, 1.5], [-1.5, -0.5, 1.5]])
+    return Mesh.from_arrays(p, np.array([[0, 2, 1], [0, 3, 2]]), name="floor")

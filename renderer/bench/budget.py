@@ -28,7 +28,8 @@ OLD_SHADOW_BIAS = {"normal_offset_texels": 3.3, "min_sigma_texels": 0.25}
 KNOB_DEFAULTS = {"diffuse": "pem", "caster_detail": 1.0, "small_light_scale": 1, "small_light_min_energy": 0.0,
                  "glossy": "pem", "sharp_large_lights": False, "sharp_share_deg": 0.0, "sub_lights": 1,
                  **OLD_SHADOW_BIAS, "contact_shadow_texels": 0.0, "whole_sources": False,
-                 "lobes": 1}   # before the fitted lobes, every pixel had the one Phong lobe
+                 "lobes": 1,   # before the fitted lobes, every pixel had the one Phong lobe
+                 "lights_from": "median-cut"}
 
 
 def summarize(bench: dict) -> dict:

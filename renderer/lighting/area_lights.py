@@ -169,3 +169,39 @@ def decompose(cube: np.ndarray, weber: float = WEBER, max_lights: int = MAX_LIGH
     ambient_lum = float(np.sum((ambient * omega) @ LUMINANCE_RGB))
     return Decomposition(tuple(lights), ambient.astype(np.float32), ambient_lum / total if total > 0 else 0.0,
                          total, stopped)
+
+
+def area_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False):
+    """The PEM set's regions from the decomposition (`PEMSettings.lights_from` "area"): one region
+    per area light (its disc's texels), and the ambient remainder median-cut into the largest
+    6 * 2^j regions that keep the total within `n_lights` (at least 6), each a light with its own PEM
+    and shadow map like any other. Returns (RegionSet, Decomposition); a map without area lights
+    gets the plain median cut."""
+    from .median_cut import RegionSet, _region_stats, median_cut
+
+    dec = decompose(cube)
+    k = len(dec.lights)
+    if k == 0:
+        return median_cut(cube[..., :3], n_lights, whole_sources), dec
+    m = 6
+    while 2 * m + k <= n_lights:
+        m *= 2
+    rest = median_cut(dec.ambient.astype(np.float64), m, whole_sources)
+    n = cube.shape[1]
+    labels = rest.labels.copy()
+    dirs = texel_directions(n)
+    rects = [tuple(r) for r in rest.rects]
+    for i, light in enumerate(dec.lights):
+        inside = (dirs @ np.asarray(light.direction) >= np.cos(light.radius_rad)) & (labels < m)
+        labels[inside] = m + i
+        f, r, c = (int(x[0]) for x in np.nonzero(inside)) if inside.any() else (0, 0, 0)
+        rects.append((f, r, r + 1, c, c + 1))
+    rgb = np.asarray(cube[..., :3], np.float64)
+    energy = np.maximum(rgb @ LUMINANCE_RGB, 0.0) * cube_solid_angles(n)
+    out = _region_stats(rgb, energy, labels, m + k)
+    area = np.concatenate([np.zeros(m, bool), np.ones(k, bool)])
+    arrays = (labels, *out[:3], np.asarray(rects, np.int32), *out[3:], area)
+    for a in arrays:
+        a.setflags(write=False)
+    labels, dirs_out, omega, energy_rgb, rects_arr, spread, mean_cos, area = arrays
+    return RegionSet(labels, dirs_out, omega, energy_rgb, rects_arr, spread, mean_cos, area), dec

@@ -58,6 +58,9 @@ class RegionSet:
     rects: np.ndarray
     spread_rad: np.ndarray
     mean_cos: np.ndarray
+    # bool (N,): the region is an area light's disc (lighting/area_lights.py, area_regions); None: a
+    # plain median cut. A disc region's rect is the face rect of its centre texel only.
+    area: np.ndarray | None = None
 
     @property
     def n_regions(self) -> int:
@@ -216,13 +219,22 @@ def sub_lights(cube: np.ndarray, regions: RegionSet, per_region: int, whole_sour
     energy = np.maximum(rgb @ LUMINANCE_RGB, 0.0) * cube_solid_angles(n)
     labels = np.empty((6, n, n), np.int32)
     n_sub = regions.n_regions * per_region
+    area = regions.area if regions.area is not None else np.zeros(regions.n_regions, bool)
+    if area.any():   # an area light's disc is one sub-light; the remainder's regions are cut without it
+        inside = area[regions.labels]
+        energy = np.where(inside, 0.0, energy)
+        labels[inside] = regions.labels[inside] * per_region
     for rid, (face, r0, r1, c0, c1) in enumerate(regions.rects):
+        if area[rid]:
+            continue
         rects = [(r0, r1, c0, c1)]
         while len(rects) < per_region:
             rects = [half for rect in rects for half in _halves(energy[face], rect, whole_sources)]
         for j, rect in enumerate(rects):
             if rect is not None:
-                labels[face, rect[0]:rect[1], rect[2]:rect[3]] = rid * per_region + j
+                block = labels[face, rect[0]:rect[1], rect[2]:rect[3]]
+                keep = inside[face, rect[0]:rect[1], rect[2]:rect[3]] if area.any() else False
+                labels[face, rect[0]:rect[1], rect[2]:rect[3]] = np.where(keep, block, rid * per_region + j)
     with np.errstate(invalid="ignore", divide="ignore"):   # the padding's empty sums, replaced below
         dirs, omega, energy_rgb, _, mean_cos = _region_stats(rgb, energy, labels, n_sub)
     # Padding (a one-texel region cannot be cut): no texels, no energy, any direction.

@@ -23,6 +23,7 @@ from ..gpu.rawgl import GL_RGBA16F, GL_RGBA32F, CubeMapArray
 from ..gpu.shaders import compute_shader
 from ..presets import balanced
 from ..shadows.lights import disc_sine
+from .area_lights import area_regions
 from .filters import Filter, taps_1d
 from .glossiness import Calibration, LobeTable, lobe_table
 from .median_cut import RegionSet, median_cut, sub_lights
@@ -74,9 +75,13 @@ class PEMSettings:
     # The median cut keeps compact bright sources (a sun) whole (lighting/median_cut.py); off: the
     # paper's plain median cut. Every preset but paper turns it on (renderer/presets/*.toml).
     whole_sources: bool = balanced("whole_sources")
+    # How the map is cut into lights: "median-cut" (the paper) or "area" (Arbree, Walter and Bala's
+    # area lights plus the remainder's median cut, lighting/area_lights.py; at most n_lights in all).
+    lights_from: str = balanced("lights_from")
 
     def key(self) -> tuple:
-        return (self.n_lights, self.filter.value, self.levels, self.base_level, self.whole_sources)
+        base = (self.n_lights, self.filter.value, self.levels, self.base_level, self.whole_sources)
+        return base if self.lights_from == "median-cut" else base + (self.lights_from,)
 
     def for_materials(self, face_size: int, materials, calibration: Calibration | str = Calibration.L2) -> PEMSettings:
         """These settings storing only the levels the materials' glossiest lookup reads
@@ -154,17 +159,27 @@ class PEMSet:
 
         t0 = time.perf_counter()
         if stored is None:
-            self.regions: RegionSet = median_cut(cube[..., :3], settings.n_lights, settings.whole_sources)
+            self.decomposition = None
+            if settings.lights_from == "area":
+                self.regions, self.decomposition = area_regions(cube[..., :3], settings.n_lights, settings.whole_sources)
+            else:
+                self.regions: RegionSet = median_cut(cube[..., :3], settings.n_lights, settings.whole_sources)
             # Per-region scale: the brightest channel of the region's texels (1 for a black region).
-            brightest = cube[..., :3].max(axis=-1)
-            peak = np.array([brightest[f, r0:r1, c0:c1].max() for f, r0, r1, c0, c1 in self.regions.rects], np.float64)
+            brightest = cube[..., :3].max(axis=-1).astype(np.float64)
+            peak = np.zeros(self.regions.n_regions)
+            np.maximum.at(peak, self.regions.labels.reshape(-1), brightest.reshape(-1))
             self.scale = np.where(peak > 0, peak, 1.0).astype(np.float64)
         else:
-            self.regions = RegionSet(**{k: np.asarray(stored["regions_" + k]) for k in RegionSet.__dataclass_fields__})
+            self.decomposition = None
+            self.regions = RegionSet(**{k: np.asarray(stored["regions_" + k]) for k in RegionSet.__dataclass_fields__
+                                        if "regions_" + k in stored})
             self.scale = np.asarray(stored["scale"], np.float64)
+            # An area set has its decomposition's count of lights (at most n_lights), not n_lights.
+            area = self.regions.area is not None and bool(np.asarray(self.regions.area).any())
+            lights = settings.n_lights if not area else min(settings.n_lights, self.regions.n_regions)
             have = (self.regions.n_regions, int(stored["levels"]), int(stored.get("base_level", 0)),
-                    bool(stored.get("whole_sources", False)))
-            want = (settings.n_lights, self.levels, self.base_level, settings.whole_sources)
+                    bool(stored.get("whole_sources", False)), str(stored.get("lights_from", "median-cut")))
+            want = (lights, self.levels, self.base_level, settings.whole_sources, settings.lights_from)
             if have != want:
                 raise InvalidInputError(f"stored PEM set has (lights, levels, base level, whole sources) {have}, the "
                                         f"request {want}: "
@@ -283,7 +298,9 @@ class PEMSet:
         out = {f"level_{level}": np.concatenate([t.read_level(level - self.base_level).astype(np.float16)
                                                  for t in self.textures])
                for level in range(self.base_level, self.levels)}
-        out.update({"regions_" + k: getattr(self.regions, k) for k in RegionSet.__dataclass_fields__})
+        out.update({"regions_" + k: getattr(self.regions, k) for k in RegionSet.__dataclass_fields__
+                    if getattr(self.regions, k) is not None})
+        out["lights_from"] = np.str_(self.settings.lights_from)
         out["scale"] = self.scale
         out["levels"] = np.int64(self.levels)
         out["base_level"] = np.int64(self.base_level)
@@ -353,7 +370,17 @@ class PEMSet:
         return data * self.scale.astype(np.float32)[:, None, None, None, None] * inv_b
 
     def summary(self) -> dict:
-        return {"n_regions": self.n_regions, "face_size": self.face_size, "levels": self.levels,
+        area = self.regions.area
+        lights = None
+        if area is not None and np.asarray(area).any():
+            idx = np.flatnonzero(area)
+            total = float(self.regions.energy_luminance.sum())
+            lights = [{"direction": [round(float(c), 5) for c in self.regions.directions[i]],
+                       "angular_radius_deg": round(float(np.degrees(self.regions.disc_radius_rad()[i])), 3),
+                       "energy_share": round(float(self.regions.energy_luminance[i]) / total, 5)} for i in idx]
+        extra = {"lights_from": self.settings.lights_from, "area_lights": lights,
+                 "ambient_share": None if lights is None else round(1.0 - sum(x["energy_share"] for x in lights), 5)}
+        return {**extra, "n_regions": self.n_regions, "face_size": self.face_size, "levels": self.levels,
                 "base_level": self.base_level,
                 "filter": self.settings.filter.value, "build_ms": round(self.build_ms, 2),
                 "median_cut_ms": round(self.median_cut_ms, 2), "bytes": self.nbytes,

@@ -50,7 +50,8 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 
     for name in config.PEM_SETTINGS:
         config.check(name, knobs[name])
-    pem = PEMSettings(knobs["lights"], Filter.parse(filter), levels, whole_sources=knobs["whole_sources"])
+    pem = PEMSettings(knobs["lights"], Filter.parse(filter), levels, whole_sources=knobs["whole_sources"],
+                      lights_from=knobs["lights_from"])
     if materials is not None:
         pem = pem.for_materials(int(knobs["face_size"]), materials)
     return pem
