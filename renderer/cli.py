@@ -531,6 +531,35 @@ def cmd_lobes(args) -> int:
     return 0
 
 
+def cmd_area_lights(args) -> int:
+    from .envmap import load_environment
+    from .lighting.area_lights import decompose, report, write_preview
+
+    paths = list(args.env)
+    if not paths:
+        from .bench.catalogue import MAPS
+        from .bench.scenes import shared_assets
+
+        paths = [shared_assets() / "hdri" / m for m in MAPS]
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows = {}
+    lines = ["| map | area lights | largest (radius, share) | ambient share | ms |", "|---|---|---|---|---|"]
+    for path in paths:
+        env = load_environment(path, face_size=args.face_size, repair=True)
+        t0 = time.perf_counter()
+        dec = decompose(env.cube)
+        rep = rows[Path(path).name] = report(dec, (time.perf_counter() - t0) * 1e3)
+        write_preview(env.cube, dec, args.out / f"{Path(path).stem}.png", Path(path).name)
+        top = ", ".join(f"{x['angular_radius_deg']:.1f} deg {x['energy_share']:.1%}" for x in rep["lights"][:3])
+        lines.append(f"| {Path(path).name} | {len(rep['lights'])} | {top or '-'} | {rep['ambient_share']:.1%} | "
+                     f"{rep['wall_ms']:.0f} |")
+    (args.out / "area_lights.json").write_text(json.dumps(rows, indent=1))
+    (args.out / "area_lights.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    print(f"wrote {args.out}/area_lights.md, area_lights.json and one preview PNG per map")
+    return 0
+
+
 def cmd_brdf_lobes(args) -> int:
     from .lighting.material_figures import markdown, write_brdf_lobe_report
 
@@ -624,6 +653,12 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
                                           "and lobe count (Kautz and McCool's Figure 7), and the fitted slices")
     bl.add_argument("--out", type=Path, default=Path("out/brdf-lobes"))
     bl.set_defaults(func=cmd_brdf_lobes)
+    al = sub.add_parser("area-lights", help="Arbree, Walter and Bala's area lights of environment maps: the lights "
+                                           "found, the ambient share, and a preview per map (default: every shared map)")
+    al.add_argument("--env", type=Path, action="append", default=[], help="environment map (.exr/.hdr); repeatable")
+    al.add_argument("--face-size", type=int, default=128, help="the cube the lights are found on (the PEM face size)")
+    al.add_argument("--out", type=Path, default=Path("out/area-lights"))
+    al.set_defaults(func=cmd_area_lights)
     return p
 
 

@@ -156,3 +156,18 @@ def _plane():
 
     p = np.array([[-1.5, -0.5, -1.5], [1.5, -0.5, -1.5], [1.5, -0.5, 1.5], [-1.5, -0.5, 1.5]])
     return Mesh.from_arrays(p, np.array([[0, 2, 1], [0, 3, 2]]), name="floor")
+
+
+def test_the_area_lights_command_reports_and_previews_a_map(tmp_path):
+    from conftest import asset
+
+    from renderer.cli import main
+
+    path = asset("hdri", "openexr_StageEnvLatLong.exr")
+    assert main(["area-lights", "--env", str(path), "--face-size", "64", "--out", str(tmp_path)]) == 0
+    import json
+
+    rep = json.loads((tmp_path / "area_lights.json").read_text())["openexr_StageEnvLatLong.exr"]
+    assert rep["lights"] and 0.0 < rep["ambient_share"] < 1.0
+    assert rep["ambient_share"] + sum(x["energy_share"] for x in rep["lights"]) == pytest.approx(1.0, abs=1e-3)
+    assert (tmp_path / "openexr_StageEnvLatLong.png").stat().st_size > 10_000

@@ -205,3 +205,57 @@ def area_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False):
         a.setflags(write=False)
     labels, dirs_out, omega, energy_rgb, rects_arr, spread, mean_cos, area = arrays
     return RegionSet(labels, dirs_out, omega, energy_rgb, rects_arr, spread, mean_cos, area), dec
+
+
+def latlong_uv(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lat-long image coordinates (u, v in [0, 1], v down) of unit directions (..., 3), the README's
+    convention (the image centre is -Z, u = 0.75 is +X, the top row +Y)."""
+    phi = np.arctan2(d[..., 0], -d[..., 2])
+    theta = np.arcsin(np.clip(d[..., 1], -1.0, 1.0))
+    return phi / (2.0 * np.pi) + 0.5, 0.5 - theta / np.pi
+
+
+def write_preview(cube: np.ndarray, dec: Decomposition, path, title: str = "") -> None:
+    """The map with the found lights' discs drawn over it, beside the ambient remainder (the seed's
+    Figure 2), both lat-long, exposed alike."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..envmap.layouts import cube_to_latlong
+
+    h, w = 256, 512
+    images = [cube_to_latlong(np.asarray(cube, np.float32)[..., :3], h, w), cube_to_latlong(dec.ambient, h, w)]
+    scale = float(np.quantile(images[0] @ LUMINANCE_RGB, 0.9)) or 1.0
+    fig, axes = plt.subplots(1, 2, figsize=(12, 3.4))
+    for ax, img, name in zip(axes, images, ("map and its area lights", f"ambient remainder ({dec.ambient_share:.0%})")):
+        ax.imshow(np.clip(img / scale / 2.0, 0.0, 1.0) ** (1 / 2.2), extent=(0, w, h, 0))
+        ax.set_title(name, fontsize=9)
+        ax.set_axis_off()
+    for k, light in enumerate(dec.lights):
+        c = np.asarray(light.direction)
+        helper = np.array([0.0, 1.0, 0.0]) if abs(c[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        t = np.cross(c, helper)
+        t /= np.linalg.norm(t)
+        b = np.cross(c, t)
+        a = np.linspace(0.0, 2.0 * np.pi, 181)[:, None]
+        ring = np.cos(light.radius_rad) * c + np.sin(light.radius_rad) * (np.cos(a) * t + np.sin(a) * b)
+        u, v = latlong_uv(ring)
+        u, v = u * w, v * h
+        cut = np.flatnonzero(np.abs(np.diff(u)) > w / 2) + 1     # the seam: draw each side apart
+        for part_u, part_v in zip(np.split(u, cut), np.split(v, cut)):
+            axes[0].plot(part_u, part_v, color="cyan", lw=1.0)
+        cu, cv = latlong_uv(c)
+        axes[0].text(cu * w, cv * h, f"{k + 1}: {light.share:.0%}", color="cyan", fontsize=7, ha="center", va="center")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def report(dec: Decomposition, wall_ms: float) -> dict:
+    return {"lights": [{"direction": [round(c, 5) for c in lt.direction],
+                        "angular_radius_deg": round(float(np.degrees(lt.radius_rad)), 3),
+                        "energy_share": round(lt.share, 5)} for lt in dec.lights],
+            "ambient_share": round(dec.ambient_share, 5), "stopped_by": dec.stopped_by, "wall_ms": round(wall_ms, 1)}
