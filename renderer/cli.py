@@ -483,6 +483,12 @@ def cmd_speed(args) -> int:
 def cmd_bench(args) -> int:
     from .bench.run import BenchConfig, run_bench
 
+    if args.area:
+        from .bench.area import run as run_area
+
+        run_area(args.out, quick=args.quick)
+        print(f"wrote {args.out}/area.json, area.md")
+        return 0
     if args.materials:
         from .bench.materials import run as run_materials
 
@@ -597,6 +603,9 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     b.add_argument("--quick", action="store_true", help="a reduced sweep that finishes in minutes on 2 cores")
     b.add_argument("--no-shared", action="store_true", help="bundled scene only (skip ../shared/assets)")
     b.add_argument("--out", type=Path, default=Path("out/bench"))
+    b.add_argument("--area", action="store_true",
+                   help="median cut against area lights (and auto) on every shared map, at equal light count and "
+                        "equal frame time (renderer/bench/area.py)")
     b.add_argument("--materials", action="store_true",
                    help="the physically based fabrics (1 and 2 fitted lobes) against the reference beside the Phong "
                         "fabric, on held-out maps (renderer/bench/materials.py)")

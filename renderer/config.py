@@ -105,9 +105,10 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("whole_sources", bool, False, "median cut: no cut through a compact bright source (a sun), which keeps "
             "it in one region (false: the paper's plain cut)", "lights", "pem set",
             sweep=(False,)),
-    Setting("lights_from", str, "median-cut", "how the map becomes lights: median-cut (the paper) or area (Arbree, "
+    Setting("lights_from", str, "median-cut", "how the map becomes lights: median-cut (the paper), area (Arbree, "
             "Walter and Bala's area lights, each a disc with its own map, plus the remainder's median cut, at most "
-            "`lights` in all)", "lights", "pem set", choices=("median-cut", "area"),
+            "`lights` in all) or auto (area where its lights hold enough of the map's energy)", "lights", "pem set",
+            choices=("median-cut", "area", "auto"),
             sweep=("median-cut", "area")),
     # Shadow maps.
     Setting("shadow_size", int, 256, "shadow-map side per light, texels", "shadows", "shadow maps", 16,

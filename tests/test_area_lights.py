@@ -171,3 +171,19 @@ def test_the_area_lights_command_reports_and_previews_a_map(tmp_path):
     assert rep["lights"] and 0.0 < rep["ambient_share"] < 1.0
     assert rep["ambient_share"] + sum(x["energy_share"] for x in rep["lights"]) == pytest.approx(1.0, abs=1e-3)
     assert (tmp_path / "openexr_StageEnvLatLong.png").stat().st_size > 10_000
+
+
+def test_auto_takes_area_lights_where_they_hold_the_energy_and_the_budget_holds():
+    from renderer.lighting.area_lights import AUTO_MIN_AREA_SHARE, area_regions, auto_regions
+
+    discs, _ = _discs(DISCS, n=64, background=0.05)
+    regions, dec, used = auto_regions(discs, 24)
+    assert used == "area" and 1.0 - dec.ambient_share >= AUTO_MIN_AREA_SHARE and regions.area.sum() == 3
+    sky = sun_sky_cube(64, (1, 1, 0.5), sun_radiance=3.0, sun_radius_deg=2)   # a faint sun: a few % of the sky
+    regions, dec, used = auto_regions(sky, 24)
+    assert used == "median-cut" and regions.area is None and regions.n_regions == 24
+    # Twelve discs and a budget of 12: the six remainder regions leave room for the six strongest.
+    many = [((np.cos(a), 0.3 * np.sin(3 * a), np.sin(a)), 4.0, 50.0 + 10 * k)
+            for k, a in enumerate(np.linspace(0, 2 * np.pi, 12, endpoint=False))]
+    regions, dec = area_regions(_discs(many, n=64)[0], 12)
+    assert regions.n_regions <= 12 and regions.area.sum() == 6 and dec.stopped_by == "max lights"

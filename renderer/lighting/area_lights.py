@@ -134,7 +134,8 @@ class _Search:
 
 
 def decompose(cube: np.ndarray, weber: float = WEBER, max_lights: int = MAX_LIGHTS) -> Decomposition:
-    """The area lights and ambient remainder of a cube map (6, F, F, 3) linear RGB."""
+    """The area lights and ambient remainder of a cube map (6, F, F, 3) linear RGB; at most
+    `max_lights` lights (the strongest first)."""
     cube = np.asarray(cube, np.float64)[..., :3]
     n = cube.shape[1]
     omega = np.ascontiguousarray(cube_solid_angles(n))[..., None]
@@ -171,6 +172,22 @@ def decompose(cube: np.ndarray, weber: float = WEBER, max_lights: int = MAX_LIGH
                          total, stopped)
 
 
+# `lights_from` "auto": the area decomposition where its lights hold at least this share of the map's
+# energy, else the median cut (chosen on the tuning maps of `garment-render bench --area`).
+AUTO_MIN_AREA_SHARE = 0.3
+
+
+def auto_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False):
+    """(RegionSet, Decomposition, what was used): `area_regions` where the area lights hold at least
+    AUTO_MIN_AREA_SHARE of the energy, else the median cut."""
+    from .median_cut import median_cut
+
+    regions, dec = area_regions(cube, n_lights, whole_sources)
+    if dec.lights and 1.0 - dec.ambient_share >= AUTO_MIN_AREA_SHARE:
+        return regions, dec, "area"
+    return median_cut(cube[..., :3], n_lights, whole_sources), dec, "median-cut"
+
+
 def area_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False):
     """The PEM set's regions from the decomposition (`PEMSettings.lights_from` "area"): one region
     per area light (its disc's texels), and the ambient remainder median-cut into the largest
@@ -179,7 +196,7 @@ def area_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False):
     gets the plain median cut."""
     from .median_cut import RegionSet, _region_stats, median_cut
 
-    dec = decompose(cube)
+    dec = decompose(cube, max_lights=max(0, n_lights - 6))   # room for the remainder's six at least
     k = len(dec.lights)
     if k == 0:
         return median_cut(cube[..., :3], n_lights, whole_sources), dec

@@ -23,7 +23,7 @@ from ..gpu.rawgl import GL_RGBA16F, GL_RGBA32F, CubeMapArray
 from ..gpu.shaders import compute_shader
 from ..presets import balanced
 from ..shadows.lights import disc_sine
-from .area_lights import area_regions
+from .area_lights import area_regions, auto_regions
 from .filters import Filter, taps_1d
 from .glossiness import Calibration, LobeTable, lobe_table
 from .median_cut import RegionSet, median_cut, sub_lights
@@ -75,8 +75,9 @@ class PEMSettings:
     # The median cut keeps compact bright sources (a sun) whole (lighting/median_cut.py); off: the
     # paper's plain median cut. Every preset but paper turns it on (renderer/presets/*.toml).
     whole_sources: bool = balanced("whole_sources")
-    # How the map is cut into lights: "median-cut" (the paper) or "area" (Arbree, Walter and Bala's
-    # area lights plus the remainder's median cut, lighting/area_lights.py; at most n_lights in all).
+    # How the map is cut into lights: "median-cut" (the paper), "area" (Arbree, Walter and Bala's
+    # area lights plus the remainder's median cut, lighting/area_lights.py; at most n_lights in all) or
+    # "auto" (area where its lights hold enough of the energy: area_lights.auto_regions).
     lights_from: str = balanced("lights_from")
 
     def key(self) -> tuple:
@@ -162,6 +163,9 @@ class PEMSet:
             self.decomposition = None
             if settings.lights_from == "area":
                 self.regions, self.decomposition = area_regions(cube[..., :3], settings.n_lights, settings.whole_sources)
+            elif settings.lights_from == "auto":
+                self.regions, self.decomposition, _ = auto_regions(cube[..., :3], settings.n_lights,
+                                                                   settings.whole_sources)
             else:
                 self.regions: RegionSet = median_cut(cube[..., :3], settings.n_lights, settings.whole_sources)
             # Per-region scale: the brightest channel of the region's texels (1 for a black region).
@@ -378,7 +382,8 @@ class PEMSet:
             lights = [{"direction": [round(float(c), 5) for c in self.regions.directions[i]],
                        "angular_radius_deg": round(float(np.degrees(self.regions.disc_radius_rad()[i])), 3),
                        "energy_share": round(float(self.regions.energy_luminance[i]) / total, 5)} for i in idx]
-        extra = {"lights_from": self.settings.lights_from, "area_lights": lights,
+        extra = {"lights_from": self.settings.lights_from,
+                 "lights_from_used": "area" if lights is not None else "median-cut", "area_lights": lights,
                  "ambient_share": None if lights is None else round(1.0 - sum(x["energy_share"] for x in lights), 5)}
         return {**extra, "n_regions": self.n_regions, "face_size": self.face_size, "levels": self.levels,
                 "base_level": self.base_level,
