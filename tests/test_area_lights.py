@@ -174,13 +174,15 @@ def test_the_area_lights_command_reports_and_previews_a_map(tmp_path):
 
 
 def test_auto_takes_area_lights_where_they_hold_the_energy_and_the_budget_holds():
-    from renderer.lighting.area_lights import AUTO_MIN_AREA_SHARE, area_regions, auto_regions
+    from renderer.lighting.area_lights import AUTO_MAX_RADIUS_DEG, area_regions, auto_regions
 
     discs, _ = _discs(DISCS, n=64, background=0.05)
     regions, dec, used = auto_regions(discs, 24)
-    assert used == "area" and 1.0 - dec.ambient_share >= AUTO_MIN_AREA_SHARE and regions.area.sum() == 3
-    sky = sun_sky_cube(64, (1, 1, 0.5), sun_radiance=3.0, sun_radius_deg=2)   # a faint sun: a few % of the sky
-    regions, dec, used = auto_regions(sky, 24)
+    assert used == "area" and regions.area.sum() == 3
+    # A window-sized source (a 25 degree disc): one light would be too coarse, so the median cut.
+    window, _ = _discs([((0, 0.2, 1), 25.0, 20.0)], n=64, background=0.05)
+    regions, dec, used = auto_regions(window, 24)
+    assert max(np.degrees(lt.radius_rad) for lt in dec.lights) > AUTO_MAX_RADIUS_DEG
     assert used == "median-cut" and regions.area is None and regions.n_regions == 24
     # Twelve discs and a budget of 12: the six remainder regions leave room for the six strongest.
     many = [((np.cos(a), 0.3 * np.sin(3 * a), np.sin(a)), 4.0, 50.0 + 10 * k)

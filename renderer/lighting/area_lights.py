@@ -172,18 +172,21 @@ def decompose(cube: np.ndarray, weber: float = WEBER, max_lights: int = MAX_LIGH
                          total, stopped)
 
 
-# `lights_from` "auto": the area decomposition where its lights hold at least this share of the map's
-# energy, else the median cut (chosen on the tuning maps of `garment-render bench --area`).
-AUTO_MIN_AREA_SHARE = 0.3
+# `lights_from` "auto": the area decomposition where it found lights and none is wider than this
+# (angular radius), else the median cut. Chosen on the tuning maps of `garment-render bench --area`
+# at equal frame time: area won on the three whose widest light was 3.4-8.9 degrees and lost on the two
+# whose widest was 23.5 and 30 degrees (one disc standing for a window or a sky is too coarse a light);
+# the share of energy the lights hold did not separate them (docs/area-lights.md).
+AUTO_MAX_RADIUS_DEG = 15.0
 
 
 def auto_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False):
-    """(RegionSet, Decomposition, what was used): `area_regions` where the area lights hold at least
-    AUTO_MIN_AREA_SHARE of the energy, else the median cut."""
+    """(RegionSet, Decomposition, what was used): `area_regions` where the decomposition found lights
+    and none is wider than AUTO_MAX_RADIUS_DEG, else the median cut."""
     from .median_cut import median_cut
 
     regions, dec = area_regions(cube, n_lights, whole_sources)
-    if dec.lights and 1.0 - dec.ambient_share >= AUTO_MIN_AREA_SHARE:
+    if dec.lights and max(lt.radius_rad for lt in dec.lights) <= np.radians(AUTO_MAX_RADIUS_DEG):
         return regions, dec, "area"
     return median_cut(cube[..., :3], n_lights, whole_sources), dec, "median-cut"
 
