@@ -188,6 +188,7 @@ class PEMSet:
                 raise InvalidInputError(f"stored PEM set has (lights, levels, base level, whole sources) {have}, the "
                                         f"request {want}: "
                                         "build it anew (omit `stored`) or pass the settings it was built with")
+        # The lights' regions, however made: for "area" and "auto" the decomposition is in it too.
         self.median_cut_ms = (time.perf_counter() - t0) * 1e3
         self._cube = cube  # float32, kept for the SH9 coefficients, computed on first use
         self._sub_lights: dict[int, bytes] = {}

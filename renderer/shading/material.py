@@ -32,6 +32,16 @@ def _per_vertex(name: str, value, n_vertices: int, hi: float = 1.0) -> np.ndarra
     return _finite(name, v, 0.0, hi)
 
 
+def _per_vertex_rgb(name: str, value, n_vertices: int) -> np.ndarray:
+    """A colour (3,) or per vertex (V, 3) in [0, 1], as float32 (V, 3)."""
+    rgb = np.asarray(value, np.float32)
+    if rgb.shape == (3,):
+        rgb = np.broadcast_to(rgb, (n_vertices, 3))
+    if rgb.shape != (n_vertices, 3):
+        raise InvalidInputError(f"{name} must have shape (3,) or ({n_vertices}, 3), got {rgb.shape}")
+    return np.ascontiguousarray(_finite(name, rgb, 0.0, 1.0))
+
+
 @dataclass(frozen=True)
 class Material:
     """model: "phong" (albedo, specular, glossiness: the paper's model) or "pbr" (glTF 2.0
@@ -91,13 +101,7 @@ class Material:
         out = np.ones((n_vertices, 4), np.float32)
         for k, name in enumerate(("metallic", "roughness", "sheen_roughness")):
             out[:, k] = _per_vertex(name, getattr(self, name), n_vertices)
-        sheen = np.asarray(self.sheen_colour, np.float32)
-        if sheen.shape == (3,):
-            sheen = np.broadcast_to(sheen, (n_vertices, 3))
-        if sheen.shape != (n_vertices, 3):
-            raise InvalidInputError(f"sheen_colour must have shape (3,) or ({n_vertices}, 3), got {sheen.shape}")
-        _finite("sheen_colour", sheen, 0.0, 1.0)
-        return out, np.ascontiguousarray(sheen)
+        return out, _per_vertex_rgb("sheen_colour", self.sheen_colour, n_vertices)
 
     def has_glossy_lobe(self) -> bool:
         """Whether any fragment can have a specular weight above 0 (from the values or the gloss map;
@@ -123,18 +127,13 @@ class Material:
 
     def vertex_arrays(self, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
         """(albedo (V, 3), material (V, 2) = (specular, glossiness)) float32, validated."""
-        albedo = np.asarray(self.albedo, np.float32)
-        if albedo.shape == (3,):
-            albedo = np.broadcast_to(albedo, (n_vertices, 3))
-        if albedo.shape != (n_vertices, 3):
-            raise InvalidInputError(f"albedo must have shape (3,) or ({n_vertices}, 3), got {albedo.shape}")
-        _finite("albedo", albedo, 0.0, 1.0)
+        albedo = _per_vertex_rgb("albedo", self.albedo, n_vertices)
         out = np.empty((n_vertices, 2), np.float32)
         for k, (name, value, hi) in enumerate((("specular", self.specular, 1e3), ("glossiness", self.glossiness, 1.0))):
             out[:, k] = _per_vertex(name, value, n_vertices, hi)
         if self.is_pbr:
             out[:] = 0.0   # the pbr model's pixels read their lobes from the tables
-        return np.ascontiguousarray(albedo), out
+        return albedo, out
 
     def maps(self) -> tuple[np.ndarray | None, np.ndarray | None]:
         """(albedo map, second map): the gloss map of a Phong material, the metallic-roughness map of
