@@ -226,6 +226,13 @@ class PemSetInfo(BaseModel):
     base_level: int = Field(description="the first MIP level kept (0 unless only the levels the scene's "
                                          "glossiness reads were built)")
     whole_sources: bool = Field(description="the median cut kept compact bright sources whole")
+    lights_from: str = Field("median-cut", description="the quality's lights_from: median-cut, area or auto")
+    lights_from_used: str = Field("median-cut", description="what the set was cut with: median-cut or area (an area "
+                                  "set's lights are Arbree, Walter and Bala's discs plus the remainder's median cut; "
+                                  "its preview shows each disc as a region)")
+    area_lights: list[dict] | None = Field(None, description="the area lights: direction, angular radius (degrees) "
+                                           "and energy share; null for a median-cut set")
+    ambient_share: float | None = Field(None, description="the remainder's share of the energy (area sets)")
     source: str = Field(description="where the first request for it found it: built, disk or memory")
     build_ms: float
     median_cut_ms: float

@@ -265,8 +265,8 @@ def test_environment_details_and_preview(http, env_upload):
     assert pem["n_lights"] == 12 and pem["face_size"] == 32 and pem["build_ms"] > 0
     # What tells the sets apart besides the key: the levels kept and the cut.
     assert pem["base_level"] == 0 and pem["whole_sources"] is True
-    described = {(p["n_lights"], p["face_size"], p["filter"], p["levels"], p["base_level"], p["whole_sources"])
-                 for p in d["pem_sets"]}
+    described = {(p["n_lights"], p["face_size"], p["filter"], p["levels"], p["base_level"], p["whole_sources"],
+                  p["lights_from"]) for p in d["pem_sets"]}
     assert len(described) == len({p["key"] for p in d["pem_sets"]})
     dirs = np.array([light["direction"] for light in pem["lights"]])
     assert dirs.shape == (12, 3) and np.allclose(np.linalg.norm(dirs, axis=1), 1.0, atol=1e-6)
@@ -275,6 +275,36 @@ def test_environment_details_and_preview(http, env_upload):
     assert r.status_code == 200 and r.headers["content-type"] == "image/png"
     assert png_array(r.content).shape == (128, 256, 3)
     assert env["id"] in [e["id"] for e in http.get("/environments").json()]
+
+
+def test_area_lights_are_reported_and_previewed(http, mesh, tmp_path):
+    """A map with two bright discs, cut by lights_from area: the frame and the environment's details
+    name the area lights and the ambient share; the preview shows each disc as a region."""
+    from renderer.envmap import write_exr
+    from renderer.envmap.layouts import Layout, image_to_dir
+
+    h, w = 64, 128
+    d, _ = image_to_dir(np.arange(w)[None, :] + 0.5, np.arange(h)[:, None] + 0.5, Layout.LATLONG, h, w)
+    img = np.full((h, w, 3), 0.1, np.float32)
+    for centre, radius, radiance in (((0.6, 0.6, 0.5), 10.0, 60.0), ((-0.7, 0.5, -0.5), 14.0, 20.0)):
+        c = np.asarray(centre) / np.linalg.norm(centre)
+        img[(d @ c) >= np.cos(np.radians(radius))] = radiance
+    path = tmp_path / "discs.exr"
+    write_exr(path, img)
+    r = http.post("/environments", content=path.read_bytes(), headers=OCTET, params={"name": "discs.exr"})
+    assert r.status_code == 201, r.text
+    body = scene_body(r.json()["id"], mesh)
+    body["quality"] = {**FAST_QUALITY, "lights_from": "area"}
+    r = http.post("/render", json=body, params={"format": "json"})
+    assert r.status_code == 200, r.text
+    pems = r.json()["render"]["pem_set"]
+    assert pems["lights_from_used"] == "area" and len(pems["area_lights"]) == 2
+    env = http.get(f"/environments/{body['environment_id']}").json()
+    (info,) = [p for p in env["pem_sets"] if p["lights_from"] == "area"]
+    assert len(info["area_lights"]) == 2 and 0.0 < info["ambient_share"] < 1.0
+    assert info["n_lights"] == FAST_QUALITY["lights"] and len(info["lights"]) <= FAST_QUALITY["lights"]
+    r = http.get(info["preview_url"])
+    assert r.status_code == 200 and r.headers["content-type"] == "image/png"
 
 
 def test_same_environment_twice_costs_nothing(http, env_upload):

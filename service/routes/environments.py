@@ -50,7 +50,9 @@ def pem_set_info(env: EnvironmentRecord, info: PemInfo, with_lights: bool) -> Pe
                   for d, e, y, sa in zip(info.directions, info.energy_rgb, lum, info.solid_angle_sr)]
     return PemSetInfo(key=info.key, face_size=info.face_size, n_lights=info.settings.n_lights,
                       filter=info.settings.filter.value, levels=s["levels"], base_level=s["base_level"],
-                      whole_sources=info.settings.whole_sources, source=info.source,
+                      whole_sources=info.settings.whole_sources, lights_from=s.get("lights_from", "median-cut"),
+                      lights_from_used=s.get("lights_from_used", "median-cut"), area_lights=s.get("area_lights"),
+                      ambient_share=s.get("ambient_share"), source=info.source,
                       build_ms=s["build_ms"], median_cut_ms=s["median_cut_ms"], bytes=s["bytes"], lights=lights,
                       preview_url=f"/environments/{env.id}/preview.png?pem={info.key}")
 
