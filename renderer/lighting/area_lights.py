@@ -78,47 +78,57 @@ def _downsample(cube: np.ndarray, face: int) -> np.ndarray:
 
 
 class _Search:
-    """The filter responses at the candidates, on the search cube."""
+    """The filter responses at the candidates, on the search cube: each candidate's integrals within
+    every inner and outer radius, kept, so that a removed disc is subtracted from them (its texels'
+    share alone) instead of every candidate being searched again."""
 
     def __init__(self, luminance: np.ndarray):
         n = luminance.shape[1]
         self.dirs = texel_directions(n).reshape(-1, 3)
+        self._dirs32 = self.dirs.astype(np.float32)
         self.omega = np.ascontiguousarray(cube_solid_angles(n)).reshape(-1)
         self.y = luminance.reshape(-1).astype(np.float64).copy()
         self.outer = outer_radii()
         # Bin edges in cos of the angle, descending: each filter's inner and outer radius.
         radii = np.concatenate([INNER_RATIO * self.outer, self.outer])
-        self.order = np.argsort(radii)
-        self.cos_edges = np.cos(radii[self.order])        # descending cosines
-        position = np.empty_like(self.order)
-        position[self.order] = np.arange(len(self.order))        # each radius's place among the edges
+        order = np.argsort(radii)
+        self.cos_edges = np.cos(radii[order])                     # descending cosines
+        position = np.empty_like(order)
+        position[order] = np.arange(len(order))                 # each radius's place among the edges
         self.inner_bin, self.outer_bin = position[:SIZES], position[SIZES:]
         bright = self.y > 0
         k = max(1, int(np.ceil(CANDIDATE_SHARE * len(self.y))))
         top = np.argsort(-self.y)[:k]
         self.candidates = top[bright[top]]
+        rows = np.arange(len(self.candidates))
+        self.inner, self.outer_sum = self._integrals(rows, np.arange(len(self.y)))
         self.responses = np.full((len(self.candidates), SIZES), -np.inf)
-        self.update(np.ones(len(self.candidates), bool))
+        self._respond(rows)
 
-    def update(self, which: np.ndarray) -> None:
-        """Recompute the responses of the candidates selected by the boolean mask `which`."""
-        idx = np.flatnonzero(which)
+    def _integrals(self, rows: np.ndarray, texels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Integrals (L times solid angle) of `texels` within each inner and outer radius about
+        each candidate of `rows`: (R, SIZES) each."""
         cos_max = float(np.cos(self.outer[-1]))
-        weighted = self.y * self.omega
-        for start in range(0, len(idx), 256):
-            rows = idx[start:start + 256]
-            c = self.dirs[self.candidates[rows]] @ self.dirs.T           # (R, T) cosines
-            near = c > cos_max
-            r, t = np.nonzero(near)
+        weighted = self.y[texels] * self.omega[texels]
+        width = 2 * SIZES + 1
+        inner = np.zeros((len(rows), SIZES))
+        outer = np.zeros((len(rows), SIZES))
+        for start in range(0, len(rows), 256):
+            chunk = rows[start:start + 256]
+            c = self._dirs32[self.candidates[chunk]] @ self._dirs32[texels].T   # (R, T) cosines
+            r, t = np.nonzero(c > cos_max)
             # Bin b: the texel lies within edge b (angle below radius b) but outside edge b - 1.
             b = np.searchsorted(-self.cos_edges, -c[r, t], side="left")
-            sums = np.zeros((len(rows), 2 * SIZES + 1))
-            np.add.at(sums, (r, b), weighted[t])
-            cum = np.cumsum(sums, axis=1)                                 # within edge b: cum[:, b]
-            inner = cum[:, self.inner_bin]
-            outer = cum[:, self.outer_bin]
-            self.responses[rows] = (inner + RING_WEIGHT * (outer - inner)) / self.outer
-        self.responses[self.y[self.candidates] <= 0] = -np.inf
+            sums = np.bincount(r * width + b, weights=weighted[t], minlength=len(chunk) * width).reshape(-1, width)
+            cum = np.cumsum(sums, axis=1)                                        # within edge b: cum[:, b]
+            inner[start:start + len(chunk)] = cum[:, self.inner_bin]
+            outer[start:start + len(chunk)] = cum[:, self.outer_bin]
+        return inner, outer
+
+    def _respond(self, rows: np.ndarray) -> None:
+        inner, outer = self.inner[rows], self.outer_sum[rows]
+        self.responses[rows] = (inner + RING_WEIGHT * (outer - inner)) / self.outer
+        self.responses[rows[self.y[self.candidates[rows]] <= 0]] = -np.inf
 
     def best(self) -> tuple[int, int, float]:
         flat = int(np.argmax(self.responses))
@@ -126,11 +136,15 @@ class _Search:
         return i, s, float(self.responses[i, s])
 
     def remove(self, direction: np.ndarray, radius: float) -> None:
-        """Black out the disc and recompute the candidates whose filters reach it."""
-        inside = self.dirs @ direction >= np.cos(radius)
+        """Black out the disc: its texels' share leaves the integrals of the candidates it reaches."""
+        inside = np.flatnonzero((self.dirs @ direction >= np.cos(radius)) & (self.y > 0))
+        reach = np.flatnonzero(self.dirs[self.candidates] @ direction >= np.cos(min(np.pi, radius + self.outer[-1])))
+        if len(inside) and len(reach):
+            inner, outer = self._integrals(reach, inside)
+            self.inner[reach] -= inner
+            self.outer_sum[reach] -= outer
         self.y[inside] = 0.0
-        reach = self.dirs[self.candidates] @ direction >= np.cos(min(np.pi, radius + self.outer[-1]))
-        self.update(reach)
+        self._respond(reach)
 
 
 def decompose(cube: np.ndarray, weber: float = WEBER, max_lights: int = MAX_LIGHTS) -> Decomposition:
