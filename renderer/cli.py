@@ -183,13 +183,15 @@ MATERIAL_FIELDS = ("model", "albedo", "specular", "glossiness", "metallic", "rou
 
 def garment_material(args):
     """The garment's Material: from --material (a TOML or JSON table of MATERIAL_FIELDS) or the flags."""
+    from .shading.gltf import material_from_gltf
     from .shading.material import Material
+
+    def is_gltf(p: Path) -> bool:
+        return p.suffix.lower() in (".glb", ".gltf")
 
     path = getattr(args, "material", None)
     meshes = getattr(args, "mesh", None) or []
-    if path is None and args.model is None and meshes and meshes[0].suffix.lower() in (".glb", ".gltf"):
-        from .shading.gltf import material_from_gltf
-
+    if path is None and args.model is None and meshes and is_gltf(meshes[0]):
         material = material_from_gltf(meshes[0])   # a garment exported with its fabric renders with it
         if material is not None:
             return material
@@ -198,12 +200,11 @@ def garment_material(args):
             return Material(args.albedo, model="pbr", metallic=args.metallic, roughness=args.roughness,
                             sheen_colour=args.sheen_colour, sheen_roughness=args.sheen_roughness)
         return Material(args.albedo, args.specular, args.glossiness)
-    if path.suffix.lower() in (".glb", ".gltf"):
-        from .shading.gltf import material_from_gltf
-
+    if is_gltf(path):
         material = material_from_gltf(path)
         if material is None:
-            raise InvalidInputError(f"'{path}' names no material")
+            raise InvalidInputError(f"'{path}' names no material: give its meshes one, or pass --material with a "
+                                    f"TOML/JSON file of {', '.join(MATERIAL_FIELDS)}, or the --model flags")
         return material
     try:
         text = path.read_text()

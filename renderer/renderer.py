@@ -326,6 +326,7 @@ class Renderer:
         self._target = None
         self._readback: np.ndarray | None = None
         self._buffers: dict[str, moderngl.Buffer] = {}
+        self._sheen_offsets: dict[str, int] = {}   # per lobe table (`_lobe_table`)
         self._gloss_buf = ctx.buffer(reserve=4 * PEMSet.GLOSS_TABLE_SIZE)
         # The moments program is needed to build vertex arrays before any shadow map exists.
         self._shadow_prog = program(ctx, "shadows/moments.vert", "shadows/moments.frag")
@@ -636,9 +637,10 @@ class Renderer:
             p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE, settings.glossy,
                                          contact, discs, lobes)
             if lobes is not None:
-                self._lobe_table(*lobes).bind_to_storage_buffer(7)
+                table, sheen_offset = self._lobe_table(*lobes)
+                table.bind_to_storage_buffer(7)
                 gbuf[4].use(location=13)
-                set_uniform(p, "u_sheen_offset", len(material_lobes.load().packed("ggx", lobes[0])))
+                set_uniform(p, "u_sheen_offset", sheen_offset)
             contact_radius = 0.0
             if "u_contact_radius" in p:
                 # In main-map texels (the maps whose bias hides the contact), else the sharp maps', of
@@ -684,14 +686,16 @@ class Renderer:
             ctx.disable(moderngl.DEPTH_TEST)
         return contact_radius
 
-    def _lobe_table(self, ggx: int, sheen: int) -> moderngl.Buffer:
-        """The fitted lobes the PBR variant reads (lobes.glsl): the GGX table, then the sheen table."""
+    def _lobe_table(self, ggx: int, sheen: int) -> tuple[moderngl.Buffer, int]:
+        """The fitted lobes the PBR variant reads (lobes.glsl): the GGX table, then the sheen table,
+        and where the sheen table starts (floats); made once per lobe counts."""
         key = f"lobes_{ggx}_{sheen}"
         if key not in self._buffers:
             tables = material_lobes.load()
             parts = [tables.packed("ggx", ggx)] + ([tables.packed("sheen", sheen)] if sheen else [])
             self._buffers[key] = self.gl.ctx.buffer(np.concatenate(parts).tobytes())
-        return self._buffers[key]
+            self._sheen_offsets[key] = len(parts[0])
+        return self._buffers[key], self._sheen_offsets[key]
 
     def _readback_image(self, fbo, w: int, h: int, timer: StageTimer) -> np.ndarray:
         t0 = time.perf_counter()

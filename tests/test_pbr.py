@@ -85,8 +85,8 @@ def test_white_furnace_renders_the_directional_albedo(renderer, name, lobes):
     nodes; what is left: the bilinear lookup between them, the icosphere's facets, and the lobes'
     parts below the horizon, clipped per light (the share of its disc above the plane), not per
     direction. Measured at 96 lights: within 0.5 % for n.v >= 0.4, down to -4 % (the metal) at grazing
-    views, the worst 1 % of pixels 10 % off (the metal, one lobe; 7 % with two); at 24 lights the
-    grazing band loses 13 %."""
+    views, the worst 1 % of pixels 10 % off (the metal, one lobe; 7 % with two); fewer, larger
+    lights lose more at grazing views."""
     material = MATERIALS[name]
     L = 1.7
     pems = renderer.build_pems(np.full((6, 32, 32, 3), L, np.float32), PEMSettings(n_lights=96))
@@ -167,8 +167,8 @@ def test_a_phong_mesh_renders_the_same_beside_a_pbr_one(renderer):
                 scene.release()
     finally:
         pems.release()
-    mask = covered_mask = images[0][..., 3] > 0.5
-    assert covered_mask.sum() > 500
+    mask = images[0][..., 3] > 0.5
+    assert mask.sum() > 500
     np.testing.assert_allclose(images[1][mask][:, :3], images[0][mask][:, :3], rtol=1e-5, atol=1e-6)
 
 
@@ -179,7 +179,7 @@ def test_more_lobes_cost_lookups_and_one_lobe_still_renders(renderer, sun):
         one, two = (renderer.render(scene, pems, FrameSettings(32, 32, lobes=k), CAM).image for k in (1, 2))
     finally:
         scene.release()
-    px = covered(type("F", (), {"image": one})())
+    px = one[..., 3] > 0.5
     assert np.isfinite(one).all() and np.isfinite(two).all()
     assert not np.allclose(one[px], two[px])
 

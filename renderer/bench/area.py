@@ -16,17 +16,18 @@ clamped at the ends). Each map is labelled tuning or held-out by the broad bench
 from __future__ import annotations
 
 import json
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 
 from ..presets import frame_settings, pem_settings, preset
-from ..reference import relative_rmse, render_reference
+from ..reference import relative_rmse
 from ..renderer import Renderer
 from .catalogue import BODY, FABRICS, MAPS, Scene, environment_cube, split
+from .materials import ReferencePair
+from .report import machine_info
+from .run import time_frames
 
 BUDGETS = (12, 24, 48)
 FABRIC = "sheen"
@@ -45,11 +46,7 @@ def run(out_dir: Path, quick: bool = False, spp: int = 128, frames: int = 3, log
         for name in maps:
             scene = Scene(name, "polo", FABRIC, "front", 128)
             meshes, camera, materials = scene.meshes(), scene.camera(), [FABRICS[FABRIC], BODY]
-            ref_cube = environment_cube(name, 256)
-            refs = [render_reference(meshes, materials, ref_cube, camera, 128, 128, spp, seed=s) for s in (1, 2)]
-            truth = 0.5 * (refs[0].image + refs[1].image)
-            mask = truth[..., 3] > 0.5
-            floor = relative_rmse(refs[0].image, refs[1].image, mask) / 2.0
+            truth = ReferencePair.render(meshes, materials, environment_cube(name, 256), camera, 128, spp)
             cube = environment_cube(name, int(base["face_size"]))
             gs = r.create_scene(meshes, materials)
             try:
@@ -58,27 +55,22 @@ def run(out_dir: Path, quick: bool = False, spp: int = 128, frames: int = 3, log
                     knobs = {**base, "lights": budget, "lights_from": lights_from}
                     pems = r.build_pems(cube, pem_settings(knobs, "sqrt-cosine", None))
                     try:
-                        settings = frame_settings(knobs, 128, 128)
-                        times = []
-                        for _ in range(frames + 1):
-                            f = r.render(gs, pems, settings, camera)
-                            times.append(f.timings["frame_wall_ms"])
+                        f, frame_ms, _ = time_frames(r, gs, pems, frame_settings(knobs, 128, 128), camera, frames)
                         s = pems.summary()
                         row = {"map": name, "set": sets[name], "lights_from": lights_from, "budget": budget,
                                "used": s["lights_from_used"], "lights": s["n_regions"],
                                "area_lights": len(s["area_lights"] or []), "ambient_share": s["ambient_share"],
-                               "rel_rmse": relative_rmse(f.image, truth, mask), "noise_floor": floor,
-                               "frame_ms": float(np.median(times[1:]))}
+                               "rel_rmse": relative_rmse(f.image, truth.image, truth.mask), "noise_floor": truth.floor,
+                               "frame_ms": frame_ms}
                     finally:
                         pems.release()
                     rows.append(row)
                     log(f"{name:32s} {lights_from:10s} {budget:3d}: {row['lights']:3d} lights "
-                        f"({row['area_lights']} area), rel. RMSE {row['rel_rmse']:.3f} (floor {floor:.3f}), "
+                        f"({row['area_lights']} area), rel. RMSE {row['rel_rmse']:.3f} (floor {truth.floor:.3f}), "
                         f"{row['frame_ms']:.0f} ms")
             finally:
                 gs.release()
-        machine = {"gl_renderer": r.gl.renderer_name, "cpu": platform.processor() or platform.machine(),
-                   "cores": len(os.sched_getaffinity(0)), "date": time.strftime("%Y-%m-%d")}
+        machine = machine_info(r.gl)
     data = {"machine": machine, "spp": spp, "frames": frames, "quick": quick, "budgets": list(BUDGETS),
             "wall_s": time.perf_counter() - t_start, "rows": rows, "maps": compare(rows)}
     (out_dir / "area.json").write_text(json.dumps(data, indent=1))

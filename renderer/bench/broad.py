@@ -29,7 +29,6 @@ import hashlib
 import io
 import json
 import os
-import platform
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -51,6 +50,7 @@ from .catalogue import (
     split,
 )
 from .processes import one_thread_pool
+from .report import machine_info
 from .scenes import shared_assets
 
 # --- references, cached -------------------------------------------------------------------------
@@ -330,8 +330,7 @@ def run_broad(out_dir: Path, cfg: BroadConfig, log=print, only: list[Scene] | No
     sets = split()
     rows: list[BroadRow] = []
     gl = GLContext()
-    machine = {"gl_renderer": gl.renderer_name, "gl_version": gl.version, "cpu": platform.processor() or platform.machine(),
-               "cores": len(os.sched_getaffinity(0)), "python": platform.python_version(), "date": time.strftime("%Y-%m-%d")}
+    machine = machine_info(gl)
     res: MapResources | None = None
     with Renderer(gl) as r:
         for k, scene in enumerate(sorted(todo, key=lambda s: (s.map, s.garment, s.size))):

@@ -12,9 +12,8 @@ targets: error within 1.2x, frame time within 1.3x for two lobes), and the cost 
 from __future__ import annotations
 
 import json
-import os
-import platform
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +22,10 @@ from ..presets import frame_settings, pem_settings, preset
 from ..reference import artefact_share, relative_rmse, render_reference
 from ..renderer import Renderer
 from ..shading.material import Material
+from .broad import SEEDS
 from .catalogue import BODY, FABRICS, MAPS, Scene, environment_cube, split
+from .report import machine_info
+from .run import time_frames
 
 # The fabrics of the issue's material rows, glTF parameters: linear base colour, metallic, roughness,
 # sheen colour and roughness.
@@ -40,6 +42,28 @@ PHONG_BASELINE = "sheen"
 ERROR_RATIO_TARGET = 1.2
 TIME_RATIO_TARGET = 1.3
 PRESET = "balanced"
+
+
+@dataclass(frozen=True)
+class ReferencePair:
+    """Two references of one scene (seeds 1 and 2, as the broad benchmark's): a, b, their mean as the
+    truth (image), the object's mask, the floor (the mean's own rel. RMSE: half the pair's against
+    each other) and the seconds both took."""
+
+    a: np.ndarray
+    b: np.ndarray
+    image: np.ndarray
+    mask: np.ndarray
+    floor: float
+    wall_s: float
+
+    @classmethod
+    def render(cls, meshes, materials, cube, camera, size: int, spp: int) -> ReferencePair:
+        t0 = time.perf_counter()
+        a, b = (render_reference(meshes, materials, cube, camera, size, size, spp, seed=s).image for s in SEEDS)
+        image = 0.5 * (a + b)
+        mask = image[..., 3] > 0.5
+        return cls(a, b, image, mask, relative_rmse(a, b, mask) / 2.0, time.perf_counter() - t0)
 
 
 def _scenes(quick: bool) -> list[Scene]:
@@ -65,39 +89,27 @@ def run(out_dir: Path, quick: bool = False, spp: int = 128, frames: int = 5, log
                                 pem_settings(knobs, "sqrt-cosine", None))
             try:
                 for name, material in materials.items():
-                    t0 = time.perf_counter()
-                    ref_a = render_reference(meshes, [material, BODY], ref_cube, camera, scene.size, scene.size, spp,
-                                             seed=1)
-                    ref_b = render_reference(meshes, [material, BODY], ref_cube, camera, scene.size, scene.size, spp,
-                                             seed=2)
-                    truth = 0.5 * (ref_a.image + ref_b.image)
-                    mask = truth[..., 3] > 0.5
-                    floor = relative_rmse(ref_a.image, ref_b.image, mask) / 2.0
-                    ref_s = time.perf_counter() - t0
+                    truth = ReferencePair.render(meshes, [material, BODY], ref_cube, camera, scene.size, spp)
                     gs = r.create_scene(meshes, [material, BODY])
                     try:
                         for lobes in ((1, 2) if material.is_pbr else (1,)):
                             settings = frame_settings({**knobs, "lobes": lobes}, scene.size, scene.size)
-                            times, image = [], None
-                            for _ in range(frames + 1):   # the first compiles the variant
-                                f = r.render(gs, pems, settings, camera)
-                                times.append(f.timings["frame_wall_ms"])
-                                image = f.image
-                            art = artefact_share(image, ref_a.image, ref_b.image, mask)
+                            frame, frame_ms, _ = time_frames(r, gs, pems, settings, camera, frames)
+                            image = frame.image
+                            art = artefact_share(image, truth.a, truth.b, truth.mask)
                             row = {"scene": f"{scene.garment}/{Path(scene.map).stem}", "material": name,
                                    "lobes": lobes if material.is_pbr else None,
-                                   "rel_rmse": relative_rmse(image, truth, mask), "noise_floor": floor,
-                                   "artefact_share": art.share, "frame_ms": float(np.median(times[1:])),
-                                   "reference_s": ref_s}
+                                   "rel_rmse": relative_rmse(image, truth.image, truth.mask),
+                                   "noise_floor": truth.floor, "artefact_share": art.share, "frame_ms": frame_ms,
+                                   "reference_s": truth.wall_s}
                             rows.append(row)
                             log(f"{row['scene']:32s} {name:14s} lobes {row['lobes']}  rel. RMSE {row['rel_rmse']:.3f} "
-                                f"(floor {floor:.3f})  {row['frame_ms']:.0f} ms")
+                                f"(floor {truth.floor:.3f})  {row['frame_ms']:.0f} ms")
                     finally:
                         gs.release()
             finally:
                 pems.release()
-        machine = {"gl_renderer": r.gl.renderer_name, "cpu": platform.processor() or platform.machine(),
-                   "cores": len(os.sched_getaffinity(0)), "date": time.strftime("%Y-%m-%d")}
+        machine = machine_info(r.gl)
     data = {"machine": machine, "preset": PRESET, "spp": spp, "frames": frames, "quick": quick,
             "wall_s": time.perf_counter() - t_start, "rows": rows, "summary": summary(rows)}
     (out_dir / "materials.json").write_text(json.dumps(data, indent=1))

@@ -3,6 +3,9 @@ Pareto plot of error against frame time."""
 
 from __future__ import annotations
 
+import os
+import platform
+import time
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +13,12 @@ import numpy as np
 from ..reference.metrics import REL_MSE_EPS
 
 MB = 1 << 20
+
+
+def machine_info(gl) -> dict:
+    """The machine a benchmark ran on, named in its report: the GL renderer, the CPU, its cores."""
+    return {"gl_renderer": gl.renderer_name, "gl_version": gl.version, "cpu": platform.processor() or platform.machine(),
+            "cores": len(os.sched_getaffinity(0)), "python": platform.python_version(), "date": time.strftime("%Y-%m-%d")}
 
 
 def paper_pem_mb(n_regions: int, face_size: int) -> float:

@@ -11,7 +11,6 @@ environment lighting, the plain many-light method, ambient occlusion times envir
 from __future__ import annotations
 
 import json
-import platform
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -26,6 +25,7 @@ from ..presets import PRESET_NAMES, knob_defaults, preset
 from ..reference import artefact_share, mean_flip, relative_rmse, render_reference
 from ..renderer import FrameSettings, Renderer, ShadingMode
 from .budget import OLD_SHADOW_BIAS
+from .report import machine_info
 from .scenes import BenchScene, bundled_scene, shared_scenes
 
 BALANCED = {**knob_defaults(), **preset("balanced"), "filter": "sqrt-cosine"}
@@ -120,7 +120,7 @@ def _pems_for(r: Renderer, bs: BenchScene, s: dict, cache: dict):
     return cache[key]
 
 
-def _time_frames(r: Renderer, scene, pems, fs: FrameSettings, camera, n: int):
+def time_frames(r: Renderer, scene, pems, fs: FrameSettings, camera, n: int):
     r.render(scene, pems, fs, camera)  # warm-up: shader compilation, allocations
     frames = [r.render(scene, pems, fs, camera) for _ in range(n)]
     frame_ms = float(np.median([f.timings["frame_wall_ms"] for f in frames]))
@@ -171,7 +171,7 @@ def bench_scene(r: Renderer, bs: BenchScene, cfg: BenchConfig, log=print) -> lis
         for knob, value, s, mode in jobs:
             pems = _pems_for(r, bs, s, pem_cache)
             fs = frame_settings(s, size, mode)
-            frame, frame_ms, stages = _time_frames(r, scene, pems, fs, camera, cfg.frames)
+            frame, frame_ms, stages = time_frames(r, scene, pems, fs, camera, cfg.frames)
             err = relative_rmse(frame.image, truth, mask)
             flip = mean_flip(frame.image, truth, mask)
             artefacts = artefact_share(frame.image, ref_a.image, ref_b.image, mask)
@@ -197,8 +197,7 @@ def run_bench(out_dir: Path, cfg: BenchConfig, log=print) -> list[Row]:
     gl = GLContext()
     rows: list[Row] = []
     with Renderer(gl) as r:
-        machine = {"gl_renderer": gl.renderer_name, "gl_version": gl.version, "cpu": platform.processor() or platform.machine(),
-                   "python": platform.python_version(), "date": time.strftime("%Y-%m-%d")}
+        machine = machine_info(gl)
         for bs in scenes:
             log(f"scene {bs.name} ({bs.env_name})")
             rows += bench_scene(r, bs, cfg, log)

@@ -56,12 +56,14 @@ class AreaLight:
 
 @dataclass(frozen=True)
 class Decomposition:
-    """lights, strongest first; ambient: the remainder (6, F, F, 3) float32; ambient_share: its
-    share of the map's luminous energy; stopped_by: why the search ended ("weber", "no response",
-    "max lights", "no candidates")."""
+    """lights, strongest first; ambient: the remainder (6, F, F, 3) float32; owner: int32 (6, F, F),
+    the light whose disc took each texel (-1: the remainder); ambient_share: its share of the map's
+    luminous energy; stopped_by: why the search ended ("weber", "no response", "max lights",
+    "no candidates")."""
 
     lights: tuple[AreaLight, ...]
     ambient: np.ndarray
+    owner: np.ndarray
     ambient_share: float
     total_luminance: float
     stopped_by: str
@@ -155,6 +157,7 @@ def decompose(cube: np.ndarray, weber: float = WEBER, max_lights: int = MAX_LIGH
     omega = np.ascontiguousarray(cube_solid_angles(n))[..., None]
     dirs = texel_directions(n)
     ambient = cube.copy()
+    owner = np.full(cube.shape[:3], -1, np.int32)
     total = float(np.sum((cube * omega) @ LUMINANCE_RGB))
     search = _Search(_downsample(cube, SEARCH_FACE) @ LUMINANCE_RGB)
     lights: list[AreaLight] = []
@@ -177,13 +180,25 @@ def decompose(cube: np.ndarray, weber: float = WEBER, max_lights: int = MAX_LIGH
             stopped = "weber"
             break
         ambient[inside] = 0.0
+        owner[inside & (owner < 0)] = len(lights)
         search.remove(centre, radius)
         found += lum
         lights.append(AreaLight(tuple(float(c) for c in centre), radius, tuple(float(e) for e in energy),
                                 lum / total if total > 0 else 0.0, response))
     ambient_lum = float(np.sum((ambient * omega) @ LUMINANCE_RGB))
-    return Decomposition(tuple(lights), ambient.astype(np.float32), ambient_lum / total if total > 0 else 0.0,
+    return Decomposition(tuple(lights), ambient.astype(np.float32), owner, ambient_lum / total if total > 0 else 0.0,
                          total, stopped)
+
+
+def light_regions(cube: np.ndarray, n_lights: int, whole_sources: bool, lights_from: str):
+    """A PEM set's regions by `PEMSettings.lights_from`: "median-cut", "area" or "auto"."""
+    from .median_cut import median_cut
+
+    if lights_from == "area":
+        return area_regions(cube, n_lights, whole_sources)[0]
+    if lights_from == "auto":
+        return auto_regions(cube, n_lights, whole_sources)[0]
+    return median_cut(cube, n_lights, whole_sources)
 
 
 # `lights_from` "auto": the area decomposition where it found lights and none is wider than this
@@ -199,21 +214,23 @@ def auto_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False):
     and none is wider than AUTO_MAX_RADIUS_DEG, else the median cut."""
     from .median_cut import median_cut
 
-    regions, dec = area_regions(cube, n_lights, whole_sources)
+    dec = decompose(cube, max_lights=max(0, n_lights - 6))
     if dec.lights and max(lt.radius_rad for lt in dec.lights) <= np.radians(AUTO_MAX_RADIUS_DEG):
-        return regions, dec, "area"
+        return area_regions(cube, n_lights, whole_sources, dec)[0], dec, "area"
     return median_cut(cube[..., :3], n_lights, whole_sources), dec, "median-cut"
 
 
-def area_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False):
+def area_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False, dec: Decomposition | None = None):
     """The PEM set's regions from the decomposition (`PEMSettings.lights_from` "area"): one region
     per area light (its disc's texels), and the ambient remainder median-cut into the largest
     6 * 2^j regions that keep the total within `n_lights` (at least 6), each a light with its own PEM
     and shadow map like any other. Returns (RegionSet, Decomposition); a map without area lights
-    gets the plain median cut."""
+    gets the plain median cut. `dec`: the decomposition, if made already (at most n_lights - 6 lights,
+    room for the remainder's six)."""
     from .median_cut import RegionSet, _region_stats, median_cut
 
-    dec = decompose(cube, max_lights=max(0, n_lights - 6))   # room for the remainder's six at least
+    if dec is None:
+        dec = decompose(cube, max_lights=max(0, n_lights - 6))
     k = len(dec.lights)
     if k == 0:
         return median_cut(cube[..., :3], n_lights, whole_sources), dec
@@ -222,31 +239,19 @@ def area_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False):
         m *= 2
     rest = median_cut(dec.ambient.astype(np.float64), m, whole_sources)
     n = cube.shape[1]
-    labels = rest.labels.copy()
-    dirs = texel_directions(n)
+    labels = np.where(dec.owner >= 0, m + dec.owner, rest.labels).astype(np.int32)
     rects = [tuple(r) for r in rest.rects]
-    for i, light in enumerate(dec.lights):
-        inside = (dirs @ np.asarray(light.direction) >= np.cos(light.radius_rad)) & (labels < m)
-        labels[inside] = m + i
-        f, r, c = (int(x[0]) for x in np.nonzero(inside)) if inside.any() else (0, 0, 0)
+    for i in range(k):   # a disc's rect: its first texel (read by nothing but the stored format)
+        f, r, c = (int(x[0]) for x in np.nonzero(dec.owner == i)) if (dec.owner == i).any() else (0, 0, 0)
         rects.append((f, r, r + 1, c, c + 1))
     rgb = np.asarray(cube[..., :3], np.float64)
     energy = np.maximum(rgb @ LUMINANCE_RGB, 0.0) * cube_solid_angles(n)
-    out = _region_stats(rgb, energy, labels, m + k)
-    area = np.concatenate([np.zeros(m, bool), np.ones(k, bool)])
-    arrays = (labels, *out[:3], np.asarray(rects, np.int32), *out[3:], area)
-    for a in arrays:
+    dirs, omega, energy_rgb, spread, mean_cos = _region_stats(rgb, energy, labels, m + k)
+    regions = RegionSet(labels, dirs, omega, energy_rgb, np.asarray(rects, np.int32), spread, mean_cos,
+                        np.concatenate([np.zeros(m, bool), np.ones(k, bool)]))
+    for a in vars(regions).values():
         a.setflags(write=False)
-    labels, dirs_out, omega, energy_rgb, rects_arr, spread, mean_cos, area = arrays
-    return RegionSet(labels, dirs_out, omega, energy_rgb, rects_arr, spread, mean_cos, area), dec
-
-
-def latlong_uv(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Lat-long image coordinates (u, v in [0, 1], v down) of unit directions (..., 3), the README's
-    convention (the image centre is -Z, u = 0.75 is +X, the top row +Y)."""
-    phi = np.arctan2(d[..., 0], -d[..., 2])
-    theta = np.arcsin(np.clip(d[..., 1], -1.0, 1.0))
-    return phi / (2.0 * np.pi) + 0.5, 0.5 - theta / np.pi
+    return regions, dec
 
 
 def write_preview(cube: np.ndarray, dec: Decomposition, path, title: str = "") -> None:
@@ -256,7 +261,7 @@ def write_preview(cube: np.ndarray, dec: Decomposition, path, title: str = "") -
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..envmap.layouts import cube_to_latlong
+    from ..envmap.layouts import Layout, cube_to_latlong, dir_to_image
 
     h, w = 256, 512
     images = [cube_to_latlong(np.asarray(cube, np.float32)[..., :3], h, w), cube_to_latlong(dec.ambient, h, w)]
@@ -274,13 +279,12 @@ def write_preview(cube: np.ndarray, dec: Decomposition, path, title: str = "") -
         b = np.cross(c, t)
         a = np.linspace(0.0, 2.0 * np.pi, 181)[:, None]
         ring = np.cos(light.radius_rad) * c + np.sin(light.radius_rad) * (np.cos(a) * t + np.sin(a) * b)
-        u, v = latlong_uv(ring)
-        u, v = u * w, v * h
+        u, v, _ = dir_to_image(ring, Layout.LATLONG, h, w)
         cut = np.flatnonzero(np.abs(np.diff(u)) > w / 2) + 1     # the seam: draw each side apart
         for part_u, part_v in zip(np.split(u, cut), np.split(v, cut)):
             axes[0].plot(part_u, part_v, color="cyan", lw=1.0)
-        cu, cv = latlong_uv(c)
-        axes[0].text(cu * w, cv * h, f"{k + 1}: {light.share:.0%}", color="cyan", fontsize=7, ha="center", va="center")
+        cu, cv, _ = dir_to_image(c, Layout.LATLONG, h, w)
+        axes[0].text(cu, cv, f"{k + 1}: {light.share:.0%}", color="cyan", fontsize=7, ha="center", va="center")
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()

@@ -180,11 +180,8 @@ def judge_grid(theta_v: float) -> PolarGrid:
 
 
 def _lobe_sum(params: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """sum of the lobes (log w, log s, psi) * k at dirs (..., 3), 0 below the horizon."""
-    out = np.zeros(dirs.shape[:-1])
-    for lw, ls, psi in params.reshape(-1, 3):
-        out += np.exp(lw) * phong_profile(np.arccos(np.clip(dirs @ axis_at(psi), -1.0, 1.0)), np.exp(ls))
-    return np.where(dirs[..., 2] > 0.0, out, 0.0)
+    """`lobe_values` of the fit's parameters, (log w, log s, psi) per lobe."""
+    return lobe_values([(np.exp(lw), np.exp(ls), axis_at(psi)) for lw, ls, psi in params.reshape(-1, 3)], dirs)
 
 
 def fit_lobes(fn: Callable, theta_v: float, count: int = 1, kind: str = "average", axis: np.ndarray | None = None,

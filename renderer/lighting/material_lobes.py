@@ -49,21 +49,19 @@ SCALARS = 3
 
 
 def ggx_scalars(roughness: float, theta_v: float) -> tuple[float, float, float]:
-    """(a, b, c) of the module doc at one roughness and view elevation, on the fit's judge grid."""
+    """(a, b, c) of the module doc at one roughness and view elevation, on the fit's judge grid, from
+    brdf.ggx itself: a white metal (F0 = 1) reflects a + b, a black one (F0 = 0, F = (1 - v.h)^5) b,
+    and a white dielectric's diffuse part (less its specular, a black dielectric's) is (1 - 0.04) c."""
     v = view_direction(theta_v)
     grid = judge_grid(theta_v)
     cell = np.broadcast_to(grid.d_omega, grid.dirs.shape[:-1])
-    lt = grid.dirs
-    nl, nv = lt @ N, float(v @ N)
-    up = nl > 0.0
-    h = v + lt
-    h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
-    alpha = max(roughness, brdf.MIN_ROUGHNESS) ** 2
-    dv = brdf.ggx_distribution(np.clip(h @ N, 0.0, 1.0), alpha) * brdf.smith_visibility(nv, np.where(up, nl, 1.0), alpha)
-    fresnel = (1.0 - np.clip(h @ v, 0.0, 1.0)) ** 5
-    w = np.where(up, nl, 0.0) * cell
-    return (float(np.sum(dv * (1.0 - fresnel) * w)), float(np.sum(dv * fresnel * w)),
-            float(np.sum((1.0 - fresnel) * w) / np.pi))
+
+    def reflected(base: float, metallic: float) -> float:
+        return float(np.sum(brdf.ggx(N, v, grid.dirs, base, metallic, roughness)[..., 0] * cell))
+
+    b = reflected(0.0, 1.0)
+    return (reflected(1.0, 1.0) - b, b,
+            (reflected(1.0, 0.0) - reflected(0.0, 0.0)) / (1.0 - brdf.DIELECTRIC_F0))
 
 
 def fit_cell(model: str, roughness: float, theta_v: float, count: int):
@@ -127,11 +125,9 @@ class LobeTables:
         out = []
         for table in (self.scalars(model, count), self.lobes(model, count)):
             extra = (None,) * (table.ndim - 2)
-            def at(i, j, table=table):
-                return table[i, j]
             wx, wy = fx[(...,) + extra], fy[(...,) + extra]
-            out.append((1 - wx) * (1 - wy) * at(i0, j0) + wx * (1 - wy) * at(i0 + 1, j0)
-                       + (1 - wx) * wy * at(i0, j0 + 1) + wx * wy * at(i0 + 1, j0 + 1))
+            out.append((1 - wx) * (1 - wy) * table[i0, j0] + wx * (1 - wy) * table[i0 + 1, j0]
+                       + (1 - wx) * wy * table[i0, j0 + 1] + wx * wy * table[i0 + 1, j0 + 1])
         return out[0], out[1]
 
     def sheen_albedo(self, roughness, n_v) -> np.ndarray:

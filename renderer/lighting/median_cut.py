@@ -59,7 +59,8 @@ class RegionSet:
     spread_rad: np.ndarray
     mean_cos: np.ndarray
     # bool (N,): the region is an area light's disc (lighting/area_lights.py, area_regions); None: a
-    # plain median cut. A disc region's rect is the face rect of its centre texel only.
+    # plain median cut. A disc region's rect is one texel of it (its peak and sub-lights come from
+    # the labels, not the rect).
     area: np.ndarray | None = None
 
     @property
@@ -77,6 +78,11 @@ class RegionSet:
     def disc_radius_rad(self) -> np.ndarray:
         """Radius of the uniform disc with the region's mean cosine ((1 + cos r) / 2 = mean_cos)."""
         return np.arccos(np.clip(2.0 * self.mean_cos - 1.0, -1.0, 1.0))
+
+    @property
+    def area_mask(self) -> np.ndarray:
+        """bool (N,): which regions are area lights' discs (all False for a plain median cut)."""
+        return self.area if self.area is not None else np.zeros(self.n_regions, bool)
 
     def light_radius_rad(self) -> np.ndarray:
         """Angular radius that sets the shadow softness: the energy spread, at most the region's cone."""
@@ -219,7 +225,7 @@ def sub_lights(cube: np.ndarray, regions: RegionSet, per_region: int, whole_sour
     energy = np.maximum(rgb @ LUMINANCE_RGB, 0.0) * cube_solid_angles(n)
     labels = np.empty((6, n, n), np.int32)
     n_sub = regions.n_regions * per_region
-    area = regions.area if regions.area is not None else np.zeros(regions.n_regions, bool)
+    area = regions.area_mask
     if area.any():   # an area light's disc is one sub-light; the remainder's regions are cut without it
         inside = area[regions.labels]
         energy = np.where(inside, 0.0, energy)

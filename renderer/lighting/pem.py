@@ -23,10 +23,10 @@ from ..gpu.rawgl import GL_RGBA16F, GL_RGBA32F, CubeMapArray
 from ..gpu.shaders import compute_shader
 from ..presets import balanced
 from ..shadows.lights import disc_sine
-from .area_lights import area_regions, auto_regions
+from .area_lights import light_regions
 from .filters import Filter, taps_1d
 from .glossiness import Calibration, LobeTable, lobe_table
-from .median_cut import RegionSet, median_cut, sub_lights
+from .median_cut import RegionSet, sub_lights
 from .pem_reference import mip_levels, texel_weights, weight_chain
 
 
@@ -160,26 +160,19 @@ class PEMSet:
 
         t0 = time.perf_counter()
         if stored is None:
-            self.decomposition = None
-            if settings.lights_from == "area":
-                self.regions, self.decomposition = area_regions(cube[..., :3], settings.n_lights, settings.whole_sources)
-            elif settings.lights_from == "auto":
-                self.regions, self.decomposition, _ = auto_regions(cube[..., :3], settings.n_lights,
-                                                                   settings.whole_sources)
-            else:
-                self.regions: RegionSet = median_cut(cube[..., :3], settings.n_lights, settings.whole_sources)
+            self.regions: RegionSet = light_regions(cube[..., :3], settings.n_lights, settings.whole_sources,
+                                                    settings.lights_from)
             # Per-region scale: the brightest channel of the region's texels (1 for a black region).
             brightest = cube[..., :3].max(axis=-1).astype(np.float64)
             peak = np.zeros(self.regions.n_regions)
             np.maximum.at(peak, self.regions.labels.reshape(-1), brightest.reshape(-1))
             self.scale = np.where(peak > 0, peak, 1.0).astype(np.float64)
         else:
-            self.decomposition = None
             self.regions = RegionSet(**{k: np.asarray(stored["regions_" + k]) for k in RegionSet.__dataclass_fields__
                                         if "regions_" + k in stored})
             self.scale = np.asarray(stored["scale"], np.float64)
             # An area set has its decomposition's count of lights (at most n_lights), not n_lights.
-            area = self.regions.area is not None and bool(np.asarray(self.regions.area).any())
+            area = bool(self.regions.area_mask.any())
             lights = settings.n_lights if not area else min(settings.n_lights, self.regions.n_regions)
             have = (self.regions.n_regions, int(stored["levels"]), int(stored.get("base_level", 0)),
                     bool(stored.get("whole_sources", False)), str(stored.get("lights_from", "median-cut")))
@@ -375,10 +368,9 @@ class PEMSet:
         return data * self.scale.astype(np.float32)[:, None, None, None, None] * inv_b
 
     def summary(self) -> dict:
-        area = self.regions.area
         lights = None
-        if area is not None and np.asarray(area).any():
-            idx = np.flatnonzero(area)
+        if self.regions.area_mask.any():
+            idx = np.flatnonzero(self.regions.area_mask)
             total = float(self.regions.energy_luminance.sum())
             lights = [{"direction": [round(float(c), 5) for c in self.regions.directions[i]],
                        "angular_radius_deg": round(float(np.degrees(self.regions.disc_radius_rad()[i])), 3),

@@ -387,16 +387,15 @@ def _integrate(sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: _Surfac
                 u_lobe = (n_b - 1 - j + rng.random(len(j))) / n_b
                 if pbr is None:
                     est = _sample_chunk(sampler, tracer, surf, pix, has_d, has_g, exponent, rng, u_texel, u_lobe)
-                else:
+                else:   # the Phong pixels' techniques, then the physically based pixels'
                     est = np.zeros((len(pix), 3))
-                    on = is_pbr[pix]
-                    for sel, fn in ((np.flatnonzero(~on), None), (np.flatnonzero(on), pbr)):
-                        if sel.size and fn is None:
-                            est[sel] = _sample_chunk(sampler, tracer, surf, pix[sel], has_d, has_g, exponent, rng,
-                                                     u_texel[sel], u_lobe[sel])
-                        elif sel.size:
-                            est[sel] = _sample_chunk_pbr(sampler, tracer, surf, fn, pix[sel], rng, u_texel[sel],
-                                                         u_lobe[sel])
+                    phong, physical = np.flatnonzero(~is_pbr[pix]), np.flatnonzero(is_pbr[pix])
+                    if phong.size:
+                        est[phong] = _sample_chunk(sampler, tracer, surf, pix[phong], has_d, has_g, exponent, rng,
+                                                   u_texel[phong], u_lobe[phong])
+                    if physical.size:
+                        est[physical] = _sample_chunk_pbr(sampler, tracer, surf, pbr, pix[physical], rng,
+                                                          u_texel[physical], u_lobe[physical])
                 batch_sum[p0:p1] += est.reshape(n_j, p1 - p0, 3).sum(axis=0)
         delta = batch_sum / n_b - mean
         mean += delta * (n_b / (done + n_b))
@@ -461,12 +460,13 @@ def _sample_chunk(sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: _Sur
 
 @dataclass(frozen=True)
 class _PBRInputs:
-    """The physically based pixels' parameters, all pixels (N, ...): base colour, metallic, alpha
-    (roughness^2, clamped as brdf.py clamps it), roughness, sheen colour and roughness, the sheen
-    layer's albedo at the view (material_lobes: the same E the renderer reads), and the share of
-    BRDF samples drawn from GGX's visible normals (the rest cosine-weighted, for the diffuse and
-    sheen terms)."""
+    """The physically based pixels' parameters, all pixels (N, ...): the shading normal facing the
+    eye (`facing_normal`), base colour, metallic, roughness and sheen roughness (clamped to the lobe
+    tables' first node, as the shader clamps them), sheen colour, the sheen layer's albedo at the
+    view (material_lobes: the same E the renderer reads), and the share of BRDF samples drawn from
+    GGX's visible normals (the rest cosine-weighted, for the diffuse and sheen terms)."""
 
+    n: np.ndarray
     base: np.ndarray
     metallic: np.ndarray
     roughness: np.ndarray
@@ -482,8 +482,9 @@ class _PBRInputs:
         metallic = np.clip(surf.pbr[:, 0], 0.0, 1.0)
         roughness = np.clip(surf.pbr[:, 1], material_lobes.ROUGHNESS[0], 1.0)
         sheen_roughness = np.clip(surf.pbr[:, 2], material_lobes.ROUGHNESS[0], 1.0)
-        e = material_lobes.load().sheen_albedo(sheen_roughness, _dot(facing_normal(surf.n, surf.v), surf.v))
-        return cls(surf.albedo, metallic, roughness, surf.sheen, sheen_roughness, e, 0.5 + 0.4 * metallic)
+        n = facing_normal(surf.n, surf.v)
+        e = material_lobes.load().sheen_albedo(sheen_roughness, _dot(n, surf.v))
+        return cls(n, surf.albedo, metallic, roughness, surf.sheen, sheen_roughness, e, 0.5 + 0.4 * metallic)
 
     def f(self, n, v, w, pix) -> np.ndarray:
         """The exact BRDF times n.w (M, 3), brdf.pbr."""
@@ -492,8 +493,7 @@ class _PBRInputs:
 
     def pdf(self, n, v, w, pix) -> np.ndarray:
         """The density of the BRDF-sampling mixture at w (M,)."""
-        h = v + w
-        h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-300)
+        h = brdf.half_vector(v, w)
         alpha = self.roughness[pix] ** 2
         spec = brdf.ggx_reflection_pdf(_dot(n, v), np.clip(_dot(n, h), 0.0, 1.0), _dot(v, h), alpha)
         cosine = np.maximum(_dot(n, w), 0.0) / np.pi
@@ -508,7 +508,7 @@ def _sample_chunk_pbr(sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: 
     p_specular, else cosine-weighted) per entry of pix, combined by the power heuristic."""
     m = len(pix)
     est = np.zeros((m, 3))
-    n, v, x, ng = facing_normal(surf.n[pix], surf.v[pix]), surf.v[pix], surf.x[pix], surf.n_geom[pix]
+    n, v, x, ng = mat.n[pix], surf.v[pix], surf.x[pix], surf.n_geom[pix]
 
     w, p_env = sampler.sample(m, rng, u_texel)
     radiance = sampler.radiance(w)
@@ -557,7 +557,8 @@ def facing_normal(n: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def _basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The tangents (t, b) of `_to_world`'s frame about the unit axis (M, 3)."""
+    """The tangents (t, b) of an orthonormal frame whose z is the unit axis (M, 3): Duff et al. 2017,
+    "Building an orthonormal basis, revisited" (branchless, no singularity)."""
     ax, ay, az = axis[:, 0], axis[:, 1], axis[:, 2]
     sign = np.where(az >= 0.0, 1.0, -1.0)
     a = -1.0 / (sign + az)
@@ -602,14 +603,8 @@ def _sample_phong(r: np.ndarray, s: np.ndarray, rng: np.random.Generator,
 
 
 def _to_world(axis: np.ndarray, lx: np.ndarray, ly: np.ndarray, lz: np.ndarray) -> np.ndarray:
-    """Local (lx, ly, lz) in an orthonormal frame whose z is the unit axis (M, 3): Duff et al. 2017,
-    "Building an orthonormal basis, revisited" (branchless, no singularity)."""
-    ax, ay, az = axis[:, 0], axis[:, 1], axis[:, 2]
-    sign = np.where(az >= 0.0, 1.0, -1.0)
-    a = -1.0 / (sign + az)
-    b = ax * ay * a
-    t = np.stack([1.0 + sign * ax * ax * a, sign * b, -sign * ax], axis=1)
-    bt = np.stack([b, sign + ay * ay * a, -ay], axis=1)
+    """Local (lx, ly, lz) in `_basis`'s frame about the unit axis (M, 3)."""
+    t, bt = _basis(axis)
     w = t * lx[:, None] + bt * ly[:, None] + axis * lz[:, None]
     return w / np.linalg.norm(w, axis=1, keepdims=True)
 

@@ -47,6 +47,12 @@ def _rgb(c) -> np.ndarray:
     return np.broadcast_to(np.asarray(c, np.float64), (3,)) if np.ndim(c) == 0 else np.asarray(c, np.float64)
 
 
+def half_vector(v: np.ndarray, lt: np.ndarray) -> np.ndarray:
+    """The unit half vector of v and l (..., 3)."""
+    h = v + lt
+    return h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
+
+
 def lambert(n, v, lt, base) -> np.ndarray:
     """base / pi * n.l (..., 3)."""
     _, _, _, nv, nl = _cosines(n, v, lt)
@@ -92,8 +98,7 @@ def ggx(n, v, lt, base, metallic, roughness) -> np.ndarray:
     base = _rgb(base)
     metallic = np.asarray(metallic, np.float64)
     alpha = np.maximum(np.asarray(roughness, np.float64), MIN_ROUGHNESS) ** 2
-    h = v + lt
-    h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
+    h = half_vector(v, lt)
     nh, vh = np.clip(_dot(n, h), 0.0, 1.0), _dot(v, h)
     f0 = DIELECTRIC_F0 * (1.0 - metallic)[..., None] + base * metallic[..., None]
     f = schlick(f0, vh)
@@ -116,9 +121,7 @@ def sheen(n, v, lt, colour, roughness) -> np.ndarray:
     """KHR_materials_sheen's layer: colour D_charlie V_neubelt, times n.l (..., 3)."""
     n, v, lt, nv, nl = _cosines(n, v, lt)
     alpha = np.maximum(np.asarray(roughness, np.float64), MIN_ROUGHNESS) ** 2
-    h = v + lt
-    h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
-    nh = np.clip(_dot(n, h), 0.0, 1.0)
+    nh = np.clip(_dot(n, half_vector(v, lt)), 0.0, 1.0)
     up = (nv > 0) & (nl > 0)
     cv, cl = np.where(up, nv, 1.0), np.where(up, nl, 1.0)
     vis = 1.0 / (4.0 * (cl + cv - cl * cv))

@@ -42,6 +42,16 @@ def _per_vertex_rgb(name: str, value, n_vertices: int) -> np.ndarray:
     return np.ascontiguousarray(_finite(name, rgb, 0.0, 1.0))
 
 
+def _texture(name: str, value, channels: int, meaning: str = "") -> np.ndarray | None:
+    """A texture (H, W, channels) in [0, 1] as float32, validated; None stays None."""
+    if value is None:
+        return None
+    tex = np.asarray(value, np.float32)
+    if tex.ndim != 3 or tex.shape[2] != channels:
+        raise InvalidInputError(f"{name} must be (H, W, {channels}){meaning}, got {tex.shape}")
+    return _finite(name, tex, 0.0, 1.0)
+
+
 @dataclass(frozen=True)
 class Material:
     """model: "phong" (albedo, specular, glossiness: the paper's model) or "pbr" (glTF 2.0
@@ -138,26 +148,10 @@ class Material:
     def maps(self) -> tuple[np.ndarray | None, np.ndarray | None]:
         """(albedo map, second map): the gloss map of a Phong material, the metallic-roughness map of
         a pbr one (both (H, W, 2) in [0, 1]), validated."""
-        am, gm = self.albedo_map, self.gloss_map if not self.is_pbr else self.metallic_roughness_map
-        name = "metallic_roughness_map" if self.is_pbr else "gloss_map"
-        shape = "(metallic, roughness)" if self.is_pbr else "(specular, glossiness)"
-        if am is not None:
-            am = np.asarray(am, np.float32)
-            if am.ndim != 3 or am.shape[2] != 3:
-                raise InvalidInputError(f"albedo_map must be (H, W, 3), got {am.shape}")
-            _finite("albedo_map", am, 0.0, 1.0)
-        if gm is not None:
-            gm = np.asarray(gm, np.float32)
-            if gm.ndim != 3 or gm.shape[2] != 2:
-                raise InvalidInputError(f"{name} must be (H, W, 2) = {shape}, got {gm.shape}")
-            _finite(name, gm, 0.0, 1.0)
-        return am, gm
+        second = ("metallic_roughness_map", self.metallic_roughness_map, " = (metallic, roughness)") if self.is_pbr \
+            else ("gloss_map", self.gloss_map, " = (specular, glossiness)")
+        return _texture("albedo_map", self.albedo_map, 3), _texture(second[0], second[1], 2, second[2])
 
     def normal_texture(self) -> np.ndarray | None:
         """The normal map (H, W, 3) float32 in [0, 1], validated (None without one)."""
-        if self.normal_map is None:
-            return None
-        nm = np.asarray(self.normal_map, np.float32)
-        if nm.ndim != 3 or nm.shape[2] != 3:
-            raise InvalidInputError(f"normal_map must be (H, W, 3), got {nm.shape}")
-        return _finite("normal_map", nm, 0.0, 1.0)
+        return _texture("normal_map", self.normal_map, 3)

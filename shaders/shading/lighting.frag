@@ -204,7 +204,8 @@ void main() {
     vec4 g_geo = texelFetch(u_g_geometric, px, 0);
     g_geometric_normal = g_geo.xyz;
     g_shadow_group = int(g_geo.w + 0.5);
-    vec3 albedo = texelFetch(u_g_albedo, px, 0).rgb;
+    vec4 g_alb = texelFetch(u_g_albedo, px, 0);
+    vec3 albedo = g_alb.rgb;
     vec2 material = vec2(g_pos.w, g_nrm.w);
     vec3 to_eye = normalize(u_camera_pos - ws_position);
     vec3 r = reflect(-to_eye, n);
@@ -233,7 +234,7 @@ void main() {
         // glTF metallic-roughness with sheen: albedo is the base colour; the sheen colour rides in the
         // targets' spare channels (gbuffer.frag). The normal faces the eye (lobes.glsl).
         n = facing_normal(n, to_eye);
-        diffuse_weight = pbr_lobes(n, to_eye, albedo, pbr.x, pbr.y, vec3(material, texelFetch(u_g_albedo, px, 0).a), pbr.z);
+        diffuse_weight = pbr_lobes(n, to_eye, albedo, pbr.x, pbr.y, vec3(material, g_alb.a), pbr.z);
         glossy = true;
         g_clip_lobes = true;
     }
