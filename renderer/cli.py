@@ -350,6 +350,9 @@ def cmd_sequence(args) -> int:
     topology = load_mesh(args.topology, up=args.up, scale=args.mesh_scale) if args.topology else None
     seq = load_sequence(args.frames, up=args.up, scale=args.mesh_scale)
     garment, positions = to_meshes(seq, topology, up=args.up, scale=args.mesh_scale)
+    # A USD stage's still meshes (the body) join the scene with the body's material.
+    extra_meshes = extra_meshes + list(seq.extras)
+    materials = materials + [Material(args.body_albedo, 0.1, 0.3)] * len(seq.extras)
     meshes = [garment] + extra_meshes
     w, h = args.size
     # Frame the whole sequence, so the camera does not move with the cloth.
@@ -586,7 +589,9 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     r.set_defaults(func=cmd_render)
     sq = sub.add_parser("sequence", help="render a mesh sequence (OBJ folder, .pc2, .mdd, .npz) to numbered images")
     add_scene_arguments(sq)
-    sq.add_argument("--frames", type=Path, required=True, help="folder of .obj files, or a .pc2/.mdd/.npz file")
+    sq.add_argument("--frames", type=Path, required=True,
+                    help="folder of .obj files, a .pc2/.mdd/.npz file, or a USD stage (.usd/.usda/.usdc/.usdz: "
+                         "its moving meshes are the garment, its still ones the body)")
     sq.add_argument("--topology", type=Path, help="mesh giving the faces (and UVs) of a point cache")
     sq.add_argument("--body", type=Path, action="append", help="static meshes rendered with the garment")
     sq.add_argument("--exr-frames", action="store_true", help="also write a linear EXR per frame")

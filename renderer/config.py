@@ -117,6 +117,11 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("blur_scale", float, 0.1, "scale of the paper's per-light shadow blur (0: hard shadows)", "shadows",
             "shadow maps", 0.0, 100.0,
             sweep=(0.0, 0.1, 0.25, 0.5, 1.0, 2.0)),
+    Setting("penumbra", str, "fixed", "area lights' penumbrae: fixed (the paper's blur, blur_scale) or blocker (as "
+            "wide as the light's angular size and the blocker's distance make them, percentage-closer soft shadows "
+            "on the maps' MIP chains: sharp at contact, soft far from it)", "shadows", "shader variant",
+            choices=("fixed", "blocker")),   # area lights only, whom the knob sweep's median cut has none of:
+                                             # `garment-render bench --area` measures it
     Setting("caster_detail", float, 1.0, "share of the casters' triangles the main maps draw (a proxy over the same "
             "vertices; 1: the meshes themselves)", "shadows", "shadow maps", 0.0, 1.0, above_minimum=True,
             sweep=(1.0, 0.5, 0.25, 0.1)),

@@ -81,6 +81,10 @@ class FrameSettings:
     height: int = 512
     shadow_size: int = balanced("shadow_size")
     blur_scale: float = balanced("blur_scale")  # the paper's per-light blur, its scale (0: hard shadows, every preset)
+    # "blocker": each area light's penumbra (a main map's) as wide as its angular radius and the
+    # blocker's distance make it (shading/vsm.glsl, PENUMBRA_BLOCKER); "fixed": the paper's blur
+    # (blur_scale) alone, as for every median-cut region.
+    penumbra: str = balanced("penumbra")
     bleed_reduction: float = 0.2
     # Shadow-map bias, in each map's own texels (main and sharp maps alike): the lookup pushed off the
     # surface along the normal, and the least deviation of the depths under a texel (Chebyshev's
@@ -251,6 +255,7 @@ class _LightPlan:
     blur: bool
     texels: np.ndarray
     lights: np.ndarray
+    blocker: bool    # some light's penumbra follows the blocker's distance (the main maps carry MIP chains)
 
     @property
     def n(self) -> int:
@@ -337,7 +342,7 @@ class Renderer:
 
     def _shade_variant(self, mode: ShadingMode, diffuse: str, two_textures: bool,
                        glossy: str = "pem", contact: bool = False, sub_lights: int = 1,
-                       lobes: tuple[int, int] | None = None
+                       lobes: tuple[int, int] | None = None, blocker: bool = False
                        ) -> tuple[moderngl.Program | moderngl.ComputeShader, moderngl.VertexArray | None]:
         """The lighting program of a mode and diffuse source (a full-screen pass over the geometry
         pass's targets), compiled on first use (one variant each; the diffuse source matters to the
@@ -345,12 +350,13 @@ class Renderer:
         REGIONS_PER_TEXTURE regions), whose second needs loops of its own; `sub_lights`: discs per
         region in the glossy closed form (FrameSettings.sub_lights; 1 where no glossy term is in
         closed form, `_glossy_closed_form`); `lobes`: (GGX lobes, sheen lobes) of a scene with a
-        physically based material (None: Phong materials only, one lobe a pixel)."""
+        physically based material (None: Phong materials only, one lobe a pixel); `blocker`: some
+        light's penumbra follows the blocker's distance (FrameSettings.penumbra, area lights)."""
         closed = _no_diffuse_pems(mode, diffuse)
         wide = glossy == "wide" and mode in _CLOSED_FORM_MODES
         contact = contact and mode is ShadingMode.FULL
         compute = self.lighting_pass == "compute"
-        key = (mode, diffuse if closed else "pem", two_textures, wide, contact, compute, sub_lights, lobes)
+        key = (mode, diffuse if closed else "pem", two_textures, wide, contact, compute, sub_lights, lobes, blocker)
         if key not in self._shade_progs:
             defines = {**self._defines, "MODE": _MODE_INDEX[mode], "TWO_PEM_TEXTURES": int(two_textures)}
             if wide:
@@ -363,6 +369,8 @@ class Renderer:
                 defines.update(PBR=1, LOBES_GGX=lobes[0], LOBES_SHEEN=lobes[1], TABLE_R=len(material_lobes.ROUGHNESS),
                                TABLE_J=len(material_lobes.THETA_V), TABLE_R0=f"{material_lobes.ROUGHNESS[0]:.9g}",
                                TABLE_THETA_MAX=f"{material_lobes.THETA_V[-1]:.9g}")
+            if blocker:
+                defines["PENUMBRA_BLOCKER"] = 1
             if contact:
                 defines.update(CONTACT_SHADOWS=1, CONTACT_SLICES=CONTACT_SLICES, CONTACT_STEPS=CONTACT_STEPS)
             if compute:
@@ -540,9 +548,13 @@ class Renderer:
         sharp_layer = plan.layer[plan.sharp]
         vp[plan.sharp] = vp[plan.sharp_lights[sharp_layer]]
         texels = texel_sizes(vp, sizes)
+        # Contact-hardening penumbrae for the area lights in the main maps (their discs are bounded
+        # sources; a median-cut region's spread is not a disc's, docs/area-bench.md).
+        blocker = (settings.penumbra == "blocker") & regions.area_mask & (plan.layer >= 0) & ~plan.sharp
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
-                             sigma, plan.layer, disc_radius, plan.sharp, texels)
-        return _LightPlan(regions, lo, hi, layers, disc_radius, plan, shadow_dirs, sizes, sigma, blur, texels, lights)
+                             sigma, plan.layer, disc_radius, plan.sharp, texels, blocker)
+        return _LightPlan(regions, lo, hi, layers, disc_radius, plan, shadow_dirs, sizes, sigma, blur, texels, lights,
+                          bool(blocker.any()))
 
     def _shadow_pass(self, scene: Scene, settings: FrameSettings, lp: _LightPlan, lights_buf: moderngl.Buffer,
                      timer: StageTimer) -> dict[str, ShadowMaps]:
@@ -556,7 +568,8 @@ class Renderer:
         arrays = {"main": shadow_maps}
         if len(plan.main_lights):
             shadow_maps.render([(sm.shadow_vao(settings.caster_detail), sm.group) for sm in casters], lights_buf,
-                               self._buffer("shadow_lights_main", plan.main_lights.tobytes()), timer, blur=blur)
+                               self._buffer("shadow_lights_main", plan.main_lights.tobytes()), timer, blur=blur,
+                               mipmaps=lp.blocker)
         if len(plan.sharp_lights):
             # The sharp maps draw the casters themselves, never a proxy: a proxy's facets show in a
             # sharp shadow (and drawn from one, the interiors' lamps measured no faster on the held-out
@@ -623,6 +636,8 @@ class Renderer:
             pems.bind(0, 5, 6)
             shadow_maps.moments.use(location=1)
             arrays.get("sharp", shadow_maps).moments.use(location=12)
+            if lp.blocker:
+                shadow_maps.casters.use(location=14)   # the penumbrae's blocker search (PENUMBRA_BLOCKER)
             if settings.background is Background.ENVIRONMENT:
                 ctx.disable(moderngl.DEPTH_TEST)
                 (background.texture if background is not None else pems.env_texture).use(location=2)
@@ -635,7 +650,7 @@ class Renderer:
             contact = settings.contact_shadow_texels > 0 and n_shadowed > 0
             lobes = (settings.lobes, settings.lobes if scene.has_sheen else 0) if scene.has_pbr else None
             p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE, settings.glossy,
-                                         contact, discs, lobes)
+                                         contact, discs, lobes, lp.blocker)
             if lobes is not None:
                 table, sheen_offset = self._lobe_table(*lobes)
                 table.bind_to_storage_buffer(7)

@@ -1,8 +1,10 @@
 """Mesh sequences as cloth tools export them: fixed topology, positions per frame.
 
 Formats: PC2 point caches (Blender, 3ds Max; little-endian), MDD point caches (LightWave, Blender;
-big-endian), a folder of OBJ files (one per frame, same vertex order), and NumPy `.npz` files with
-`positions` (F, V, 3) and `triangles`/`faces` (as the shared newton simulation is stored).
+big-endian), a folder of OBJ files (one per frame, same vertex order), NumPy `.npz` files with
+`positions` (F, V, 3) and `triangles`/`faces` (as the shared newton simulation is stored), and USD
+stages with time-sampled mesh points (renderer/usd.py: the moving meshes are the sequence, the still
+ones the body beside it).
 """
 
 from __future__ import annotations
@@ -26,7 +28,10 @@ class Sequence:
     faces: np.ndarray | None
     name: str
     frame_times: np.ndarray | None = None
-    converted: bool = False  # already in the renderer's Y-up axes and scale (OBJ folders)
+    converted: bool = False  # already in the renderer's Y-up axes and scale (OBJ folders, USD stages)
+    # Meshes the file holds beside the sequence that do not move (a USD stage's body), in the
+    # renderer's axes.
+    extras: tuple[Mesh, ...] = ()
 
     @property
     def n_frames(self) -> int:
@@ -115,16 +120,40 @@ def read_obj_folder(path: str | Path, up: str = "y", scale: float = 1.0) -> Sequ
                     converted=True)
 
 
+def read_usd_sequence(path: str | Path, scale: float = 1.0) -> Sequence:
+    """A USD stage's moving meshes as one sequence (several are merged, a garment's panels), in the
+    renderer's axes and metres from the stage's own metadata, times `scale`; its still meshes as
+    `extras`."""
+    from .usd import merged, read_usd, static_meshes
+
+    data = read_usd(path)
+    moving = [m for m in data.meshes if m.animated]
+    if not moving:
+        raise MeshError(f"{path}: no mesh of the stage moves (its points have no time samples): nothing to play; "
+                        f"render it with `garment-render render --mesh`")
+    positions, faces = merged(moving)
+    k = np.float32(scale)
+    extras = tuple(Mesh.from_arrays(m.positions * k, m.faces, m.uvs, name=m.name) for m in static_meshes(data))
+    return Sequence(_check(positions * k, str(path)), faces, Path(path).stem, data.times, converted=True,
+                    extras=extras)
+
+
 def load_sequence(path: str | Path, up: str = "y", scale: float = 1.0) -> Sequence:
     """Any supported sequence. Point caches are returned in their file's axes and units; OBJ folders
-    already converted by `up` and `scale` (as load_mesh does)."""
+    already converted by `up` and `scale` (as load_mesh does); USD stages by their own metadata (up
+    axis, metres per unit), then `scale`."""
+    from .usd import USD_SUFFIXES
+
     path = Path(path)
     if path.is_dir():
         return read_obj_folder(path, up, scale)
     suffix = path.suffix.lower()
     readers = {".pc2": read_pc2, ".mdd": read_mdd, ".npz": read_npz}
+    if suffix in USD_SUFFIXES:
+        return read_usd_sequence(path, scale)
     if suffix not in readers:
-        raise MeshError(f"{path}: unknown sequence format {suffix!r}; use a folder of .obj files, .pc2, .mdd or .npz")
+        raise MeshError(f"{path}: unknown sequence format {suffix!r}; use a folder of .obj files, .pc2, .mdd, .npz "
+                        f"or a USD stage ({', '.join(USD_SUFFIXES)})")
     if not path.exists():
         raise MeshError(f"{path}: no such file")
     return readers[suffix](path)

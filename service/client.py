@@ -263,6 +263,26 @@ class RenderClient:
         return [FrameResult(base64.b64decode(f["image"]["base64"]), f["image"]["media_type"], f["timings_ms"],
                             {"x-frame-index": str(f["frame_index"])}, retries) for f in r.json()["frames"]]
 
+    def stream_usd(self, path: str | Path, environment_id: str, material: dict | None = None,
+                   body_material: dict | None = None, scale: float = 1.0, **kw):
+        """Play a USD stage's simulation through a new scene: its moving meshes are the garment, its
+        still ones the body (renderer/usd.py reads them in Y-up metres from the stage's metadata, times
+        `scale`). Registers the scene with the first frame, then sends every frame; yields
+        (scene id, frame index, FrameResult). kw: camera, quality, output, name (`scene_spec`)."""
+        from renderer.sequence import read_usd_sequence
+
+        seq = read_usd_sequence(path, scale)
+        body = None
+        if seq.extras:
+            offsets = np.cumsum([0] + [len(m.positions) for m in seq.extras])[:-1]
+            body = self.mesh_spec(np.concatenate([m.positions for m in seq.extras]),
+                                  np.concatenate([m.faces + o for m, o in zip(seq.extras, offsets)]),
+                                  material=body_material, name="body")
+        scene = self.create_scene(environment_id, positions=seq.positions[0], faces=seq.faces, material=material,
+                                  body=body, up="y", **kw)
+        for k in range(seq.n_frames):
+            yield scene["id"], k, self.send_frame(scene["id"], seq.positions[k], frame_index=k)
+
     def render_once(self, spec: dict, format: str = "png") -> FrameResult:
         """Stateless render of a whole scene (a `scene_spec(...)` dict)."""
         r, retries = self._request("POST", "/render", json=spec, params={"format": format})

@@ -31,9 +31,12 @@ def test_the_stored_tables_are_what_the_fit_makes():
     tables = material_lobes.load()
     for model, i, j, count in (("ggx", 4, 6, 2), ("sheen", 6, 3, 1), ("ggx", 9, 10, 1)):
         job, lobes, scalars, rms, _ = material_lobes._cell((model, i, j, count))
-        np.testing.assert_allclose(tables.lobes(model, count)[i, j], lobes, rtol=1e-6, atol=1e-9)
+        # The joint refinement stops at least_squares' tolerances, which another scipy or BLAS build
+        # reaches by another path: measured 1.1e-4 apart (numpy 2.4.6, scipy 1.17.1 against the
+        # table's). A stale table is off by far more (a changed BRDF or fit moves whole lobes).
+        np.testing.assert_allclose(tables.lobes(model, count)[i, j], lobes, rtol=2e-3, atol=1e-6)
         np.testing.assert_allclose(tables.scalars(model, count)[i, j], scalars, rtol=1e-6)
-        assert tables.rms(model, count)[i, j] == pytest.approx(rms, rel=1e-6)
+        assert tables.rms(model, count)[i, j] == pytest.approx(rms, rel=2e-3)
 
 
 def test_the_split_scalars_reproduce_the_exact_albedo():

@@ -29,7 +29,7 @@ KNOB_DEFAULTS = {"diffuse": "pem", "caster_detail": 1.0, "small_light_scale": 1,
                  "glossy": "pem", "sharp_large_lights": False, "sharp_share_deg": 0.0, "sub_lights": 1,
                  **OLD_SHADOW_BIAS, "contact_shadow_texels": 0.0, "whole_sources": False,
                  "lobes": 1,   # before the fitted lobes, every pixel had the one Phong lobe
-                 "lights_from": "median-cut"}
+                 "lights_from": "median-cut", "penumbra": "fixed"}
 
 
 def summarize(bench: dict) -> dict:

@@ -231,11 +231,12 @@ def small_lights(radius_rad) -> np.ndarray:
 
 
 def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma, shadow_layer,
-                radius_rad=None, sharp=None, texel=None) -> np.ndarray:
+                radius_rad=None, sharp=None, texel=None, blocker=None) -> np.ndarray:
     """Build the std430 array of `struct Light` for n lights; shadow_layer[i] = -1: no shadow map
     (else its layer); radius_rad: angular radius of each light's energy (for the horizon term),
     default 0; sharp: the light's map is in the sharp array (default none); texel: (N, 2) the width
-    of one texel of its map in world units and in its depth units (`texel_sizes`; default 0, 0)."""
+    of one texel of its map in world units and in its depth units (`texel_sizes`; default 0, 0);
+    blocker: the light's penumbra follows the blocker's distance (FrameSettings.penumbra; default none)."""
     n = len(directions)
     arr = np.zeros(n, LIGHT_DTYPE)
     arr["view_proj"] = np.transpose(view_proj, (0, 2, 1)).reshape(n, 16)  # column-major for GLSL
@@ -245,7 +246,7 @@ def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma
     arr["params"][:, 2] = solid_angle_sr
     arr["params"][:, 3] = disc_sine(radius_rad if radius_rad is not None else np.zeros(n))
     arr["energy"][:, :3] = energy_rgb
-    arr["energy"][:, 3] = np.asarray(energy_rgb) @ np.array([0.2126, 0.7152, 0.0722])
+    arr["energy"][:, 3] = np.asarray(blocker, np.float32) if blocker is not None else 0.0
     arr["shadow"][:, 0] = shadow_layer
     arr["shadow"][:, 1] = np.asarray(sharp, np.float32) if sharp is not None else 0.0
     texel = np.zeros((n, 2)) if texel is None else np.asarray(texel, np.float64)

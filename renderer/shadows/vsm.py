@@ -8,7 +8,9 @@ keeps a second, larger array for small lights (shadows/lights.py plan_layers). A
 in batches of instanced draws (instance = layer, gl_Layer from the vertex shader); the nearest
 surface of each group is kept by MIN blending. A separable Gaussian blur whose width follows each
 region's angular size then softens them. The arrays are allocated once per (size, layer count) and
-reused frame after frame.
+reused frame after frame. For contact-hardening penumbrae (FrameSettings.penumbra "blocker") the main
+array also carries a MIP chain, made anew every frame after the maps are drawn: the lighting pass
+averages the moments over each pixel's penumbra from it (shading/vsm.glsl).
 """
 
 from __future__ import annotations
@@ -58,8 +60,12 @@ class ShadowMaps:
                        else ctx.texture_array((size, size, self.batch_layers), comps, dtype="f4"))
         self.fbo = ctx.framebuffer(color_attachments=[self.target])
         self.prog = moments_prog
+        self.mipmapped = False   # the moments carry a MIP chain (render(mipmaps=True) made one)
+        # With it, each texel's caster share per group and its chain (shadows/coverage.comp).
+        self.casters: moderngl.TextureArray | None = None
         fmt = {"MOMENT_FORMAT": "rgba32f" if groups == 2 else "rg32f"}
         self.blur = compute_shader(ctx, "shadows/blur.comp", fmt)
+        self.coverage = compute_shader(ctx, "shadows/coverage.comp", fmt)
         self.copy = compute_shader(ctx, "shadows/copy_layers.comp", fmt) if self.target is not self.moments else None
 
     @property
@@ -68,14 +74,20 @@ class ShadowMaps:
         # need more than one draw
         layers = (self.n_lights + (0 if self.scratch is None else self.batch_layers)
                   + (0 if self.target is self.moments else self.batch_layers))
-        return self.size * self.size * GROUP_MOMENT_BYTES * self.groups * layers
+        # A MIP chain adds a third of the moments' own texels (1/4 + 1/16 + ...).
+        chain = sum((self.size >> k) ** 2 for k in range(1, self.size.bit_length())) if self.mipmapped else 0
+        moments = (self.size * self.size * layers + chain * self.n_lights) * GROUP_MOMENT_BYTES * self.groups
+        # The caster shares (two float16 a texel) and their chain.
+        return moments + (0 if self.casters is None else (self.size * self.size + chain) * self.n_lights * 4)
 
     def render(self, casters: list[tuple[moderngl.VertexArray, int]], lights_buffer: moderngl.Buffer,
                shadow_lights_buffer: moderngl.Buffer, timer: StageTimer | None = None, enabled: bool = True,
-               blur: bool = True) -> None:
+               blur: bool = True, mipmaps: bool = False) -> None:
         """Render and blur the moments of every shadowed light (layer k: light shadow_lights[k]).
         `casters`: (vertex array, shadow group) per caster, drawn with `self.prog` into every layer.
-        `blur` False: no light has a blur width (the blur passes would leave every layer as drawn)."""
+        `blur` False: no light has a blur width (the blur passes would leave every layer as drawn).
+        `mipmaps`: then make the moments' MIP chain (each layer's own), for the lighting pass's
+        penumbrae; a chain an earlier frame made stays allocated but unread (level 0 is read)."""
         gl, ctx = self.gl, self.gl.ctx
         gl.check_thread()
         lights_buffer.bind_to_storage_buffer(0)
@@ -114,6 +126,20 @@ class ShadowMaps:
                     self.copy["u_first_layer"].value = first
                     self.copy.run(*groups, count)
                     ctx.memory_barrier()
+        if mipmaps:
+            with gl.stage(timer, "blur"):   # the penumbrae's filtering, as the blur is
+                if self.casters is None:
+                    self.casters = ctx.texture_array((self.size, self.size, self.n_lights), 2, dtype="f2")
+                    self.casters.repeat_x = self.casters.repeat_y = False
+                ctx.memory_barrier()
+                self.moments.bind_to_image(1, read=True, write=False)
+                self.casters.bind_to_image(2, read=False, write=True)
+                self.coverage.run(*groups, self.n_lights)
+                ctx.memory_barrier()
+                for t in (self.moments, self.casters):   # every layer's chain, box-filtered
+                    t.build_mipmaps()
+                    t.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+                self.mipmapped = True
 
     def _blur_batch(self, first: int, count: int) -> None:
         ctx = self.gl.ctx
@@ -140,8 +166,10 @@ class ShadowMaps:
                                                                        2 * self.groups)
 
     def release(self) -> None:
-        for obj in {id(o): o for o in (self.fbo, self.target, self.moments, self.scratch) if o is not None}.values():
+        for obj in {id(o): o for o in (self.fbo, self.target, self.moments, self.scratch, self.casters)
+                    if o is not None}.values():
             obj.release()
         self.blur.release()
+        self.coverage.release()
         if self.copy is not None:
             self.copy.release()

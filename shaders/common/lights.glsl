@@ -6,7 +6,8 @@ struct Light {
     vec4 params;         // x: blur sigma (the light's own texels); y: one texel of its map in its depth
                          // units (the depth range is 1); z: solid angle (sr);
                          // w: sine of the light's angular radius (energy spread), for the horizon term
-    vec4 energy;         // rgb: region energy (radiance x sr); a: luminance energy
+    vec4 energy;         // rgb: region energy (radiance x sr); a: 1 if its penumbra follows the blocker's
+                         // distance (an area light's, FrameSettings.penumbra "blocker"), else 0
     vec4 shadow;         // x: shadow-map layer (-1: none); y: 1 if the map is in the sharp array (a
                          // small light's, small_light_scale times the size), else 0; z: one texel of
                          // its map in world units; w: 1 if the light is small (a sun: its disc's sine at

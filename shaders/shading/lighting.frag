@@ -41,6 +41,9 @@ layout(binding = 5) uniform samplerCubeArray u_pem1;         // layer i - 192 = 
 layout(binding = 6) uniform samplerCubeArray u_pem_norm;     // layer 0: B = chain(w), the normalizer
 layout(binding = 1) uniform sampler2DArray u_moments;        // blurred moments, layer shadow.x of light i
 layout(binding = 12) uniform sampler2DArray u_moments_sharp; // the small lights' (shadow.y = 1), larger maps
+#ifdef PENUMBRA_BLOCKER
+layout(binding = 14) uniform sampler2DArray u_casters;        // the main maps' caster share per group, with MIPs
+#endif
 layout(binding = 8) uniform sampler2D u_g_position;         // the geometry pass's targets (gbuffer.frag)
 layout(binding = 9) uniform sampler2D u_g_normal;
 layout(binding = 10) uniform sampler2D u_g_geometric;

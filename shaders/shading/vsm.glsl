@@ -16,11 +16,61 @@ const int SHADOW_GROUPS = 2;
 int g_shadow_group = 0;
 uniform bool u_two_groups;   // the maps hold both groups' moments (RGBA); else group 0's alone (RG)
 
-// A light's blurred moments at uv; outside the map nothing casts (it is fitted to the casters).
+// A light's blurred moments at uv; outside the map nothing casts (it is fitted to the casters). The
+// main maps may carry a MIP chain (PENUMBRA_BLOCKER): every lookup but the penumbra's reads level 0.
 vec4 moments(vec2 uv, float layer, bool sharp) {
     if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return vec4(1.0);
-    return sharp ? texture(u_moments_sharp, vec3(uv, layer)) : texture(u_moments, vec3(uv, layer));
+    return sharp ? textureLod(u_moments_sharp, vec3(uv, layer), 0.0) : textureLod(u_moments, vec3(uv, layer), 0.0);
 }
+
+// Chebyshev's visibility of one shadow group's pair (zw: group 1's) at receiver depth t.
+float group_visibility(vec2 uv, float layer, bool sharp, bool zw, float t, float least_variance) {
+    vec4 m = moments(uv, layer, sharp);
+    return chebyshev(zw ? m.zw : m.xy, t, least_variance);
+}
+
+#ifdef PENUMBRA_BLOCKER
+// Contact-hardening penumbrae (percentage-closer soft shadows, Fernando 2005, on variance maps as in
+// Yang et al. 2010, "Variance soft shadow mapping"), for the main maps' lights. A disc of angular
+// radius theta seen past a blocker at light depth z_b from a receiver at t is cut over a radius
+// (t - z_b) tan(theta): `spread` is tan(theta) over one texel's depth, so that this radius in texels
+// is (t - z_b) * spread. The blocker search reads the widest region a blocker could shadow from (one
+// at the casters' nearest depth, 0). Its empty texels (the far plane, no caster) are taken out of its
+// mean depth (u_casters: the share a caster covers): the blockers' depth is the mean of the casters'.
+// (Chebyshev's bound on the share beyond t, as Yang et al. estimate it, is an upper bound: it put
+// the blockers nearer than they are and washed a sphere's umbra out on a floor.)
+// The moments are then averaged over the penumbra from the map's MIP chain: a bilinear lookup at
+// level L weighs a box of 2^L texels by a tent as wide, a deviation of 2^L / 2 per axis, which a disc
+// of radius r has at 2^L = r (trilinear between levels).
+vec4 moments_at_level(vec2 uv, float layer, float level) {
+    if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return vec4(1.0);
+    return textureLod(u_moments, vec3(uv, layer), level);
+}
+
+float soft_visibility(vec2 uv, float layer, bool zw, float t, float least_variance, float spread) {
+    float top = float(textureQueryLevels(u_moments) - 1);
+    float search = clamp(log2(max(t * spread, 1.0)), 0.0, top);
+    vec4 ms = moments_at_level(uv, layer, search);
+    float mean = zw ? ms.z : ms.x;
+    vec2 share = textureLod(u_casters, vec3(clamp(uv, 0.0, 1.0), layer), search).xy;
+    float c = zw ? share.y : share.x;
+    // The casters' own mean depth, an empty texel being (1, 1): the blockers' depth where they all lie
+    // nearer than t (those of the other group); the receiver's own surface, in its own group's map at
+    // about t, draws it towards t (a sharper penumbra: the fixed maps' own).
+    float blocker = c > 1e-3 ? (mean - (1.0 - c)) / c : 1.0;
+    float level = t > blocker ? clamp(log2(max((t - max(blocker, 0.0)) * spread, 1.0)), 0.0, top) : 0.0;
+    // The same split at the penumbra's width: an empty texel is lit (the far plane lies beyond every
+    // receiver), so the region's visibility is its empty share plus its casters' share times
+    // Chebyshev's bound on the casters' own moments. On the moments as drawn, empty texels at 1 beside
+    // blockers make a variance so large that the bound lets most of the light through an umbra.
+    vec4 mf = moments_at_level(uv, layer, level);
+    vec2 shares = textureLod(u_casters, vec3(clamp(uv, 0.0, 1.0), layer), level).xy;
+    float cf = zw ? shares.y : shares.x;
+    if (cf <= 1e-3) return 1.0;
+    vec2 mcf = ((zw ? mf.zw : mf.xy) - (1.0 - cf)) / cf;
+    return (1.0 - cf) + cf * chebyshev(mcf, t, least_variance);
+}
+#endif
 
 // VIS_i from the light's variance shadow map: the smaller of the receiver's own group's visibility
 // and the other group's. Against its own group a surface needs a bias not to shadow itself (the
@@ -38,17 +88,31 @@ float visibility(int i, vec3 ws_pos, vec3 n, bool sharp) {
     // A receiver behind every caster (beyond the far plane, e.g. a floor that casts nothing) is compared
     // at the far plane: lit where no caster is, shadowed where one is.
     float t = min(p.z, 1.0), t0 = min(p0.z, 1.0);
-    vec4 m = moments(p.xy * 0.5 + 0.5, layer, sharp);
+    vec2 uv = p.xy * 0.5 + 0.5, uv0 = p0.xy * 0.5 + 0.5;
+#ifdef PENUMBRA_BLOCKER
+    if (!sharp && lights[i].energy.a > 0.5) {
+        // tan(theta) from the light's sine (params.w), theta at most 60 degrees as the paper's blur.
+        float s = min(lights[i].params.w, 0.8660254);
+        float spread = s / sqrt(1.0 - s * s) / lights[i].params.y;
+        if (receiver_only) {
+            float v = soft_visibility(uv0, layer, false, t0, 1e-7, spread);
+            return u_two_groups ? min(v, soft_visibility(uv0, layer, true, t0, 1e-7, spread)) : v;
+        }
+        float floor_sigma = u_min_sigma_texels * lights[i].params.y;
+        float own = soft_visibility(uv, layer, g_shadow_group != 0, t, max(floor_sigma * floor_sigma, 1e-7), spread);
+        if (!u_two_groups) return own;
+        return min(own, soft_visibility(uv0, layer, g_shadow_group == 0, t0, 1e-7, spread));
+    }
+#endif
     if (receiver_only) {
-        float v = chebyshev(m.xy, t0, 1e-7);
-        return u_two_groups ? min(v, chebyshev(m.zw, t0, 1e-7)) : v;
+        float v = group_visibility(uv0, layer, sharp, false, t0, 1e-7);
+        return u_two_groups ? min(v, group_visibility(uv0, layer, sharp, true, t0, 1e-7)) : v;
     }
     // The depths under one texel spread by about a texel where the surface slopes: a floor on the
     // deviation, in the light's own texels, keeps a surface from shadowing itself.
     float floor_sigma = u_min_sigma_texels * lights[i].params.y;
     // 1e-7: float32's cancellation in m.y - m.x^2 (depths in [0, 1]), the floor when the knob is 0.
-    float own = chebyshev(g_shadow_group == 0 ? m.xy : m.zw, t, max(floor_sigma * floor_sigma, 1e-7));
+    float own = group_visibility(uv, layer, sharp, g_shadow_group != 0, t, max(floor_sigma * floor_sigma, 1e-7));
     if (!u_two_groups) return own;
-    vec4 m0 = moments(p0.xy * 0.5 + 0.5, layer, sharp);
-    return min(own, chebyshev(g_shadow_group == 0 ? m0.zw : m0.xy, t0, 1e-7));
+    return min(own, group_visibility(uv0, layer, sharp, g_shadow_group == 0, t0, 1e-7));
 }
