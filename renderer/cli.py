@@ -16,6 +16,7 @@ from .errors import InvalidInputError, RenderError
 from .presets import PRESET_NAMES, base_knobs, merge_knobs, presets
 from .presets import frame_settings as presets_frame_settings
 from .presets import pem_settings as presets_pem_settings
+from .views import VIEW_NAMES
 
 
 def _floats(n: int):
@@ -200,7 +201,15 @@ def garment_material(args):
             return Material(args.albedo, model="pbr", metallic=args.metallic, roughness=args.roughness,
                             sheen_colour=args.sheen_colour, sheen_roughness=args.sheen_roughness)
         return Material(args.albedo, args.specular, args.glossiness)
-    if is_gltf(path):
+    return material_file(path)
+
+
+def material_file(path: Path):
+    """A Material from a TOML or JSON table of MATERIAL_FIELDS, or from a glTF/GLB file's material."""
+    from .shading.gltf import material_from_gltf
+    from .shading.material import Material
+
+    if path.suffix.lower() in (".glb", ".gltf"):
         material = material_from_gltf(path)
         if material is None:
             raise InvalidInputError(f"'{path}' names no material: give its meshes one, or pass --material with a "
@@ -274,6 +283,38 @@ def camera_from_args(args, framed_meshes, aspect: float):
     return frame_meshes(framed_meshes, aspect, args.fov)
 
 
+def view_cameras(args, camera):
+    """--turntable N or --views a,b: `camera` (the scene's, from the flags) turned or placed around
+    its target; [camera] alone when neither is given."""
+    from .views import named_views, turntable
+
+    if args.turntable is not None and args.views:
+        raise InvalidInputError("give --turntable or --views, not both")
+    if args.turntable is not None:
+        return turntable(camera, args.turntable)
+    return named_views(camera, args.views) if args.views else [camera]
+
+
+def _write_views(args, frames, n_variants: int) -> None:
+    """Each view beside --out (NAME_v00_c0.png: view, colourway) and their contact sheet as --out
+    (one row per view, one column per colourway; a turntable alone in rows of up to 6), all at the
+    first view's exposure."""
+    from .shading.tonemap import ToneCurve, auto_exposure_ev, write_png
+    from .views import contact_sheet
+
+    if not args.out:
+        return
+    exposure = args.exposure
+    if exposure is None:
+        exposure = auto_exposure_ev(frames[0].image[..., :3], frames[0].image[..., 3])
+    images = [png_image(f.image, args.background == "env") for f in frames]
+    for k, im in enumerate(images):
+        view, colourway = divmod(k, n_variants)
+        write_png(args.out.with_name(f"{args.out.stem}_v{view:02d}_c{colourway}.png"), im, exposure, ToneCurve(args.tone))
+    columns = n_variants if n_variants > 1 else min(len(images), 6)
+    write_png(args.out, contact_sheet(images, columns), exposure, ToneCurve(args.tone))
+
+
 def png_image(img: np.ndarray, opaque: bool) -> np.ndarray:
     """The image to tone-map into a PNG: alpha is coverage, or 1 where the map fills the background."""
     if not opaque:
@@ -295,31 +336,40 @@ def cmd_render(args) -> int:
     w, h = args.size
     settings = frame_settings(args, q)
     camera = camera_from_args(args, [m for m, c in zip(meshes, casters) if c], w / h)   # a floor is not framed
+    cameras = view_cameras(args, camera)
+    colourways = [material_file(path) for path in args.colourway]
     bg_cube = background_cube(args, env)
     with Renderer() as r:
         check_budget_device(q, r)
-        pems = r.build_pems(env.cube, pem_settings(args, q, materials))
+        pems = r.build_pems(env.cube, pem_settings(args, q, materials + colourways))
         scene = r.create_scene(meshes, materials, casters=casters)
         background = r.background_map(bg_cube) if bg_cube is not None else None
-        frame = r.render(scene, pems, settings, camera, background=background)
-        if background is not None:
-            background.release()
-        scene.release()
-        pems.release()
+        try:
+            variants = [0] + [scene.add_variant([c] + [None] * (len(meshes) - 1)) for c in colourways]
+            frames = r.render_views(scene, pems, settings, cameras, background=background, variants=variants)
+        finally:
+            if background is not None:
+                background.release()
+            scene.release()
+            pems.release()
         gl_info = r.gl.info()
+    frame = frames[0]
+    if len(frames) > 1:
+        _write_views(args, frames, len(variants))
     img = frame.image
     if args.exr:
         write_exr(args.exr, img)
     exposure = args.exposure
     if exposure is None:
         exposure = auto_exposure_ev(img[..., :3], img[..., 3])
-    if args.out:
+    if args.out and len(frames) == 1:
         write_png(args.out, png_image(img, args.background == "env"), exposure, ToneCurve(args.tone))
     report = {"timings": frame.timings, "settings": frame.settings, "quality": q, "exposure_ev": exposure,
               "environment": {"name": env.name, "layout": env.layout.value, "face_size": q["face_size"],
                               "texel_report": env.texel_report.as_dict() if env.texel_report else None},
               "meshes": [{"name": m.name, "vertices": int(m.positions.shape[0]), "faces": int(m.faces.shape[0])}
                          for m in meshes],
+              "views": [{"camera": f.settings["camera"], "timings": f.timings} for f in frames[1:]],
               "gl": gl_info, "load_ms": (t_loaded - t_start) * 1e3,
               "total_ms": (time.perf_counter() - t_start) * 1e3}
     if args.timings:
@@ -493,6 +543,12 @@ def cmd_bench(args) -> int:
         run_area(args.out, quick=args.quick)
         print(f"wrote {args.out}/area.json, area.md")
         return 0
+    if args.views:
+        from .bench.views import run as run_views
+
+        run_views(args.out, quick=args.quick)
+        print(f"wrote {args.out}/views.json, views.md")
+        return 0
     if args.materials:
         from .bench.materials import run as run_materials
 
@@ -586,6 +642,16 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("render", help="render one frame")
     add_scene_arguments(r)
+    v = r.add_argument_group("views and colourways")
+    v.add_argument("--turntable", type=int, metavar="N",
+                   help="N views: the camera turned about its target in equal steps, sharing one shadow pass; "
+                        "--out is their contact sheet and each view is written beside it (NAME_v00_c0.png ...)")
+    v.add_argument("--views", type=lambda t: [v.strip() for v in t.split(",") if v.strip()],
+                   help="named views (" + ", ".join(VIEW_NAMES) + ") at the camera's distance from its target, "
+                        "comma-separated, sharing one shadow pass")
+    v.add_argument("--colourway", type=Path, action="append", default=[],
+                   help="one more garment material (a --material file) rendered from the same frame, "
+                        "sharing everything but shading; repeat for more")
     r.set_defaults(func=cmd_render)
     sq = sub.add_parser("sequence", help="render a mesh sequence (OBJ folder, .pc2, .mdd, .npz) to numbered images")
     add_scene_arguments(sq)
@@ -612,6 +678,9 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     b.add_argument("--area", action="store_true",
                    help="median cut against area lights (and auto) on every shared map, at equal light count and "
                         "equal frame time (renderer/bench/area.py)")
+    b.add_argument("--views", action="store_true",
+                   help="a turntable's views and colourways in one call against one by one: what sharing the shadow "
+                        "pass saves (renderer/bench/views.py)")
     b.add_argument("--materials", action="store_true",
                    help="the physically based fabrics (1 and 2 fitted lobes) against the reference beside the Phong "
                         "fabric, on held-out maps (renderer/bench/materials.py)")

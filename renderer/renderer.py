@@ -178,6 +178,7 @@ class FrameTimings(TypedDict):
     device: str                      # the GL renderer
     lighting_pass: str               # "fragment" or "compute"
     normals: str | None              # where new positions got their normals ("cpu", "gpu"; None: none came)
+    views: int                       # frames that shared this one's upload and shadow maps (render_views)
 
 
 @dataclass
@@ -389,14 +390,17 @@ class Renderer:
 
     def create_scene(self, meshes: list[Mesh], materials: list[Material] | None = None,
                      casters: list[bool] | None = None,
-                     proxies: dict[float, list[np.ndarray | None]] | None = None) -> Scene:
+                     proxies: dict[float, list[np.ndarray | None]] | None = None,
+                     variants: list[list[Material | None]] | None = None) -> Scene:
         """`proxies`: caster proxies (shadows/proxy.py) made in advance off the GL thread, per detail
-        one face array per mesh (None: made on first use); a 4M-triangle mesh takes seconds."""
+        one face array per mesh (None: made on first use); a 4M-triangle mesh takes seconds.
+        `variants`: colourways, one material (or None: the mesh's own) per mesh each (Scene.add_variant)."""
         materials = materials or [Material() for _ in meshes]
-        if any(isinstance(m, Material) and m.is_pbr for m in materials) and "gbuffer_pbr" not in self._programs:
+        everything = list(materials) + [m for v in variants or () for m in v if m is not None]
+        if any(isinstance(m, Material) and m.is_pbr for m in everything) and "gbuffer_pbr" not in self._programs:
             self._programs["gbuffer_pbr"] = program(self.gl.ctx, "shading/surface.vert", "shading/gbuffer.frag",
                                                     {"PBR": 1})
-        return Scene(self.gl, meshes, materials, self._programs, casters, proxies)
+        return Scene(self.gl, meshes, materials, self._programs, casters, proxies, variants)
 
     def _shadow_maps_for(self, which: str, size: int, n_lights: int, groups: int) -> ShadowMaps:
         """The main ("main") or small lights' ("sharp") shadow-map array, re-made only when its size,
@@ -455,42 +459,75 @@ class Renderer:
         """One frame. background: the map seen behind the scene (`background_map`); None shows the
         PEM set's own cube, as coarse as its faces. The stages: upload, the light plan (numpy), the
         shadow maps, the geometry pass, the lighting pass, the readback."""
+        return self.render_views(scene, pems, settings, [camera], positions, normals, background)[0]
+
+    def render_views(self, scene: Scene, pems: PEMSet, settings: FrameSettings = FrameSettings(),
+                     cameras: list[Camera | None] = (None,), positions: list[np.ndarray | None] | None = None,
+                     normals: list[np.ndarray | None] | None = None, background: BackgroundMap | None = None,
+                     variants: list[int] = (0,)) -> list[Frame]:
+        """One frame of the scene seen from several cameras (a turntable, named views) in several
+        material variants (colourways, `Scene.add_variant`): the positions are uploaded, the lights
+        planned and the shadow maps drawn once (they are in light space, fitted to what any camera
+        sees), then each (camera, variant) pair has its own geometry pass, lighting pass and readback.
+        Frames come camera by camera, each camera's variants in the order given. The first frame's
+        timings hold the shared stages; every frame's hold its own passes (`views`: how many frames
+        shared them)."""
         gl = self.gl
         gl.check_thread()
-        timer = StageTimer()
+        cameras = list(cameras) or [None]
+        variants = list(variants) or [0]
+        for v in variants:
+            if not 0 <= v < scene.n_variants:
+                raise InvalidInputError(f"material variant {v} is not in the scene (it has {scene.n_variants})")
+        shared = StageTimer()
         t_frame = time.perf_counter()
 
         t0 = time.perf_counter()
         if positions is not None:
             scene.set_positions(positions, normals)
-        timer.wall_ms["upload"] = (time.perf_counter() - t0) * 1e3
+        shared.wall_ms["upload"] = (time.perf_counter() - t0) * 1e3
 
-        # The camera first: the shadow maps are fitted to what it sees.
+        # The cameras first: the shadow maps are fitted to what they see.
         w, h = settings.width, settings.height
         centre, radius = bounds_sphere(*scene.bounds())
-        camera = camera or default_camera(centre, radius, w / h)
-        view_proj = camera.view_proj(w / h, centre, radius)
-
-        lp = self._light_plan(scene, pems, settings, view_proj)
+        cameras = [c or default_camera(centre, radius, w / h) for c in cameras]
+        view_projs = [c.view_proj(w / h, centre, radius) for c in cameras]
+        seen = [scene.visible_bounds(vp) for vp in view_projs]
+        receivers = None if any(b is None for b in seen) else (np.min([b[0] for b in seen], axis=0),
+                                                               np.max([b[1] for b in seen], axis=0))
+        lp = self._light_plan(scene, pems, settings, receivers)
         lights_buf = self._buffer("lights", lp.lights.tobytes())
-        arrays = self._shadow_pass(scene, settings, lp, lights_buf, timer)
+        arrays = self._shadow_pass(scene, settings, lp, lights_buf, shared)
 
         fbo, gbuf_fbo, gbuf = self._target_for(w, h, scene.has_pbr)
-        vp_bytes = view_proj.T.astype(np.float32).tobytes()
         # The PEM set's tables the shading pass reads (the glossy discs), made once per set when a
         # frame first asks for them: that frame reports them as their own stage.
         discs = settings.sub_lights if _glossy_closed_form(settings.mode, settings.glossy) else 1
         t0 = time.perf_counter()
         if pems.prepare_tables(discs):
-            timer.wall_ms["light_tables"] = (time.perf_counter() - t0) * 1e3
-        self._geometry_pass(scene, camera, vp_bytes, gbuf_fbo, w, h, timer)
-        contact_radius = self._lighting_pass(scene, pems, settings, camera, view_proj, vp_bytes, lp, arrays,
-                                             lights_buf, fbo, gbuf, discs, background, timer)
-        image = self._readback_image(fbo, w, h, timer)
-        plan, layers, n, n_shadowed, texels = lp.plan, lp.layers, lp.n, lp.n_shadowed, lp.texels
+            shared.wall_ms["light_tables"] = (time.perf_counter() - t0) * 1e3
+        shared_ms = (time.perf_counter() - t_frame) * 1e3
+        frames = []
+        for camera, view_proj in zip(cameras, view_projs):
+            vp_bytes = view_proj.T.astype(np.float32).tobytes()
+            for variant in variants:
+                timer = shared if not frames else StageTimer()
+                t_view = time.perf_counter()
+                self._geometry_pass(scene, camera, vp_bytes, gbuf_fbo, w, h, timer, variant)
+                contact_radius = self._lighting_pass(scene, pems, settings, camera, view_proj, vp_bytes, lp, arrays,
+                                                     lights_buf, fbo, gbuf, discs, background, timer)
+                image = self._readback_image(fbo, w, h, timer)
+                frame_ms = (time.perf_counter() - t_view) * 1e3 + (shared_ms if not frames else 0.0)
+                frames.append(self._frame(scene, pems, settings, camera, lp, arrays, image, timer, frame_ms,
+                                          contact_radius, positions is not None, len(cameras) * len(variants)))
+        return frames
 
+    def _frame(self, scene: Scene, pems: PEMSet, settings: FrameSettings, camera: Camera, lp: _LightPlan,
+               arrays: dict, image: np.ndarray, timer: StageTimer, frame_ms: float, contact_radius: float,
+               uploaded: bool, views: int) -> Frame:
+        plan, layers, n, n_shadowed, texels = lp.plan, lp.layers, lp.n, lp.n_shadowed, lp.texels
         timings: FrameTimings = timer.as_dict()   # the stages; the rest below
-        timings["frame_wall_ms"] = (time.perf_counter() - t_frame) * 1e3
+        timings["frame_wall_ms"] = frame_ms
         timings["n_lights"] = n
         timings["shadowed_lights"] = n_shadowed
         timings["shadow_layers"] = plan.n_layers if n_shadowed else 0
@@ -505,9 +542,10 @@ class Renderer:
         full = sum(sm.shadow_triangles(1.0) for sm in scene.meshes if sm.caster)
         coarse = sum(sm.shadow_triangles(settings.caster_detail) for sm in scene.meshes if sm.caster) if n_main else 0
         timings["shadow_triangles"] = len(plan.sharp_lights) * full + n_main * coarse
-        timings["device"] = gl.renderer_name
+        timings["device"] = self.gl.renderer_name
         timings["lighting_pass"] = self.lighting_pass
-        timings["normals"] = self.normals if positions is not None else None
+        timings["normals"] = self.normals if uploaded else None
+        timings["views"] = views
         info = {"frame": settings.as_dict(), "pems": pems.summary(),
                 "camera": {"eye": list(camera.eye), "target": list(camera.target), "fov_y_deg": camera.fov_y_deg},
                 "shadow_bytes": sum(a.nbytes for a in arrays.values()) if n_shadowed else 0,
@@ -516,8 +554,10 @@ class Renderer:
                 "contact_radius": contact_radius}
         return Frame(image, timings, info)
 
-    def _light_plan(self, scene: Scene, pems: PEMSet, settings: FrameSettings, view_proj: np.ndarray) -> _LightPlan:
-        """Which lights get which maps, and each map's projection: numpy, once per frame."""
+    def _light_plan(self, scene: Scene, pems: PEMSet, settings: FrameSettings,
+                    receivers: tuple[np.ndarray, np.ndarray] | None) -> _LightPlan:
+        """Which lights get which maps, and each map's projection: numpy, once per frame.
+        `receivers`: the box of what the cameras see (Scene.visible_bounds; None: all the casters)."""
         # Lights: directions and energies from the PEM set, projections fitted to the casters now,
         # over the receivers in view.
         regions = pems.regions
@@ -542,7 +582,7 @@ class Renderer:
         # Square texels: the blur's sigma is in texels, the same on both axes, so rectangular texels
         # would make penumbrae anisotropic (a side run fitting x and y separately gained 0-2.5 %).
         vp = fit_light_view_projs(shadow_dirs, lo, hi, sigma, sizes, scene.footprint_unit,
-                                  scene.visible_bounds(view_proj))
+                                  receivers)
         # Lights sharing a map look it up through the projection it was drawn with (its first light's:
         # with a blur the fit's margin follows each light's own width).
         sharp_layer = plan.layer[plan.sharp]
@@ -582,8 +622,9 @@ class Renderer:
         return arrays
 
     def _geometry_pass(self, scene: Scene, camera: Camera, vp_bytes: bytes, gbuf_fbo, w: int, h: int,
-                       timer: StageTimer) -> None:
-        """The nearest surface's position, normals and material per pixel (gbuffer.frag)."""
+                       timer: StageTimer, variant: int = 0) -> None:
+        """The nearest surface's position, normals and material (variant `variant`) per pixel
+        (gbuffer.frag)."""
         gl, ctx = self.gl, self.gl.ctx
         with gl.stage(timer, "geometry"):
             gbuf_fbo.use()
@@ -598,14 +639,15 @@ class Renderer:
             g["u_view_proj"].write(vp_bytes)
             set_uniform(g, "u_camera_pos", tuple(float(x) for x in camera.eye))
             for sm in scene.meshes:
-                sm.albedo_tex.use(location=3)
-                sm.gloss_tex.use(location=4)
-                sm.normal_tex.use(location=5)
-                set_uniform(g, "u_normal_scale", sm.normal_scale)
-                set_uniform(g, "u_use_albedo_map", sm.use_maps[0])
-                set_uniform(g, "u_use_gloss_map", sm.use_maps[1])
+                mb = sm.variants[variant]
+                mb.albedo_tex.use(location=3)
+                mb.gloss_tex.use(location=4)
+                mb.normal_tex.use(location=5)
+                set_uniform(g, "u_normal_scale", mb.normal_scale)
+                set_uniform(g, "u_use_albedo_map", mb.use_maps[0])
+                set_uniform(g, "u_use_gloss_map", mb.use_maps[1])
                 set_uniform(g, "u_shadow_group", float(sm.group))
-                sm.vao_gbuffer.render(moderngl.TRIANGLES)
+                mb.vao_gbuffer.render(moderngl.TRIANGLES)
 
     def _lighting_pass(self, scene: Scene, pems: PEMSet, settings: FrameSettings, camera: Camera,
                        view_proj: np.ndarray, vp_bytes: bytes, lp: _LightPlan, arrays: dict[str, ShadowMaps],

@@ -130,14 +130,10 @@ class SceneMesh:
         ctx = gl.ctx
         self.mesh, self.material, self.caster, self.group = mesh, material, caster, group
         self.n_vertices = mesh.positions.shape[0]
-        albedo, mat = material.vertex_arrays(self.n_vertices)
-        pbr_values, sheen = material.pbr_arrays(self.n_vertices) if pbr else (None, None)
-        albedo_map, gloss_map = material.maps()
-        normal_map = material.normal_texture()
-        if (albedo_map is not None or gloss_map is not None or normal_map is not None) and mesh.uvs is None:
-            raise MeshError(f"mesh {mesh.name!r} has material maps but no UVs")
-        uvs = mesh.uvs if mesh.uvs is not None else np.zeros((self.n_vertices, 2), np.float32)
+        self._pbr, self._programs = pbr, programs
         # Checked before any GL object exists, so that a refused proxy leaks nothing.
+        self._check_maps(material)
+        uvs = mesh.uvs if mesh.uvs is not None else np.zeros((self.n_vertices, 2), np.float32)
         self._proxy_faces = {}
         for detail, faces in (proxy_faces or {}).items():
             faces = np.asarray(faces)
@@ -152,35 +148,36 @@ class SceneMesh:
         normals = vertex_normals(mesh.positions, mesh.faces)
         self.vbo_pos = ctx.buffer(np.ascontiguousarray(mesh.positions, np.float32).tobytes(), dynamic=True)
         self.vbo_nrm = ctx.buffer(normals.astype(np.float32).tobytes(), dynamic=True)
-        self.vbo_albedo = ctx.buffer(albedo.tobytes())
-        self.vbo_mat = ctx.buffer(mat.tobytes())
         self.vbo_uv = ctx.buffer(np.ascontiguousarray(uvs, np.float32).tobytes())
-        self.vbo_pbr = [ctx.buffer(pbr_values.tobytes()), ctx.buffer(sheen.tobytes())] if pbr else []
         self.ibo = ctx.buffer(np.ascontiguousarray(mesh.faces, np.int32).tobytes())
         # New positions' normals on the GPU (programs["normals"], Renderer's `normals`): the faces
         # around each vertex, made on the first frame that needs them.
         self._normals_prog = programs.get("normals")
         self._adjacency: tuple[moderngl.Buffer, moderngl.Buffer] | None = None
-        self.textures = []
-        self.albedo_tex = self._texture(ctx, albedo_map, 3, (1.0, 1.0, 1.0))
-        self.gloss_tex = self._texture(ctx, gloss_map, 2, (0.0, 0.0))
-        self.normal_tex = self._texture(ctx, normal_map, 3, (0.5, 0.5, 1.0))
-        self.use_maps = (albedo_map is not None, gloss_map is not None)
-        # The normal map's scale of x and y; 0: no normal map.
-        self.normal_scale = float(material.normal_scale) if normal_map is not None else 0.0
         self._ctx, self._moments_prog = ctx, programs["moments"]
         self.vao_shadow = ctx.vertex_array(programs["moments"], [(self.vbo_pos, "3f", "in_position")],
                                            index_buffer=self.ibo, index_element_size=4)
         # Coarser casters for the shadow pass (shadows/proxy.py): given (made off the GL thread by a
         # caller that knows the detail it will use), else made on first use per detail.
         self._proxies: dict[float, tuple[moderngl.Buffer, moderngl.VertexArray, int]] = {}
-        attributes = [(self.vbo_pos, "3f", "in_position"), (self.vbo_nrm, "3f", "in_normal"),
-                      (self.vbo_albedo, "3f", "in_albedo"), (self.vbo_mat, "2f", "in_material"),
-                      (self.vbo_uv, "2f", "in_uv")]
-        if pbr:
-            attributes += [(self.vbo_pbr[0], "4f", "in_pbr"), (self.vbo_pbr[1], "3f", "in_sheen")]
-        self.vao_gbuffer = ctx.vertex_array(programs["gbuffer_pbr" if pbr else "gbuffer"], attributes,
-                                            index_buffer=self.ibo, index_element_size=4, skip_errors=True)
+        # The material's buffers, textures and geometry-pass vertex array; more variants (colourways,
+        # Scene.add_variant) share everything else.
+        self.variants: list[MaterialBuffers] = [MaterialBuffers(self, material)]
+
+    def _check_maps(self, material: Material) -> None:
+        if (any(m is not None for m in material.maps()) or material.normal_texture() is not None) and self.mesh.uvs is None:
+            raise MeshError(f"mesh {self.mesh.name!r} has material maps but no UVs")
+
+    def add_variant(self, material: Material) -> None:
+        """One more material for this mesh (a colourway): its own per-vertex buffers and textures."""
+        self._check_maps(material)
+        self.variants.append(MaterialBuffers(self, material))
+
+    def drop_variants(self) -> None:
+        """Back to the registered material alone."""
+        for v in self.variants[1:]:
+            v.release()
+        del self.variants[1:]
 
     def shadow_vao(self, detail: float = 1.0) -> moderngl.VertexArray:
         """The casters' vertex array for the shadow pass at a share `detail` of the triangles (the
@@ -203,17 +200,6 @@ class SceneMesh:
             return int(self.mesh.faces.shape[0])
         self.shadow_vao(detail)
         return self._proxies[detail][2]
-
-    def _texture(self, ctx, data, comps, default):
-        if data is None:
-            data = np.asarray(default, np.float32).reshape(1, 1, comps)
-        h, w = data.shape[:2]
-        # Row 0 of an image is its top; GL's t = 0 is the bottom: flip so that uv (0, 0) is bottom-left.
-        tex = ctx.texture((w, h), comps, np.ascontiguousarray(data[::-1], np.float32).tobytes(), dtype="f4")
-        tex.build_mipmaps()
-        tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-        self.textures.append(tex)
-        return tex
 
     def set_positions(self, positions: np.ndarray, normals: np.ndarray | None = None) -> None:
         """New frame: positions (V, 3) float32 (validated by the caller through Mesh.with_positions);
@@ -253,8 +239,54 @@ class SceneMesh:
             vao.release()
             ibo.release()
         self._proxies = {}
-        for obj in (self.vao_shadow, self.vao_gbuffer, self.vbo_pos, self.vbo_nrm, self.vbo_albedo, self.vbo_mat,
-                    self.vbo_uv, self.ibo, *self.vbo_pbr, *self.textures):
+        for v in self.__dict__.get("variants", ()):
+            v.release()
+        for obj in (self.vao_shadow, self.vbo_pos, self.vbo_nrm, self.vbo_uv, self.ibo):
+            obj.release()
+
+
+class MaterialBuffers:
+    """One material of a mesh on the GPU: its per-vertex buffers, its textures and the geometry pass's
+    vertex array over them and the mesh's own positions, normals and UVs (SceneMesh.variants)."""
+
+    def __init__(self, sm: SceneMesh, material: Material):
+        ctx, n = sm._ctx, sm.n_vertices
+        self.material = material
+        albedo, mat = material.vertex_arrays(n)
+        pbr_values, sheen = material.pbr_arrays(n) if sm._pbr else (None, None)
+        albedo_map, gloss_map = material.maps()
+        normal_map = material.normal_texture()
+        self.buffers = [ctx.buffer(albedo.tobytes()), ctx.buffer(mat.tobytes())]
+        if sm._pbr:
+            self.buffers += [ctx.buffer(pbr_values.tobytes()), ctx.buffer(sheen.tobytes())]
+        self.textures = []
+        self.albedo_tex = self._texture(ctx, albedo_map, 3, (1.0, 1.0, 1.0))
+        self.gloss_tex = self._texture(ctx, gloss_map, 2, (0.0, 0.0))
+        self.normal_tex = self._texture(ctx, normal_map, 3, (0.5, 0.5, 1.0))
+        self.use_maps = (albedo_map is not None, gloss_map is not None)
+        # The normal map's scale of x and y; 0: no normal map.
+        self.normal_scale = float(material.normal_scale) if normal_map is not None else 0.0
+        attributes = [(sm.vbo_pos, "3f", "in_position"), (sm.vbo_nrm, "3f", "in_normal"),
+                      (self.buffers[0], "3f", "in_albedo"), (self.buffers[1], "2f", "in_material"),
+                      (sm.vbo_uv, "2f", "in_uv")]
+        if sm._pbr:
+            attributes += [(self.buffers[2], "4f", "in_pbr"), (self.buffers[3], "3f", "in_sheen")]
+        self.vao_gbuffer = ctx.vertex_array(sm._programs["gbuffer_pbr" if sm._pbr else "gbuffer"], attributes,
+                                            index_buffer=sm.ibo, index_element_size=4, skip_errors=True)
+
+    def _texture(self, ctx, data, comps, default):
+        if data is None:
+            data = np.asarray(default, np.float32).reshape(1, 1, comps)
+        h, w = data.shape[:2]
+        # Row 0 of an image is its top; GL's t = 0 is the bottom: flip so that uv (0, 0) is bottom-left.
+        tex = ctx.texture((w, h), comps, np.ascontiguousarray(data[::-1], np.float32).tobytes(), dtype="f4")
+        tex.build_mipmaps()
+        tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+        self.textures.append(tex)
+        return tex
+
+    def release(self) -> None:
+        for obj in (self.vao_gbuffer, *self.buffers, *self.textures):
             obj.release()
 
 
@@ -262,9 +294,11 @@ class Scene:
     """Meshes of one scene (garment plus body, ...) with their materials, resident on the GPU."""
 
     def __init__(self, gl: GLContext, meshes: list[Mesh], materials: list[Material], programs: dict,
-                 casters: list[bool] | None = None, proxies: dict[float, list[np.ndarray | None]] | None = None):
+                 casters: list[bool] | None = None, proxies: dict[float, list[np.ndarray | None]] | None = None,
+                 variants: list[list[Material | None]] | None = None):
         """`programs`: the renderer's "moments" and "gbuffer" programs (owned by the renderer);
-        `proxies`: caster proxies made in advance, {detail: faces per mesh (None: make on use)}."""
+        `proxies`: caster proxies made in advance, {detail: faces per mesh (None: make on use)};
+        `variants`: colourways (`add_variant`) made with the scene, whose materials it is compiled for."""
         gl.check_thread()
         if not meshes:
             raise MeshError("a scene needs at least one mesh")
@@ -276,7 +310,8 @@ class Scene:
         self.meshes: list[SceneMesh] = []
         # A physically based material anywhere: the geometry and lighting passes' PBR variants, and
         # whether any has a sheen layer (its lobes are compiled in only then).
-        self.has_pbr = any(mat.is_pbr for mat in materials)
+        self.has_pbr = any(mat.is_pbr for mat in materials) or any(
+            m is not None and m.is_pbr for v in variants or () for m in v)
         self.has_sheen = any(mat.has_sheen() for mat in materials)
         try:
             for detail, faces in (proxies or {}).items():
@@ -298,9 +333,45 @@ class Scene:
             lo, hi = self.bounds(casters_only=True)
             diagonal = float(np.linalg.norm(np.asarray(hi, np.float64) - lo))
             self.footprint_unit = diagonal if np.isfinite(diagonal) and diagonal > 0.0 else 1.0
+            for v in variants or ():
+                self.add_variant(v)
         except Exception:
             self.release()
             raise
+
+    @property
+    def n_variants(self) -> int:
+        """Material variants (colourways): 1, the registered materials, plus those added."""
+        return len(self.meshes[0].variants)
+
+    def add_variant(self, materials: list[Material | None]) -> int:
+        """A colourway: one material per mesh (None: the mesh keeps its registered one). Returns its
+        index for `Renderer.render_views`. Only the geometry pass differs between variants: the
+        shadow maps and the light plan are the frame's."""
+        if len(materials) != len(self.meshes):
+            raise MeshError(f"a colourway needs one material (or None) per mesh: {len(self.meshes)}, got {len(materials)}")
+        given = [m for m in materials if m is not None]
+        if any(m.is_pbr for m in given) and not self.has_pbr:
+            raise MeshError("a colourway with a physically based (pbr) material needs a scene registered with one: "
+                            "this scene's materials are all Phong")
+        for sm, m in zip(self.meshes, materials):
+            sm._check_maps(m if m is not None else sm.material)
+        for sm, m in zip(self.meshes, materials):
+            sm.add_variant(m if m is not None else sm.material)
+        self.has_sheen = self.has_sheen or any(m.has_sheen() for m in given)
+        self.max_glossiness = max(self.max_glossiness, *(m.max_glossiness() for m in given)) if given \
+            else self.max_glossiness
+        self.has_glossy_lobe = self.has_glossy_lobe or any(m.has_glossy_lobe() for m in given)
+        return self.n_variants - 1
+
+    def drop_variants(self) -> None:
+        """Back to the registered materials alone (what they read decides the shading again)."""
+        for sm in self.meshes:
+            sm.drop_variants()
+        materials = [sm.material for sm in self.meshes]
+        self.has_sheen = any(m.has_sheen() for m in materials)
+        self.max_glossiness = max(m.max_glossiness() for m in materials)
+        self.has_glossy_lobe = any(m.has_glossy_lobe() for m in materials)
 
     def set_positions(self, positions: list[np.ndarray | None], normals: list[np.ndarray | None] | None = None):
         self.gl.check_thread()

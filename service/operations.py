@@ -202,8 +202,9 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
     def job(gl: GLResources) -> None:
         pems, source = gl.pem_set(env.content_hash, cube, pem)
         env.note_pem_set(key, q.face_size, pem, pems, source)
+        variants = [[c] + [None] * (len(prepared.meshes) - 1) for c in prepared.colourways]
         record.gpu = gl.renderer.create_scene(prepared.meshes, prepared.materials, casters=prepared.casters,
-                                              proxies=prepared.proxies)
+                                              proxies=prepared.proxies, variants=variants)
         svc.scenes.add(record)  # here, so a scene made just before a request timeout is still listed (and freed)
 
     await svc.worker.call(job, what=f"the registration of scene {record.id}")

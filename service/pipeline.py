@@ -67,6 +67,24 @@ def render_job(scene: SceneRecord, arrays: FrameArrays | None):
     return job
 
 
+def views_job(scene: SceneRecord, arrays: FrameArrays | None, cameras: list, variants: list[int]):
+    """The GL-thread part of one frame seen from several cameras in several colourways."""
+    def job(gl: GLResources) -> tuple[list[Frame], str]:
+        if scene.released or scene.gpu is None:
+            raise NotFoundError(f"scene {scene.id} was deleted while this frame waited")
+        env = scene.environment
+        pems, source = gl.pem_set(env.content_hash, env.cubes[scene.face_size], scene.pem_settings)
+        background = None
+        if scene.frame_settings.background is Background.ENVIRONMENT:
+            background = gl.background(env.content_hash, env.cubes[env.background_face])
+        frames = gl.renderer.render_views(scene.gpu, pems, scene.frame_settings, cameras,
+                                          positions=arrays.positions if arrays else None,
+                                          normals=arrays.normals if arrays else None, background=background,
+                                          variants=variants)
+        return frames, source
+    return job
+
+
 @dataclass
 class Encoded:
     content: bytes

@@ -45,6 +45,10 @@ class ImageFormat(str, Enum):
     JSON = "json"
 
 
+# Colourways a scene carries beside its own garment material.
+MAX_COLOURWAYS = 16
+
+
 class BatchFormat(str, Enum):
     JSON = "json"
     ZIP = "zip"
@@ -205,6 +209,15 @@ class SceneCreate(_Strict):
     camera: CameraSpec | None = Field(None, description="default: frames the initial meshes from +Z (fixed)")
     quality: QualitySpec = Field(default_factory=QualitySpec)
     output: OutputSpec = Field(default_factory=OutputSpec)
+    colourways: list[MaterialSpec] = Field(default_factory=list, max_length=MAX_COLOURWAYS,
+                                           description="more garment materials, rendered from the same frame by "
+                                           "POST .../frames/views (sharing everything but shading); a physically "
+                                           "based one makes the scene's shading physically based")
+
+
+class ViewsFormat(str, Enum):
+    SHEET = "sheet"
+    ZIP = "zip"
 
 
 # -- answers ---------------------------------------------------------------------------------------

@@ -41,6 +41,8 @@ class ServiceSettings(BaseSettings):
                                        "together (each one's decoded source and cubes); an upload or a cube "
                                        "beyond it is refused (409) before it is decoded or made")
     max_batch_frames: int = Field(1000, ge=1, description="most frames in one POST .../frames/batch")
+    max_views: int = Field(64, ge=1, le=1024, description="most images one POST .../frames/views renders: "
+                           "views x colourways (each is a geometry pass, a lighting pass and an image)")
     max_scenes: int = Field(64, ge=1, description="scenes held by one process (idle ones give way, see below)")
     scene_idle_timeout_s: float = Field(600.0, gt=0, description="a scene with no frame nor lookup for this long "
                                         "is released when a new scene needs its slot (with a state directory it "

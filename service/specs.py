@@ -4,7 +4,7 @@ so that the GL job that creates a scene cannot fail half-way on bad input."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -227,6 +227,7 @@ class PreparedScene:
     casters: list[bool]
     proxies: dict | None = None   # the casters' shadow proxies at the quality's detail, made here (off the GL thread)
     material_specs: list | None = None   # each mesh's MaterialSpec as used (a glTF file's own, where it applied)
+    colourways: list[Material] = field(default_factory=list)   # more garment materials (SceneCreate.colourways)
 
 
 def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshes: MeshStore,
@@ -237,6 +238,7 @@ def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshe
     built = [build_mesh(spec, role, body.up, meshes, settings) for role, spec in specs]
     material_specs = [file_material(spec, meshes) for _, spec in specs]
     materials = [build_material(m, mesh, role) for (role, _), m, mesh in zip(specs, material_specs, built)]
+    colourways = [build_material(m, built[0], f"colourway {k}") for k, m in enumerate(body.colourways)]
     # A floor casts nothing unless its spec says so.
     casters = [spec.cast_shadows if role != "floor" or "cast_shadows" in spec.model_fields_set else False
                for role, spec in specs]
@@ -247,11 +249,12 @@ def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshe
         raise InvalidRequestError("cast_shadows is false on every mesh, so nothing would cast a shadow: set "
                                   "cast_shadows: true on the garment (a floor alone may be false)")
     # The scene's PEM set: only the levels its materials' glossiness reads.
-    quality.pem = pem_settings(quality.knobs, quality.pem.filter, quality.pem.levels, materials)
+    quality.pem = pem_settings(quality.knobs, quality.pem.filter, quality.pem.levels, materials + colourways)
     quality.info["base_level"] = quality.pem.base_level
     check_pem_cost(quality.face_size, quality.pem, settings)
     detail = quality.frame.caster_detail
     proxies = ({detail: [caster_proxy_isolated(m.positions, m.faces, detail) if c else None
                          for m, c in zip(built, casters)]}
                if detail < 1.0 else None)
-    return PreparedScene(built, [r for r, _ in specs], materials, camera, quality, casters, proxies, material_specs)
+    return PreparedScene(built, [r for r, _ in specs], materials, camera, quality, casters, proxies, material_specs,
+                         colourways)

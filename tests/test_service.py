@@ -185,6 +185,42 @@ def test_batch_json_and_zip(http, scene, mesh):
     assert_error(r, 422, "not a whole number of frames", str(12 * mesh.n_vertices))
 
 
+def test_views_and_colourways_in_one_request(http, env_upload, mesh):
+    """A scene with two colourways: a 3-view turntable of one frame answers a contact sheet (a row per
+    view, a column per colourway) or a zip of the 9 images; named views; the limits and bad names."""
+    body = scene_body(env_upload[0]["id"], mesh)
+    body["colourways"] = [{"albedo": [0.9, 0.05, 0.05], "specular": 0.4, "glossiness": 0.8},
+                          {"model": "pbr", "albedo": [0.1, 0.2, 0.7], "roughness": 0.6, "sheen_colour": [0.5, 0.5, 0.9]}]
+    r = http.post("/scenes", json=body)
+    assert r.status_code == 201, r.text
+    sid = r.json()["id"]
+    frame = frame_bytes(mesh.positions)
+    r = http.post(f"/scenes/{sid}/frames/views", content=frame, headers=OCTET, params={"turntable": 3})
+    assert r.status_code == 200, r.text
+    assert r.headers["content-type"] == "image/png" and r.headers["x-views"] == "3" and r.headers["x-colourways"] == "3"
+    sheet = png_array(r.content)
+    assert sheet.shape[:2] == (3 * 64 + 2 * 2, 3 * 64 + 2 * 2)
+    # The colourways differ where the garment is: the red one is redder than the blue one.
+    red, blue = sheet[:64, 66:130, :3].astype(float), sheet[:64, 132:196, :3].astype(float)
+    assert red[..., 0].mean() - red[..., 2].mean() > blue[..., 0].mean() - blue[..., 2].mean() + 5
+    # The viewer's latest image is the sheet.
+    latest = http.get(f"/scenes/{sid}/latest.png")
+    assert latest.status_code == 200 and png_array(latest.content).shape[:2] == sheet.shape[:2]
+    r = http.post(f"/scenes/{sid}/frames/views", content=frame, headers=OCTET,
+                  params={"views": "front,back", "colourways": "false", "format": "zip"})
+    assert r.status_code == 200 and r.headers["content-type"] == "application/zip"
+    zf = zipfile.ZipFile(io.BytesIO(r.content))
+    assert sorted(zf.namelist()) == ["timings.json", "view_00_c0.png", "view_01_c0.png"]
+    meta = json.loads(zf.read("timings.json"))
+    assert [m["view"] for m in meta["images"]] == [0, 1]
+    assert "shadow_maps" in meta["images"][0]["timings_ms"] and "shadow_maps" not in meta["images"][1]["timings_ms"]
+    assert_error(http.post(f"/scenes/{sid}/frames/views", content=frame, headers=OCTET, params={"views": "front,up"}),
+                 422, "unknown view", "up")
+    assert_error(http.post(f"/scenes/{sid}/frames/views", content=frame, headers=OCTET), 422, "turntable", "views")
+    assert_error(http.post(f"/scenes/{sid}/frames/views", content=frame, headers=OCTET, params={"turntable": 30}),
+                 413, "90 images", "64")
+
+
 def test_one_shot_render(http, env_upload, mesh):
     r = http.post("/render", json=scene_body(env_upload[0]["id"], mesh), params={"format": "json"})
     assert r.status_code == 200, r.text

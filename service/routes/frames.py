@@ -9,6 +9,10 @@
   renders them in one job while finished frames are encoded in parallel. Answer: JSON (default,
   `{"frames": [{timings_ms, image: {base64}}, ...]}`) or a zip (`?format=zip`: frame_00000.png ...
   + timings.json); `?image=exr` for EXR images in either.
+* `POST /scenes/{id}/frames/views?turntable=N` (or `?views=front,back`): one frame's positions, seen
+  from N cameras (the scene's turned about its target, or named views) in the scene's colourways, the
+  shadow maps drawn once for all. Answer: one contact-sheet PNG (`?format=sheet`, default: a row per
+  view, a column per colourway) or a zip (`?format=zip`: view_00_c0.png ... + timings.json).
 * `POST /render`: stateless one-shot, the whole scene (SceneCreate JSON, positions inline) in the
   request; nothing stays on the GPU afterwards.
 """
@@ -27,12 +31,17 @@ import anyio
 from fastapi import APIRouter, Depends, Header, Query, Request, Response
 
 from renderer.cache import cache_key
+from renderer.errors import InvalidInputError
+from renderer.renderer import Frame
+from renderer.views import MAX_VIEWS, VIEW_NAMES, contact_sheet, named_views
+from renderer.views import turntable as turntable_cameras
 
-from ..codecs import FrameArrays, check_frame_size, decode_frame, frame_nbytes, parse_layout
+from ..codecs import FrameArrays, check_frame_size, decode_frame, encode_png, frame_nbytes, parse_layout
 from ..deps import OCTET_STREAM, MetricsDep, ServicesDep, SettingsDep, WorkerDep, client_gone, raw_body, require_token
 from ..errors import ClientGoneError, InvalidRequestError, PayloadTooLargeError, RenderTimeoutError
 from ..operations import find_environment, find_scene
 from ..pipeline import (
+    Encoded,
     encode_async,
     frame_payload,
     frame_response,
@@ -41,8 +50,9 @@ from ..pipeline import (
     negotiate,
     render_job,
     server_timing,
+    views_job,
 )
-from ..schemas import BatchFormat, ImageFormat, SceneCreate
+from ..schemas import BatchFormat, ImageFormat, SceneCreate, ViewsFormat
 from ..specs import prepare_scene
 from ..worker import GLResources
 
@@ -225,6 +235,85 @@ async def post_batch(
         return Response(zip_buf.getvalue(), media_type="application/zip", headers=headers)
     payload = {"scene_id": scene.id, "n_frames": n_frames, "timings_ms": totals, "frames": results}
     return Response(json.dumps(payload), media_type="application/json", headers=headers)
+
+
+@router.post("/scenes/{scene_id}/frames/views", response_class=Response, openapi_extra=_FRAME_BODY,
+             responses={200: {"content": {"image/png": {}, "application/zip": {}}}},
+             summary="Render one frame from several cameras and in the scene's colourways, one shadow pass for all")
+async def post_views(
+    scene_id: str, request: Request, svc: ServicesDep, worker: WorkerDep, settings: SettingsDep,
+    metrics: MetricsDep,
+    turntable: Annotated[int | None, Query(ge=1, le=MAX_VIEWS, description="N views: the scene's camera turned "
+                                           "about its target in equal steps")] = None,
+    views: Annotated[str | None, Query(description="named views, comma-separated: " + ", ".join(VIEW_NAMES))] = None,
+    colourways: Annotated[bool, Query(description="also every colourway the scene was registered with")] = True,
+    format: Annotated[ViewsFormat, Query(description="sheet (one PNG: a row per view, a column per colourway) "
+                                         "| zip (view_00_c0.png ... and timings.json)")] = ViewsFormat.SHEET,
+    exposure: ExposureQuery = None,
+    layout: Annotated[str | None, Query(description="same as X-Frame-Layout")] = None,
+    x_frame_layout: LayoutHeader = None,
+    x_frame_index: Annotated[int | None, Header(alias="X-Frame-Index")] = None,
+) -> Response:
+    t_start = time.perf_counter()
+    scene = await find_scene(svc, scene_id)
+    if (turntable is None) == (views is None):
+        raise InvalidRequestError("give ?turntable=N or ?views=front,back,...: one of the two")
+    names = [v.strip() for v in views.split(",") if v.strip()] if views is not None else None
+    try:
+        cameras = turntable_cameras(scene.camera, turntable) if names is None else named_views(scene.camera, names)
+    except InvalidInputError as e:
+        raise InvalidRequestError(str(e)) from None
+    n_variants = scene.gpu.n_variants if colourways and scene.gpu is not None else 1
+    if len(cameras) * n_variants > settings.max_views:
+        raise PayloadTooLargeError(f"{len(cameras)} views x {n_variants} colourways = {len(cameras) * n_variants} "
+                                   f"images exceeds the limit {settings.max_views} (GARMENT_RENDER_MAX_VIEWS)")
+    blocks = parse_layout(x_frame_layout or layout, scene)
+    body = await raw_body(request, (OCTET_STREAM,), "a frame of vertex positions")
+    arrays = await anyio.to_thread.run_sync(decode_frame, body, blocks, scene, not worker.normals_on_gpu)
+    async with client_gone(request) as gone:
+        result = await worker.call(views_job(scene, arrays, cameras, list(range(n_variants))),
+                                   what=f"{len(cameras)} views of {scene.id}", abandoned=gone)
+    frames, source = result.value
+    sequence = scene.count_frames()
+
+    def encode_all() -> tuple[bytes, list[dict], float]:
+        opaque = scene.output.get("background", "env") == "env"
+        ev_in = exposure if exposure is not None else scene.output.get("exposure_ev")
+        # One exposure for every image (the first view's, when the scene names none): views compare.
+        _, ev = encode_png(frames[0].image, ev_in, scene.output.get("tone", "filmic"), opaque, 1)
+        meta = [{"view": k // n_variants, "colourway": k % n_variants, "camera": f.settings["camera"],
+                 "timings_ms": {k2: round(float(v), 3) for k2, v in f.timings["wall_ms"].items()}}
+                for k, f in enumerate(frames)]
+        if format is ViewsFormat.SHEET:
+            sheet = contact_sheet([f.image for f in frames], n_variants if n_variants > 1 else min(len(frames), 6))
+            content, _ = encode_png(sheet, ev, scene.output.get("tone", "filmic"), opaque,
+                                    settings.png_compress_level)
+            return content, meta, ev
+        buf = io.BytesIO()
+        with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as zf:
+            for m, f in zip(meta, frames):
+                png, _ = encode_png(f.image, ev, scene.output.get("tone", "filmic"), opaque, settings.png_compress_level)
+                zf.writestr(f"view_{m['view']:02d}_c{m['colourway']}.png", png)
+            zf.writestr("timings.json", json.dumps({"scene_id": scene.id, "exposure_ev": ev, "images": meta}))
+        return buf.getvalue(), meta, ev
+
+    t_enc = time.perf_counter()
+    content, meta, ev = await anyio.to_thread.run_sync(encode_all)
+    encode_ms = (time.perf_counter() - t_enc) * 1e3
+    timings = frame_timings(frames[0], arrays.decode_ms, arrays.normals_ms, result.queue_ms, result.run_ms,
+                            encode_ms, t_start)
+    timings["render"] = round(sum(float(f.timings["frame_wall_ms"]) for f in frames), 3)
+    metrics.observe_frame("views", format.value, timings)
+    index = x_frame_index if x_frame_index is not None else sequence - 1
+    media = "image/png" if format is ViewsFormat.SHEET else "application/zip"
+    if format is ViewsFormat.SHEET:   # the viewer shows the sheet: the views side by side
+        sheet_frame = Frame(contact_sheet([f.image for f in frames], n_variants if n_variants > 1
+                                          else min(len(frames), 6)), frames[0].timings, frames[0].settings)
+        keep_latest(scene, index, sequence, sheet_frame, Encoded(content, media, ev, encode_ms), timings)
+    headers = {"Server-Timing": server_timing(timings), "X-Frame-Index": str(index), "X-Frame-Sequence": str(sequence),
+               "X-Views": str(len(cameras)), "X-Colourways": str(n_variants), "X-PEM-Source": source,
+               "Cache-Control": "no-store"}
+    return Response(content, media_type=media, headers=headers)
 
 
 @router.post("/render", response_class=Response, responses=_IMAGE_RESPONSES,

@@ -1,0 +1,66 @@
+"""Turntables, named views and contact sheets (Renderer.render_views): one frame seen from several
+cameras, the shadow maps drawn once for all of them."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .camera import Camera
+from .errors import InvalidInputError
+
+# Directions from the garment to the camera, Y up, the garment facing +Z (as the default camera sees it).
+NAMED_VIEWS = {"front": (0.0, 0.2, 1.0), "back": (0.0, 0.2, -1.0), "left": (1.0, 0.2, 0.0), "right": (-1.0, 0.2, 0.0),
+               "three-quarter": (-0.8, 0.3, 0.6), "top": (0.0, 1.0, 0.05)}
+VIEW_NAMES = tuple(NAMED_VIEWS)
+MAX_VIEWS = 64   # cameras in one request: each is a geometry and a lighting pass and an image
+
+
+def _check_count(n: int, what: str) -> None:
+    if not 1 <= n <= MAX_VIEWS:
+        raise InvalidInputError(f"{what} has 1 to {MAX_VIEWS} views, got {n}")
+
+
+def turntable(camera: Camera, n: int) -> list[Camera]:
+    """n cameras: `camera` turned about the vertical axis through its target in equal steps, the
+    first `camera` itself (the garment turns on a turntable in front of it)."""
+    _check_count(n, "a turntable")
+    eye, target = np.asarray(camera.eye, np.float64), np.asarray(camera.target, np.float64)
+    d = eye - target
+    out = []
+    for k in range(n):
+        a = 2.0 * np.pi * k / n
+        c, s = np.cos(a), np.sin(a)
+        r = np.array([d[0] * c + d[2] * s, d[1], -d[0] * s + d[2] * c])
+        out.append(Camera(tuple(target + r), camera.target, camera.up, camera.fov_y_deg))
+    return out
+
+
+def named_views(camera: Camera, names: list[str]) -> list[Camera]:
+    """Cameras at `camera`'s distance from its target, from each named direction (NAMED_VIEWS)."""
+    unknown = [v for v in names if v not in NAMED_VIEWS]
+    if unknown:
+        raise InvalidInputError(f"unknown view(s) {', '.join(unknown)}; the views are {', '.join(VIEW_NAMES)}")
+    _check_count(len(names), "a request")
+    target = np.asarray(camera.target, np.float64)
+    dist = float(np.linalg.norm(np.asarray(camera.eye, np.float64) - target))
+    out = []
+    for v in names:
+        d = np.asarray(NAMED_VIEWS[v], np.float64)
+        out.append(Camera(tuple(target + dist * d / np.linalg.norm(d)), camera.target, camera.up, camera.fov_y_deg))
+    return out
+
+
+def contact_sheet(images: list[np.ndarray], columns: int, gap: int = 2) -> np.ndarray:
+    """Images of one size (H, W, C) in a grid of `columns`, row by row, `gap` pixels apart (zeros)."""
+    if not images:
+        raise InvalidInputError("a contact sheet needs at least one image")
+    h, w, c = images[0].shape
+    if any(im.shape != (h, w, c) for im in images):
+        raise InvalidInputError("a contact sheet's images must share one size")
+    columns = max(1, min(columns, len(images)))
+    rows = -(-len(images) // columns)
+    sheet = np.zeros((rows * h + (rows - 1) * gap, columns * w + (columns - 1) * gap, c), images[0].dtype)
+    for k, im in enumerate(images):
+        r, q = divmod(k, columns)
+        sheet[r * (h + gap):r * (h + gap) + h, q * (w + gap):q * (w + gap) + w] = im
+    return sheet
