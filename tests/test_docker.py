@@ -318,7 +318,8 @@ def test_compose_gpu_service_reserves_an_nvidia_gpu_with_graphics(compose):
 
 @pytest.mark.skipif(shutil.which("shellcheck") is None, reason="shellcheck is not installed (apt install shellcheck)")
 def test_shell_scripts_pass_shellcheck():
-    r = subprocess.run(["shellcheck", str(DOCKER / "install.sh"), str(DOCKER / "entrypoint.sh")],
+    r = subprocess.run(["shellcheck", *(str(DOCKER / s) for s in ("install.sh", "entrypoint.sh", "build-local.sh",
+                                                                  "run-local.sh"))],
                        capture_output=True, text=True, timeout=30)
     assert r.returncode == 0, r.stdout
 

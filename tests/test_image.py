@@ -87,5 +87,10 @@ def test_the_cpu_image_serves_a_frame_and_writes_its_pem_cache_to_the_volume(tmp
             proc.wait(timeout=30)
         finally:
             log.close()
-    # Stopping undid every mount: nothing of the image is still mounted.
-    assert str(pem) not in Path("/proc/mounts").read_text()
+    # Stopping undid every mount: the volumes, /tmp and the image itself.
+    mounts = Path("/proc/mounts").read_text()
+    assert str(pem) not in mounts and str(state) not in mounts
+    image_id = subprocess.run(["podman", "image", "inspect", "--format", "{{.Id}}", "garment-render:cpu"],
+                              capture_output=True, text=True, check=True).stdout.strip()
+    still = subprocess.run(["podman", "image", "mount"], capture_output=True, text=True, check=True).stdout
+    assert image_id not in still, still
