@@ -656,8 +656,9 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     sq = sub.add_parser("sequence", help="render a mesh sequence (OBJ folder, .pc2, .mdd, .npz) to numbered images")
     add_scene_arguments(sq)
     sq.add_argument("--frames", type=Path, required=True,
-                    help="folder of .obj files, a .pc2/.mdd/.npz file, or a USD stage (.usd/.usda/.usdc/.usdz: "
-                         "its moving meshes are the garment, its still ones the body)")
+                    help="folder of .obj files, a .pc2/.mdd/.npz file, a USD stage (.usd/.usda/.usdc/.usdz) or a "
+                         "glTF file with morph-target animation (.glb/.gltf): in the last two, the moving meshes are "
+                         "the garment, the still ones the body")
     sq.add_argument("--topology", type=Path, help="mesh giving the faces (and UVs) of a point cache")
     sq.add_argument("--body", type=Path, action="append", help="static meshes rendered with the garment")
     sq.add_argument("--exr-frames", action="store_true", help="also write a linear EXR per frame")

@@ -3,8 +3,9 @@
 Formats: PC2 point caches (Blender, 3ds Max; little-endian), MDD point caches (LightWave, Blender;
 big-endian), a folder of OBJ files (one per frame, same vertex order), NumPy `.npz` files with
 `positions` (F, V, 3) and `triangles`/`faces` (as the shared newton simulation is stored), and USD
-stages with time-sampled mesh points (renderer/usd.py: the moving meshes are the sequence, the still
-ones the body beside it).
+stages with time-sampled mesh points (renderer/usd.py) and glTF / GLB files with morph-target
+animation (renderer/gltf_morph.py): in both, the moving meshes are the sequence, the still ones the body
+beside it.
 """
 
 from __future__ import annotations
@@ -138,6 +139,25 @@ def read_usd_sequence(path: str | Path, scale: float = 1.0) -> Sequence:
                     extras=extras)
 
 
+def read_gltf_sequence(path: str | Path, scale: float = 1.0) -> Sequence:
+    """A glTF / GLB file's morph-target animation as one sequence (renderer/gltf_morph.py): the
+    meshes whose weights are animated, merged, in glTF's Y-up metres times `scale`; the others as
+    `extras`."""
+    from .gltf_morph import read_morph_animation
+
+    meshes, times = read_morph_animation(path)
+    moving = [m for m in meshes if m.animated]
+    if not moving:
+        raise MeshError(f"{path}: no mesh of the file has a morph-target animation (an animation channel with path "
+                        "'weights'): nothing to play; render it with `garment-render render --mesh`")
+    offsets = np.cumsum([0] + [m.positions.shape[1] for m in moving])[:-1]
+    positions = np.concatenate([m.positions for m in moving], axis=1) * np.float32(scale)
+    faces = np.concatenate([m.faces + o for m, o in zip(moving, offsets)]).astype(np.int32)
+    extras = tuple(Mesh.from_arrays(m.positions[0] * np.float32(scale), m.faces, name=m.name)
+                   for m in meshes if not m.animated)
+    return Sequence(_check(positions, str(path)), faces, Path(path).stem, times, converted=True, extras=extras)
+
+
 def load_sequence(path: str | Path, up: str = "y", scale: float = 1.0) -> Sequence:
     """Any supported sequence. Point caches are returned in their file's axes and units; OBJ folders
     already converted by `up` and `scale` (as load_mesh does); USD stages by their own metadata (up
@@ -151,9 +171,11 @@ def load_sequence(path: str | Path, up: str = "y", scale: float = 1.0) -> Sequen
     readers = {".pc2": read_pc2, ".mdd": read_mdd, ".npz": read_npz}
     if suffix in USD_SUFFIXES:
         return read_usd_sequence(path, scale)
+    if suffix in (".glb", ".gltf"):
+        return read_gltf_sequence(path, scale)
     if suffix not in readers:
         raise MeshError(f"{path}: unknown sequence format {suffix!r}; use a folder of .obj files, .pc2, .mdd, .npz "
-                        f"or a USD stage ({', '.join(USD_SUFFIXES)})")
+                        f"a USD stage ({', '.join(USD_SUFFIXES)}) or a glTF file with morph-target animation (.glb, .gltf)")
     if not path.exists():
         raise MeshError(f"{path}: no such file")
     return readers[suffix](path)
