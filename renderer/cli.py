@@ -584,6 +584,16 @@ def cmd_serve(args) -> int:
     # imports it (the dependency arrow is service -> renderer).
     import importlib
 
+    if args.ray:
+        if args.workers != 1:
+            raise InvalidInputError("--workers is for uvicorn's processes; with --ray give --replicas")
+        import os
+
+        host = args.host or os.environ.get("GARMENT_RENDER_HOST", "127.0.0.1")
+        port = args.port or int(os.environ.get("GARMENT_RENDER_PORT", "8000"))
+        importlib.import_module("service.ray_serve").run(host, port, args.replicas, args.address,
+                                                         args.gpus_per_replica)
+        return 0
     importlib.import_module("service.main").serve(args.host, args.port, workers=args.workers, log_level=args.log_level)
     return 0
 
@@ -729,6 +739,13 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     sv.add_argument("--port", type=int, help="default: GARMENT_RENDER_PORT, else 8000")
     sv.add_argument("--workers", type=int, default=1, help="processes, each with its own GL context")
     sv.add_argument("--log-level", default="info")
+    sv.add_argument("--ray", action="store_true",
+                    help="serve as Ray Serve replicas of one deployment (pip install .[ray]; service/ray_serve.py): "
+                         "scenes stay on the replica that holds them; needs GARMENT_RENDER_STATE_DIR")
+    sv.add_argument("--replicas", type=int, default=2, help="with --ray: replicas, each a process with a GL context")
+    sv.add_argument("--address", help="with --ray: a running Ray cluster (default: start a local Ray instance)")
+    sv.add_argument("--gpus-per-replica", type=float, default=0.0,
+                    help="with --ray: GPUs Ray gives each replica (its EGL device follows the one it gets)")
     sv.set_defaults(func=cmd_serve)
     lo = sub.add_parser("lobes", help="reproduce the paper's Figures 4 and 5 (lobe cross sections and errors)")
     lo.add_argument("--out", type=Path, default=Path("out/lobes"))

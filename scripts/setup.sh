@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Sets up a fresh Debian/Ubuntu machine: Mesa's EGL/OpenGL (when missing), Chromium (for the test of
-# the viewer page, when missing), a virtual environment in .venv and the project with its test
-# dependencies. Safe to run again; it skips what is done.
+# the viewer page, when missing), podman, debootstrap and shellcheck (for the image tests, when
+# missing), a virtual environment in .venv and the project with its test and Ray dependencies. Safe to
+# run again; it skips what is done.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -24,6 +25,16 @@ if ! command -v chromium >/dev/null 2>&1; then
         echo "setup: could not install chromium; the viewer page's test will be skipped" >&2
 fi
 
+# podman and debootstrap build and run the real images (tests/test_image.py, docker/README.md)
+# and shellcheck lints their scripts (tests/test_docker.py). Not fatal either: those tests say why they skip.
+image_tools=()
+for tool in podman debootstrap shellcheck; do command -v "$tool" >/dev/null 2>&1 || image_tools+=("$tool"); done
+if [ ${#image_tools[@]} -gt 0 ]; then
+    echo "setup: installing ${image_tools[*]} (the image tests)"
+    { $SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq \
+        "${image_tools[@]}"; } >/dev/null 2>&1 || echo "setup: could not install ${image_tools[*]}; the image tests will be skipped" >&2
+fi
+
 PYTHON="${PYTHON:-python3}"
 if [ ! -x .venv/bin/python ]; then
     echo "setup: creating .venv with $($PYTHON --version)"
@@ -32,7 +43,7 @@ fi
 stamp=.venv/.installed-$(sha256sum pyproject.toml | cut -c1-16)
 if [ ! -f "$stamp" ]; then
     .venv/bin/python -m pip install -q --upgrade pip
-    .venv/bin/python -m pip install -q -e '.[test]'
+    .venv/bin/python -m pip install -q -e '.[test,ray]'
     rm -f .venv/.installed-*
     touch "$stamp"
 fi

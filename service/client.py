@@ -23,12 +23,16 @@ from __future__ import annotations
 import base64
 import io
 import json
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import httpx
 import numpy as np
+
+# A scene's URL: with Ray Serve, its id routes the request (the multiplexed model id).
+SCENE_URL = re.compile(r"^/scenes/([^/?]+)")
 
 OCTET = "application/octet-stream"
 
@@ -117,6 +121,9 @@ class RenderClient:
     # -- plumbing ----------------------------------------------------------------------------------
     def _request(self, method: str, url: str, idempotent: bool = True, **kw) -> tuple[httpx.Response, int]:
         retries = failed = 0
+        scene = SCENE_URL.match(url)
+        if scene:   # Ray Serve's replicas route by it to the one holding the scene (service/ray_serve.py)
+            kw["headers"] = {**(kw.get("headers") or {}), "serve_multiplexed_model_id": scene.group(1)}
         while True:
             try:
                 r = self.http.request(method, url, **kw)

@@ -179,6 +179,19 @@ async def release_idle_scenes(svc: Services) -> int:
     return released
 
 
+async def release_scene_here(svc: Services, scene_id: str) -> bool:
+    """Release one scene's GPU objects from this process, keeping its stored registration (a Ray
+    replica letting a scene go: the next request for it restores it, here or elsewhere). False: it
+    was not here."""
+    try:
+        rec = svc.scenes.pop(scene_id)
+    except NotFoundError:
+        return False
+    rec.released = True
+    await svc.worker.call(lambda gl, rec=rec: rec.release_gpu(), what=f"the release of scene {rec.id}")
+    return True
+
+
 async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = None) -> SceneRecord:
     if len(svc.scenes) >= svc.scenes.max_scenes:
         await release_idle_scenes(svc)

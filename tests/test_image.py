@@ -2,7 +2,7 @@
 isolation: docker/build-local.sh) and the CPU image's own service spoken to over HTTP (its filesystem as
 the process's root: docker/run-local.sh): ready, a frame rendered, the PEM cache written to its volume.
 
-Needs root, podman and debootstrap (`.ci/run` installs them where apt can; ../shared/CONTAINERS.md);
+Needs root, podman and debootstrap (scripts/setup.sh installs them where apt can; ../shared/CONTAINERS.md);
 elsewhere it is skipped, saying which is missing. The first build on a machine takes about two minutes
 (Debian's base, then the Python dependencies); later ones reuse podman's layers.
 """

@@ -1,0 +1,173 @@
+"""The service as Ray Serve replicas of one deployment, behind the same HTTP API (`pip install .[ray]`).
+
+    garment-render serve --ray [--replicas N] [--address RAY_ADDRESS] [--gpus-per-replica 1]
+    serve run deploy/serve.yaml                     (a cluster: `ray start --head`, then this)
+
+Each replica is one process with one GL context: the service's own FastAPI app (service.app), driven
+in-process through its ASGI interface, with its lifespan (the GL thread) started on the replica's first
+request. What Ray adds:
+
+- **Scene affinity** by Ray Serve's model multiplexing, keyed by scene id. A replica that registers a
+  scene or renders one holds it as a "model" (at most SCENES_PER_REPLICA, the least recently used
+  released first: its GPU objects go, its stored registration stays). The client sends the scene id as
+  `serve_multiplexed_model_id` (service.client does, for every /scenes/{id} request), and Serve routes
+  the request to the replica that holds it. A request that reaches another replica (no header, or
+  the owner died or let the scene go) re-creates the scene there from its stored registration.
+- **The shared directories.** The state directory (environments, scenes) and the PEM disk cache are
+  one folder for every replica (a shared file system on a cluster). A PEM set one replica built is read
+  by the others, and any replica can restore any scene.
+- **Backpressure and health** stay the service's: each replica's bounded queue answers 503 with
+  Retry-After; `/health/ready` is the answering replica's; every answer names its replica (`X-Replica`).
+- **GPUs**: with `--gpus-per-replica 1` each replica gets one GPU from Ray, and its EGL device is that
+  GPU's index (GARMENT_RENDER_EGL_DEVICE), not the first device.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import re
+from contextlib import AsyncExitStack
+
+import httpx
+
+try:
+    from ray import serve
+    from starlette.requests import Request
+    from starlette.responses import Response
+except ImportError as exc:   # pragma: no cover - the extra is not installed
+    raise ImportError("Ray Serve is an optional extra: pip install 'garment-render[ray]' (or .[ray])") from exc
+
+# /scenes/{id}... : the scene a request is for.
+SCENE_PATH = re.compile(r"^/scenes/(scn_[0-9a-f]+)(?:/|$)")
+# Scenes a replica holds for the router (each keeps its GPU buffers); the least recently used go first.
+SCENES_PER_REPLICA = 16
+
+
+class _HeldScene:
+    """A scene this replica holds for Serve's multiplexing; letting it go releases its GPU objects."""
+
+    def __init__(self, replica: RenderReplica, scene_id: str):
+        self.replica, self.scene_id, self.loop = replica, scene_id, asyncio.get_running_loop()
+
+    def __del__(self):
+        replica, self.replica = self.__dict__.get("replica"), None
+        if replica is not None and not self.loop.is_closed():
+            # Called by Serve's LRU (in an executor thread) or by the garbage collector.
+            asyncio.run_coroutine_threadsafe(replica.let_go(self.scene_id), self.loop)
+
+
+@serve.deployment(name="garment-render", ray_actor_options={"num_cpus": 0})
+class RenderReplica:
+    def __init__(self, settings: dict | None = None):
+        gpu_ids = _ray_gpu_ids()
+        if gpu_ids:   # the EGL device of the GPU Ray gave this replica
+            os.environ["GARMENT_RENDER_EGL_DEVICE"] = str(int(gpu_ids[0]))
+        from .app import create_app
+        from .settings import ServiceSettings
+
+        self.settings = ServiceSettings(**(settings or {}))
+        if self.settings.state_dir is None:
+            raise ValueError("Ray replicas need a shared state directory (GARMENT_RENDER_STATE_DIR): it is how a "
+                             "replica restores a scene another one registered")
+        self.app = create_app(self.settings)
+        self.name = _replica_name()
+        self._stack: AsyncExitStack | None = None
+        self._started = asyncio.Lock()
+        self.client: httpx.AsyncClient | None = None
+
+    async def _start(self) -> None:
+        async with self._started:
+            if self.client is None:
+                self._stack = AsyncExitStack()
+                await self._stack.enter_async_context(self.app.router.lifespan_context(self.app))
+                self.client = httpx.AsyncClient(transport=httpx.ASGITransport(app=self.app),
+                                                base_url="http://replica", timeout=None)
+
+    @serve.multiplexed(max_num_models_per_replica=SCENES_PER_REPLICA)
+    async def scene(self, scene_id: str) -> _HeldScene:
+        """Hold a scene here (Serve's multiplexing): the scene itself is made or restored by the request."""
+        return _HeldScene(self, scene_id)
+
+    async def let_go(self, scene_id: str) -> None:
+        """Release a scene's GPU objects here; its stored registration stays (another replica, or this
+        one later, restores it)."""
+        from .operations import release_scene_here
+
+        await release_scene_here(self.app.state.services, scene_id)
+
+    async def __call__(self, request: Request) -> Response:
+        await self._start()
+        path = request.url.path
+        match = SCENE_PATH.match(path)
+        scene_id = serve.get_multiplexed_model_id() or (match.group(1) if match else "")
+        if scene_id and match and request.method != "DELETE":
+            await self.scene(scene_id)
+        body = await request.body()
+        headers = [(k, v) for k, v in request.headers.items() if k.lower() not in ("host", "content-length")]
+        url = path + (f"?{request.url.query}" if request.url.query else "")
+        r = await self.client.request(request.method, url, content=body, headers=headers)
+        if request.method == "POST" and path.rstrip("/") == "/scenes" and r.status_code == 201:
+            await self.scene(r.json()["id"])   # the registering replica holds its scene
+        out = {k: v for k, v in r.headers.items() if k.lower() not in ("content-length", "transfer-encoding")}
+        out["X-Replica"] = self.name
+        return Response(r.content, status_code=r.status_code, headers=out)
+
+    def check_health(self) -> None:
+        """Serve's health check: the replica's GL thread must be up once it has started."""
+        worker = getattr(self.app.state, "worker", None)
+        if self.client is not None and worker is not None and not worker.ready:
+            raise RuntimeError(f"replica {self.name}: the GL thread is not running")
+
+
+def _ray_gpu_ids() -> list:
+    try:
+        import ray
+
+        return ray.get_gpu_ids() if ray.is_initialized() else []
+    except Exception:   # pragma: no cover - outside a Ray worker
+        return []
+
+
+def _replica_name() -> str:
+    try:
+        ctx = serve.get_replica_context()
+        return getattr(ctx, "replica_tag", None) or str(ctx.replica_id.unique_id)
+    except Exception:   # pragma: no cover - outside Serve
+        return f"pid-{os.getpid()}"
+
+
+def application(replicas: int = 2, settings: dict | None = None, gpus_per_replica: float = 0.0):
+    """The Serve application: `replicas` copies of the service (settings: ServiceSettings fields)."""
+    options = {"num_replicas": replicas, "ray_actor_options": {"num_cpus": 0, "num_gpus": gpus_per_replica}}
+    return RenderReplica.options(**options).bind(settings)
+
+
+def app_builder(args: dict):
+    """For `serve run deploy/serve.yaml`: its `args` (replicas, gpus_per_replica, settings)."""
+    return application(int(args.get("replicas", 2)), args.get("settings"), float(args.get("gpus_per_replica", 0)))
+
+
+def run(host: str, port: int, replicas: int, address: str | None = None, gpus_per_replica: float = 0.0,
+        settings: dict | None = None) -> None:
+    """`garment-render serve --ray`: a local Ray instance (or the cluster at `address`), the
+    deployment behind Serve's HTTP proxy on host:port; blocks until interrupted."""
+    import signal
+    import threading
+
+    import ray
+
+    ray.init(address=address, include_dashboard=False, ignore_reinit_error=True)
+    serve.start(http_options={"host": host, "port": port})
+    serve.run(application(replicas, settings, gpus_per_replica), name="garment-render", route_prefix="/")
+    print(f"garment-render: {replicas} Ray Serve replicas on http://{host}:{port}", flush=True)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        while not stop.wait(1.0):
+            pass
+    except KeyboardInterrupt:
+        pass
+    finally:
+        serve.shutdown()
+        ray.shutdown()

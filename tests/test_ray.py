@@ -1,0 +1,155 @@
+"""The service as Ray Serve replicas (service/ray_serve.py), for real: `garment-render serve --ray
+--replicas 2` starts a local Ray instance on 127.0.0.1; scenes registered through the HTTP API stay on
+the replica that registered them (each answer names it), a replica killed in the middle of a sequence
+costs no frame (each is answered once, 200 after the client's retries), and the images are the same as
+a single process's."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from service_server import ServiceProcess, free_port, garment, scene_body, upload_environment
+
+ray = pytest.importorskip("ray", reason="Ray is an optional extra (pip install .[ray]; scripts/setup.sh installs it)")
+
+from service.client import RenderClient  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("ray")
+    port = free_port()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GARMENT_RENDER_")}
+    env.update(GARMENT_RENDER_STATE_DIR=str(tmp / "state"), GARMENT_RENDER_PEM_CACHE_DIR=str(tmp / "pem"),
+               RAY_USAGE_STATS_ENABLED="0", RAY_TMPDIR=str(tmp / "ray"))
+    (tmp / "ray").mkdir()
+    log = open(tmp / "serve.log", "wb")
+    proc = subprocess.Popen([sys.executable, "-m", "renderer.cli", "serve", "--ray", "--replicas", "2", "--port",
+                             str(port)], cwd=tmp, env=env, stdout=log, stderr=subprocess.STDOUT)
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 240
+    try:
+        while True:
+            assert proc.poll() is None, (tmp / "serve.log").read_text()[-4000:]
+            try:
+                if httpx.get(f"{url}/health/ready", timeout=2).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            assert time.monotonic() < deadline, (tmp / "serve.log").read_text()[-4000:]
+            time.sleep(0.5)
+        yield {"url": url, "tmp": tmp, "env": env}
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        log.close()
+
+
+def _replicas(env) -> list[str]:
+    """The names of the deployment's replica actors, asked of the running Ray instance."""
+    code = ("import ray; ray.init(address='auto', logging_level='ERROR'); "
+            "print('\\n'.join(a['name'] for a in ray.util.list_named_actors(all_namespaces=True) "
+            "if 'SERVE_REPLICA' in a['name']))")
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return [n for n in r.stdout.split() if n]
+
+
+def _kill(env, name: str) -> None:
+    code = (f"import ray; ray.init(address='auto', logging_level='ERROR'); "
+            f"ray.kill(ray.get_actor({name!r}, namespace='serve'), no_restart=False)")
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+
+
+def test_scenes_stay_on_their_replica_and_survive_one_dying(cluster, tmp_path):
+    mesh = garment(16)
+    frames = [np.asarray(mesh.positions) + np.float32(0.01 * k) for k in range(8)]
+    with httpx.Client(base_url=cluster["url"], timeout=120) as http:
+        env, _, _ = upload_environment(http, tmp_path)
+    with RenderClient(cluster["url"], max_retries=200, max_retry_wait_s=1.0) as c:
+        scenes = [c.create_scene(env["id"], positions=mesh.positions, faces=mesh.faces,
+                                 **{k: v for k, v in scene_body(env["id"], mesh).items()
+                                    if k in ("quality", "output")}) for _ in range(2)]
+        # Frames of each scene go to one replica, the one answering its registration's first frame.
+        owners = {}
+        for s in scenes:
+            seen = {c.send_frame(s["id"], frames[0], frame_index=0).headers["x-replica"] for _ in range(3)}
+            assert len(seen) == 1, seen
+            owners[s["id"]] = seen.pop()
+        assert len(_replicas(cluster["env"])) == 2
+        # Kill the replica holding the first scene half way through its sequence.
+        sid = scenes[0]["id"]
+        victim = next(n for n in _replicas(cluster["env"]) if n.endswith(owners[sid]))
+        got = {}
+        for k, positions in enumerate(frames):
+            if k == 4:
+                _kill(cluster["env"], victim)
+            f = c.send_frame(sid, positions, frame_index=k)
+            assert f.frame_index == k and k not in got
+            got[k] = (f.array(), f.headers["x-replica"])
+        assert sorted(got) == list(range(len(frames)))
+        # Before the kill, its owner answered; after it, another replica did (from the stored registration).
+        assert {got[k][1] for k in range(4)} == {owners[sid]}
+        assert all(got[k][1] != owners[sid] for k in range(4, len(frames))), [g[1] for g in got.values()]
+        # The other scene kept its replica, unless that was the one killed.
+        other = scenes[1]["id"]
+        now = c.send_frame(other, frames[1]).headers["x-replica"]
+        assert (now == owners[other]) if owners[other] != owners[sid] else (now != owners[other])
+    # The same frames from one process without Ray: the same images.
+    single = ServiceProcess(tmp_path)
+    try:
+        with httpx.Client(base_url=single.url, timeout=120) as http:
+            e, _, _ = upload_environment(http, tmp_path)
+        with RenderClient(single.url) as c:
+            s = c.create_scene(e["id"], positions=mesh.positions, faces=mesh.faces,
+                               **{k: v for k, v in scene_body(e["id"], mesh).items() if k in ("quality", "output")})
+            for k, positions in enumerate(frames):
+                np.testing.assert_array_equal(c.send_frame(s["id"], positions).array(), got[k][0])
+    finally:
+        single.stop()
+
+
+def test_the_cli_refuses_workers_with_ray():
+    r = subprocess.run([sys.executable, "-m", "renderer.cli", "serve", "--ray", "--workers", "2"], capture_output=True,
+                       text=True, timeout=60, cwd=ROOT)
+    assert r.returncode != 0 and "--replicas" in r.stderr
+
+
+def test_the_load_script_reports_throughput_and_latency_per_replica(cluster):
+    from service.load import markdown, run_load
+
+    row = run_load(cluster["url"], scenes=2, frames=3, clients=2, size=32, resolution=8)
+    assert row["frames"] == 6 and row["throughput_fps"] > 0 and row["p99_ms"] >= row["p50_ms"] > 0
+    assert sum(row["replicas"].values()) == 6 and all(name != "-" for name in row["replicas"])
+    text = markdown([{**row, "replica_count": 2}], "test machine", "python -m service.load --ray 2")
+    assert "`python -m service.load --ray 2`" in text and "| 2 | 6 |" in text
+
+
+def test_the_cluster_config_builds_the_deployment_it_names():
+    import importlib
+
+    import yaml
+    from ray import serve
+
+    config = yaml.safe_load((ROOT / "deploy" / "serve.yaml").read_text())
+    (app,) = config["applications"]
+    module, name = app["import_path"].split(":")
+    built = getattr(importlib.import_module(module), name)(app["args"])
+    assert isinstance(built, serve.Application)
+    deployment = built._bound_deployment
+    assert deployment.num_replicas == app["args"]["replicas"]
+    assert deployment.ray_actor_options["num_gpus"] == app["args"]["gpus_per_replica"] == 1
+    assert set(app["args"]["settings"]) == {"state_dir", "pem_cache_dir"}
