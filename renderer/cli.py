@@ -398,7 +398,7 @@ def cmd_sequence(args) -> int:
     # The first material is the garment's, the last the body's (load_scene_inputs' convention).
     materials = [materials[0]] + [Material(args.body_albedo, 0.1, 0.3)] * len(extra_meshes)
     topology = load_mesh(args.topology, up=args.up, scale=args.mesh_scale) if args.topology else None
-    seq = load_sequence(args.frames, up=args.up, scale=args.mesh_scale)
+    seq = load_sequence(args.frames, up=args.up, scale=args.mesh_scale, garment=args.garment)
     garment, positions = to_meshes(seq, topology, up=args.up, scale=args.mesh_scale)
     # A USD stage's still meshes (the body) join the scene with the body's material.
     extra_meshes = extra_meshes + list(seq.extras)
@@ -422,7 +422,10 @@ def cmd_sequence(args) -> int:
         background = r.background_map(bg_cube) if bg_cube is not None else None
         try:
             for k in range(seq.n_frames):
-                frame = r.render(scene, pems, settings, camera, positions=[positions[k]] + [None] * len(extra_meshes),
+                # The file's own other meshes move with it where they have frames (a body in a USD stage).
+                moving = [None if f is None else f[k] for f in seq.extra_frames]
+                frame = r.render(scene, pems, settings, camera,
+                                 positions=[positions[k]] + [None] * (len(extra_meshes) - len(moving)) + moving,
                                  background=background)
                 img = frame.image
                 if exposure is None:  # fixed from the first frame, so the sequence does not flicker
@@ -670,6 +673,10 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
                          "glTF file with morph-target animation (.glb/.gltf): in the last two, the moving meshes are "
                          "the garment, the still ones the body")
     sq.add_argument("--topology", type=Path, help="mesh giving the faces (and UVs) of a point cache")
+    sq.add_argument("--garment", metavar="GLOB",
+                    help="a USD stage's or glTF file's garment: a glob over its meshes' paths or names (e.g. "
+                         "'/World/Shirt*'); the other meshes are the body, moving where they have frames (default: "
+                         "the meshes that move are the garment)")
     sq.add_argument("--body", type=Path, action="append", help="static meshes rendered with the garment")
     sq.add_argument("--exr-frames", action="store_true", help="also write a linear EXR per frame")
     sq.set_defaults(func=cmd_sequence)

@@ -33,6 +33,8 @@ class Sequence:
     # Meshes the file holds beside the sequence that do not move (a USD stage's body), in the
     # renderer's axes.
     extras: tuple[Mesh, ...] = ()
+    # Each extra's positions per frame (F, V, 3), None where it holds still (a body that moves too).
+    extra_frames: tuple[np.ndarray | None, ...] = ()
 
     @property
     def n_frames(self) -> int:
@@ -121,47 +123,69 @@ def read_obj_folder(path: str | Path, up: str = "y", scale: float = 1.0) -> Sequ
                     converted=True)
 
 
-def read_usd_sequence(path: str | Path, scale: float = 1.0) -> Sequence:
-    """A USD stage's moving meshes as one sequence (several are merged, a garment's panels), in the
-    renderer's axes and metres from the stage's own metadata, times `scale`; its still meshes as
-    `extras`."""
-    from .usd import merged, read_usd, static_meshes
+def _by_role(meshes: list, source: str, scale: float, garment: str | None, what: str) -> tuple:
+    """A file's meshes (each with .faces, .positions (F, V, 3), .animated and a .path or .name) split
+    into the garment (merged) and the rest. `garment`: a glob over the paths or names naming the
+    garment's meshes; without one, the moving meshes are the garment and the still ones the rest.
+    Returns (positions, faces, extras (Meshes at the first frame), extra_frames (each extra's
+    positions per frame, None where it holds still))."""
+    import fnmatch
+
+    def label(m) -> str:
+        return getattr(m, "path", None) or m.name
+
+    if garment is not None:
+        chosen = [m for m in meshes if fnmatch.fnmatchcase(label(m), garment) or fnmatch.fnmatchcase(m.name if
+                  hasattr(m, "name") else label(m).rsplit("/", 1)[-1], garment)]
+        if not chosen:
+            raise MeshError(f"{source}: no mesh matches --garment {garment!r}; its meshes are "
+                            + ", ".join(label(m) for m in meshes))
+    else:
+        chosen = [m for m in meshes if m.animated]
+        if not chosen:
+            raise MeshError(f"{source}: no mesh of the file moves ({what}): nothing to play; render it with "
+                            "`garment-render render --mesh`")
+    rest = [m for m in meshes if all(m is not c for c in chosen)]
+    k = np.float32(scale)
+    offsets = np.cumsum([0] + [m.positions.shape[1] for m in chosen])[:-1]
+    positions = np.concatenate([m.positions for m in chosen], axis=1) * k
+    faces = np.concatenate([m.faces + o for m, o in zip(chosen, offsets)]).astype(np.int32)
+    extras = tuple(Mesh.from_arrays(m.positions[0] * k, m.faces, name=label(m).rsplit("/", 1)[-1]) for m in rest)
+    extra_frames = tuple((m.positions * k).astype(np.float32) if m.animated else None for m in rest)
+    return positions, faces, extras, extra_frames
+
+
+def read_usd_sequence(path: str | Path, scale: float = 1.0, garment: str | None = None) -> Sequence:
+    """A USD stage's garment as one sequence (several meshes are merged, a garment's panels), in the
+    renderer's axes and metres from the stage's own metadata, times `scale`; its other meshes as
+    `extras` (moving ones with their frames). `garment`: a glob over prim paths or names (default:
+    the meshes that move)."""
+    from .usd import read_usd
 
     data = read_usd(path)
-    moving = [m for m in data.meshes if m.animated]
-    if not moving:
-        raise MeshError(f"{path}: no mesh of the stage moves (its points have no time samples): nothing to play; "
-                        f"render it with `garment-render render --mesh`")
-    positions, faces = merged(moving)
-    k = np.float32(scale)
-    extras = tuple(Mesh.from_arrays(m.positions * k, m.faces, m.uvs, name=m.name) for m in static_meshes(data))
-    return Sequence(_check(positions * k, str(path)), faces, Path(path).stem, data.times, converted=True,
-                    extras=extras)
+    positions, faces, extras, frames = _by_role(data.meshes, str(path), scale, garment,
+                                                "its points have no time samples")
+    return Sequence(_check(positions, str(path)), faces, Path(path).stem, data.times, converted=True,
+                    extras=extras, extra_frames=frames)
 
 
-def read_gltf_sequence(path: str | Path, scale: float = 1.0) -> Sequence:
-    """A glTF / GLB file's morph-target animation as one sequence (renderer/gltf_morph.py): the
-    meshes whose weights are animated, merged, in glTF's Y-up metres times `scale`; the others as
-    `extras`."""
+def read_gltf_sequence(path: str | Path, scale: float = 1.0, garment: str | None = None) -> Sequence:
+    """A glTF / GLB file's morph-target animation as one sequence (renderer/gltf_morph.py), in glTF's
+    Y-up metres times `scale`; `garment` and the other meshes as for a USD stage."""
     from .gltf_morph import read_morph_animation
 
     meshes, times = read_morph_animation(path)
-    moving = [m for m in meshes if m.animated]
-    if not moving:
-        raise MeshError(f"{path}: no mesh of the file has a morph-target animation (an animation channel with path "
-                        "'weights'): nothing to play; render it with `garment-render render --mesh`")
-    offsets = np.cumsum([0] + [m.positions.shape[1] for m in moving])[:-1]
-    positions = np.concatenate([m.positions for m in moving], axis=1) * np.float32(scale)
-    faces = np.concatenate([m.faces + o for m, o in zip(moving, offsets)]).astype(np.int32)
-    extras = tuple(Mesh.from_arrays(m.positions[0] * np.float32(scale), m.faces, name=m.name)
-                   for m in meshes if not m.animated)
-    return Sequence(_check(positions, str(path)), faces, Path(path).stem, times, converted=True, extras=extras)
+    positions, faces, extras, frames = _by_role(meshes, str(path), scale, garment,
+                                                "no morph-target animation: no channel with path 'weights'")
+    return Sequence(_check(positions, str(path)), faces, Path(path).stem, times, converted=True, extras=extras,
+                    extra_frames=frames)
 
 
-def load_sequence(path: str | Path, up: str = "y", scale: float = 1.0) -> Sequence:
+def load_sequence(path: str | Path, up: str = "y", scale: float = 1.0, garment: str | None = None) -> Sequence:
     """Any supported sequence. Point caches are returned in their file's axes and units; OBJ folders
     already converted by `up` and `scale` (as load_mesh does); USD stages by their own metadata (up
-    axis, metres per unit), then `scale`."""
+    axis, metres per unit), then `scale`. `garment`: which of a USD stage's or glTF file's meshes are
+    the garment (a glob over their paths or names; default: those that move)."""
     from .usd import USD_SUFFIXES
 
     path = Path(path)
@@ -170,9 +194,9 @@ def load_sequence(path: str | Path, up: str = "y", scale: float = 1.0) -> Sequen
     suffix = path.suffix.lower()
     readers = {".pc2": read_pc2, ".mdd": read_mdd, ".npz": read_npz}
     if suffix in USD_SUFFIXES:
-        return read_usd_sequence(path, scale)
+        return read_usd_sequence(path, scale, garment)
     if suffix in (".glb", ".gltf"):
-        return read_gltf_sequence(path, scale)
+        return read_gltf_sequence(path, scale, garment)
     if suffix not in readers:
         raise MeshError(f"{path}: unknown sequence format {suffix!r}; use a folder of .obj files, .pc2, .mdd, .npz "
                         f"a USD stage ({', '.join(USD_SUFFIXES)}) or a glTF file with morph-target animation (.glb, .gltf)")

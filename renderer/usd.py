@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import MeshError
-from .mesh import Mesh, z_up_to_y_up
+from .mesh import z_up_to_y_up
 
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 
@@ -128,16 +128,3 @@ def read_usd(path: str | Path) -> UsdStageData:
     tps = float(stage.GetTimeCodesPerSecond()) or 24.0
     seconds = np.array([0.0 if isinstance(t, Usd.TimeCode) else t / tps for t in times])
     return UsdStageData(meshes, seconds, up, mpu)
-
-
-def merged(meshes: list[UsdMesh]) -> tuple[np.ndarray, np.ndarray]:
-    """One mesh of several (a garment's panels): positions (F, sum V, 3) and faces offset to match."""
-    offsets = np.cumsum([0] + [m.positions.shape[1] for m in meshes])[:-1]
-    return (np.concatenate([m.positions for m in meshes], axis=1),
-            np.concatenate([m.faces + o for m, o in zip(meshes, offsets)]).astype(np.int32))
-
-
-def static_meshes(data: UsdStageData) -> list[Mesh]:
-    """The stage's meshes that hold still, as Meshes at their first sample (the body)."""
-    return [Mesh.from_arrays(m.positions[0], m.faces, name=m.path.rsplit("/", 1)[-1])
-            for m in data.meshes if not m.animated]

@@ -271,24 +271,28 @@ class RenderClient:
                             {"x-frame-index": str(f["frame_index"])}, retries) for f in r.json()["frames"]]
 
     def stream_usd(self, path: str | Path, environment_id: str, material: dict | None = None,
-                   body_material: dict | None = None, scale: float = 1.0, **kw):
-        """Play a USD stage's simulation through a new scene: its moving meshes are the garment, its
-        still ones the body (renderer/usd.py reads them in Y-up metres from the stage's metadata, times
-        `scale`). Registers the scene with the first frame, then sends every frame; yields
-        (scene id, frame index, FrameResult). kw: camera, quality, output, name (`scene_spec`)."""
+                   body_material: dict | None = None, scale: float = 1.0, garment: str | None = None, **kw):
+        """Play a USD stage's simulation through a new scene: its garment (`garment`, a glob over prim
+        paths or names; default: the meshes that move) and its other meshes as the body, moving where
+        they have frames (renderer/usd.py reads them in Y-up metres from the stage's metadata, times
+        `scale`). Registers the scene with the first frame, then sends every frame; yields (scene id,
+        frame index, FrameResult). kw: camera, quality, output, name (`scene_spec`)."""
         from renderer.sequence import read_usd_sequence
 
-        seq = read_usd_sequence(path, scale)
+        seq = read_usd_sequence(path, scale, garment)
         body = None
         if seq.extras:
             offsets = np.cumsum([0] + [len(m.positions) for m in seq.extras])[:-1]
             body = self.mesh_spec(np.concatenate([m.positions for m in seq.extras]),
                                   np.concatenate([m.faces + o for m, o in zip(seq.extras, offsets)]),
                                   material=body_material, name="body")
+        moving = any(f is not None for f in seq.extra_frames)
         scene = self.create_scene(environment_id, positions=seq.positions[0], faces=seq.faces, material=material,
                                   body=body, up="y", **kw)
         for k in range(seq.n_frames):
-            yield scene["id"], k, self.send_frame(scene["id"], seq.positions[k], frame_index=k)
+            body_k = (np.concatenate([m.positions if f is None else f[k] for m, f in zip(seq.extras, seq.extra_frames)])
+                      if moving else None)
+            yield scene["id"], k, self.send_frame(scene["id"], seq.positions[k], body_positions=body_k, frame_index=k)
 
     def render_once(self, spec: dict, format: str = "png") -> FrameResult:
         """Stateless render of a whole scene (a `scene_spec(...)` dict)."""

@@ -87,9 +87,34 @@ def test_moving_meshes_are_the_sequence_and_still_ones_the_body(tmp_path):
     assert body.name == "body" and body.faces.shape == (3, 3)
 
 
+def test_a_named_garment_leaves_a_moving_body_its_own_frames(tmp_path):
+    """Both meshes move (a simulated garment on an animated avatar): --garment names the garment's
+    prims, and the body keeps its frames beside the sequence."""
+    path = tmp_path / "avatar.usda"
+    stage = _stage(path)
+    _mesh(stage, "/World/Shirt_front", {0.0: QUAD, 1.0: QUAD + [0, 0, 0.1]})
+    _mesh(stage, "/World/Avatar", {0.0: QUAD + [0, 0, -1], 1.0: QUAD + [0, 0.5, -1]})
+    stage.GetRootLayer().Save()
+    # By default both move, so both would be the garment.
+    assert load_sequence(path).positions.shape == (2, 8, 3)
+    seq = load_sequence(path, garment="/World/Shirt*")
+    assert seq.positions.shape == (2, 4, 3) and [m.name for m in seq.extras] == ["Avatar"]
+    (body,) = seq.extra_frames
+    np.testing.assert_allclose(body[1] - body[0], np.tile([0.0, 0.5, 0.0], (4, 1)), atol=1e-6)
+    assert load_sequence(path, garment="Avatar").extra_frames[0] is not None   # a name matches too
+    with pytest.raises(MeshError, match="no mesh matches --garment 'Trousers'.*/World/Shirt_front, /World/Avatar"):
+        load_sequence(path, garment="Trousers")
+    out = tmp_path / "frames"
+    r = subprocess.run([sys.executable, "-m", "renderer.cli", "sequence", "--frames", str(path), "--garment",
+                        "/World/Shirt*", "--out", str(out), "--size", "32x32", "--preset", "fast"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert len(list(out.glob("frame_*.png"))) == 2
+
+
 @pytest.mark.parametrize("make, message", [
     (lambda s: None, "has no mesh"),
-    (lambda s: _mesh(s, "/World/still", QUAD), "no mesh of the stage moves"),
+    (lambda s: _mesh(s, "/World/still", QUAD), "no mesh of the file moves"),
     (lambda s: _mesh(s, "/World/bad", {0.0: QUAD, 1.0: QUAD}, counts=(4,), indices=(0, 1, 2, 9)), "outside the 4 points"),
     (lambda s: _mesh(s, "/World/grow", {0.0: QUAD, 1.0: np.vstack([QUAD, QUAD[:1]])}), "point count changes"),
     (lambda s: _mesh(s, "/World/nan", {0.0: QUAD, 1.0: QUAD * np.nan}), "NaN"),
