@@ -202,3 +202,36 @@ def test_the_client_streams_a_usd_stage_to_a_real_service(tmp_path):
     assert all(f.frame_index == k and f.pil().size == (48, 48) for _, k, f in got)
     assert [(m["role"], m["n_vertices"]) for m in scene["meshes"]] == [("garment", 162), ("body", 8)]
     assert scene["frames_rendered"] == 3 and scene["up"] == "y"
+
+
+def test_the_client_streams_a_moving_body_with_its_garment(tmp_path):
+    """--garment's counterpart in the client: the body's own frames travel as body_positions, and the
+    service's image follows them (the body moves out of the frame: its pixels go)."""
+    import trimesh
+    from service_server import ServiceProcess
+
+    from renderer.envmap.io import write_exr
+    from renderer.envmap.procedural import studio_environment
+    from service.client import RenderClient
+
+    path = tmp_path / "avatar.usda"
+    stage = _stage(path)
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.2)
+    faces = [3] * len(ball.faces), ball.faces.reshape(-1).tolist()
+    _mesh(stage, "/World/Shirt", {0.0: np.asarray(ball.vertices), 1.0: np.asarray(ball.vertices) * 1.01}, *faces)
+    body = np.asarray(ball.vertices) * 0.5 + [0.45, 0.0, 0.0]
+    _mesh(stage, "/World/Avatar", {0.0: body, 1.0: body + [50.0, 0.0, 0.0]}, *faces)   # far out of view
+    stage.GetRootLayer().Save()
+    write_exr(tmp_path / "studio.exr", studio_environment(64))
+    server = ServiceProcess(tmp_path)
+    try:
+        with RenderClient(server.url) as c:
+            env = c.upload_environment(tmp_path / "studio.exr")
+            got = list(c.stream_usd(path, env["id"], garment="/World/Shirt", quality={"preset": "fast"},
+                                    output={"width": 48, "height": 48, "background": "black"},
+                                    camera={"eye": [0.0, 0.0, 2.0], "target": [0.0, 0.0, 0.0]}))
+    finally:
+        server.stop()
+    first, second = (f.array() for _, _, f in got)
+    right = (slice(None), slice(34, 48))   # where the body is at first
+    assert first[right][..., 3].sum() > 0 and second[right][..., 3].sum() == 0
