@@ -297,10 +297,12 @@ def view_cameras(args, camera):
 
 def _write_views(args, frames, n_variants: int) -> None:
     """Each view beside --out (NAME_v00_c0.png: view, colourway) and their contact sheet as --out
-    (one row per view, one column per colourway; a turntable alone in rows of up to 6), all at the
-    first view's exposure."""
-    from .shading.tonemap import ToneCurve, auto_exposure_ev, write_png
-    from .views import contact_sheet
+    (one row per view, one column per colourway; a turntable alone in rows of up to 6; each tile
+    labelled), all at the first view's exposure."""
+    from PIL import Image
+
+    from .shading.tonemap import ToneCurve, auto_exposure_ev, encode_rgba8, write_png
+    from .views import contact_sheet, label_tiles, view_labels
 
     if not args.out:
         return
@@ -312,7 +314,10 @@ def _write_views(args, frames, n_variants: int) -> None:
         view, colourway = divmod(k, n_variants)
         write_png(args.out.with_name(f"{args.out.stem}_v{view:02d}_c{colourway}.png"), im, exposure, ToneCurve(args.tone))
     columns = n_variants if n_variants > 1 else min(len(images), 6)
-    write_png(args.out, contact_sheet(images, columns), exposure, ToneCurve(args.tone))
+    colourways = ["garment"] + [p.stem for p in args.colourway]
+    labels = view_labels(len(images) // n_variants, args.views, colourways)
+    sheet = encode_rgba8(contact_sheet(images, columns), exposure, ToneCurve(args.tone))
+    Image.fromarray(label_tiles(sheet, labels, images[0].shape[:2], columns)).save(args.out)
 
 
 def png_image(img: np.ndarray, opaque: bool) -> np.ndarray:

@@ -64,3 +64,28 @@ def contact_sheet(images: list[np.ndarray], columns: int, gap: int = 2) -> np.nd
         r, q = divmod(k, columns)
         sheet[r * (h + gap):r * (h + gap) + h, q * (w + gap):q * (w + gap) + w] = im
     return sheet
+
+
+def label_tiles(rgba8: np.ndarray, labels: list[str], tile_hw: tuple[int, int], columns: int,
+                gap: int = 2) -> np.ndarray:
+    """A contact sheet (H, W, 3 or 4) uint8, as `contact_sheet` laid it out, with each tile's label
+    written in its top-left corner, white on a dark box (Pillow's default font)."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    im = Image.fromarray(np.ascontiguousarray(rgba8))
+    draw = ImageDraw.Draw(im, "RGBA")
+    font = ImageFont.load_default()
+    h, w = tile_hw
+    for k, text in enumerate(labels):
+        r, q = divmod(k, columns)
+        x, y = q * (w + gap) + 2, r * (h + gap) + 1
+        draw.rectangle(draw.textbbox((x, y), text, font=font), fill=(0, 0, 0, 160))
+        draw.text((x, y), text, fill=(255, 255, 255, 255), font=font)
+    return np.asarray(im)
+
+
+def view_labels(n_views: int, names: list[str] | None, colourways: list[str]) -> list[str]:
+    """Each image's label, view by view, each view's colourways in turn: the view's name (or its
+    turntable angle) and the colourway's, where there are several."""
+    views = names if names is not None else [f"{round(360 * k / n_views)} deg" for k in range(n_views)]
+    return [v if len(colourways) == 1 else f"{v} / {c}" for v in views for c in colourways]

@@ -113,6 +113,13 @@ class RenderReplica:
         out["X-Replica"] = self.name
         return Response(r.content, status_code=r.status_code, headers=out)
 
+    def __del__(self):
+        """Serve's graceful shutdown of the replica: its GL thread releases the scenes and the context."""
+        worker = getattr(getattr(self, "app", None), "state", None)
+        worker = getattr(worker, "worker", None) if getattr(self, "client", None) is not None else None
+        if worker is not None:
+            worker.stop()
+
     def check_health(self) -> None:
         """Serve's health check: the replica's GL thread must be up once it has started."""
         worker = getattr(self.app.state, "worker", None)

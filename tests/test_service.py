@@ -200,8 +200,9 @@ def test_views_and_colourways_in_one_request(http, env_upload, mesh):
     assert r.headers["content-type"] == "image/png" and r.headers["x-views"] == "3" and r.headers["x-colourways"] == "3"
     sheet = png_array(r.content)
     assert sheet.shape[:2] == (3 * 64 + 2 * 2, 3 * 64 + 2 * 2)
-    # The colourways differ where the garment is: the red one is redder than the blue one.
-    red, blue = sheet[:64, 66:130, :3].astype(float), sheet[:64, 132:196, :3].astype(float)
+    # The colourways differ where the garment is: the red one is redder than the blue one (below the
+    # tiles' labels).
+    red, blue = sheet[16:64, 66:130, :3].astype(float), sheet[16:64, 132:196, :3].astype(float)
     assert red[..., 0].mean() - red[..., 2].mean() > blue[..., 0].mean() - blue[..., 2].mean() + 5
     # The viewer's latest image is the sheet.
     latest = http.get(f"/scenes/{sid}/latest.png")

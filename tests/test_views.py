@@ -116,6 +116,11 @@ def test_the_command_line_writes_a_turntable_in_two_colourways(tmp_path):
     assert views == [f"sheet_v{v:02d}_c{c}.png" for v in range(3) for c in range(2)]
     sheet = Image.open(out)
     assert sheet.size == (2 * 40 + 2, 3 * 40 + 2 * 2)   # a row per view, a column per colourway
+    # Each tile is its view's image but for its label in the top-left corner ("120 deg / red").
+    tile = np.asarray(sheet.convert("RGBA"))[42:82, 42:82].astype(int)
+    alone = np.asarray(Image.open(tmp_path / "sheet_v01_c1.png").convert("RGBA")).astype(int)
+    assert np.abs(tile[20:] - alone[20:]).max() <= 1
+    assert np.abs(tile[:10] - alone[:10]).max() > 100
     report = json.loads((tmp_path / "t.json").read_text())
     assert report["timings"]["views"] == 6 and len(report["views"]) == 5
 

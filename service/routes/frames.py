@@ -28,12 +28,14 @@ import zipfile
 from typing import Annotated
 
 import anyio
+import numpy as np
 from fastapi import APIRouter, Depends, Header, Query, Request, Response
+from PIL import Image
 
 from renderer.cache import cache_key
 from renderer.errors import InvalidInputError
 from renderer.renderer import Frame
-from renderer.views import MAX_VIEWS, VIEW_NAMES, contact_sheet, named_views
+from renderer.views import MAX_VIEWS, VIEW_NAMES, contact_sheet, label_tiles, named_views, view_labels
 from renderer.views import turntable as turntable_cameras
 
 from ..codecs import FrameArrays, check_frame_size, decode_frame, encode_png, frame_nbytes, parse_layout
@@ -285,10 +287,16 @@ async def post_views(
                  "timings_ms": {k2: round(float(v), 3) for k2, v in f.timings["wall_ms"].items()}}
                 for k, f in enumerate(frames)]
         if format is ViewsFormat.SHEET:
-            sheet = contact_sheet([f.image for f in frames], n_variants if n_variants > 1 else min(len(frames), 6))
+            columns = n_variants if n_variants > 1 else min(len(frames), 6)
+            sheet = contact_sheet([f.image for f in frames], columns)
             content, _ = encode_png(sheet, ev, scene.output.get("tone", "filmic"), opaque,
                                     settings.png_compress_level)
-            return content, meta, ev
+            labels = view_labels(len(cameras), names, ["garment"] + [f"colourway {k}" for k in range(1, n_variants)])
+            labelled = label_tiles(np.asarray(Image.open(io.BytesIO(content))), labels, frames[0].image.shape[:2],
+                                   columns)
+            buf = io.BytesIO()
+            Image.fromarray(labelled).save(buf, format="PNG", compress_level=settings.png_compress_level)
+            return buf.getvalue(), meta, ev
         buf = io.BytesIO()
         with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as zf:
             for m, f in zip(meta, frames):
