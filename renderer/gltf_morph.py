@@ -1,12 +1,13 @@
 """Mesh sequences from glTF / GLB morph-target animation (pygltflib): a mesh's base positions plus its
 POSITION targets, weighted over time by an animation channel whose path is "weights".
 
-Each mesh node is placed by its world transform (the node hierarchy's matrices or TRS, read once:
-animated node transforms are not read), in glTF's own axes and units (Y up, metres: the renderer's).
-The frames are the keyframe times of the mesh's weights samplers; STEP and LINEAR samplers give their
-keyframes' weights, CUBICSPLINE ones their values (the tangents lie between keyframes). Sparse
-accessors are read. Meshes whose weights are animated are the sequence (merged: a garment's panels);
-the others are returned beside it, at their default weights (the body).
+Each mesh node is placed by its world transform at each time: the node hierarchy's matrices or TRS,
+with the animated translations, rotations and scales (a body walking), in glTF's own axes and units
+(Y up, metres: the renderer's). The frames are every keyframe time of the weights and transform
+samplers. STEP and LINEAR samplers give their keyframes' values (rotations by spherical
+interpolation between keys), CUBICSPLINE ones their values (the tangents shape the curve between
+keyframes, which are the frames). Sparse accessors are read. Meshes that move are the sequence
+(merged: a garment's panels); the others are returned beside it (the body).
 """
 
 from __future__ import annotations
@@ -107,34 +108,66 @@ def _raw(gltf, path, view_index, offset, dtype, count, width, cache) -> np.ndarr
     return np.frombuffer(cache[view.buffer], dtype, count=n, offset=start).astype(np.float64).reshape(count, width)
 
 
-def _local_matrix(node) -> np.ndarray:
+def _local_matrix(node, trs: dict | None = None) -> np.ndarray:
+    """A node's matrix; `trs`: its animated translation, rotation or scale at one time (a node with a
+    matrix is not animated: the specification forbids it)."""
     if node.matrix is not None:
         return np.asarray(node.matrix, np.float64).reshape(4, 4).T   # glTF stores column-major
+    trs = trs or {}
+    scale, rotation, translation = (trs.get("scale", node.scale), trs.get("rotation", node.rotation),
+                                    trs.get("translation", node.translation))
     m = np.eye(4)
-    if node.scale is not None:
-        m = np.diag([*node.scale, 1.0]) @ m
-    if node.rotation is not None:
-        x, y, z, w = node.rotation
+    if scale is not None:
+        m = np.diag([*scale, 1.0]) @ m
+    if rotation is not None:
+        x, y, z, w = np.asarray(rotation, np.float64) / np.linalg.norm(rotation)
         r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
                       [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
                       [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
         rot = np.eye(4)
         rot[:3, :3] = r
         m = rot @ m
-    if node.translation is not None:
+    if translation is not None:
         t = np.eye(4)
-        t[:3, 3] = node.translation
+        t[:3, 3] = translation
         m = t @ m
     return m
 
 
-def _world_matrices(gltf) -> dict[int, np.ndarray]:
+def _sample(key_times: np.ndarray, values: np.ndarray, t: float, interpolation: str, rotation: bool) -> np.ndarray:
+    """A channel's value at time t: STEP the last key at or before t; LINEAR (and CUBICSPLINE's values)
+    between the two keys around t, rotations by spherical interpolation."""
+    if t <= key_times[0] or len(key_times) == 1:
+        return values[0]
+    if t >= key_times[-1]:
+        return values[-1]
+    j = int(np.searchsorted(key_times, t, side="right")) - 1
+    if interpolation == "STEP":
+        return values[j]
+    u = (t - key_times[j]) / (key_times[j + 1] - key_times[j])
+    a, b = values[j], values[j + 1]
+    if not rotation:
+        return (1 - u) * a + u * b
+    a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+    d = float(a @ b)
+    if d < 0:   # the shorter way round
+        b, d = -b, -d
+    if d > 0.9995:
+        q = (1 - u) * a + u * b
+        return q / np.linalg.norm(q)
+    th = np.arccos(d)
+    return (np.sin((1 - u) * th) * a + np.sin(u * th) * b) / np.sin(th)
+
+
+def _world_matrices(gltf, trs_at: dict[int, dict] | None = None) -> dict[int, np.ndarray]:
+    """Every node's world matrix; `trs_at`: the animated nodes' TRS at one time."""
     parent = {c: i for i, n in enumerate(gltf.nodes) for c in (n.children or [])}
     out: dict[int, np.ndarray] = {}
+    trs_at = trs_at or {}
 
     def world(i: int) -> np.ndarray:
         if i not in out:
-            local = _local_matrix(gltf.nodes[i])
+            local = _local_matrix(gltf.nodes[i], trs_at.get(i))
             out[i] = world(parent[i]) @ local if i in parent else local
         return out[i]
 
@@ -148,14 +181,26 @@ def read_morph_animation(path: str | Path) -> tuple[list[MorphMesh], np.ndarray]
     path = Path(path)
     gltf = _load(path)
     cache: dict = {}
-    worlds = _world_matrices(gltf)
-    # The weights channels: node -> (times, weights (K, n_targets)).
+    # The weights channels: node -> (times, weights (K, n_targets)); the transform channels: node ->
+    # {path: (times, values (K, 3 or 4), interpolation)}.
     channels: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    moves: dict[int, dict[str, tuple]] = {}
     for anim in gltf.animations or []:
         for ch in anim.channels:
-            if ch.target.path != "weights" or ch.target.node is None:
+            if ch.target.node is None or ch.target.path not in ("weights", "translation", "rotation", "scale"):
                 continue
             sampler = anim.samplers[ch.sampler]
+            if ch.target.path != "weights":
+                key_times = _accessor(gltf, path, sampler.input, cache)[:, 0]
+                values = _accessor(gltf, path, sampler.output, cache)
+                interpolation = sampler.interpolation or "LINEAR"
+                if interpolation == "CUBICSPLINE":
+                    values = values.reshape(len(key_times), 3, -1)[:, 1]
+                if len(key_times) == 0 or len(values) != len(key_times):
+                    raise MeshError(f"{path}: node {ch.target.node}'s {ch.target.path} channel has {len(key_times)} "
+                                    f"keyframes and {len(values)} values")
+                moves.setdefault(ch.target.node, {})[ch.target.path] = (key_times, values, interpolation)
+                continue
             times = _accessor(gltf, path, sampler.input, cache)[:, 0]
             values = _accessor(gltf, path, sampler.output, cache).reshape(-1)
             n_keys = len(times)
@@ -167,14 +212,19 @@ def read_morph_animation(path: str | Path) -> tuple[list[MorphMesh], np.ndarray]
             else:
                 values = values.reshape(n_keys, per_key)
             channels[ch.target.node] = (times, values)
-    all_times = sorted({float(t) for times, _ in channels.values() for t in times})
+    all_times = sorted({float(t) for times, _ in channels.values() for t in times}
+                       | {float(t) for node in moves.values() for kt, _, _ in node.values() for t in kt})
     times = np.array(all_times or [0.0])
+    # Each node's world matrix at each time (the same at every time without transform channels).
+    worlds_at = [_world_matrices(gltf, {n: {k: _sample(kt, v, t, interp, k == "rotation")
+                                            for k, (kt, v, interp) in paths.items()} for n, paths in moves.items()})
+                 for t in (times if moves else times[:1])]
     meshes = []
     for i, node in enumerate(gltf.nodes):
         if node.mesh is None:
             continue
         mesh = gltf.meshes[node.mesh]
-        m = worlds[i]
+        m = np.broadcast_to(np.stack([w[i] for w in worlds_at]), (len(times), 4, 4))   # one per frame
         for p, prim in enumerate(mesh.primitives):
             where = f"{path}: mesh {mesh.name or node.mesh} primitive {p}"
             if (prim.mode if prim.mode is not None else TRIANGLES) != TRIANGLES:
@@ -202,11 +252,11 @@ def read_morph_animation(path: str | Path) -> tuple[list[MorphMesh], np.ndarray]
             pos = np.repeat(base[None], len(times), axis=0)
             for k, t in enumerate(targets):
                 pos += w[:, k, None, None] * t[None]
-            pos = pos @ m[:3, :3].T + m[:3, 3]
+            pos = np.einsum("fvj,fij->fvi", pos, m[:, :3, :3]) + m[:, None, :3, 3]
             if not np.isfinite(pos).all():
                 raise MeshError(f"{where}: NaN or Inf positions")
             meshes.append(MorphMesh(mesh.name or f"mesh{node.mesh}", faces.reshape(-1, 3).astype(np.int32),
-                                    pos.astype(np.float32), i in channels and bool(np.ptp(pos, axis=0).max() > 0)))
+                                    pos.astype(np.float32), bool(np.ptp(pos, axis=0).max() > 0)))
     if not meshes:
         raise MeshError(f"{path}: the file has no mesh")
     return meshes, times

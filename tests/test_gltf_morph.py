@@ -127,3 +127,36 @@ def test_the_sequence_command_plays_a_glb(tmp_path):
                         "--size", "32x32", "--preset", "fast"], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     assert len(list(out.glob("frame_*.png"))) == 3
+
+
+def test_animated_node_transforms_move_a_mesh_and_make_it_the_garment(tmp_path):
+    """A body walking: its node's translation and rotation animated (linear, a quarter turn about y
+    over one second), no morph targets; the garment's weights keyed at other times. Every keyframe
+    time is a frame, and each mesh is placed by its transform at that time."""
+    w = _Writer()
+    pos = w.accessor(QUAD, "VEC3", minmax=True)
+    idx = w.accessor(FACES, "SCALAR", g.UNSIGNED_SHORT)
+    w.gltf.meshes.append(g.Mesh(name="avatar", primitives=[g.Primitive(attributes=g.Attributes(POSITION=pos),
+                                                                         indices=idx)]))
+    w.gltf.nodes.append(g.Node(mesh=0))
+    w.gltf.scenes.append(g.Scene(nodes=[0]))
+    key_times = w.accessor(np.array([[0.0], [1.0]], np.float32), "SCALAR", minmax=True)
+    moves = w.accessor(np.array([[0, 0, 0], [0, 0, 2]], np.float32), "VEC3")
+    half = np.sqrt(0.5)
+    turns = w.accessor(np.array([[0, 0, 0, 1], [0, half, 0, half]], np.float32), "VEC4")
+    w.gltf.animations.append(g.Animation(
+        samplers=[g.AnimationSampler(input=key_times, output=moves), g.AnimationSampler(input=key_times, output=turns)],
+        channels=[g.AnimationChannel(sampler=0, target=g.AnimationChannelTarget(node=0, path="translation")),
+                  g.AnimationChannel(sampler=1, target=g.AnimationChannelTarget(node=0, path="rotation"))]))
+    path = tmp_path / "walk.glb"
+    w.save(path)
+    seq = load_sequence(path)
+    assert seq.n_frames == 2 and not seq.extras   # it moves, so it is the sequence
+    np.testing.assert_allclose(seq.positions[0], QUAD, atol=1e-6)
+    # A quarter turn about y takes x to -z, then 2 along z.
+    turned = np.stack([QUAD[:, 2], QUAD[:, 1], -QUAD[:, 0]], axis=1) + [0, 0, 2]
+    np.testing.assert_allclose(seq.positions[1], turned, atol=1e-6)
+    from renderer.gltf_morph import _sample
+
+    mid = _sample(np.array([0.0, 1.0]), np.array([[0, 0, 0, 1.0], [0, half, 0, half]]), 0.5, "LINEAR", True)
+    np.testing.assert_allclose(mid, [0, np.sin(np.pi / 8), 0, np.cos(np.pi / 8)], atol=1e-9)   # an eighth turn
