@@ -187,12 +187,9 @@ def garment_material(args):
     from .shading.gltf import material_from_gltf
     from .shading.material import Material
 
-    def is_gltf(p: Path) -> bool:
-        return p.suffix.lower() in (".glb", ".gltf")
-
     path = getattr(args, "material", None)
     meshes = getattr(args, "mesh", None) or []
-    if path is None and args.model is None and meshes and is_gltf(meshes[0]):
+    if path is None and args.model is None and meshes and meshes[0].suffix.lower() in (".glb", ".gltf"):
         material = material_from_gltf(meshes[0])   # a garment exported with its fabric renders with it
         if material is not None:
             return material
@@ -302,7 +299,7 @@ def _write_views(args, frames, n_variants: int) -> None:
     from PIL import Image
 
     from .shading.tonemap import ToneCurve, auto_exposure_ev, encode_rgba8, write_png
-    from .views import contact_sheet, label_tiles, view_labels
+    from .views import contact_sheet, label_tiles, sheet_columns, view_labels
 
     if not args.out:
         return
@@ -313,7 +310,7 @@ def _write_views(args, frames, n_variants: int) -> None:
     for k, im in enumerate(images):
         view, colourway = divmod(k, n_variants)
         write_png(args.out.with_name(f"{args.out.stem}_v{view:02d}_c{colourway}.png"), im, exposure, ToneCurve(args.tone))
-    columns = n_variants if n_variants > 1 else min(len(images), 6)
+    columns = sheet_columns(len(images), n_variants)
     colourways = ["garment"] + [p.stem for p in args.colourway]
     labels = view_labels(len(images) // n_variants, args.views, colourways)
     sheet = encode_rgba8(contact_sheet(images, columns), exposure, ToneCurve(args.tone))
@@ -595,12 +592,11 @@ def cmd_serve(args) -> int:
     if args.ray:
         if args.workers != 1:
             raise InvalidInputError("--workers is for uvicorn's processes; with --ray give --replicas")
-        import os
-
-        host = args.host or os.environ.get("GARMENT_RENDER_HOST", "127.0.0.1")
-        port = args.port or int(os.environ.get("GARMENT_RENDER_PORT", "8000"))
-        importlib.import_module("service.ray_serve").run(host, port, args.replicas, args.address,
-                                                         args.gpus_per_replica)
+        try:
+            importlib.import_module("service.ray_serve").run(args.host, args.port, args.replicas, args.address,
+                                                             args.gpus_per_replica)
+        except ValueError as e:   # a setting the replicas could not start with
+            raise InvalidInputError(str(e)) from None
         return 0
     importlib.import_module("service.main").serve(args.host, args.port, workers=args.workers, log_level=args.log_level)
     return 0
@@ -671,7 +667,8 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
                    help="one more garment material (a --material file) rendered from the same frame, "
                         "sharing everything but shading; repeat for more")
     r.set_defaults(func=cmd_render)
-    sq = sub.add_parser("sequence", help="render a mesh sequence (OBJ folder, .pc2, .mdd, .npz) to numbered images")
+    sq = sub.add_parser("sequence", help="render a mesh sequence (OBJ folder, .pc2, .mdd, .npz, USD, glTF) to "
+                                         "numbered images")
     add_scene_arguments(sq)
     sq.add_argument("--frames", type=Path, required=True,
                     help="folder of .obj files, a .pc2/.mdd/.npz file, a USD stage (.usd/.usda/.usdc/.usdz) or a "
@@ -706,7 +703,7 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
                         "pass saves (renderer/bench/views.py)")
     b.add_argument("--materials", action="store_true",
                    help="the physically based fabrics (1 and 2 fitted lobes) against the reference beside the Phong "
-                        "fabric, on held-out maps (renderer/bench/materials.py)")
+                        "fabric, on tuning and held-out maps apart (renderer/bench/materials.py)")
     b.add_argument("--broad", action="store_true",
                    help="the presets on every shared map x 3 garments x 3 fabrics x 2 views, a tuning and a held-out "
                         "set reported apart, with the artefact share (writes broad.json/md; about an hour here, "

@@ -31,6 +31,10 @@ class MorphMesh:
     positions: np.ndarray    # (F, V, 3) float32, world space
     animated: bool
 
+    @property
+    def path(self) -> str:   # a glTF mesh has its name alone (USD's meshes have a path: sequence._by_role)
+        return self.name
+
 
 def _load(path: Path):
     try:
@@ -65,6 +69,14 @@ def _buffer_bytes(gltf, path: Path, index: int) -> bytes:
     return file.read_bytes()
 
 
+def _view_bytes(gltf, path: Path, view_index: int, cache: dict) -> tuple[object, bytes]:
+    """A buffer view and its buffer's bytes (each buffer read once, `cache`)."""
+    view = gltf.bufferViews[view_index]
+    if view.buffer not in cache:
+        cache[view.buffer] = _buffer_bytes(gltf, path, view.buffer)
+    return view, cache[view.buffer]
+
+
 def _accessor(gltf, path: Path, index: int, cache: dict) -> np.ndarray:
     """An accessor's values as float64 (count, width), normalized integers scaled, sparse values in."""
     acc = gltf.accessors[index]
@@ -72,40 +84,46 @@ def _accessor(gltf, path: Path, index: int, cache: dict) -> np.ndarray:
     if dtype is None or width is None:
         raise MeshError(f"{path}: accessor {index} has an unknown type ({acc.componentType}, {acc.type})")
     out = np.zeros((acc.count, width), np.float64)
-    if acc.bufferView is not None:
-        view = gltf.bufferViews[acc.bufferView]
-        if view.buffer not in cache:
-            cache[view.buffer] = _buffer_bytes(gltf, path, view.buffer)
-        data = cache[view.buffer]
+    if acc.bufferView is not None and acc.count:
+        view, data = _view_bytes(gltf, path, acc.bufferView, cache)
         item = np.dtype(dtype).itemsize * width
         stride = view.byteStride or item
         start = (view.byteOffset or 0) + (acc.byteOffset or 0)
         end = start + stride * (acc.count - 1) + item
-        if acc.count and end > len(data):
+        if end > len(data):
             raise MeshError(f"{path}: accessor {index} reads past its buffer ({end} > {len(data)} bytes)")
-        raw = np.frombuffer(data, np.uint8, count=end - start, offset=start) if acc.count else np.zeros(0, np.uint8)
-        rows = np.lib.stride_tricks.as_strided(raw, (acc.count, item), (stride, 1)) if acc.count else raw.reshape(0, item)
+        raw = np.frombuffer(data, np.uint8, count=end - start, offset=start)
+        rows = np.lib.stride_tricks.as_strided(raw, (acc.count, item), (stride, 1))
         out[:] = np.ascontiguousarray(rows).view(dtype).reshape(acc.count, width)
         if acc.normalized and dtype is not np.float32:
             out /= float(np.iinfo(dtype).max)
     if acc.sparse is not None:
         sp = acc.sparse
-        idx = _raw(gltf, path, sp.indices.bufferView, sp.indices.byteOffset or 0, _COMPONENTS[sp.indices.componentType],
-                   sp.count, 1, cache)[:, 0].astype(np.int64)
-        vals = _raw(gltf, path, sp.values.bufferView, sp.values.byteOffset or 0, dtype, sp.count, width, cache)
+
+        def packed(part, kind, n_comp) -> np.ndarray:   # sparse indices and values are tightly packed
+            view, data = _view_bytes(gltf, path, part.bufferView, cache)
+            start = (view.byteOffset or 0) + (part.byteOffset or 0)
+            return np.frombuffer(data, kind, count=sp.count * n_comp, offset=start).astype(np.float64)
+
+        idx = packed(sp.indices, _COMPONENTS[sp.indices.componentType], 1).astype(np.int64)
+        vals = packed(sp.values, dtype, width).reshape(sp.count, width)
         if len(idx) and (idx.min() < 0 or idx.max() >= acc.count):
             raise MeshError(f"{path}: accessor {index}'s sparse indices reach outside its {acc.count} values")
         out[idx] = vals
     return out
 
 
-def _raw(gltf, path, view_index, offset, dtype, count, width, cache) -> np.ndarray:
-    view = gltf.bufferViews[view_index]
-    if view.buffer not in cache:
-        cache[view.buffer] = _buffer_bytes(gltf, path, view.buffer)
-    start = (view.byteOffset or 0) + offset
-    n = count * width
-    return np.frombuffer(cache[view.buffer], dtype, count=n, offset=start).astype(np.float64).reshape(count, width)
+def _channel(gltf, path: Path, sampler, cache: dict) -> tuple[np.ndarray, np.ndarray, str]:
+    """An animation sampler's keyframe times (K,), values (K, width: 3, 4 or the morph targets) and
+    interpolation; a cubic spline's values without their tangents (in-tangent, value, out-tangent)."""
+    key_times = _accessor(gltf, path, sampler.input, cache)[:, 0]
+    interpolation = sampler.interpolation or "LINEAR"
+    if len(key_times) == 0:
+        raise MeshError(f"{path}: an animation sampler has no keyframes")
+    values = _accessor(gltf, path, sampler.output, cache).reshape(len(key_times), -1)
+    if interpolation == "CUBICSPLINE":
+        values = values.reshape(len(key_times), 3, -1)[:, 1]
+    return key_times, values, interpolation
 
 
 def _local_matrix(node, trs: dict | None = None) -> np.ndarray:
@@ -177,44 +195,22 @@ def _world_matrices(gltf, trs_at: dict[int, dict] | None = None) -> dict[int, np
 
 
 def read_morph_animation(path: str | Path) -> tuple[list[MorphMesh], np.ndarray]:
-    """Every mesh node of a glTF file, its positions at each keyframe of its weights; and the times."""
+    """Every mesh node of a glTF file, its positions at every keyframe time of the animation; and the times."""
     path = Path(path)
     gltf = _load(path)
     cache: dict = {}
-    # The weights channels: node -> (times, weights (K, n_targets)); the transform channels: node ->
-    # {path: (times, values (K, 3 or 4), interpolation)}.
-    channels: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    moves: dict[int, dict[str, tuple]] = {}
+    # Per node, its animated paths: {path: (times, values (K, width), interpolation)}; "weights"
+    # moves the morph targets, "translation", "rotation" and "scale" the node.
+    channels: dict[int, dict[str, tuple]] = {}
     for anim in gltf.animations or []:
         for ch in anim.channels:
-            if ch.target.node is None or ch.target.path not in ("weights", "translation", "rotation", "scale"):
-                continue
-            sampler = anim.samplers[ch.sampler]
-            if ch.target.path != "weights":
-                key_times = _accessor(gltf, path, sampler.input, cache)[:, 0]
-                values = _accessor(gltf, path, sampler.output, cache)
-                interpolation = sampler.interpolation or "LINEAR"
-                if interpolation == "CUBICSPLINE":
-                    values = values.reshape(len(key_times), 3, -1)[:, 1]
-                if len(key_times) == 0 or len(values) != len(key_times):
-                    raise MeshError(f"{path}: node {ch.target.node}'s {ch.target.path} channel has {len(key_times)} "
-                                    f"keyframes and {len(values)} values")
-                moves.setdefault(ch.target.node, {})[ch.target.path] = (key_times, values, interpolation)
-                continue
-            times = _accessor(gltf, path, sampler.input, cache)[:, 0]
-            values = _accessor(gltf, path, sampler.output, cache).reshape(-1)
-            n_keys = len(times)
-            if n_keys == 0:
-                raise MeshError(f"{path}: an animation's weights sampler has no keyframes")
-            per_key = len(values) // n_keys
-            if (sampler.interpolation or "LINEAR") == "CUBICSPLINE":
-                values = values.reshape(n_keys, 3, per_key // 3)[:, 1]   # in-tangent, value, out-tangent
-            else:
-                values = values.reshape(n_keys, per_key)
-            channels[ch.target.node] = (times, values)
-    all_times = sorted({float(t) for times, _ in channels.values() for t in times}
-                       | {float(t) for node in moves.values() for kt, _, _ in node.values() for t in kt})
-    times = np.array(all_times or [0.0])
+            if ch.target.node is not None and ch.target.path in ("weights", "translation", "rotation", "scale"):
+                channels.setdefault(ch.target.node, {})[ch.target.path] = _channel(gltf, path, anim.samplers[ch.sampler],
+                                                                                   cache)
+    times = np.array(sorted({float(t) for paths in channels.values() for kt, _, _ in paths.values() for t in kt})
+                     or [0.0])
+    moves = {n: {k: v for k, v in paths.items() if k != "weights"} for n, paths in channels.items()}
+    moves = {n: paths for n, paths in moves.items() if paths}
     # Each node's world matrix at each time (the same at every time without transform channels).
     worlds_at = [_world_matrices(gltf, {n: {k: _sample(kt, v, t, interp, k == "rotation")
                                             for k, (kt, v, interp) in paths.items()} for n, paths in moves.items()})
@@ -237,18 +233,19 @@ def read_morph_animation(path: str | Path) -> tuple[list[MorphMesh], np.ndarray]
                      else np.arange(n))
             if len(faces) % 3 or (len(faces) and (faces.min() < 0 or faces.max() >= n)):
                 raise MeshError(f"{where}: its indices are not triangles of its {n} vertices")
-            targets = [_accessor(gltf, path, t["POSITION"], cache) if isinstance(t, dict) else
-                       _accessor(gltf, path, t.POSITION, cache) for t in (prim.targets or [])]
-            defaults = np.asarray(getattr(node, "weights", None) or mesh.weights or [0.0] * len(targets), np.float64)
-            if i in channels:
-                key_times, weights = channels[i]
+            # A target without positions (normals alone) moves nothing.
+            targets = [_accessor(gltf, path, t["POSITION"], cache) if t.get("POSITION") is not None
+                       else np.zeros_like(base) for t in (prim.targets or [])]
+            if "weights" in channels.get(i, {}):
+                key_times, weights, interpolation = channels[i]["weights"]
                 if weights.shape[1] != len(targets):
                     raise MeshError(f"{where}: its animation has {weights.shape[1]} weights per keyframe but the "
                                     f"primitive has {len(targets)} morph targets")
-                # Each keyframe time of any channel: this mesh's weights there (linear between its own keys).
-                w = np.stack([np.interp(times, key_times, weights[:, k]) for k in range(len(targets))], axis=1)
+                # This mesh's weights at every frame (the keyframes of every channel).
+                w = np.stack([_sample(key_times, weights, t, interpolation, False) for t in times])
             else:
-                w = np.tile(defaults[:len(targets)], (len(times), 1)) if targets else np.zeros((len(times), 0))
+                defaults = getattr(node, "weights", None) or mesh.weights or [0.0] * len(targets)
+                w = np.tile(np.asarray(defaults, np.float64)[:len(targets)], (len(times), 1))
             pos = np.repeat(base[None], len(times), axis=0)
             for k, t in enumerate(targets):
                 pos += w[:, k, None, None] * t[None]

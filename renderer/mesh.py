@@ -367,6 +367,16 @@ def _as_mesh_list(meshes: Mesh | Iterable[Mesh]) -> list[Mesh]:
     return items
 
 
+def concatenate(parts) -> tuple[np.ndarray, np.ndarray]:
+    """Several meshes' (positions, faces) as one: the positions joined along their vertex axis (the
+    last but one: (V, 3), or (F, V, 3) for sequences), each part's faces offset by the vertices
+    before it."""
+    parts = list(parts)
+    offsets = np.cumsum([0] + [np.shape(p)[-2] for p, _ in parts[:-1]])
+    return (np.concatenate([p for p, _ in parts], axis=-2),
+            np.concatenate([np.asarray(f) + o for (_, f), o in zip(parts, offsets)]))
+
+
 def box(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned box (lo, hi) of (V, 3) positions (V >= 1), two float64 (3,). Reduced per column
     of a transposed copy: `positions.min(axis=0)` walks rows of three and took 5 ms for 100k

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InvalidInputError
-from .mesh import Mesh
+from .mesh import Mesh, concatenate
 
 # Body proxy dimensions (metres): a standing figure about 1.75 m tall, feet at y = 0, facing +Z.
 _TORSO = ((0.0, 1.25, 0.0), (0.16, 0.28, 0.11))  # ellipsoid centre, radii
@@ -103,10 +103,7 @@ def _capsule(p0, p1, radius: float, n_lat: int, n_lon: int):
 
 
 def _union(parts, name: str, uvs=None) -> Mesh:
-    offsets = np.cumsum([0] + [len(p) for p, _ in parts[:-1]])
-    positions = np.concatenate([p for p, _ in parts])
-    faces = np.concatenate([f + o for (_, f), o in zip(parts, offsets)])
-    return Mesh.from_arrays(positions, faces, uvs, name=name)
+    return Mesh.from_arrays(*concatenate(parts), uvs, name=name)
 
 
 def uv_sphere(radius: float = 1.0, n_lat: int = 32, n_lon: int = 64, centre=(0.0, 0.0, 0.0)) -> Mesh:

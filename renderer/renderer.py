@@ -492,9 +492,9 @@ class Renderer:
         centre, radius = bounds_sphere(*scene.bounds())
         cameras = [c or default_camera(centre, radius, w / h) for c in cameras]
         view_projs = [c.view_proj(w / h, centre, radius) for c in cameras]
-        seen = [scene.visible_bounds(vp) for vp in view_projs]
-        receivers = None if any(b is None for b in seen) else (np.min([b[0] for b in seen], axis=0),
-                                                               np.max([b[1] for b in seen], axis=0))
+        # What any camera sees (a camera that sees nothing adds nothing; none seeing anything: the casters).
+        seen = [b for b in (scene.visible_bounds(vp) for vp in view_projs) if b is not None]
+        receivers = (np.min([b[0] for b in seen], axis=0), np.max([b[1] for b in seen], axis=0)) if seen else None
         lp = self._light_plan(scene, pems, settings, receivers)
         lights_buf = self._buffer("lights", lp.lights.tobytes())
         arrays = self._shadow_pass(scene, settings, lp, lights_buf, shared)
@@ -507,6 +507,8 @@ class Renderer:
         if pems.prepare_tables(discs):
             shared.wall_ms["light_tables"] = (time.perf_counter() - t0) * 1e3
         shared_ms = (time.perf_counter() - t_frame) * 1e3
+        report = self._frame_report(scene, pems, settings, lp, arrays, positions is not None,
+                                    len(cameras) * len(variants))
         frames = []
         for camera, view_proj in zip(cameras, view_projs):
             vp_bytes = view_proj.T.astype(np.float32).tobytes()
@@ -517,17 +519,21 @@ class Renderer:
                 contact_radius = self._lighting_pass(scene, pems, settings, camera, view_proj, vp_bytes, lp, arrays,
                                                      lights_buf, fbo, gbuf, discs, background, timer)
                 image = self._readback_image(fbo, w, h, timer)
-                frame_ms = (time.perf_counter() - t_view) * 1e3 + (shared_ms if not frames else 0.0)
-                frames.append(self._frame(scene, pems, settings, camera, lp, arrays, image, timer, frame_ms,
-                                          contact_radius, positions is not None, len(cameras) * len(variants)))
+                timings: FrameTimings = {**timer.as_dict(), **report[0]}   # its stages, then the frame's counts
+                timings["frame_wall_ms"] = (time.perf_counter() - t_view) * 1e3 + (shared_ms if not frames else 0.0)
+                info = {**report[1], "camera": {"eye": list(camera.eye), "target": list(camera.target),
+                                                "fov_y_deg": camera.fov_y_deg},
+                        # The contact search's distance in world units (0: none this frame).
+                        "contact_radius": contact_radius}
+                frames.append(Frame(image, timings, info))
         return frames
 
-    def _frame(self, scene: Scene, pems: PEMSet, settings: FrameSettings, camera: Camera, lp: _LightPlan,
-               arrays: dict, image: np.ndarray, timer: StageTimer, frame_ms: float, contact_radius: float,
-               uploaded: bool, views: int) -> Frame:
+    def _frame_report(self, scene: Scene, pems: PEMSet, settings: FrameSettings, lp: _LightPlan, arrays: dict,
+                      uploaded: bool, views: int) -> tuple[dict, dict]:
+        """What every view of a frame reports alike: its counts (FrameTimings beyond the stages) and
+        its settings (Frame.settings beyond the camera and the contact search), made once a frame."""
         plan, layers, n, n_shadowed, texels = lp.plan, lp.layers, lp.n, lp.n_shadowed, lp.texels
-        timings: FrameTimings = timer.as_dict()   # the stages; the rest below
-        timings["frame_wall_ms"] = frame_ms
+        timings = {}
         timings["n_lights"] = n
         timings["shadowed_lights"] = n_shadowed
         timings["shadow_layers"] = plan.n_layers if n_shadowed else 0
@@ -547,12 +553,9 @@ class Renderer:
         timings["normals"] = self.normals if uploaded else None
         timings["views"] = views
         info = {"frame": settings.as_dict(), "pems": pems.summary(),
-                "camera": {"eye": list(camera.eye), "target": list(camera.target), "fov_y_deg": camera.fov_y_deg},
                 "shadow_bytes": sum(a.nbytes for a in arrays.values()) if n_shadowed else 0,
-                "shadowed_lights": n_shadowed,
-                # The contact search's distance in world units (0: none this frame).
-                "contact_radius": contact_radius}
-        return Frame(image, timings, info)
+                "shadowed_lights": n_shadowed}
+        return timings, info
 
     def _light_plan(self, scene: Scene, pems: PEMSet, settings: FrameSettings,
                     receivers: tuple[np.ndarray, np.ndarray] | None) -> _LightPlan:

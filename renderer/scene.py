@@ -168,15 +168,16 @@ class SceneMesh:
         if (any(m is not None for m in material.maps()) or material.normal_texture() is not None) and self.mesh.uvs is None:
             raise MeshError(f"mesh {self.mesh.name!r} has material maps but no UVs")
 
-    def add_variant(self, material: Material) -> None:
-        """One more material for this mesh (a colourway): its own per-vertex buffers and textures."""
-        self._check_maps(material)
-        self.variants.append(MaterialBuffers(self, material))
+    def add_variant(self, material: Material | None) -> None:
+        """One more material for this mesh (a colourway; Scene.add_variant checked its maps): its own
+        per-vertex buffers and textures, or None: the registered material's, shared."""
+        self.variants.append(MaterialBuffers(self, material) if material is not None else self.variants[0])
 
     def drop_variants(self) -> None:
         """Back to the registered material alone."""
         for v in self.variants[1:]:
-            v.release()
+            if v is not self.variants[0]:
+                v.release()
         del self.variants[1:]
 
     def shadow_vao(self, detail: float = 1.0) -> moderngl.VertexArray:
@@ -239,7 +240,7 @@ class SceneMesh:
             vao.release()
             ibo.release()
         self._proxies = {}
-        for v in self.__dict__.get("variants", ()):
+        for v in {id(v): v for v in self.__dict__.get("variants", ())}.values():   # a shared one once
             v.release()
         for obj in (self.vao_shadow, self.vbo_pos, self.vbo_nrm, self.vbo_uv, self.ibo):
             obj.release()
@@ -312,7 +313,6 @@ class Scene:
         # whether any has a sheen layer (its lobes are compiled in only then).
         self.has_pbr = any(mat.is_pbr for mat in materials) or any(
             m is not None and m.is_pbr for v in variants or () for m in v)
-        self.has_sheen = any(mat.has_sheen() for mat in materials)
         try:
             for detail, faces in (proxies or {}).items():
                 if len(faces) != len(meshes):
@@ -323,10 +323,7 @@ class Scene:
                 self.meshes.append(SceneMesh(gl, m, mat, programs, c, given, groups[k], self.has_pbr))
             # How many shadow groups cast (0-2): one casting mesh needs one pair of moments a texel.
             self.shadow_groups = len({sm.group for sm in self.meshes if sm.caster})
-            # The glossiest lookup any pixel can make (Material.max_glossiness; 0: no glossy lobe).
-            self.max_glossiness = max(mat.max_glossiness() for mat in materials)
-            # Whether any pixel can have a glossy lobe at all (False: a diffuse-only scene).
-            self.has_glossy_lobe = any(mat.has_glossy_lobe() for mat in materials)
+            self._shading_needs()
             # The length the shadow maps' footprint sizes are stepped against (fit_light_view_projs):
             # the casters' box diagonal at creation, fixed so that the steps do not follow the cloth,
             # and proportional to the scene so that its scale does not change the image.
@@ -345,30 +342,34 @@ class Scene:
         return len(self.meshes[0].variants)
 
     def add_variant(self, materials: list[Material | None]) -> int:
-        """A colourway: one material per mesh (None: the mesh keeps its registered one). Returns its
-        index for `Renderer.render_views`. Only the geometry pass differs between variants: the
-        shadow maps and the light plan are the frame's."""
+        """A colourway: one material per mesh (None: the mesh keeps its registered one, its buffers
+        shared). Returns its index for `Renderer.render_views`. Only the geometry pass differs between
+        variants: the shadow maps and the light plan are the frame's."""
         if len(materials) != len(self.meshes):
             raise MeshError(f"a colourway needs one material (or None) per mesh: {len(self.meshes)}, got {len(materials)}")
-        given = [m for m in materials if m is not None]
-        if any(m.is_pbr for m in given) and not self.has_pbr:
+        if any(m is not None and m.is_pbr for m in materials) and not self.has_pbr:
             raise MeshError("a colourway with a physically based (pbr) material needs a scene registered with one: "
                             "this scene's materials are all Phong")
+        for sm, m in zip(self.meshes, materials):   # every mesh checked before any is given a variant
+            if m is not None:
+                sm._check_maps(m)
         for sm, m in zip(self.meshes, materials):
-            sm._check_maps(m if m is not None else sm.material)
-        for sm, m in zip(self.meshes, materials):
-            sm.add_variant(m if m is not None else sm.material)
-        self.has_sheen = self.has_sheen or any(m.has_sheen() for m in given)
-        self.max_glossiness = max(self.max_glossiness, *(m.max_glossiness() for m in given)) if given \
-            else self.max_glossiness
-        self.has_glossy_lobe = self.has_glossy_lobe or any(m.has_glossy_lobe() for m in given)
+            sm.add_variant(m)
+        self._shading_needs()
         return self.n_variants - 1
 
     def drop_variants(self) -> None:
         """Back to the registered materials alone (what they read decides the shading again)."""
         for sm in self.meshes:
             sm.drop_variants()
-        materials = [sm.material for sm in self.meshes]
+        self._shading_needs()
+
+    def _shading_needs(self) -> None:
+        """What the materials of every variant ask of the shading: whether any has a sheen layer (its
+        lobes are compiled in only then), the glossiest lookup any pixel can make
+        (Material.max_glossiness; 0: no glossy lobe), and whether any pixel can have a glossy lobe at
+        all (False: a diffuse-only scene)."""
+        materials = [mb.material for sm in self.meshes for mb in sm.variants]
         self.has_sheen = any(m.has_sheen() for m in materials)
         self.max_glossiness = max(m.max_glossiness() for m in materials)
         self.has_glossy_lobe = any(m.has_glossy_lobe() for m in materials)

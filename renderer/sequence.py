@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import MeshError
-from .mesh import Mesh, load_mesh
+from .mesh import Mesh, concatenate, load_mesh
 
 
 @dataclass(frozen=True)
@@ -124,22 +124,18 @@ def read_obj_folder(path: str | Path, up: str = "y", scale: float = 1.0) -> Sequ
 
 
 def _by_role(meshes: list, source: str, scale: float, garment: str | None, what: str) -> tuple:
-    """A file's meshes (each with .faces, .positions (F, V, 3), .animated and a .path or .name) split
-    into the garment (merged) and the rest. `garment`: a glob over the paths or names naming the
-    garment's meshes; without one, the moving meshes are the garment and the still ones the rest.
-    Returns (positions, faces, extras (Meshes at the first frame), extra_frames (each extra's
-    positions per frame, None where it holds still))."""
+    """A file's meshes (each with .path, .name, .faces, .positions (F, V, 3) and .animated) split into
+    the garment (merged) and the rest. `garment`: a glob over the paths or names naming the garment's
+    meshes; without one, the moving meshes are the garment and the still ones the rest. Returns
+    (positions, faces, extras (Meshes at the first frame), extra_frames (each extra's positions per
+    frame, None where it holds still))."""
     import fnmatch
 
-    def label(m) -> str:
-        return getattr(m, "path", None) or m.name
-
     if garment is not None:
-        chosen = [m for m in meshes if fnmatch.fnmatchcase(label(m), garment) or fnmatch.fnmatchcase(m.name if
-                  hasattr(m, "name") else label(m).rsplit("/", 1)[-1], garment)]
+        chosen = [m for m in meshes if fnmatch.fnmatchcase(m.path, garment) or fnmatch.fnmatchcase(m.name, garment)]
         if not chosen:
             raise MeshError(f"{source}: no mesh matches --garment {garment!r}; its meshes are "
-                            + ", ".join(label(m) for m in meshes))
+                            + ", ".join(m.path for m in meshes))
     else:
         chosen = [m for m in meshes if m.animated]
         if not chosen:
@@ -147,12 +143,10 @@ def _by_role(meshes: list, source: str, scale: float, garment: str | None, what:
                             "`garment-render render --mesh`")
     rest = [m for m in meshes if all(m is not c for c in chosen)]
     k = np.float32(scale)
-    offsets = np.cumsum([0] + [m.positions.shape[1] for m in chosen])[:-1]
-    positions = np.concatenate([m.positions for m in chosen], axis=1) * k
-    faces = np.concatenate([m.faces + o for m, o in zip(chosen, offsets)]).astype(np.int32)
-    extras = tuple(Mesh.from_arrays(m.positions[0] * k, m.faces, name=label(m).rsplit("/", 1)[-1]) for m in rest)
-    extra_frames = tuple((m.positions * k).astype(np.float32) if m.animated else None for m in rest)
-    return positions, faces, extras, extra_frames
+    positions, faces = concatenate((m.positions * k, m.faces) for m in chosen)
+    extras = tuple(Mesh.from_arrays(m.positions[0] * k, m.faces, name=m.name) for m in rest)
+    extra_frames = tuple(m.positions * k if m.animated else None for m in rest)
+    return positions, faces.astype(np.int32), extras, extra_frames
 
 
 def read_usd_sequence(path: str | Path, scale: float = 1.0, garment: str | None = None) -> Sequence:
@@ -176,7 +170,7 @@ def read_gltf_sequence(path: str | Path, scale: float = 1.0, garment: str | None
 
     meshes, times = read_morph_animation(path)
     positions, faces, extras, frames = _by_role(meshes, str(path), scale, garment,
-                                                "no morph-target animation: no channel with path 'weights'")
+                                                "no morph-target animation nor moving node")
     return Sequence(_check(positions, str(path)), faces, Path(path).stem, times, converted=True, extras=extras,
                     extra_frames=frames)
 

@@ -33,6 +33,10 @@ class UsdMesh:
     positions: np.ndarray
     animated: bool
 
+    @property
+    def name(self) -> str:
+        return self.path.rsplit("/", 1)[-1]
+
 
 @dataclass(frozen=True)
 class UsdStageData:

@@ -50,6 +50,12 @@ def named_views(camera: Camera, names: list[str]) -> list[Camera]:
     return out
 
 
+def sheet_columns(n_images: int, n_variants: int) -> int:
+    """A contact sheet's columns: one per colourway (a row per view), or a turntable alone in rows of
+    up to 6."""
+    return n_variants if n_variants > 1 else min(n_images, 6)
+
+
 def contact_sheet(images: list[np.ndarray], columns: int, gap: int = 2) -> np.ndarray:
     """Images of one size (H, W, C) in a grid of `columns`, row by row, `gap` pixels apart (zeros)."""
     if not images:

@@ -277,22 +277,22 @@ class RenderClient:
         they have frames (renderer/usd.py reads them in Y-up metres from the stage's metadata, times
         `scale`). Registers the scene with the first frame, then sends every frame; yields (scene id,
         frame index, FrameResult). kw: camera, quality, output, name (`scene_spec`)."""
+        from renderer.mesh import concatenate
         from renderer.sequence import read_usd_sequence
 
         seq = read_usd_sequence(path, scale, garment)
-        body = None
-        if seq.extras:
-            offsets = np.cumsum([0] + [len(m.positions) for m in seq.extras])[:-1]
-            body = self.mesh_spec(np.concatenate([m.positions for m in seq.extras]),
-                                  np.concatenate([m.faces + o for m, o in zip(seq.extras, offsets)]),
-                                  material=body_material, name="body")
-        moving = any(f is not None for f in seq.extra_frames)
+        body, body_frames = None, None
+        if seq.extras:   # one body of every other mesh, its frames where any of them moves
+            positions, faces = concatenate((m.positions, m.faces) for m in seq.extras)
+            body = self.mesh_spec(positions, faces, material=body_material, name="body")
+            if any(f is not None for f in seq.extra_frames):
+                body_frames, _ = concatenate((np.broadcast_to(m.positions, (seq.n_frames, *m.positions.shape))
+                                              if f is None else f, m.faces) for m, f in zip(seq.extras, seq.extra_frames))
         scene = self.create_scene(environment_id, positions=seq.positions[0], faces=seq.faces, material=material,
                                   body=body, up="y", **kw)
         for k in range(seq.n_frames):
-            body_k = (np.concatenate([m.positions if f is None else f[k] for m, f in zip(seq.extras, seq.extra_frames)])
-                      if moving else None)
-            yield scene["id"], k, self.send_frame(scene["id"], seq.positions[k], body_positions=body_k, frame_index=k)
+            yield scene["id"], k, self.send_frame(scene["id"], seq.positions[k], frame_index=k,
+                                                  body_positions=None if body_frames is None else body_frames[k])
 
     def render_once(self, spec: dict, format: str = "png") -> FrameResult:
         """Stateless render of a whole scene (a `scene_spec(...)` dict)."""

@@ -153,12 +153,15 @@ def encode_png(image: np.ndarray, exposure_ev: float | None, tone: str, opaque: 
     else RGBA with coverage alpha. exposure_ev None: automatic (`frame_exposure_ev`).
     Returns (png, exposure used). The tone curve and sRGB encoding are the renderer's (tonemap.py)."""
     ev = frame_exposure_ev(image) if exposure_ev is None else float(exposure_ev)
+    return png_bytes(encode_pixels(image, ev, tone, opaque), compress_level), ev
+
+
+def encode_pixels(image: np.ndarray, exposure_ev: float, tone: str, opaque: bool) -> np.ndarray:
+    """The 8-bit sRGB pixels of `encode_png`: uint8 (H, W, 3) when `opaque`, else (H, W, 4)."""
     if opaque:
-        rgb = tonemap(image[..., :3], ev, tone)
-        pixels = np.rint(np.clip(rgb, 0.0, 1.0, out=rgb) * np.float32(255.0)).astype(np.uint8)
-    else:
-        pixels = encode_rgba8(image, ev, tone)
-    return png_bytes(pixels, compress_level), ev
+        rgb = tonemap(image[..., :3], exposure_ev, tone)
+        return np.rint(np.clip(rgb, 0.0, 1.0, out=rgb) * np.float32(255.0)).astype(np.uint8)
+    return encode_rgba8(image, exposure_ev, tone)
 
 
 def frame_exposure_ev(image: np.ndarray) -> float:

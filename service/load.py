@@ -75,27 +75,32 @@ def run_load(url: str, scenes: int = 4, frames: int = 16, clients: int = 4, size
             "scenes": scenes, "clients": clients, "size": size}
 
 
-def _serve_ray(replicas: int, tmp: Path) -> tuple[subprocess.Popen, str]:
+def serve_ray(replicas: int, tmp: Path, timeout_s: float = 300.0) -> tuple[subprocess.Popen, str, dict]:
+    """`garment-render serve --ray --replicas N` on a free port of 127.0.0.1, its state, PEM cache,
+    Ray session and log under `tmp`, once it answers ready: (the process, its URL, its environment,
+    with which another process reaches the same Ray instance by `ray.init(address="auto")`)."""
     port = _free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("GARMENT_RENDER_")}
     env.update(GARMENT_RENDER_STATE_DIR=str(tmp / "state"), GARMENT_RENDER_PEM_CACHE_DIR=str(tmp / "pem"),
-               RAY_USAGE_STATS_ENABLED="0")
-    log = open(tmp / f"serve-{replicas}.log", "wb")
-    proc = subprocess.Popen([sys.executable, "-m", "renderer.cli", "serve", "--ray", "--replicas", str(replicas),
-                             "--port", str(port)], env=env, stdout=log, stderr=subprocess.STDOUT, cwd=tmp)
+               RAY_USAGE_STATS_ENABLED="0", RAY_TMPDIR=str(tmp / "ray"))
+    (tmp / "ray").mkdir(parents=True, exist_ok=True)
+    log_path = tmp / f"serve-{replicas}.log"
+    with open(log_path, "wb") as log:
+        proc = subprocess.Popen([sys.executable, "-m", "renderer.cli", "serve", "--ray", "--replicas", str(replicas),
+                                 "--port", str(port)], env=env, stdout=log, stderr=subprocess.STDOUT, cwd=tmp)
     url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 300
+    deadline = time.monotonic() + timeout_s
     while True:
         if proc.poll() is not None:
-            raise RuntimeError(f"serve --ray exited: {(tmp / f'serve-{replicas}.log').read_text()[-3000:]}")
+            raise RuntimeError(f"serve --ray exited: {log_path.read_text()[-3000:]}")
         try:
             if httpx.get(f"{url}/health/ready", timeout=2).status_code == 200:
-                return proc, url
+                return proc, url, env
         except httpx.TransportError:
             pass
         if time.monotonic() > deadline:
             proc.kill()
-            raise RuntimeError("serve --ray was not ready in 300 s")
+            raise RuntimeError(f"serve --ray was not ready in {timeout_s:g} s: {log_path.read_text()[-3000:]}")
         time.sleep(0.5)
 
 
@@ -138,7 +143,7 @@ def main(argv=None) -> int:
     else:
         for n in (int(x) for x in a.ray.split(",")):
             with tempfile.TemporaryDirectory() as tmp:
-                proc, url = _serve_ray(n, Path(tmp))
+                proc, url, _ = serve_ray(n, Path(tmp))
                 try:
                     rows.append({**run_load(url, a.scenes, a.frames, a.clients, a.size), "replica_count": n})
                 finally:

@@ -52,23 +52,17 @@ def negotiate(fmt: ImageFormat | None, request: Request) -> ImageFormat:
 
 def render_job(scene: SceneRecord, arrays: FrameArrays | None):
     """The GL-thread part of one frame of a registered scene."""
+    views = views_job(scene, arrays, [scene.camera], [0])
+
     def job(gl: GLResources) -> tuple[Frame, str]:
-        if scene.released or scene.gpu is None:
-            raise NotFoundError(f"scene {scene.id} was deleted while this frame waited")
-        env = scene.environment
-        pems, source = gl.pem_set(env.content_hash, env.cubes[scene.face_size], scene.pem_settings)
-        background = None
-        if scene.frame_settings.background is Background.ENVIRONMENT:
-            background = gl.background(env.content_hash, env.cubes[env.background_face])
-        frame = gl.renderer.render(scene.gpu, pems, scene.frame_settings, scene.camera,
-                                   positions=arrays.positions if arrays else None,
-                                   normals=arrays.normals if arrays else None, background=background)
-        return frame, source
+        frames, source = views(gl)
+        return frames[0], source
     return job
 
 
 def views_job(scene: SceneRecord, arrays: FrameArrays | None, cameras: list, variants: list[int]):
-    """The GL-thread part of one frame seen from several cameras in several colourways."""
+    """The GL-thread part of one frame of a registered scene seen from several cameras in several
+    colourways (Renderer.render_views: one upload and shadow pass for all)."""
     def job(gl: GLResources) -> tuple[list[Frame], str]:
         if scene.released or scene.gpu is None:
             raise NotFoundError(f"scene {scene.id} was deleted while this frame waited")

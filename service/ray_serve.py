@@ -100,9 +100,8 @@ class RenderReplica:
         await self._start()
         path = request.url.path
         match = SCENE_PATH.match(path)
-        scene_id = serve.get_multiplexed_model_id() or (match.group(1) if match else "")
-        if scene_id and match and request.method != "DELETE":
-            await self.scene(scene_id)
+        if match and request.method != "DELETE":   # the router sent it here by this id (the client's header)
+            await self.scene(match.group(1))
         body = await request.body()
         headers = [(k, v) for k, v in request.headers.items() if k.lower() not in ("host", "content-length")]
         url = path + (f"?{request.url.query}" if request.url.query else "")
@@ -114,16 +113,14 @@ class RenderReplica:
         return Response(r.content, status_code=r.status_code, headers=out)
 
     def __del__(self):
-        """Serve's graceful shutdown of the replica: its GL thread releases the scenes and the context."""
-        worker = getattr(getattr(self, "app", None), "state", None)
-        worker = getattr(worker, "worker", None) if getattr(self, "client", None) is not None else None
-        if worker is not None:
-            worker.stop()
+        """Serve's graceful shutdown of the replica: its GL thread releases the scenes and the context
+        (a replica whose app never started has none)."""
+        if getattr(self, "client", None) is not None:
+            self.app.state.worker.stop()
 
     def check_health(self) -> None:
         """Serve's health check: the replica's GL thread must be up once it has started."""
-        worker = getattr(self.app.state, "worker", None)
-        if self.client is not None and worker is not None and not worker.ready:
+        if self.client is not None and not self.app.state.worker.ready:
             raise RuntimeError(f"replica {self.name}: the GL thread is not running")
 
 
@@ -155,18 +152,27 @@ def app_builder(args: dict):
     return application(int(args.get("replicas", 2)), args.get("settings"), float(args.get("gpus_per_replica", 0)))
 
 
-def run(host: str, port: int, replicas: int, address: str | None = None, gpus_per_replica: float = 0.0,
-        settings: dict | None = None) -> None:
+def run(host: str | None, port: int | None, replicas: int, address: str | None = None,
+        gpus_per_replica: float = 0.0) -> None:
     """`garment-render serve --ray`: a local Ray instance (or the cluster at `address`), the
-    deployment behind Serve's HTTP proxy on host:port; blocks until interrupted."""
+    deployment behind Serve's HTTP proxy on host:port (default: the service's settings); blocks until
+    interrupted. The replicas read their settings from the same GARMENT_RENDER_* environment."""
     import signal
     import threading
 
     import ray
 
+    from .settings import ServiceSettings
+
+    checked = ServiceSettings()   # refused here, not by every replica in turn
+    if checked.state_dir is None:
+        raise ValueError("serve --ray needs GARMENT_RENDER_STATE_DIR, a directory every replica shares: it is how a "
+                         "replica restores a scene another one registered")
+    host, port = host or checked.host, checked.port if port is None else port
+
     ray.init(address=address, include_dashboard=False, ignore_reinit_error=True)
     serve.start(http_options={"host": host, "port": port})
-    serve.run(application(replicas, settings, gpus_per_replica), name="garment-render", route_prefix="/")
+    serve.run(application(replicas, None, gpus_per_replica), name="garment-render", route_prefix="/")
     print(f"garment-render: {replicas} Ray Serve replicas on http://{host}:{port}", flush=True)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())

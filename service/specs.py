@@ -238,7 +238,8 @@ def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshe
     built = [build_mesh(spec, role, body.up, meshes, settings) for role, spec in specs]
     material_specs = [file_material(spec, meshes) for _, spec in specs]
     materials = [build_material(m, mesh, role) for (role, _), m, mesh in zip(specs, material_specs, built)]
-    colourways = [build_material(m, built[0], f"colourway {k}") for k, m in enumerate(body.colourways)]
+    # Numbered as the views answer labels them: the garment's own material is 0.
+    colourways = [build_material(m, built[0], f"colourway {k}") for k, m in enumerate(body.colourways, 1)]
     # A floor casts nothing unless its spec says so.
     casters = [spec.cast_shadows if role != "floor" or "cast_shadows" in spec.model_fields_set else False
                for role, spec in specs]

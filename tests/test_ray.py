@@ -6,16 +6,14 @@ a single process's."""
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import httpx
 import numpy as np
 import pytest
-from service_server import ServiceProcess, free_port, garment, scene_body, upload_environment
+from service_server import ServiceProcess, garment, scene_body, upload_environment
 
 ray = pytest.importorskip("ray", reason="Ray is an optional extra (pip install .[ray]; scripts/setup.sh installs it)")
 
@@ -26,27 +24,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
+    from service.load import serve_ray
+
     tmp = tmp_path_factory.mktemp("ray")
-    port = free_port()
-    env = {k: v for k, v in os.environ.items() if not k.startswith("GARMENT_RENDER_")}
-    env.update(GARMENT_RENDER_STATE_DIR=str(tmp / "state"), GARMENT_RENDER_PEM_CACHE_DIR=str(tmp / "pem"),
-               RAY_USAGE_STATS_ENABLED="0", RAY_TMPDIR=str(tmp / "ray"))
-    (tmp / "ray").mkdir()
-    log = open(tmp / "serve.log", "wb")
-    proc = subprocess.Popen([sys.executable, "-m", "renderer.cli", "serve", "--ray", "--replicas", "2", "--port",
-                             str(port)], cwd=tmp, env=env, stdout=log, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 240
+    proc, url, env = serve_ray(2, tmp, timeout_s=240)
     try:
-        while True:
-            assert proc.poll() is None, (tmp / "serve.log").read_text()[-4000:]
-            try:
-                if httpx.get(f"{url}/health/ready", timeout=2).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            assert time.monotonic() < deadline, (tmp / "serve.log").read_text()[-4000:]
-            time.sleep(0.5)
         yield {"url": url, "tmp": tmp, "env": env}
     finally:
         proc.terminate()
@@ -54,7 +36,6 @@ def cluster(tmp_path_factory):
             proc.wait(timeout=60)
         except subprocess.TimeoutExpired:
             proc.kill()
-        log.close()
 
 
 def _replicas(env) -> list[str]:

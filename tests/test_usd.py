@@ -169,15 +169,30 @@ def test_the_sequence_command_renders_a_usd_stage(tmp_path):
     assert sorted(p.name for p in out.glob("frame_*.png")) == ["frame_0000.png", "frame_0001.png", "frame_0002.png"]
 
 
-def test_the_client_streams_a_usd_stage_to_a_real_service(tmp_path):
-    """A stage with a moving sphere (the garment, Z up, centimetres) and a still box (the body): the
-    client registers both and plays every frame; the service answers each with its image."""
-    import trimesh
+def _stream(tmp_path, path, **kw):
+    """A stage played through a real service by RenderClient.stream_usd (a small studio map, the fast
+    preset): each frame's (scene id, index, answer), and the scene's details."""
     from service_server import ServiceProcess
 
     from renderer.envmap.io import write_exr
     from renderer.envmap.procedural import studio_environment
     from service.client import RenderClient
+
+    write_exr(tmp_path / "studio.exr", studio_environment(64))
+    server = ServiceProcess(tmp_path)
+    try:
+        with RenderClient(server.url) as c:
+            env = c.upload_environment(tmp_path / "studio.exr")
+            got = list(c.stream_usd(path, env["id"], quality={"preset": "fast"}, **kw))
+            return got, c._json("GET", f"/scenes/{got[0][0]}")
+    finally:
+        server.stop()
+
+
+def test_the_client_streams_a_usd_stage_to_a_real_service(tmp_path):
+    """A stage with a moving sphere (the garment, Z up, centimetres) and a still box (the body): the
+    client registers both and plays every frame; the service answers each with its image."""
+    import trimesh
 
     path = tmp_path / "drape.usda"
     stage = _stage(path, up="Z", mpu=0.01)
@@ -189,15 +204,7 @@ def test_the_client_streams_a_usd_stage_to_a_real_service(tmp_path):
     _mesh(stage, "/World/body", np.asarray(box.vertices) - [0.0, 0.0, 30.0], counts=[3] * len(box.faces),
           indices=box.faces.reshape(-1).tolist())
     stage.GetRootLayer().Save()
-    write_exr(tmp_path / "studio.exr", studio_environment(64))
-    server = ServiceProcess(tmp_path)
-    try:
-        with RenderClient(server.url) as c:
-            env = c.upload_environment(tmp_path / "studio.exr")
-            got = list(c.stream_usd(path, env["id"], quality={"preset": "fast"}, output={"width": 48, "height": 48}))
-            scene = c._json("GET", f"/scenes/{got[0][0]}")
-    finally:
-        server.stop()
+    got, scene = _stream(tmp_path, path, output={"width": 48, "height": 48})
     assert [k for _, k, _ in got] == [0, 1, 2]
     assert all(f.frame_index == k and f.pil().size == (48, 48) for _, k, f in got)
     assert [(m["role"], m["n_vertices"]) for m in scene["meshes"]] == [("garment", 162), ("body", 8)]
@@ -208,11 +215,6 @@ def test_the_client_streams_a_moving_body_with_its_garment(tmp_path):
     """--garment's counterpart in the client: the body's own frames travel as body_positions, and the
     service's image follows them (the body moves out of the frame: its pixels go)."""
     import trimesh
-    from service_server import ServiceProcess
-
-    from renderer.envmap.io import write_exr
-    from renderer.envmap.procedural import studio_environment
-    from service.client import RenderClient
 
     path = tmp_path / "avatar.usda"
     stage = _stage(path)
@@ -222,16 +224,8 @@ def test_the_client_streams_a_moving_body_with_its_garment(tmp_path):
     body = np.asarray(ball.vertices) * 0.5 + [0.45, 0.0, 0.0]
     _mesh(stage, "/World/Avatar", {0.0: body, 1.0: body + [50.0, 0.0, 0.0]}, *faces)   # far out of view
     stage.GetRootLayer().Save()
-    write_exr(tmp_path / "studio.exr", studio_environment(64))
-    server = ServiceProcess(tmp_path)
-    try:
-        with RenderClient(server.url) as c:
-            env = c.upload_environment(tmp_path / "studio.exr")
-            got = list(c.stream_usd(path, env["id"], garment="/World/Shirt", quality={"preset": "fast"},
-                                    output={"width": 48, "height": 48, "background": "black"},
-                                    camera={"eye": [0.0, 0.0, 2.0], "target": [0.0, 0.0, 0.0]}))
-    finally:
-        server.stop()
+    got, _ = _stream(tmp_path, path, garment="/World/Shirt", output={"width": 48, "height": 48, "background": "black"},
+                     camera={"eye": [0.0, 0.0, 2.0], "target": [0.0, 0.0, 0.0]})
     first, second = (f.array() for _, _, f in got)
     right = (slice(None), slice(34, 48))   # where the body is at first
     assert first[right][..., 3].sum() > 0 and second[right][..., 3].sum() == 0

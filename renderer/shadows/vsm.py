@@ -65,7 +65,8 @@ class ShadowMaps:
         self.casters: moderngl.TextureArray | None = None
         fmt = {"MOMENT_FORMAT": "rgba32f" if groups == 2 else "rg32f"}
         self.blur = compute_shader(ctx, "shadows/blur.comp", fmt)
-        self.coverage = compute_shader(ctx, "shadows/coverage.comp", fmt)
+        self._format = fmt
+        self.coverage: moderngl.ComputeShader | None = None   # compiled by the first frame that asks for mipmaps
         self.copy = compute_shader(ctx, "shadows/copy_layers.comp", fmt) if self.target is not self.moments else None
 
     @property
@@ -131,6 +132,7 @@ class ShadowMaps:
                 if self.casters is None:
                     self.casters = ctx.texture_array((self.size, self.size, self.n_lights), 2, dtype="f2")
                     self.casters.repeat_x = self.casters.repeat_y = False
+                    self.coverage = compute_shader(ctx, "shadows/coverage.comp", self._format)
                 ctx.memory_barrier()
                 self.moments.bind_to_image(1, read=True, write=False)
                 self.casters.bind_to_image(2, read=False, write=True)
@@ -170,6 +172,7 @@ class ShadowMaps:
                     if o is not None}.values():
             obj.release()
         self.blur.release()
-        self.coverage.release()
+        if self.coverage is not None:
+            self.coverage.release()
         if self.copy is not None:
             self.copy.release()

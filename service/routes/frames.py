@@ -30,15 +30,24 @@ from typing import Annotated
 import anyio
 import numpy as np
 from fastapi import APIRouter, Depends, Header, Query, Request, Response
-from PIL import Image
 
 from renderer.cache import cache_key
 from renderer.errors import InvalidInputError
 from renderer.renderer import Frame
-from renderer.views import MAX_VIEWS, VIEW_NAMES, contact_sheet, label_tiles, named_views, view_labels
+from renderer.views import MAX_VIEWS, VIEW_NAMES, contact_sheet, label_tiles, named_views, sheet_columns, view_labels
 from renderer.views import turntable as turntable_cameras
 
-from ..codecs import FrameArrays, check_frame_size, decode_frame, encode_png, frame_nbytes, parse_layout
+from ..codecs import (
+    FrameArrays,
+    check_frame_size,
+    decode_frame,
+    encode_pixels,
+    encode_png,
+    frame_exposure_ev,
+    frame_nbytes,
+    parse_layout,
+    png_bytes,
+)
 from ..deps import OCTET_STREAM, MetricsDep, ServicesDep, SettingsDep, WorkerDep, client_gone, raw_body, require_token
 from ..errors import ClientGoneError, InvalidRequestError, PayloadTooLargeError, RenderTimeoutError
 from ..operations import find_environment, find_scene
@@ -70,6 +79,8 @@ FormatQuery = Annotated[ImageFormat | None, Query(description="png | exr | json 
 ExposureQuery = Annotated[float | None, Query(ge=-64, le=64, description="EV; overrides the scene's exposure")]
 JsonImageQuery = Annotated[ImageFormat, Query(description="image format inside JSON answers: png | exr")]
 LayoutHeader = Annotated[str | None, Header(alias="X-Frame-Layout", description="blocks of the body")]
+LayoutQuery = Annotated[str | None, Query(description="same as X-Frame-Layout")]
+FrameIndexHeader = Annotated[int | None, Header(alias="X-Frame-Index", description="echoed back (any integer)")]
 
 
 def _json_image(image: ImageFormat) -> ImageFormat:
@@ -84,9 +95,9 @@ async def post_frame(
     scene_id: str, request: Request, svc: ServicesDep, worker: WorkerDep, settings: SettingsDep,
     metrics: MetricsDep, format: FormatQuery = None, exposure: ExposureQuery = None,
     image: JsonImageQuery = ImageFormat.PNG,
-    layout: Annotated[str | None, Query(description="same as X-Frame-Layout")] = None,
+    layout: LayoutQuery = None,
     x_frame_layout: LayoutHeader = None,
-    x_frame_index: Annotated[int | None, Header(alias="X-Frame-Index")] = None,
+    x_frame_index: FrameIndexHeader = None,
 ) -> Response:
     t_start = time.perf_counter()
     scene = await find_scene(svc, scene_id)
@@ -122,7 +133,7 @@ async def post_batch(
     metrics: MetricsDep,
     format: Annotated[BatchFormat | None, Query(description="json (default) | zip")] = None,
     image: JsonImageQuery = ImageFormat.PNG, exposure: ExposureQuery = None,
-    layout: Annotated[str | None, Query(description="same as X-Frame-Layout")] = None,
+    layout: LayoutQuery = None,
     x_frame_layout: LayoutHeader = None,
 ) -> Response:
     t_start = time.perf_counter()
@@ -252,9 +263,9 @@ async def post_views(
     format: Annotated[ViewsFormat, Query(description="sheet (one PNG: a row per view, a column per colourway) "
                                          "| zip (view_00_c0.png ... and timings.json)")] = ViewsFormat.SHEET,
     exposure: ExposureQuery = None,
-    layout: Annotated[str | None, Query(description="same as X-Frame-Layout")] = None,
+    layout: LayoutQuery = None,
     x_frame_layout: LayoutHeader = None,
-    x_frame_index: Annotated[int | None, Header(alias="X-Frame-Index")] = None,
+    x_frame_index: FrameIndexHeader = None,
 ) -> Response:
     t_start = time.perf_counter()
     scene = await find_scene(svc, scene_id)
@@ -278,35 +289,32 @@ async def post_views(
     frames, source = result.value
     sequence = scene.count_frames()
 
-    def encode_all() -> tuple[bytes, list[dict], float]:
-        opaque = scene.output.get("background", "env") == "env"
-        ev_in = exposure if exposure is not None else scene.output.get("exposure_ev")
+    columns = sheet_columns(len(frames), n_variants)
+    opaque = scene.output.get("background", "env") == "env"
+    tone = scene.output.get("tone", "filmic")
+
+    def encode_all() -> tuple[bytes, np.ndarray | None, float]:
         # One exposure for every image (the first view's, when the scene names none): views compare.
-        _, ev = encode_png(frames[0].image, ev_in, scene.output.get("tone", "filmic"), opaque, 1)
+        ev = exposure if exposure is not None else scene.output.get("exposure_ev")
+        ev = frame_exposure_ev(frames[0].image) if ev is None else float(ev)
         meta = [{"view": k // n_variants, "colourway": k % n_variants, "camera": f.settings["camera"],
                  "timings_ms": {k2: round(float(v), 3) for k2, v in f.timings["wall_ms"].items()}}
                 for k, f in enumerate(frames)]
         if format is ViewsFormat.SHEET:
-            columns = n_variants if n_variants > 1 else min(len(frames), 6)
             sheet = contact_sheet([f.image for f in frames], columns)
-            content, _ = encode_png(sheet, ev, scene.output.get("tone", "filmic"), opaque,
-                                    settings.png_compress_level)
             labels = view_labels(len(cameras), names, ["garment"] + [f"colourway {k}" for k in range(1, n_variants)])
-            labelled = label_tiles(np.asarray(Image.open(io.BytesIO(content))), labels, frames[0].image.shape[:2],
-                                   columns)
-            buf = io.BytesIO()
-            Image.fromarray(labelled).save(buf, format="PNG", compress_level=settings.png_compress_level)
-            return buf.getvalue(), meta, ev
+            pixels = label_tiles(encode_pixels(sheet, ev, tone, opaque), labels, frames[0].image.shape[:2], columns)
+            return png_bytes(pixels, settings.png_compress_level), sheet, ev
         buf = io.BytesIO()
         with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as zf:
             for m, f in zip(meta, frames):
-                png, _ = encode_png(f.image, ev, scene.output.get("tone", "filmic"), opaque, settings.png_compress_level)
+                png, _ = encode_png(f.image, ev, tone, opaque, settings.png_compress_level)
                 zf.writestr(f"view_{m['view']:02d}_c{m['colourway']}.png", png)
             zf.writestr("timings.json", json.dumps({"scene_id": scene.id, "exposure_ev": ev, "images": meta}))
-        return buf.getvalue(), meta, ev
+        return buf.getvalue(), None, ev
 
     t_enc = time.perf_counter()
-    content, meta, ev = await anyio.to_thread.run_sync(encode_all)
+    content, sheet, ev = await anyio.to_thread.run_sync(encode_all)
     encode_ms = (time.perf_counter() - t_enc) * 1e3
     timings = frame_timings(frames[0], arrays.decode_ms, arrays.normals_ms, result.queue_ms, result.run_ms,
                             encode_ms, t_start)
@@ -314,10 +322,9 @@ async def post_views(
     metrics.observe_frame("views", format.value, timings)
     index = x_frame_index if x_frame_index is not None else sequence - 1
     media = "image/png" if format is ViewsFormat.SHEET else "application/zip"
-    if format is ViewsFormat.SHEET:   # the viewer shows the sheet: the views side by side
-        sheet_frame = Frame(contact_sheet([f.image for f in frames], n_variants if n_variants > 1
-                                          else min(len(frames), 6)), frames[0].timings, frames[0].settings)
-        keep_latest(scene, index, sequence, sheet_frame, Encoded(content, media, ev, encode_ms), timings)
+    if sheet is not None:   # the viewer shows the sheet: the views side by side
+        keep_latest(scene, index, sequence, Frame(sheet, frames[0].timings, frames[0].settings),
+                    Encoded(content, media, ev, encode_ms), timings)
     headers = {"Server-Timing": server_timing(timings), "X-Frame-Index": str(index), "X-Frame-Sequence": str(sequence),
                "X-Views": str(len(cameras)), "X-Colourways": str(n_variants), "X-PEM-Source": source,
                "Cache-Control": "no-store"}

@@ -16,16 +16,17 @@ const int SHADOW_GROUPS = 2;
 int g_shadow_group = 0;
 uniform bool u_two_groups;   // the maps hold both groups' moments (RGBA); else group 0's alone (RG)
 
-// A light's blurred moments at uv; outside the map nothing casts (it is fitted to the casters). The
-// main maps may carry a MIP chain (PENUMBRA_BLOCKER): every lookup but the penumbra's reads level 0.
-vec4 moments(vec2 uv, float layer, bool sharp) {
+// A light's blurred moments at uv and MIP level; outside the map nothing casts (it is fitted to the
+// casters). Only the main maps carry a MIP chain (PENUMBRA_BLOCKER), read by the penumbrae alone:
+// every other lookup reads level 0.
+vec4 moments(vec2 uv, float layer, bool sharp, float level) {
     if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return vec4(1.0);
-    return sharp ? textureLod(u_moments_sharp, vec3(uv, layer), 0.0) : textureLod(u_moments, vec3(uv, layer), 0.0);
+    return sharp ? textureLod(u_moments_sharp, vec3(uv, layer), level) : textureLod(u_moments, vec3(uv, layer), level);
 }
 
 // Chebyshev's visibility of one shadow group's pair (zw: group 1's) at receiver depth t.
 float group_visibility(vec2 uv, float layer, bool sharp, bool zw, float t, float least_variance) {
-    vec4 m = moments(uv, layer, sharp);
+    vec4 m = moments(uv, layer, sharp, 0.0);
     return chebyshev(zw ? m.zw : m.xy, t, least_variance);
 }
 
@@ -42,15 +43,10 @@ float group_visibility(vec2 uv, float layer, bool sharp, bool zw, float t, float
 // The moments are then averaged over the penumbra from the map's MIP chain: a bilinear lookup at
 // level L weighs a box of 2^L texels by a tent as wide, a deviation of 2^L / 2 per axis, which a disc
 // of radius r has at 2^L = r (trilinear between levels).
-vec4 moments_at_level(vec2 uv, float layer, float level) {
-    if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return vec4(1.0);
-    return textureLod(u_moments, vec3(uv, layer), level);
-}
-
 float soft_visibility(vec2 uv, float layer, bool zw, float t, float least_variance, float spread) {
     float top = float(textureQueryLevels(u_moments) - 1);
     float search = clamp(log2(max(t * spread, 1.0)), 0.0, top);
-    vec4 ms = moments_at_level(uv, layer, search);
+    vec4 ms = moments(uv, layer, false, search);
     float mean = zw ? ms.z : ms.x;
     vec2 share = textureLod(u_casters, vec3(clamp(uv, 0.0, 1.0), layer), search).xy;
     float c = zw ? share.y : share.x;
@@ -63,7 +59,7 @@ float soft_visibility(vec2 uv, float layer, bool zw, float t, float least_varian
     // receiver), so the region's visibility is its empty share plus its casters' share times
     // Chebyshev's bound on the casters' own moments. On the moments as drawn, empty texels at 1 beside
     // blockers make a variance so large that the bound lets most of the light through an umbra.
-    vec4 mf = moments_at_level(uv, layer, level);
+    vec4 mf = moments(uv, layer, false, level);
     vec2 shares = textureLod(u_casters, vec3(clamp(uv, 0.0, 1.0), layer), level).xy;
     float cf = zw ? shares.y : shares.x;
     if (cf <= 1e-3) return 1.0;
