@@ -18,6 +18,10 @@ request. What Ray adds:
   by the others, and any replica can restore any scene.
 - **Backpressure and health** stay the service's: each replica's bounded queue answers 503 with
   Retry-After; `/health/ready` is the answering replica's; every answer names its replica (`X-Replica`).
+- **Metrics of every replica** in one scrape: each replica reports its Prometheus metrics to one
+  named Ray actor (MetricsBoard) every REPORT_EVERY_S, and `/metrics`, on whichever replica answers
+  it, is every live replica's series, labelled `replica`, plus `garment_render_replicas_reporting`.
+  A replica silent for STALE_AFTER_S has gone and drops out.
 - **GPUs**: with `--gpus-per-replica 1` each replica gets one GPU from Ray, and its EGL device is that
   GPU's index (GARMENT_RENDER_EGL_DEVICE), not the first device.
 """
@@ -27,11 +31,16 @@ from __future__ import annotations
 import asyncio
 import os
 import re
+import time
 from contextlib import AsyncExitStack
 
 import httpx
+from prometheus_client import CollectorRegistry, generate_latest
+from prometheus_client.core import GaugeMetricFamily
+from prometheus_client.parser import text_string_to_metric_families
 
 try:
+    import ray
     from ray import serve
     from starlette.requests import Request
     from starlette.responses import Response
@@ -42,6 +51,50 @@ except ImportError as exc:   # pragma: no cover - the extra is not installed
 SCENE_PATH = re.compile(r"^/scenes/(scn_[0-9a-f]+)(?:/|$)")
 # Scenes a replica holds for the router (each keeps its GPU buffers); the least recently used go first.
 SCENES_PER_REPLICA = 16
+# The replicas' metrics: one named actor they report to, how often, and when a silent one has gone.
+METRICS_BOARD, METRICS_NAMESPACE = "garment-render-metrics", "serve"
+REPORT_EVERY_S, STALE_AFTER_S = 1.0, 5.0
+
+
+@ray.remote(num_cpus=0)
+class MetricsBoard:
+    """The latest Prometheus text of each replica (one small actor for the deployment)."""
+
+    def __init__(self):
+        self.latest: dict[str, tuple[float, bytes]] = {}
+
+    def report(self, replica: str, text: bytes) -> None:
+        self.latest[replica] = (time.monotonic(), text)
+
+    def leave(self, replica: str) -> None:
+        self.latest.pop(replica, None)
+
+    def collect(self, stale_after_s: float = STALE_AFTER_S) -> dict[str, bytes]:
+        now = time.monotonic()
+        self.latest = {r: (t, text) for r, (t, text) in self.latest.items() if now - t <= stale_after_s}
+        return {r: text for r, (_, text) in self.latest.items()}
+
+
+def merge_metrics(snapshots: dict[str, bytes]) -> bytes:
+    """One Prometheus exposition from each replica's own: every sample labelled with its replica, each
+    family written once, and the number of replicas reporting."""
+    families: dict[str, object] = {}
+    for replica, text in sorted(snapshots.items()):
+        for family in text_string_to_metric_families(text.decode()):
+            merged = families.setdefault(family.name, family)
+            samples = [s._replace(labels={**s.labels, "replica": replica}) for s in family.samples]
+            merged.samples = (merged.samples if merged is not family else []) + samples
+    reporting = GaugeMetricFamily("garment_render_replicas_reporting", "Replicas whose metrics this answer holds")
+    reporting.add_metric([], len(snapshots))
+
+    class _Merged:
+        def collect(self):
+            yield reporting
+            yield from families.values()
+
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(_Merged())
+    return generate_latest(registry)
 
 
 class _HeldScene:
@@ -75,6 +128,8 @@ class RenderReplica:
         self._stack: AsyncExitStack | None = None
         self._started = asyncio.Lock()
         self.client: httpx.AsyncClient | None = None
+        self._board = None
+        self._reporter: asyncio.Task | None = None
 
     async def _start(self) -> None:
         async with self._started:
@@ -83,6 +138,33 @@ class RenderReplica:
                 await self._stack.enter_async_context(self.app.router.lifespan_context(self.app))
                 self.client = httpx.AsyncClient(transport=httpx.ASGITransport(app=self.app),
                                                 base_url="http://replica", timeout=None)
+                self._reporter = asyncio.get_running_loop().create_task(self._report_metrics())
+
+    def board(self):
+        """The deployment's metrics board, made by the first replica that asks (detached: it outlives any
+        one replica; `run` removes it)."""
+        if self._board is None:
+            self._board = MetricsBoard.options(name=METRICS_BOARD, namespace=METRICS_NAMESPACE,
+                                               get_if_exists=True, lifetime="detached").remote()
+        return self._board
+
+    async def _report_metrics(self) -> None:
+        while True:
+            try:
+                await self.board().report.remote(self.name, self.app.state.metrics.render())
+            except Exception:   # the board went (a node lost): made again on the next report
+                self._board = None
+            await asyncio.sleep(REPORT_EVERY_S)
+
+    async def _all_metrics(self, own: bytes) -> bytes:
+        """/metrics: every live replica's, this one's as of now."""
+        try:
+            board = self.board()
+            await board.report.remote(self.name, own)
+            return merge_metrics(await board.collect.remote())
+        except Exception:   # no board: this replica's alone, still labelled
+            self._board = None
+            return merge_metrics({self.name: own})
 
     @serve.multiplexed(max_num_models_per_replica=SCENES_PER_REPLICA)
     async def scene(self, scene_id: str) -> _HeldScene:
@@ -106,17 +188,25 @@ class RenderReplica:
         headers = [(k, v) for k, v in request.headers.items() if k.lower() not in ("host", "content-length")]
         url = path + (f"?{request.url.query}" if request.url.query else "")
         r = await self.client.request(request.method, url, content=body, headers=headers)
+        content = r.content
         if request.method == "POST" and path.rstrip("/") == "/scenes" and r.status_code == 201:
             await self.scene(r.json()["id"])   # the registering replica holds its scene
+        elif request.method == "GET" and path == "/metrics" and r.status_code == 200:
+            content = await self._all_metrics(content)
         out = {k: v for k, v in r.headers.items() if k.lower() not in ("content-length", "transfer-encoding")}
         out["X-Replica"] = self.name
-        return Response(r.content, status_code=r.status_code, headers=out)
+        return Response(content, status_code=r.status_code, headers=out)
 
     def __del__(self):
         """Serve's graceful shutdown of the replica: its GL thread releases the scenes and the context
         (a replica whose app never started has none)."""
         if getattr(self, "client", None) is not None:
             self.app.state.worker.stop()
+        if getattr(self, "_board", None) is not None:
+            try:
+                self._board.leave.remote(self.name)
+            except Exception:   # pragma: no cover - Ray is going down too
+                pass
 
     def check_health(self) -> None:
         """Serve's health check: the replica's GL thread must be up once it has started."""
@@ -126,8 +216,6 @@ class RenderReplica:
 
 def _ray_gpu_ids() -> list:
     try:
-        import ray
-
         return ray.get_gpu_ids() if ray.is_initialized() else []
     except Exception:   # pragma: no cover - outside a Ray worker
         return []
@@ -160,8 +248,6 @@ def run(host: str | None, port: int | None, replicas: int, address: str | None =
     import signal
     import threading
 
-    import ray
-
     from .settings import ServiceSettings
 
     checked = ServiceSettings()   # refused here, not by every replica in turn
@@ -183,4 +269,8 @@ def run(host: str | None, port: int | None, replicas: int, address: str | None =
         pass
     finally:
         serve.shutdown()
+        try:   # the metrics board is detached: it goes with the deployment
+            ray.kill(ray.get_actor(METRICS_BOARD, namespace=METRICS_NAMESPACE))
+        except ValueError:
+            pass
         ray.shutdown()

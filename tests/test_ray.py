@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import httpx
@@ -101,6 +102,71 @@ def test_scenes_stay_on_their_replica_and_survive_one_dying(cluster, tmp_path):
                 np.testing.assert_array_equal(c.send_frame(s["id"], positions).array(), got[k][0])
     finally:
         single.stop()
+
+
+def _series(text: str, name: str) -> dict[str, float]:
+    """{replica: value} of a metric's unlabelled-but-for-replica samples, summed over other labels."""
+    from prometheus_client.parser import text_string_to_metric_families
+
+    out: dict[str, float] = {}
+    for family in text_string_to_metric_families(text):
+        for s in family.samples:
+            if s.name == name:
+                out[s.labels.get("replica", "")] = out.get(s.labels.get("replica", ""), 0.0) + s.value
+    return out
+
+
+def test_one_scrape_holds_every_replicas_metrics(cluster, tmp_path):
+    """/metrics on any replica: each live replica's series, labelled by it; the frames counted there are
+    the frames each replica answered."""
+    mesh = garment(16)
+    with httpx.Client(base_url=cluster["url"], timeout=120) as http:
+        env, _, _ = upload_environment(http, tmp_path, known=True)
+
+        def scrape(reporting: int) -> str:
+            deadline = time.monotonic() + 60   # a replica reports every second; a gone one drops in five
+            while True:
+                text = http.get("/metrics").text
+                if _series(text, "garment_render_replicas_reporting").get("") == reporting:
+                    return text
+                assert time.monotonic() < deadline, text[-2000:]
+                time.sleep(0.5)
+
+        before = _series(scrape(2), "garment_render_frames_total")
+        answered: dict[str, int] = {}
+        with RenderClient(cluster["url"], max_retries=200, max_retry_wait_s=1.0) as c:
+            for _ in range(4):
+                s = c.create_scene(env["id"], positions=mesh.positions, faces=mesh.faces,
+                                   **{k: v for k, v in scene_body(env["id"], mesh).items()
+                                      if k in ("quality", "output")})
+                for k in range(2):
+                    name = c.send_frame(s["id"], mesh.positions, frame_index=k).headers["x-replica"]
+                    answered[name] = answered.get(name, 0) + 1
+        time.sleep(2.5)   # every replica has reported since
+        text = scrape(2)
+    after = _series(text, "garment_render_frames_total")
+    ready = _series(text, "garment_render_gl_ready")   # every replica's own gauges, side by side
+    assert len(ready) == 2 and set(ready.values()) == {1.0} and set(answered) <= set(ready), (ready, answered)
+    # A replica that has answered no frame yet has no such series.
+    for name in set(after) | set(answered):
+        assert after.get(name, 0.0) - before.get(name, 0.0) == answered.get(name, 0), (name, before, after, answered)
+    assert sum(answered.values()) == 8
+
+
+def test_merged_metrics_label_each_replicas_samples_and_write_each_family_once():
+    from prometheus_client import CollectorRegistry, Counter, generate_latest
+
+    from service.ray_serve import merge_metrics
+
+    texts = {}
+    for name, n in (("a", 2), ("b", 3)):
+        r = CollectorRegistry()
+        Counter("garment_render_frames", "Frames", ["endpoint"], registry=r).labels("frames").inc(n)
+        texts[name] = generate_latest(r)
+    text = merge_metrics(texts).decode()
+    assert text.count("# TYPE garment_render_frames_total counter") == 1
+    assert _series(text, "garment_render_frames_total") == {"a": 2.0, "b": 3.0}
+    assert _series(text, "garment_render_replicas_reporting") == {"": 2.0}
 
 
 def test_the_cli_refuses_workers_with_ray():
