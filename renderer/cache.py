@@ -29,8 +29,9 @@ from .lighting.pem import PEMSet, PEMSettings
 log = logging.getLogger(__name__)
 
 # Bump when the stored arrays or the build's numerical output change.
-# 2: solid-angle weighted chains (A = chain(L * w)); 3: regions carry mean_cos; 4: entries carry their key.
-FORMAT_VERSION = 4
+# 2: solid-angle weighted chains (A = chain(L * w)); 3: regions carry mean_cos; 4: entries carry their key;
+# 5: an area set's remainder takes every light of the budget the area lights leave.
+FORMAT_VERSION = 5
 
 
 @dataclass

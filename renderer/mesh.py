@@ -452,6 +452,18 @@ def _up_axis(up: UpAxis | str) -> UpAxis:
         raise InvalidInputError(f"up must be one of {[a.value for a in UpAxis]}; got {up!r}") from None
 
 
+def triangle_parts(scene):
+    """(trimesh.Trimesh, world transform (4, 4)) of a trimesh scene's triangle geometries, in the order
+    `load_mesh` stacks them (point clouds and curves are not renderable surfaces)."""
+    import trimesh
+
+    for node in scene.graph.nodes_geometry:
+        transform, geom_name = scene.graph[node]
+        geom = scene.geometry[geom_name]
+        if isinstance(geom, trimesh.Trimesh) and len(geom.faces) > 0:
+            yield geom, transform
+
+
 def _read_with_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     import trimesh  # only the file loader needs it
 
@@ -465,11 +477,7 @@ def _read_with_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray |
         raise MeshError(f"cannot read mesh file '{path}': {type(e).__name__}: {e}") from e
 
     parts = []  # (positions float64 (n, 3), faces (m, 3), uvs or None, is_identity_transform)
-    for node in scene.graph.nodes_geometry:
-        transform, geom_name = scene.graph[node]
-        geom = scene.geometry[geom_name]
-        if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
-            continue  # point clouds and curves are not renderable surfaces
+    for geom, transform in triangle_parts(scene):
         v = np.asarray(geom.vertices, np.float64)
         f = np.asarray(geom.faces, np.int64)
         t = np.asarray(transform, np.float64)

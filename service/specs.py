@@ -151,8 +151,11 @@ def material_spec_of(m: Material) -> MaterialSpec:
     def listed(x):
         return None if x is None else np.asarray(x, np.float64).round(6).tolist()
 
-    return MaterialSpec(model=m.model, albedo=listed(m.albedo), metallic=float(m.metallic), roughness=float(m.roughness),
-                        sheen_colour=listed(m.sheen_colour), sheen_roughness=float(m.sheen_roughness),
+    def value(x):   # a scalar, or a list per vertex (a file of several materials)
+        return float(x) if np.ndim(x) == 0 else listed(x)
+
+    return MaterialSpec(model=m.model, albedo=listed(m.albedo), metallic=value(m.metallic), roughness=value(m.roughness),
+                        sheen_colour=listed(m.sheen_colour), sheen_roughness=value(m.sheen_roughness),
                         albedo_map=listed(m.albedo_map), metallic_roughness_map=listed(m.metallic_roughness_map),
                         normal_map=listed(m.normal_map), normal_scale=float(m.normal_scale))
 

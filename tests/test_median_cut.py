@@ -6,7 +6,7 @@ from hypothesis import strategies as st
 
 from renderer.envmap.cube import cube_solid_angles, dir_to_texel
 from renderer.errors import InvalidInputError
-from renderer.lighting.median_cut import LUMINANCE_RGB, median_cut, sub_lights
+from renderer.lighting.median_cut import LUMINANCE_RGB, median_cut, median_cut_to, sub_lights
 
 
 def _covered_once(rs, n):
@@ -33,6 +33,39 @@ def test_partition_covers_every_texel_exactly_once(k, n, seed, power, whole_sour
     assert rs.solid_angle_sr.sum() == pytest.approx(4 * np.pi)
     assert rs.energy_rgb.sum(axis=0) == pytest.approx((cube * omega[..., None]).sum(axis=(0, 1, 2)), rel=1e-9)
     assert np.allclose(np.linalg.norm(rs.directions, axis=1), 1.0)
+
+
+@settings(max_examples=25, deadline=None)
+@given(count=st.integers(6, 100), n=st.sampled_from([8, 16]), seed=st.integers(0, 2**31), power=st.floats(0, 12),
+       whole_sources=st.booleans())
+def test_any_region_count_is_a_partition_that_halves_the_most_energetic_regions(count, n, seed, power,
+                                                                                 whole_sources):
+    cube = (np.random.default_rng(seed).random((6, n, n, 3)) ** power).astype(np.float32)
+    rs = median_cut_to(cube, count, whole_sources)
+    assert rs.n_regions == count and (_covered_once(rs, n) == 1).all()
+    assert set(np.unique(rs.labels)) == set(range(count))
+    for rid, (face, r0, r1, c0, c1) in enumerate(rs.rects):
+        assert (rs.labels[face, r0:r1, c0:c1] == rid).all()
+    omega = cube_solid_angles(n)
+    assert rs.energy_rgb.sum(axis=0) == pytest.approx((cube * omega[..., None]).sum(axis=(0, 1, 2)), rel=1e-9)
+    base_count = 6 * 2 ** ((count // 6).bit_length() - 1)
+    base = median_cut(cube, base_count, whole_sources)
+    if count == base_count:   # the median cut itself
+        np.testing.assert_array_equal(rs.labels, base.labels)
+        return
+    # Each base region is kept or halved; the halved ones are the most energetic (among those of more
+    # than one texel).
+    lum = base.energy_rgb @ LUMINANCE_RGB
+    halved = np.array([not np.array_equal(rs.rects[i], base.rects[i]) for i in range(base_count)])
+    assert halved.sum() == count - base_count
+    sizes = np.array([(r[2] - r[1]) * (r[4] - r[3]) for r in base.rects])
+    assert lum[halved].min() >= lum[~halved & (sizes > 1)].max(initial=0.0)
+    new = []
+    for i in np.nonzero(halved)[0]:
+        (kept, added) = np.unique(rs.labels[base.labels == i])
+        assert kept == i and added >= base_count
+        new.append(added)
+    assert sorted(new) == list(range(base_count, count))
 
 
 def test_regions_of_a_face_hold_equal_energy_and_lights_sit_in_their_regions():

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from conftest import CAM, covered, sphere, sun_sky_cube
 
+from renderer.camera import Camera
 from renderer.errors import InvalidInputError
 from renderer.lighting import material_lobes
 from renderer.lighting.lobe_fit import fibonacci_sphere
@@ -346,11 +347,49 @@ def test_a_gltf_garment_brings_its_material_and_renders_like_the_reference(rende
     assert frame.image[mask][:, :3].mean() == pytest.approx(ref.image[mask][:, :3].mean(), rel=0.05)
 
 
-def test_a_gltf_file_with_two_materials_is_refused_with_the_count(tmp_path):
+def test_a_gltf_garment_of_two_materials_renders_each_piece_with_its_own(renderer, sun, tmp_path):
+    """A file whose pieces use different materials (a rough and a glossy sphere): each vertex gets its
+    piece's factors in load_mesh's order, and the image matches the reference's."""
+    from renderer.mesh import load_mesh
     from renderer.shading.gltf import material_from_gltf
 
     path = _glb_with_sheen(tmp_path / "two.glb", textured=False, two_materials=True)
-    with pytest.raises(InvalidInputError, match="uses 2 materials"):
+    m, mesh = material_from_gltf(path), load_mesh(path)
+    assert np.shape(m.roughness) == (mesh.n_vertices,) and np.shape(m.albedo) == (mesh.n_vertices, 3)
+    # Which sphere is which, by position: the glossy one (0.4) is the one translated along x.
+    glossy = np.asarray(mesh.positions)[:, 0] > 1.0
+    assert glossy.sum() == mesh.n_vertices // 2
+    np.testing.assert_allclose(m.roughness[glossy], 0.4, rtol=1e-6)
+    np.testing.assert_allclose(m.roughness[~glossy], 0.9, rtol=1e-6)
+    assert np.allclose(m.sheen_colour, (0.9, 0.5, 0.6)) and np.allclose(m.albedo, (0.8, 0.6, 0.5))
+    # The service's scene schema carries it per vertex too (an uploaded GLB's own material).
+    from service.specs import build_material, material_spec_of
+
+    again = build_material(material_spec_of(m), mesh, "garment")
+    np.testing.assert_allclose(again.roughness, m.roughness, atol=1e-6)
+
+    cube, pems = sun
+    camera = Camera((1.0, 0.4, 4.0), (1.0, 0.0, 0.0), fov_y_deg=45.0)
+    scene = renderer.create_scene([mesh], [m])
+    try:
+        frame = renderer.render(scene, pems, FrameSettings(64, 64), camera)
+    finally:
+        scene.release()
+    ref = render_reference([mesh], [m], cube, camera, 64, 64, spp=64)
+    assert relative_rmse(frame.image, ref.image) < 0.2
+    # The two pieces look different in both (a second material that was ignored would not).
+    half = covered(frame) & covered(ref)
+    left, right = half.copy(), half.copy()
+    left[:, 32:], right[:, :32] = False, False
+    for img in (frame.image, ref.image):
+        assert abs(img[left][:, :3].max() - img[right][:, :3].max()) > 0.05 * img[half][:, :3].max()
+
+
+def test_a_gltf_file_of_materials_with_different_textures_is_refused_naming_them(tmp_path):
+    from renderer.shading.gltf import material_from_gltf
+
+    path = _glb_with_sheen(tmp_path / "two.glb", textured=True, two_materials=True)
+    with pytest.raises(InvalidInputError, match="uses 2 materials with different textures"):
         material_from_gltf(path)
 
 

@@ -222,22 +222,20 @@ def auto_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False):
 
 def area_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False, dec: Decomposition | None = None):
     """The PEM set's regions from the decomposition (`PEMSettings.lights_from` "area"): one region
-    per area light (its disc's texels), and the ambient remainder median-cut into the largest
-    6 * 2^j regions that keep the total within `n_lights` (at least 6), each a light with its own PEM
+    per area light (its disc's texels), and the ambient remainder median-cut into the n_lights - k
+    regions the k area lights leave (`median_cut_to`; at least 6), each a light with its own PEM
     and shadow map like any other. Returns (RegionSet, Decomposition); a map without area lights
     gets the plain median cut. `dec`: the decomposition, if made already (at most n_lights - 6 lights,
     room for the remainder's six)."""
-    from .median_cut import RegionSet, _region_stats, median_cut
+    from .median_cut import RegionSet, _region_stats, median_cut, median_cut_to
 
     if dec is None:
         dec = decompose(cube, max_lights=max(0, n_lights - 6))
     k = len(dec.lights)
     if k == 0:
         return median_cut(cube[..., :3], n_lights, whole_sources), dec
-    m = 6
-    while 2 * m + k <= n_lights:
-        m *= 2
-    rest = median_cut(dec.ambient.astype(np.float64), m, whole_sources)
+    m = max(6, n_lights - k)   # the whole budget: the remainder gets every light the area lights leave
+    rest = median_cut_to(dec.ambient.astype(np.float64), m, whole_sources)
     n = cube.shape[1]
     labels = np.where(dec.owner >= 0, m + dec.owner, rest.labels).astype(np.int32)
     rects = [tuple(r) for r in rest.rects]

@@ -195,6 +195,41 @@ def median_cut(cube: np.ndarray, n_lights: int, whole_sources: bool = False) -> 
     return RegionSet(labels, out_dirs, out_omega, out_energy, out_rects, out_spread, out_mean_cos)
 
 
+def median_cut_to(cube: np.ndarray, count: int, whole_sources: bool = False) -> RegionSet:
+    """`count` regions (at least 6, any number): the median cut into the largest 6 * 2^k <= count,
+    then the most energetic of its regions halved once more (by the same rule) until there are
+    `count`. Median cut's own principle, equal energy per light, says where the extra lights go: the
+    faces it splits alike carry unequal energy, so their regions do. For count = 6 * 2^k this is
+    `median_cut`."""
+    if count < 6:
+        raise InvalidInputError(f"at least 6 regions (one a cube face), got {count}")
+    base_count = 6 * 2 ** ((count // 6).bit_length() - 1)
+    base = median_cut(cube, base_count, whole_sources)
+    if count == base_count:
+        return base
+    n = cube.shape[1]
+    rgb = np.asarray(cube[..., :3], np.float64)
+    energy = np.maximum(rgb @ LUMINANCE_RGB, 0.0) * cube_solid_angles(n)
+    labels, rects = base.labels.copy(), [tuple(int(v) for v in r) for r in base.rects]
+    splittable = [i for i in np.argsort(-base.energy_rgb @ LUMINANCE_RGB, kind="stable")
+                  if (rects[i][2] - rects[i][1]) * (rects[i][4] - rects[i][3]) > 1]
+    if len(splittable) < count - base_count:
+        raise InvalidInputError(f"{count} regions need more texels than face size {n} has; use a larger face size")
+    for rid in splittable[:count - base_count]:
+        face = rects[rid][0]
+        first, second = _split(energy[face], rects[rid][1:], whole_sources)
+        new = len(rects)
+        rects[rid] = (face, *first)
+        rects.append((face, *second))
+        labels[face, second[0]:second[1], second[2]:second[3]] = new
+    out = _region_stats(rgb, energy, labels, count)
+    out_rects = np.asarray(rects, np.int32)
+    for arr in (labels, out_rects, *out):
+        arr.setflags(write=False)
+    dirs, omega, energy_rgb, spread, mean_cos = out
+    return RegionSet(labels, dirs, omega, energy_rgb, out_rects, spread, mean_cos)
+
+
 @dataclass(frozen=True)
 class SubLights:
     """Each region cut into `per_region` sub-regions (the same median cut within its rectangle),

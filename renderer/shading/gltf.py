@@ -10,8 +10,9 @@ factor; the normal texture is tangent-space, its scale kept (Material.normal_map
 is the triangle's, not MikkTSpace's).
 
 Not read, and said so by a warning: the occlusion texture (the renderer's shadows stand for it) and
-the sheen extension's textures (its factors are read). A file whose meshes
-use more than one material is refused with the count: the renderer takes one material per mesh.
+the sheen extension's textures (its factors are read). A file whose pieces use several materials
+(a shirt and its buttons) gives their factors per vertex; their textures, if any, must be one set
+(a shared atlas), else the file is refused with the materials and their textures named.
 """
 
 from __future__ import annotations
@@ -55,31 +56,51 @@ def _image(img, channels: int) -> np.ndarray:
     return a[..., :3]
 
 
+def _factors(spec: dict) -> dict:
+    """A glTF material's factors (and the sheen extension's) as Material fields."""
+    pbr = spec.get("pbrMetallicRoughness", {})
+    sheen = spec.get("extensions", {}).get(SHEEN, {})
+    return {"albedo": np.clip(np.asarray(pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0]), np.float64)[:3], 0.0, 1.0),
+            "metallic": float(pbr.get("metallicFactor", 1.0)), "roughness": float(pbr.get("roughnessFactor", 1.0)),
+            "sheen_colour": np.asarray(sheen.get("sheenColorFactor", [0.0, 0.0, 0.0]), np.float64),
+            "sheen_roughness": float(sheen.get("sheenRoughnessFactor", 0.0))}
+
+
+def _texture_set(spec: dict) -> tuple:
+    """The textures a material reads (index and, for the normal map, its scale): equal sets read alike."""
+    pbr = spec.get("pbrMetallicRoughness", {})
+    return (pbr.get("baseColorTexture", {}).get("index"), pbr.get("metallicRoughnessTexture", {}).get("index"),
+            spec.get("normalTexture", {}).get("index"), float(spec.get("normalTexture", {}).get("scale", 1.0)))
+
+
 def material_from_gltf(path: str | Path) -> Material | None:
-    """The file's material as a physically based Material, or None when its meshes name none."""
+    """The file's material as a physically based Material, or None when its meshes name none. A file
+    whose pieces use several materials gives one Material whose factors are per vertex (each
+    vertex its piece's, in `load_mesh`'s vertex order); their textures, if any, must be the same."""
     path = Path(path)
     doc = gltf_json(path)
     used = sorted({p["material"] for m in doc.get("meshes", []) for p in m.get("primitives", []) if "material" in p})
     if not used:
         return None
-    if len(used) > 1:
-        raise InvalidInputError(f"'{path}' uses {len(used)} materials; the renderer takes one material per mesh: "
-                                "export the garment's pieces as separate files, or pass --material")
-    spec = doc["materials"][used[0]]
+    specs = [doc["materials"][i] for i in used]
+    textures = {_texture_set(spec) for spec in specs}
+    if len(textures) > 1:
+        names = ", ".join(f"{spec.get('name', f'#{i}')} {_texture_set(spec)[:3]}" for i, spec in zip(used, specs))
+        raise InvalidInputError(f"'{path}' uses {len(used)} materials with different textures (base colour, "
+                                f"metallic-roughness, normal: {names}); the renderer takes one texture set per mesh: "
+                                "give the pieces one texture atlas, or export them as separate files")
+    spec = specs[0]
     pbr = spec.get("pbrMetallicRoughness", {})
-    base = np.asarray(pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0]), np.float64)[:3]
-    metallic = float(pbr.get("metallicFactor", 1.0))
-    roughness = float(pbr.get("roughnessFactor", 1.0))
-    sheen = spec.get("extensions", {}).get(SHEEN, {})
-    sheen_colour = tuple(float(c) for c in sheen.get("sheenColorFactor", [0.0, 0.0, 0.0]))
-    sheen_roughness = float(sheen.get("sheenRoughnessFactor", 0.0))
-    left_out = [name for name in ("occlusionTexture",) if name in spec]
-    left_out += [f"{SHEEN}.{name}" for name in ("sheenColorTexture", "sheenRoughnessTexture") if name in sheen]
+    left_out = sorted({name for s in specs for name in ("occlusionTexture",) if name in s})
+    left_out += sorted({f"{SHEEN}.{name}" for s in specs for name in ("sheenColorTexture", "sheenRoughnessTexture")
+                        if name in s.get("extensions", {}).get(SHEEN, {})})
 
     albedo_map = mr_map = normal_map = None
-    normal_scale = float(spec.get("normalTexture", {}).get("scale", 1.0))
+    normal_scale = _texture_set(spec)[3]
+    scene = None
     if "baseColorTexture" in pbr or "metallicRoughnessTexture" in pbr or "normalTexture" in spec:
-        core = _trimesh_material(path)
+        scene = _trimesh_scene(path)
+        core = _trimesh_material(scene)
         if "normalTexture" in spec and getattr(core, "normalTexture", None) is not None:
             normal_map = _image(core.normalTexture, 3).astype(np.float32)
         if "baseColorTexture" in pbr and getattr(core, "baseColorTexture", None) is not None:
@@ -89,15 +110,59 @@ def material_from_gltf(path: str | Path) -> Material | None:
             mr_map = np.ascontiguousarray(np.stack([rgb[..., 2], rgb[..., 1]], axis=-1), np.float32)
     if left_out:
         warnings.warn(f"'{path}': not read: {', '.join(left_out)} (docs/materials.md)", stacklevel=2)
-    return Material(tuple(np.clip(base, 0.0, 1.0)), model="pbr", metallic=metallic, roughness=roughness,
-                    sheen_colour=sheen_colour, sheen_roughness=sheen_roughness, albedo_map=albedo_map,
-                    metallic_roughness_map=mr_map, normal_map=normal_map, normal_scale=normal_scale)
+    if len(used) == 1:
+        factors = _factors(spec)
+    else:
+        factors = _per_vertex_factors(path, doc, scene or _trimesh_scene(path))
+    for name in ("albedo", "sheen_colour"):   # one colour for the whole mesh: a plain tuple
+        if np.ndim(factors[name]) == 1:
+            factors[name] = tuple(float(c) for c in factors[name])
+    return Material(model="pbr", albedo_map=albedo_map, metallic_roughness_map=mr_map, normal_map=normal_map,
+                    normal_scale=normal_scale, **factors)
 
 
-def _trimesh_material(path: Path):
+def _per_vertex_factors(path: Path, doc: dict, scene) -> dict:
+    """Each vertex's material factors, for the vertices as `load_mesh` stacks the file's pieces: each
+    piece (a trimesh geometry) is matched to the primitive whose POSITION values it holds."""
+    from ..gltf_morph import _accessor, _load
+    from ..mesh import triangle_parts
+
+    gltf, cache, positions = _load(path), {}, {}
+    primitives = [(p["attributes"]["POSITION"], p.get("material")) for m in doc.get("meshes", [])
+                  for p in m.get("primitives", []) if "POSITION" in p.get("attributes", {})]
+
+    def material_of(vertices: np.ndarray) -> int | None:
+        found = set()
+        for acc, material in primitives:
+            if gltf.accessors[acc].count != len(vertices):
+                continue
+            if acc not in positions:
+                positions[acc] = _accessor(gltf, path, acc, cache)
+            if np.array_equal(positions[acc], vertices):
+                found.add(material)
+        if len(found) != 1:
+            raise InvalidInputError(f"'{path}': cannot tell which material a piece of {len(vertices)} vertices uses "
+                                    f"({'no primitive holds its positions' if not found else 'primitives of several materials hold them'})")
+        return found.pop()
+
+    default = {"albedo": np.ones(3), "metallic": 1.0, "roughness": 1.0, "sheen_colour": np.zeros(3),
+               "sheen_roughness": 0.0}   # glTF's default material, for a primitive that names none
+    pieces = []
+    for geom, _ in triangle_parts(scene):
+        material = material_of(np.asarray(geom.vertices, np.float64))
+        f = default if material is None else _factors(doc["materials"][material])
+        pieces.append({k: np.broadcast_to(np.asarray(v, np.float64), (len(geom.vertices),) + np.shape(v))
+                       for k, v in f.items()})
+    return {k: np.ascontiguousarray(np.concatenate([p[k] for p in pieces]), np.float32) for k in pieces[0]}
+
+
+def _trimesh_scene(path: Path):
     import trimesh
 
-    scene = trimesh.load_scene(path, process=False, maintain_order=True)
+    return trimesh.load_scene(path, process=False, maintain_order=True)
+
+
+def _trimesh_material(scene):
     for geom in scene.geometry.values():
         material = getattr(getattr(geom, "visual", None), "material", None)
         if material is not None:
