@@ -646,9 +646,11 @@ class Renderer:
                 mb.albedo_tex.use(location=3)
                 mb.gloss_tex.use(location=4)
                 mb.normal_tex.use(location=5)
+                mb.sheen_tex.use(location=6)
                 set_uniform(g, "u_normal_scale", mb.normal_scale)
                 set_uniform(g, "u_use_albedo_map", mb.use_maps[0])
                 set_uniform(g, "u_use_gloss_map", mb.use_maps[1])
+                set_uniform(g, "u_use_sheen_map", mb.use_maps[2])
                 set_uniform(g, "u_shadow_group", float(sm.group))
                 mb.vao_gbuffer.render(moderngl.TRIANGLES)
 

@@ -165,7 +165,7 @@ class SceneMesh:
         self.variants: list[MaterialBuffers] = [MaterialBuffers(self, material)]
 
     def _check_maps(self, material: Material) -> None:
-        if (any(m is not None for m in material.maps()) or material.normal_texture() is not None) and self.mesh.uvs is None:
+        if material.has_textures() and self.mesh.uvs is None:
             raise MeshError(f"mesh {self.mesh.name!r} has material maps but no UVs")
 
     def add_variant(self, material: Material | None) -> None:
@@ -264,7 +264,9 @@ class MaterialBuffers:
         self.albedo_tex = self._texture(ctx, albedo_map, 3, (1.0, 1.0, 1.0))
         self.gloss_tex = self._texture(ctx, gloss_map, 2, (0.0, 0.0))
         self.normal_tex = self._texture(ctx, normal_map, 3, (0.5, 0.5, 1.0))
-        self.use_maps = (albedo_map is not None, gloss_map is not None)
+        sheen_map = material.sheen_texture()
+        self.sheen_tex = self._texture(ctx, sheen_map, 4, (1.0, 1.0, 1.0, 1.0))
+        self.use_maps = (albedo_map is not None, gloss_map is not None, sheen_map is not None)
         # The normal map's scale of x and y; 0: no normal map.
         self.normal_scale = float(material.normal_scale) if normal_map is not None else 0.0
         attributes = [(sm.vbo_pos, "3f", "in_position"), (sm.vbo_nrm, "3f", "in_normal"),

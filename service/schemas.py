@@ -159,6 +159,9 @@ class MaterialSpec(_Strict):
     normal_map: list[list[list[float]]] | None = Field(
         None, description="(H, W, 3) tangent-space normal texture in [0, 1] (glTF's); needs mesh UVs")
     normal_scale: float = Field(1.0, ge=0.0, le=10.0, description="scale of the normal map's x and y")
+    sheen_map: list[list[list[float]]] | None = Field(
+        None, description="pbr: (H, W, 4) texture whose rgb multiplies sheen_colour and a sheen_roughness "
+        "(KHR_materials_sheen's textures); needs mesh UVs")
 
 
 # The rule of MeshSpec._one_source in the schema: a mesh_id and no inline arrays, or both arrays and

@@ -157,7 +157,8 @@ def material_spec_of(m: Material) -> MaterialSpec:
     return MaterialSpec(model=m.model, albedo=listed(m.albedo), metallic=value(m.metallic), roughness=value(m.roughness),
                         sheen_colour=listed(m.sheen_colour), sheen_roughness=value(m.sheen_roughness),
                         albedo_map=listed(m.albedo_map), metallic_roughness_map=listed(m.metallic_roughness_map),
-                        normal_map=listed(m.normal_map), normal_scale=float(m.normal_scale))
+                        normal_map=listed(m.normal_map), normal_scale=float(m.normal_scale),
+                        sheen_map=listed(m.sheen_map))
 
 
 def file_material(spec: MeshSpec, meshes: MeshStore) -> MaterialSpec:
@@ -180,15 +181,13 @@ def build_material(spec: MaterialSpec, mesh: Mesh, role: str) -> Material:
                        albedo_map=arr(spec.albedo_map), gloss_map=arr(spec.gloss_map), model=spec.model,
                        metallic=arr(spec.metallic), roughness=arr(spec.roughness), sheen_colour=arr(spec.sheen_colour),
                        sheen_roughness=arr(spec.sheen_roughness), metallic_roughness_map=arr(spec.metallic_roughness_map),
-                       normal_map=arr(spec.normal_map), normal_scale=spec.normal_scale)
+                       normal_map=arr(spec.normal_map), normal_scale=spec.normal_scale, sheen_map=arr(spec.sheen_map))
         mat.vertex_arrays(mesh.n_vertices)
         mat.pbr_arrays(mesh.n_vertices)
-        mat.maps()
-        mat.normal_texture()
+        textured = mat.has_textures()   # validates every map
     except ValueError as e:  # InvalidInputError is a ValueError
         raise type(e)(f"{role} material: {e}") from None
-    if any(m is not None for m in (spec.albedo_map, spec.gloss_map, spec.metallic_roughness_map, spec.normal_map)) \
-            and mesh.uvs is None:
+    if textured and mesh.uvs is None:
         raise InvalidRequestError(f"{role} material has texture maps but the mesh has no UVs; send uvs (V, 2)")
     return mat
 

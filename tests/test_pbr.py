@@ -3,6 +3,8 @@ renderer and the reference, agreement of the two under a sun, and the plumbing o
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from conftest import CAM, covered, sphere, sun_sky_cube
@@ -268,9 +270,11 @@ def test_the_stored_figure_7_table_is_what_the_tables_give():
     assert stored == markdown(summary()), "docs/brdf-lobes.md is stale: run garment-render brdf-lobes and copy it"
 
 
-def _glb_with_sheen(path, colour=(0.9, 0.5, 0.6), roughness=0.45, textured=True, two_materials=False):
+def _glb_with_sheen(path, colour=(0.9, 0.5, 0.6), roughness=0.45, textured=True, two_materials=False,
+                    sheen_textures=None):
     """A GLB written by trimesh (a sphere with UVs, a metallic-roughness material and its textures),
-    its JSON then given the sheen extension, as exporters of KHR_materials_sheen write it."""
+    its JSON then given the sheen extension, as exporters of KHR_materials_sheen write it.
+    sheen_textures: (colour RGB uint8 image, roughness RGBA uint8 image), stored in the binary chunk."""
     import json
     import struct
 
@@ -299,14 +303,31 @@ def _glb_with_sheen(path, colour=(0.9, 0.5, 0.6), roughness=0.45, textured=True,
     (n_json,) = struct.unpack_from("<I", data, 12)
     doc = json.loads(data[20:20 + n_json])
     rest = data[20 + n_json:]
+    (n_bin,) = struct.unpack_from("<I", rest, 0)
+    binary = bytearray(rest[8:8 + n_bin])
+    sheen_ext = {"sheenColorFactor": list(colour), "sheenRoughnessFactor": roughness}
+    if sheen_textures is not None:
+        import io
+
+        for key, img in zip(("sheenColorTexture", "sheenRoughnessTexture"), sheen_textures):
+            png = io.BytesIO()
+            Image.fromarray(img).save(png, format="PNG")
+            binary += b"\0" * (-len(binary) % 4)
+            doc["bufferViews"].append({"buffer": 0, "byteOffset": len(binary), "byteLength": len(png.getvalue())})
+            binary += png.getvalue()
+            doc.setdefault("images", []).append({"bufferView": len(doc["bufferViews"]) - 1, "mimeType": "image/png"})
+            doc.setdefault("textures", []).append({"source": len(doc["images"]) - 1})
+            sheen_ext[key] = {"index": len(doc["textures"]) - 1}
+        binary += b"\0" * (-len(binary) % 4)
+        doc["buffers"][0]["byteLength"] = len(binary)
     for m in doc["materials"]:
         # trimesh writes its 8-bit colour; an exporter writes the float the artist chose.
         m["pbrMetallicRoughness"]["baseColorFactor"] = [0.8, 0.6, 0.5, 1.0]
-        m.setdefault("extensions", {})["KHR_materials_sheen"] = {"sheenColorFactor": list(colour),
-                                                                 "sheenRoughnessFactor": roughness}
+        m.setdefault("extensions", {})["KHR_materials_sheen"] = dict(sheen_ext)
     doc.setdefault("extensionsUsed", []).append("KHR_materials_sheen")
     text = json.dumps(doc).encode()
     text += b" " * (-len(text) % 4)
+    rest = struct.pack("<I4s", len(binary), b"BIN\0") + bytes(binary)
     body = struct.pack("<I4s", len(text), b"JSON") + text + rest
     path.write_bytes(struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body)
     return path
@@ -345,6 +366,56 @@ def test_a_gltf_garment_brings_its_material_and_renders_like_the_reference(rende
     # Both read the textures: the mean matches, and differs from the untextured material's.
     mask = covered(frame) & covered(ref)
     assert frame.image[mask][:, :3].mean() == pytest.approx(ref.image[mask][:, :3].mean(), rel=0.05)
+
+
+def test_a_gltf_garments_sheen_textures_shade_each_texel_and_match_the_reference(renderer, sun, tmp_path):
+    """KHR_materials_sheen's textures: the colour texture (sRGB) black on the left half of u and white
+    on the right, the roughness texture's alpha at half (another size: resampled). Where the colour
+    is black the garment shades as without sheen; where white, as with the factor; the reference
+    reads the same map."""
+    from renderer.mesh import load_mesh
+    from renderer.shading.gltf import material_from_gltf
+
+    colour = np.zeros((8, 8, 3), np.uint8)
+    colour[:, 4:] = 255
+    rough = np.full((4, 4, 4), 255, np.uint8)
+    rough[..., 3] = 128
+    path = _glb_with_sheen(tmp_path / "sheen.glb", textured=False, sheen_textures=(colour, rough))
+    m, mesh = material_from_gltf(path), load_mesh(path)
+    assert m.sheen_map.shape == (8, 8, 4)
+    np.testing.assert_allclose(m.sheen_map[:, :4, :3], 0.0)
+    np.testing.assert_allclose(m.sheen_map[:, 4:, :3], 1.0, atol=1e-6)
+    np.testing.assert_allclose(m.sheen_map[..., 3], 128 / 255, atol=1e-6)
+    from service.specs import build_material, material_spec_of   # the service's schema carries it too
+
+    np.testing.assert_allclose(build_material(material_spec_of(m), mesh, "garment").sheen_map, m.sheen_map, atol=1e-6)
+
+    cube, pems = sun
+    frames = {}
+    for name, material in (("mapped", m), ("none", dataclasses.replace(m, sheen_map=None, sheen_colour=(0, 0, 0))),
+                           ("full", dataclasses.replace(m, sheen_map=None, sheen_roughness=0.45 * 128 / 255))):
+        scene = renderer.create_scene([mesh], [material])
+        try:
+            frames[name] = renderer.render(scene, pems, FrameSettings(64, 64), CAM).image
+        finally:
+            scene.release()
+    # Screen left is u < 0.5 (the sphere's UVs follow x); a band around the edge is left out, where
+    # the texture's filtering mixes the two halves.
+    mask = frames["mapped"][..., 3] > 0.5
+    cols = np.nonzero(mask.any(axis=0))[0]
+    lo, hi = cols.min(), cols.max()
+    left, right = mask.copy(), mask.copy()
+    left[:, int(lo + 0.4 * (hi - lo)):] = False
+    right[:, :int(lo + 0.6 * (hi - lo)) + 1] = False
+
+    def rel(a, b, where):
+        return np.abs(a[where][:, :3] - b[where][:, :3]).mean() / b[where][:, :3].mean()
+
+    assert rel(frames["full"], frames["none"], mask) > 0.02   # the sheen is visible at all
+    assert rel(frames["mapped"], frames["none"], left) < 0.005
+    assert rel(frames["mapped"], frames["full"], right) < 0.005 < 0.02 < rel(frames["mapped"], frames["none"], right)
+    ref = render_reference([mesh], [m], cube, CAM, 64, 64, spp=64)
+    assert relative_rmse(frames["mapped"], ref.image) < 0.2
 
 
 def test_a_gltf_garment_of_two_materials_renders_each_piece_with_its_own(renderer, sun, tmp_path):

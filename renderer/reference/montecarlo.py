@@ -176,7 +176,7 @@ class _SceneArrays:
     sheen: np.ndarray       # float64 (V, 3) sheen colour
     uvs: np.ndarray         # float64 (V, 2) (zeros for meshes without UVs)
     face_mesh: np.ndarray   # int64 (T,) the mesh of each triangle
-    maps: tuple             # per mesh: (albedo_map or None, gloss_map / metallic_roughness_map or None)
+    maps: tuple             # per mesh: (albedo_map, gloss_map / metallic_roughness_map, sheen_map), each or None
     intersector: object     # trimesh.ray.ray_pyembree.RayMeshIntersector
     pbr_meshes: tuple = ()  # per mesh: its material is "pbr"
     normal_maps: tuple = ()  # per mesh: (normal map or None, its scale)
@@ -202,7 +202,7 @@ class _SceneArrays:
             sheen.append(sh)
             albedo_map, gloss_map = material.maps()
             normal_maps.append((material.normal_texture(), float(material.normal_scale)))
-            if (albedo_map is not None or gloss_map is not None or normal_maps[-1][0] is not None) and mesh.uvs is None:
+            if material.has_textures() and mesh.uvs is None:
                 raise MeshError(f"mesh {mesh.name!r} has material maps but no UVs")
             pos.append(mesh.positions)
             faces.append(mesh.faces.astype(np.int64) + offset)
@@ -211,7 +211,7 @@ class _SceneArrays:
             mat.append(m)
             uvs.append(mesh.uvs if mesh.uvs is not None else np.zeros((n, 2), np.float32))
             face_mesh.append(np.full(mesh.n_faces, i, np.int64))
-            maps.append((albedo_map, gloss_map))
+            maps.append((albedo_map, gloss_map, material.sheen_texture()))
             offset += n
         positions = np.concatenate(pos).astype(np.float64)
         faces = np.concatenate(faces)
@@ -274,10 +274,11 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
     material = mix(scene.material)
     pbr = mix(scene.pbr)
     pbr_of = scene.pbr_meshes
-    uv_all = mix(scene.uvs) if any(a is not None or g is not None for a, g in scene.maps) else None
-    for i, (albedo_map, gloss_map) in enumerate(scene.maps):
+    sheen = mix(scene.sheen)
+    uv_all = mix(scene.uvs) if any(m is not None for maps in scene.maps for m in maps) else None
+    for i, (albedo_map, gloss_map, sheen_map) in enumerate(scene.maps):
         sel = np.flatnonzero(mesh_of == i)
-        if sel.size == 0 or (albedo_map is None and gloss_map is None):
+        if sel.size == 0 or (albedo_map is None and gloss_map is None and sheen_map is None):
             continue
         uv = uv_all[sel]
         if albedo_map is not None:
@@ -286,8 +287,12 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
             pbr[sel, :2] *= _texture_bilinear(gloss_map, uv)   # glTF's metallic-roughness texture
         elif gloss_map is not None:
             material[sel] = _texture_bilinear(gloss_map, uv)
+        if sheen_map is not None:   # KHR_materials_sheen's colour and roughness textures
+            texel = _texture_bilinear(sheen_map, uv)
+            sheen[sel] *= texel[:, :3]
+            pbr[sel, 2] *= texel[:, 3]
     return _Surface(x, n, n_geom, r, albedo, material[:, 0], np.clip(material[:, 1], 0.0, 1.0), -dirs,
-                    pbr, mix(scene.sheen))
+                    pbr, sheen)
 
 
 def _normal_mapped(n, n_geom, e1, e2, uv_corners, bary, normal_map, scale) -> np.ndarray:

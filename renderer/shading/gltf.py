@@ -9,8 +9,9 @@ texture is linear, roughness in its green and metallic in its blue channel, each
 factor; the normal texture is tangent-space, its scale kept (Material.normal_map: the tangent frame
 is the triangle's, not MikkTSpace's).
 
-Not read, and said so by a warning: the occlusion texture (the renderer's shadows stand for it) and
-the sheen extension's textures (its factors are read). A file whose pieces use several materials
+The sheen extension's textures (sheenColorTexture, sRGB; sheenRoughnessTexture, its alpha) become
+the Material's sheen_map, read from the file's own images. Not read, and said so by a warning: the
+occlusion texture (the renderer's shadows stand for it). A file whose pieces use several materials
 (a shirt and its buttons) gives their factors per vertex; their textures, if any, must be one set
 (a shared atlas), else the file is refused with the materials and their textures named.
 """
@@ -67,10 +68,74 @@ def _factors(spec: dict) -> dict:
 
 
 def _texture_set(spec: dict) -> tuple:
-    """The textures a material reads (index and, for the normal map, its scale): equal sets read alike."""
+    """The textures a material reads (base colour, metallic-roughness, normal, sheen colour, sheen
+    roughness, then the normal map's scale): equal sets read alike."""
     pbr = spec.get("pbrMetallicRoughness", {})
+    sheen = spec.get("extensions", {}).get(SHEEN, {})
     return (pbr.get("baseColorTexture", {}).get("index"), pbr.get("metallicRoughnessTexture", {}).get("index"),
-            spec.get("normalTexture", {}).get("index"), float(spec.get("normalTexture", {}).get("scale", 1.0)))
+            spec.get("normalTexture", {}).get("index"), sheen.get("sheenColorTexture", {}).get("index"),
+            sheen.get("sheenRoughnessTexture", {}).get("index"), float(spec.get("normalTexture", {}).get("scale", 1.0)))
+
+
+def _gltf_image(path: Path, doc: dict, texture: int):
+    """The PIL image a glTF texture samples: its source from the GLB's binary chunk (a buffer view),
+    a data URI or a file beside the glTF."""
+    import base64
+    import io
+
+    from PIL import Image
+
+    from ..gltf_morph import _load, _view_bytes
+
+    try:
+        image = doc["images"][doc["textures"][texture]["source"]]
+    except (KeyError, IndexError, TypeError):
+        raise InvalidInputError(f"'{path}': texture {texture} names no image") from None
+    if "bufferView" in image:
+        view, data = _view_bytes(_load(path), path, image["bufferView"], {})
+        start = view.byteOffset or 0
+        blob = data[start:start + view.byteLength]
+    elif str(image.get("uri", "")).startswith("data:"):
+        blob = base64.b64decode(image["uri"].split(",", 1)[1])
+    else:
+        file = path.parent / str(image.get("uri", ""))
+        if not file.is_file():
+            raise InvalidInputError(f"'{path}': texture {texture}'s image {image.get('uri')!r} is missing")
+        blob = file.read_bytes()
+    try:
+        return Image.open(io.BytesIO(blob))
+    except Exception as e:   # PIL raises several kinds for an unreadable image
+        raise InvalidInputError(f"'{path}': texture {texture}'s image cannot be read: {e}") from None
+
+
+def _sheen_map(path: Path, doc: dict, sheen: dict) -> np.ndarray | None:
+    """KHR_materials_sheen's textures as one (H, W, 4) map: the colour texture's rgb (sRGB-encoded,
+    decoded to linear) and the roughness texture's alpha (linear), at the colour texture's size (the
+    roughness resampled bilinearly where the two differ); a missing one is white."""
+    from PIL import Image
+
+    colour = sheen.get("sheenColorTexture")
+    rough = sheen.get("sheenRoughnessTexture")
+    if colour is None and rough is None:
+        return None
+    for info in (colour, rough):
+        if info is not None and info.get("texCoord", 0) != 0:
+            raise InvalidInputError(f"'{path}': a sheen texture reads UV set {info['texCoord']}; the renderer "
+                                    "has one UV set (TEXCOORD_0)")
+    rgb = srgb_to_linear(_image(_gltf_image(path, doc, colour["index"]), 3)) if colour is not None else None
+    alpha = None
+    if rough is not None:
+        img = _gltf_image(path, doc, rough["index"]).convert("RGBA")
+        if rgb is not None and img.size != (rgb.shape[1], rgb.shape[0]):
+            img = img.resize((rgb.shape[1], rgb.shape[0]), Image.BILINEAR)
+        alpha = np.asarray(img, np.float64)[..., 3] / 255.0
+    shape = (rgb if rgb is not None else alpha).shape[:2]
+    out = np.ones(shape + (4,), np.float32)
+    if rgb is not None:
+        out[..., :3] = rgb
+    if alpha is not None:
+        out[..., 3] = alpha
+    return out
 
 
 def material_from_gltf(path: str | Path) -> Material | None:
@@ -85,18 +150,17 @@ def material_from_gltf(path: str | Path) -> Material | None:
     specs = [doc["materials"][i] for i in used]
     textures = {_texture_set(spec) for spec in specs}
     if len(textures) > 1:
-        names = ", ".join(f"{spec.get('name', f'#{i}')} {_texture_set(spec)[:3]}" for i, spec in zip(used, specs))
+        names = ", ".join(f"{spec.get('name', f'#{i}')} {_texture_set(spec)[:5]}" for i, spec in zip(used, specs))
         raise InvalidInputError(f"'{path}' uses {len(used)} materials with different textures (base colour, "
-                                f"metallic-roughness, normal: {names}); the renderer takes one texture set per mesh: "
+                                f"metallic-roughness, normal, sheen colour, sheen roughness: {names}); the renderer takes one texture set per mesh: "
                                 "give the pieces one texture atlas, or export them as separate files")
     spec = specs[0]
     pbr = spec.get("pbrMetallicRoughness", {})
     left_out = sorted({name for s in specs for name in ("occlusionTexture",) if name in s})
-    left_out += sorted({f"{SHEEN}.{name}" for s in specs for name in ("sheenColorTexture", "sheenRoughnessTexture")
-                        if name in s.get("extensions", {}).get(SHEEN, {})})
 
     albedo_map = mr_map = normal_map = None
-    normal_scale = _texture_set(spec)[3]
+    normal_scale = _texture_set(spec)[-1]
+    sheen_map = _sheen_map(path, doc, spec.get("extensions", {}).get(SHEEN, {}))
     scene = None
     if "baseColorTexture" in pbr or "metallicRoughnessTexture" in pbr or "normalTexture" in spec:
         scene = _trimesh_scene(path)
@@ -118,7 +182,7 @@ def material_from_gltf(path: str | Path) -> Material | None:
         if np.ndim(factors[name]) == 1:
             factors[name] = tuple(float(c) for c in factors[name])
     return Material(model="pbr", albedo_map=albedo_map, metallic_roughness_map=mr_map, normal_map=normal_map,
-                    normal_scale=normal_scale, **factors)
+                    normal_scale=normal_scale, sheen_map=sheen_map, **factors)
 
 
 def _per_vertex_factors(path: Path, doc: dict, scene) -> dict:

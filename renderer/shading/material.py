@@ -66,6 +66,9 @@ class Material:
     gloss_map: optional (H, W, 2) texture of (specular, glossiness) that replaces the two values ("phong").
     metallic_roughness_map: optional (H, W, 2) texture of (metallic, roughness) in [0, 1] that
     multiplies the two values, as glTF's metallicRoughnessTexture does ("pbr").
+    sheen_map: optional (H, W, 4) texture in [0, 1] whose rgb multiplies sheen_colour and whose a
+    multiplies sheen_roughness, as KHR_materials_sheen's sheenColorTexture (linear here) and
+    sheenRoughnessTexture (its alpha) do ("pbr").
     normal_map: optional (H, W, 3) tangent-space normal texture in [0, 1] (glTF's normalTexture:
     x = 2 r - 1 along the direction of growing u, y along growing v, z along the normal), any model;
     normal_scale scales its x and y. The tangent frame is the triangle's own (the surface gradients
@@ -85,6 +88,7 @@ class Material:
     metallic_roughness_map: np.ndarray | None = None
     normal_map: np.ndarray | None = None
     normal_scale: float = 1.0
+    sheen_map: np.ndarray | None = None
 
     def __post_init__(self):
         if self.model not in MODELS:
@@ -93,6 +97,8 @@ class Material:
             raise InvalidInputError("a gloss_map (specular, glossiness) belongs to the phong model, not pbr")
         if self.model != "pbr" and self.metallic_roughness_map is not None:
             raise InvalidInputError("a metallic_roughness_map belongs to the pbr model, not phong")
+        if self.model != "pbr" and self.sheen_map is not None:
+            raise InvalidInputError("a sheen_map belongs to the pbr model, not phong")
         if not (np.isfinite(self.normal_scale) and 0.0 <= self.normal_scale <= 10.0):
             raise InvalidInputError(f"normal_scale must lie in [0, 10], got {self.normal_scale}")
 
@@ -155,3 +161,11 @@ class Material:
     def normal_texture(self) -> np.ndarray | None:
         """The normal map (H, W, 3) float32 in [0, 1], validated (None without one)."""
         return _texture("normal_map", self.normal_map, 3)
+
+    def sheen_texture(self) -> np.ndarray | None:
+        """The sheen map (H, W, 4) float32 in [0, 1] = (sheen colour, sheen roughness), validated."""
+        return _texture("sheen_map", self.sheen_map, 4, " = (sheen colour rgb, sheen roughness)")
+
+    def has_textures(self) -> bool:
+        """Whether any texture is read (then the mesh needs UVs)."""
+        return any(m is not None for m in (*self.maps(), self.normal_texture(), self.sheen_texture()))

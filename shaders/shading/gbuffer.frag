@@ -13,6 +13,8 @@ in vec2 v_uv;
 in vec4 v_pbr;
 in vec3 v_sheen;
 layout(location = 4) out vec4 o_pbr;        // metallic, roughness, sheen roughness, 1 (0: Phong)
+layout(binding = 6) uniform sampler2D u_sheen_map;    // rgb multiplies the sheen colour, a its roughness
+uniform bool u_use_sheen_map;
 #endif
 
 layout(binding = 3) uniform sampler2D u_albedo_map;   // multiplies the vertex albedo
@@ -68,11 +70,14 @@ void main() {
 #ifdef PBR
     // A pbr mesh's second map is glTF's metallic-roughness texture: it multiplies the two values.
     vec2 mr = u_use_gloss_map ? texture(u_gloss_map, v_uv).rg : vec2(1.0);
-    o_pbr = v_pbr.w > 0.5 ? vec4(v_pbr.xy * mr, v_pbr.z, 1.0) : vec4(0.0);
+    // KHR_materials_sheen's textures multiply the sheen colour and roughness.
+    vec4 sheen = u_use_sheen_map ? texture(u_sheen_map, v_uv) : vec4(1.0);
+    o_pbr = v_pbr.w > 0.5 ? vec4(v_pbr.xy * mr, v_pbr.z * sheen.a, 1.0) : vec4(0.0);
     if (v_pbr.w > 0.5) {
-        o_position.w = v_sheen.r;   // >= 0, so "covered" still reads from w (-1: no surface)
-        o_normal.w = v_sheen.g;
-        o_albedo.a = v_sheen.b;
+        vec3 sheen_colour = v_sheen * sheen.rgb;
+        o_position.w = sheen_colour.r;   // >= 0, so "covered" still reads from w (-1: no surface)
+        o_normal.w = sheen_colour.g;
+        o_albedo.a = sheen_colour.b;
     }
 #endif
 }
