@@ -189,3 +189,28 @@ def test_auto_takes_area_lights_where_they_hold_the_energy_and_the_budget_holds(
             for k, a in enumerate(np.linspace(0, 2 * np.pi, 12, endpoint=False))]
     regions, dec = area_regions(_discs(many, n=64)[0], 12)
     assert regions.n_regions == 12 and regions.area.sum() == 6 and dec.stopped_by == "max lights"
+
+
+def test_a_wide_light_is_cut_into_pieces_no_wider_than_the_limit_each_with_its_shadow():
+    """A window found as one light wider than the limit becomes ceil((radius / limit)^2) regions: each
+    piece of its disc a region of its own (its own shadow map), together the light's texels and energy."""
+    from renderer.lighting.area_lights import AUTO_MAX_RADIUS_DEG, area_regions
+
+    window, _ = _discs([((0, 0.2, 1), 25.0, 20.0)], n=64, background=0.05)
+    regions, dec = area_regions(window, 24)
+    (light,) = dec.lights
+    pieces = int(np.ceil((light.radius_rad / np.radians(AUTO_MAX_RADIUS_DEG)) ** 2))
+    assert pieces >= 2 and regions.area.sum() == pieces and regions.n_regions == 24
+    area_ids = np.flatnonzero(regions.area)
+    taken = np.isin(regions.labels, area_ids)
+    np.testing.assert_array_equal(taken, dec.owner == 0)   # the pieces are the light's disc, no more
+    omega = cube_solid_angles(64)
+    lum = window @ LUMINANCE_RGB
+    assert regions.energy_luminance[area_ids].sum() == pytest.approx(float((lum * omega)[taken].sum()), rel=1e-9)
+    # Each piece is narrower than the light, and they sit apart across it.
+    assert np.all(regions.disc_radius_rad()[area_ids] < light.radius_rad)
+    cos = regions.directions[area_ids] @ regions.directions[area_ids].T
+    assert cos[~np.eye(pieces, dtype=bool)].max() < np.cos(np.radians(3.0))
+    # A light within the limit stays one region.
+    small, _ = _discs([((0, 0.2, 1), 10.0, 20.0)], n=64, background=0.05)
+    assert area_regions(small, 24)[0].area.sum() == 1

@@ -386,7 +386,7 @@ def test_a_gltf_garments_sheen_textures_shade_each_texel_and_match_the_reference
     np.testing.assert_allclose(m.sheen_map[:, :4, :3], 0.0)
     np.testing.assert_allclose(m.sheen_map[:, 4:, :3], 1.0, atol=1e-6)
     np.testing.assert_allclose(m.sheen_map[..., 3], 128 / 255, atol=1e-6)
-    from service.specs import build_material, material_spec_of   # the service's schema carries it too
+    from service.specs import build_material, material_spec_of  # the service's schema carries it too
 
     np.testing.assert_allclose(build_material(material_spec_of(m), mesh, "garment").sheen_map, m.sheen_map, atol=1e-6)
 

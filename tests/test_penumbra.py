@@ -40,7 +40,7 @@ def _errors(renderer, radius_deg: float, height: float) -> dict[str, float]:
     pems = renderer.build_pems(cube, PEMSettings(n_lights=24, lights_from="area"))
     scene = renderer.create_scene(meshes, [GREY, GREY])
     try:
-        assert pems.regions.area_mask.sum() == 1
+        assert pems.regions.area_mask.sum() == (2 if radius_deg > 15.0 else 1)   # a wider light in pieces
         errors = {}
         for penumbra in ("fixed", "blocker"):
             frame = renderer.render(scene, pems, FrameSettings(SIZE, SIZE, penumbra=penumbra), CAM)
@@ -58,8 +58,9 @@ def _errors(renderer, radius_deg: float, height: float) -> dict[str, float]:
 
 def test_a_sphere_far_above_a_floor_casts_the_soft_shadow_of_a_large_light(renderer):
     """A 20-degree disc, the sphere 0.6 above the floor: the reference's shadow is all penumbra, which
-    the fixed maps (every preset's blur 0) draw as a hard disc. Measured at 64^2: fixed 0.23, blocker
-    0.11 (at 96^2 with 96 spp: 0.234 and 0.105)."""
+    the fixed maps (every preset's blur 0) draw as a hard disc. The disc, wider than 15 degrees, is two
+    pieces, each a shadow map. Measured at 64^2: fixed 0.166, blocker 0.091 (as one piece: 0.23 and
+    0.11)."""
     errors = _errors(renderer, 20.0, 0.6)
     assert errors["blocker"] < 0.7 * errors["fixed"], errors
 

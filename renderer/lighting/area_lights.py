@@ -205,7 +205,8 @@ def light_regions(cube: np.ndarray, n_lights: int, whole_sources: bool, lights_f
 # (angular radius), else the median cut. Chosen on the tuning maps of `garment-render bench --area`
 # at equal frame time: area won on the three whose widest light was 3.4-8.9 degrees and lost on the two
 # whose widest was 23.5 and 30 degrees (one disc standing for a window or a sky is too coarse a light);
-# the share of energy the lights hold did not separate them (docs/area-lights.md).
+# the share of energy the lights hold did not separate them (docs/area-lights.md). It is also the
+# widest piece an area light is shadowed as (`_light_pieces`): a wider one is cut.
 AUTO_MAX_RADIUS_DEG = 15.0
 
 
@@ -220,9 +221,53 @@ def auto_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False):
     return median_cut(cube[..., :3], n_lights, whole_sources), dec, "median-cut"
 
 
+def _light_pieces(dec: Decomposition, energy: np.ndarray, max_pieces: int) -> np.ndarray:
+    """Each texel's piece of an area light (int32 (6, F, F); -1: the remainder). A light wider than
+    AUTO_MAX_RADIUS_DEG is cut into ceil((radius / that)^2) pieces, each no wider, so that a window
+    or a bright sky is seen past a fold from several directions (each piece a region with its own
+    shadow map), the way the median cut would see it; at most `max_pieces` in all."""
+    n = dec.owner.shape[1]
+    d = texel_directions(n).reshape(-1, 3)
+    owner, e = dec.owner.reshape(-1), energy.reshape(-1)
+    limit = np.radians(AUTO_MAX_RADIUS_DEG)
+    wanted = [max(1, int(np.ceil((lt.radius_rad / limit) ** 2))) for lt in dec.lights]
+    while sum(wanted) > max_pieces and max(wanted) > 1:   # the budget first: the widest gives up pieces
+        wanted[int(np.argmax(wanted))] -= 1
+    out = np.full(owner.shape, -1, np.int32)
+    next_id = 0
+    for i, (light, count) in enumerate(zip(dec.lights, wanted)):
+        parts = [np.flatnonzero(owner == i)]
+        t, b = _tangents(np.asarray(light.direction))
+        while len(parts) < count:   # halve the widest part where its energy is halved
+            widths = [np.ptp(d[p] @ t) + np.ptp(d[p] @ b) if len(p) > 1 else -1.0 for p in parts]
+            j = int(np.argmax(widths))
+            if widths[j] < 0:
+                break
+            p = parts.pop(j)
+            axis = t if np.ptp(d[p] @ t) >= np.ptp(d[p] @ b) else b
+            x = d[p] @ axis
+            order = np.argsort(x, kind="stable")
+            cum = np.cumsum(e[p][order])
+            cut = int(np.clip(np.searchsorted(cum, 0.5 * cum[-1]) + 1, 1, len(p) - 1)) if cum[-1] > 0 else len(p) // 2
+            parts += [p[order[:cut]], p[order[cut:]]]
+        for part in parts:
+            if len(part):
+                out[part] = next_id
+                next_id += 1
+    return out.reshape(dec.owner.shape)
+
+
+def _tangents(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    helper = np.array([0.0, 1.0, 0.0]) if abs(c[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    t = np.cross(c, helper)
+    t /= np.linalg.norm(t)
+    return t, np.cross(c, t)
+
+
 def area_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False, dec: Decomposition | None = None):
     """The PEM set's regions from the decomposition (`PEMSettings.lights_from` "area"): one region
-    per area light (its disc's texels), and the ambient remainder median-cut into the n_lights - k
+    per area light (its disc's texels; a light wider than AUTO_MAX_RADIUS_DEG in pieces, a region
+    each, `_light_pieces`), and the ambient remainder median-cut into the n_lights - k
     regions the k area lights leave (`median_cut_to`; at least 6), each a light with its own PEM
     and shadow map like any other. Returns (RegionSet, Decomposition); a map without area lights
     gets the plain median cut. `dec`: the decomposition, if made already (at most n_lights - 6 lights,
@@ -231,19 +276,20 @@ def area_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False, d
 
     if dec is None:
         dec = decompose(cube, max_lights=max(0, n_lights - 6))
-    k = len(dec.lights)
-    if k == 0:
+    if not dec.lights:
         return median_cut(cube[..., :3], n_lights, whole_sources), dec
-    m = max(6, n_lights - k)   # the whole budget: the remainder gets every light the area lights leave
-    rest = median_cut_to(dec.ambient.astype(np.float64), m, whole_sources)
     n = cube.shape[1]
-    labels = np.where(dec.owner >= 0, m + dec.owner, rest.labels).astype(np.int32)
-    rects = [tuple(r) for r in rest.rects]
-    for i in range(k):   # a disc's rect: its first texel (read by nothing but the stored format)
-        f, r, c = (int(x[0]) for x in np.nonzero(dec.owner == i)) if (dec.owner == i).any() else (0, 0, 0)
-        rects.append((f, r, r + 1, c, c + 1))
     rgb = np.asarray(cube[..., :3], np.float64)
     energy = np.maximum(rgb @ LUMINANCE_RGB, 0.0) * cube_solid_angles(n)
+    pieces = _light_pieces(dec, energy, n_lights - 6)
+    k = int(pieces.max()) + 1
+    m = max(6, n_lights - k)   # the whole budget: the remainder gets every light the area lights leave
+    rest = median_cut_to(dec.ambient.astype(np.float64), m, whole_sources)
+    labels = np.where(pieces >= 0, m + pieces, rest.labels).astype(np.int32)
+    rects = [tuple(r) for r in rest.rects]
+    for i in range(k):   # a piece's rect: its first texel (read by nothing but the stored format)
+        f, r, c = (int(x[0]) for x in np.nonzero(pieces == i)) if (pieces == i).any() else (0, 0, 0)
+        rects.append((f, r, r + 1, c, c + 1))
     dirs, omega, energy_rgb, spread, mean_cos = _region_stats(rgb, energy, labels, m + k)
     regions = RegionSet(labels, dirs, omega, energy_rgb, np.asarray(rects, np.int32), spread, mean_cos,
                         np.concatenate([np.zeros(m, bool), np.ones(k, bool)]))
