@@ -323,7 +323,7 @@ def test_area_lights_are_reported_and_previewed(http, mesh, tmp_path):
     h, w = 64, 128
     d, _ = image_to_dir(np.arange(w)[None, :] + 0.5, np.arange(h)[:, None] + 0.5, Layout.LATLONG, h, w)
     img = np.full((h, w, 3), 0.1, np.float32)
-    for centre, radius, radiance in (((0.6, 0.6, 0.5), 10.0, 60.0), ((-0.7, 0.5, -0.5), 14.0, 20.0)):
+    for centre, radius, radiance in (((0.6, 0.6, 0.5), 10.0, 60.0), ((-0.7, 0.5, -0.5), 11.0, 20.0)):
         c = np.asarray(centre) / np.linalg.norm(centre)
         img[(d @ c) >= np.cos(np.radians(radius))] = radiance
     path = tmp_path / "discs.exr"
