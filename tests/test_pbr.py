@@ -333,6 +333,15 @@ def _glb_with_sheen(path, colour=(0.9, 0.5, 0.6), roughness=0.45, textured=True,
     return path
 
 
+def _frame(renderer, pems, mesh, material, camera=CAM):
+    """The renderer's 64 x 64 frame of one mesh."""
+    scene = renderer.create_scene([mesh], [material])
+    try:
+        return renderer.render(scene, pems, FrameSettings(64, 64), camera)
+    finally:
+        scene.release()
+
+
 def test_a_gltf_garment_brings_its_material_and_renders_like_the_reference(renderer, sun, tmp_path):
     from renderer.mesh import load_mesh
     from renderer.shading.gltf import material_from_gltf
@@ -356,11 +365,7 @@ def test_a_gltf_garment_brings_its_material_and_renders_like_the_reference(rende
 
     cube, pems = sun
     mesh = load_mesh(path)
-    scene = renderer.create_scene([mesh], [m])
-    try:
-        frame = renderer.render(scene, pems, FrameSettings(64, 64), CAM)
-    finally:
-        scene.release()
+    frame = _frame(renderer, pems, mesh, m)
     ref = render_reference([mesh], [m], cube, CAM, 64, 64, spp=64)
     assert relative_rmse(frame.image, ref.image) < 0.2
     # Both read the textures: the mean matches, and differs from the untextured material's.
@@ -394,11 +399,7 @@ def test_a_gltf_garments_sheen_textures_shade_each_texel_and_match_the_reference
     frames = {}
     for name, material in (("mapped", m), ("none", dataclasses.replace(m, sheen_map=None, sheen_colour=(0, 0, 0))),
                            ("full", dataclasses.replace(m, sheen_map=None, sheen_roughness=0.45 * 128 / 255))):
-        scene = renderer.create_scene([mesh], [material])
-        try:
-            frames[name] = renderer.render(scene, pems, FrameSettings(64, 64), CAM).image
-        finally:
-            scene.release()
+        frames[name] = _frame(renderer, pems, mesh, material).image
     # Screen left is u < 0.5 (the sphere's UVs follow x); a band around the edge is left out, where
     # the texture's filtering mixes the two halves.
     mask = frames["mapped"][..., 3] > 0.5
@@ -441,11 +442,7 @@ def test_a_gltf_garment_of_two_materials_renders_each_piece_with_its_own(rendere
 
     cube, pems = sun
     camera = Camera((1.0, 0.4, 4.0), (1.0, 0.0, 0.0), fov_y_deg=45.0)
-    scene = renderer.create_scene([mesh], [m])
-    try:
-        frame = renderer.render(scene, pems, FrameSettings(64, 64), camera)
-    finally:
-        scene.release()
+    frame = _frame(renderer, pems, mesh, m, camera)
     ref = render_reference([mesh], [m], cube, camera, 64, 64, spp=64)
     assert relative_rmse(frame.image, ref.image) < 0.2
     # The two pieces look different in both (a second material that was ignored would not).
