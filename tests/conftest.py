@@ -74,11 +74,11 @@ def paper(*size, **settings):
 
 
 def paper_pems(*args, **settings):
-    """PEMSettings with the paper's plain median cut (no source kept whole) under `settings`, as
-    `paper()` is for FrameSettings; PEMSettings() itself is the balanced preset's."""
+    """PEMSettings with the paper's plain median cut (no source kept whole, no area lights) under
+    `settings`, as `paper()` is for FrameSettings; PEMSettings() itself is the balanced preset's."""
     from renderer.lighting.pem import PEMSettings
 
-    return PEMSettings(*args, **{"whole_sources": False, **settings})
+    return PEMSettings(*args, **{"whole_sources": False, "lights_from": "median-cut", **settings})
 
 
 def sphere(radius=0.5, *, centre=(0, 0, 0), subdivisions=4) -> Mesh:

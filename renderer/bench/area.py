@@ -11,6 +11,10 @@ median frame time of `frames` frames, side by side in one run, and the lights ea
 against the median cut's interpolated at area's frame time (linear in log time between the budgets,
 clamped at the ends). Each map is labelled tuning or held-out by the broad benchmark's rule
 (`catalogue.split`): a rule chosen on the tuning maps is judged on the held-out ones.
+
+"The knob sweep's scenes": the newton shirt on its dress form under the four target probes
+(scenes.shared_scenes, the scenes the presets' other values were chosen on), the balanced preset
+with the median cut and with auto, the two taking turns twice.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from .catalogue import BODY, FABRICS, MAPS, Scene, environment_cube, split
 from .materials import ReferencePair
 from .report import machine_info
 from .run import time_frames
+from .scenes import shared_scenes
 
 BUDGETS = (12, 24, 48)
 FABRIC = "sheen"
@@ -75,12 +80,48 @@ def run(out_dir: Path, quick: bool = False, spp: int = 128, frames: int = 3, log
                         f"{row['frame_ms']:.0f} ms")
             finally:
                 gs.release()
+        sweep = [] if quick else sweep_scenes(r, base, spp, frames, log)
         machine = machine_info(r.gl)
     data = {"machine": machine, "spp": spp, "frames": frames, "quick": quick, "budgets": list(BUDGETS),
-            "wall_s": time.perf_counter() - t_start, "rows": rows, "maps": compare(rows)}
+            "wall_s": time.perf_counter() - t_start, "rows": rows, "maps": compare(rows), "sweep": sweep}
     (out_dir / "area.json").write_text(json.dumps(data, indent=1))
     (out_dir / "area.md").write_text(markdown(data))
     return data
+
+
+def sweep_scenes(r: Renderer, base: dict, spp: int, frames: int, log=print) -> list[dict]:
+    """The knob sweep's scenes at 128 x 128: balanced with the median cut and with auto, each twice,
+    taking turns (the frame time the median of both turns' medians)."""
+    from ..camera import frame_meshes
+
+    out = []
+    for bs in shared_scenes():
+        camera = frame_meshes(bs.meshes, 1.0)
+        truth = ReferencePair.render(bs.meshes, bs.materials, bs.cube(256), camera, 128, spp)
+        gs = r.create_scene(bs.meshes, bs.materials)
+        try:
+            got: dict[str, dict] = {}
+            for lights_from in ("median-cut", "auto") * 2:
+                knobs = {**base, "lights_from": lights_from}
+                pems = r.build_pems(bs.cube(int(base["face_size"])), pem_settings(knobs, "sqrt-cosine", None))
+                try:
+                    f, frame_ms, _ = time_frames(r, gs, pems, frame_settings(knobs, 128, 128), camera, frames)
+                    s = pems.summary()
+                    row = got.setdefault(lights_from, {"used": s["lights_from_used"],
+                                                       "area_lights": len(s["area_lights"] or []),
+                                                       "rel_rmse": relative_rmse(f.image, truth.image, truth.mask),
+                                                       "ms": []})
+                    row["ms"].append(frame_ms)
+                finally:
+                    pems.release()
+        finally:
+            gs.release()
+        row = {"scene": bs.name, "map": bs.env_name, "noise_floor": truth.floor,
+               **{f"{k}_{lf}": (float(np.median(v)) if k == "ms" else v) for lf, d in got.items() for k, v in d.items()}}
+        out.append(row)
+        log(f"{bs.name:24s} median cut {row['rel_rmse_median-cut']:.3f} ({row['ms_median-cut']:.0f} ms), auto "
+            f"({row['used_auto']}) {row['rel_rmse_auto']:.3f} ({row['ms_auto']:.0f} ms)")
+    return out
 
 
 def _interp_error(points: list[tuple[float, float]], ms: float) -> float:
@@ -153,6 +194,15 @@ def markdown(data: dict) -> str:
                      f"higher on {worse} of {len(pen)} maps (by more than 0.002), median frame time "
                      f"{ratio:.2f}x the fixed maps'.")
     lines.append("")
+    if data.get("sweep"):
+        lines += ["The knob sweep's scenes (the newton shirt on its dress form, 128 x 128, balanced otherwise):", "",
+                  "| scene | map | median cut | auto (used, area lights) | median cut ms | auto ms | floor |",
+                  "|---|---|---|---|---|---|---|"]
+        for w in data["sweep"]:
+            lines.append(f"| {w['scene']} | {w['map']} | {w['rel_rmse_median-cut']:.3f} | {w['rel_rmse_auto']:.3f} "
+                         f"({w['used_auto']}, {w['area_lights_auto']}) | {w['ms_median-cut']:.0f} | {w['ms_auto']:.0f} | "
+                         f"{w['noise_floor']:.3f} |")
+        lines.append("")
     lines += ["Every row:", "", "| map | lights_from | budget | penumbra | lights (area) | rel. RMSE | frame ms |",
               "|---|---|---|---|---|---|---|"]
     for r in data["rows"]:
