@@ -642,17 +642,10 @@ class Renderer:
             g["u_view_proj"].write(vp_bytes)
             set_uniform(g, "u_camera_pos", tuple(float(x) for x in camera.eye))
             for sm in scene.meshes:
-                mb = sm.variants[variant]
-                mb.albedo_tex.use(location=3)
-                mb.gloss_tex.use(location=4)
-                mb.normal_tex.use(location=5)
-                mb.sheen_tex.use(location=6)
-                set_uniform(g, "u_normal_scale", mb.normal_scale)
-                set_uniform(g, "u_use_albedo_map", mb.use_maps[0])
-                set_uniform(g, "u_use_gloss_map", mb.use_maps[1])
-                set_uniform(g, "u_use_sheen_map", mb.use_maps[2])
                 set_uniform(g, "u_shadow_group", float(sm.group))
-                mb.vao_gbuffer.render(moderngl.TRIANGLES)
+                for part in sm.variants[variant].parts:   # one draw per texture set
+                    part.bind(g)
+                    part.vao.render(moderngl.TRIANGLES)
 
     def _lighting_pass(self, scene: Scene, pems: PEMSet, settings: FrameSettings, camera: Camera,
                        view_proj: np.ndarray, vp_bytes: bytes, lp: _LightPlan, arrays: dict[str, ShadowMaps],

@@ -9,8 +9,9 @@ import numpy as np
 
 from .errors import MeshError
 from .gpu.context import GLContext
+from .gpu.shaders import set_uniform
 from .mesh import FALLBACK_NORMAL, Mesh, box, box_corners, vertex_normals
-from .shading.material import Material
+from .shading.material import Material, TextureSet
 from .shadows.proxy import caster_proxy
 
 # Shadow groups (Scene): each caster's moments go to its group's pair of the shadow maps; a receiver
@@ -246,36 +247,26 @@ class SceneMesh:
             obj.release()
 
 
-class MaterialBuffers:
-    """One material of a mesh on the GPU: its per-vertex buffers, its textures and the geometry pass's
-    vertex array over them and the mesh's own positions, normals and UVs (SceneMesh.variants)."""
+class TexturePart:
+    """The triangles of a mesh that read one texture set (Material.texture_groups) on the GPU: its
+    textures and the geometry pass's vertex array over them (all of the mesh's triangles when the
+    material has one set)."""
 
-    def __init__(self, sm: SceneMesh, material: Material):
-        ctx, n = sm._ctx, sm.n_vertices
-        self.material = material
-        albedo, mat = material.vertex_arrays(n)
-        pbr_values, sheen = material.pbr_arrays(n) if sm._pbr else (None, None)
-        albedo_map, gloss_map = material.maps()
-        normal_map = material.normal_texture()
-        self.buffers = [ctx.buffer(albedo.tobytes()), ctx.buffer(mat.tobytes())]
-        if sm._pbr:
-            self.buffers += [ctx.buffer(pbr_values.tobytes()), ctx.buffer(sheen.tobytes())]
+    def __init__(self, ctx, textures: TextureSet, is_pbr: bool, program, attributes, ibo, n_faces: int):
         self.textures = []
+        albedo_map, gloss_map = textures.maps(is_pbr)
+        normal_map = textures.normal_texture()
+        sheen_map = textures.sheen_texture()
         self.albedo_tex = self._texture(ctx, albedo_map, 3, (1.0, 1.0, 1.0))
         self.gloss_tex = self._texture(ctx, gloss_map, 2, (0.0, 0.0))
         self.normal_tex = self._texture(ctx, normal_map, 3, (0.5, 0.5, 1.0))
-        sheen_map = material.sheen_texture()
         self.sheen_tex = self._texture(ctx, sheen_map, 4, (1.0, 1.0, 1.0, 1.0))
         self.use_maps = (albedo_map is not None, gloss_map is not None, sheen_map is not None)
         # The normal map's scale of x and y; 0: no normal map.
-        self.normal_scale = float(material.normal_scale) if normal_map is not None else 0.0
-        attributes = [(sm.vbo_pos, "3f", "in_position"), (sm.vbo_nrm, "3f", "in_normal"),
-                      (self.buffers[0], "3f", "in_albedo"), (self.buffers[1], "2f", "in_material"),
-                      (sm.vbo_uv, "2f", "in_uv")]
-        if sm._pbr:
-            attributes += [(self.buffers[2], "4f", "in_pbr"), (self.buffers[3], "3f", "in_sheen")]
-        self.vao_gbuffer = ctx.vertex_array(sm._programs["gbuffer_pbr" if sm._pbr else "gbuffer"], attributes,
-                                            index_buffer=sm.ibo, index_element_size=4, skip_errors=True)
+        self.normal_scale = float(textures.normal_scale) if normal_map is not None else 0.0
+        self.ibo = ibo   # owned here unless it is the mesh's own (one part)
+        self.n_faces = n_faces
+        self.vao = ctx.vertex_array(program, attributes, index_buffer=ibo, index_element_size=4, skip_errors=True)
 
     def _texture(self, ctx, data, comps, default):
         if data is None:
@@ -288,8 +279,59 @@ class MaterialBuffers:
         self.textures.append(tex)
         return tex
 
+    def bind(self, program) -> None:
+        """The part's textures on units 3-6 and its uniforms (gbuffer.frag)."""
+        self.albedo_tex.use(location=3)
+        self.gloss_tex.use(location=4)
+        self.normal_tex.use(location=5)
+        self.sheen_tex.use(location=6)
+        set_uniform(program, "u_normal_scale", self.normal_scale)
+        set_uniform(program, "u_use_albedo_map", self.use_maps[0])
+        set_uniform(program, "u_use_gloss_map", self.use_maps[1])
+        set_uniform(program, "u_use_sheen_map", self.use_maps[2])
+
+    def release(self, own_ibo: bool) -> None:
+        for obj in (self.vao, *self.textures, *((self.ibo,) if own_ibo else ())):
+            obj.release()
+
+
+class MaterialBuffers:
+    """One material of a mesh on the GPU: its per-vertex buffers and, per texture set, the part of
+    the mesh that reads it (TexturePart: one draw of the geometry pass each) over the mesh's own
+    positions, normals and UVs (SceneMesh.variants)."""
+
+    def __init__(self, sm: SceneMesh, material: Material):
+        ctx, n = sm._ctx, sm.n_vertices
+        self.material = material
+        albedo, mat = material.vertex_arrays(n)
+        pbr_values, sheen = material.pbr_arrays(n) if sm._pbr else (None, None)
+        groups = material.texture_groups()
+        face_sets = material.face_texture_sets(sm.mesh.faces, n) if len(groups) > 1 else None
+        self.buffers = [ctx.buffer(albedo.tobytes()), ctx.buffer(mat.tobytes())]
+        if sm._pbr:
+            self.buffers += [ctx.buffer(pbr_values.tobytes()), ctx.buffer(sheen.tobytes())]
+        attributes = [(sm.vbo_pos, "3f", "in_position"), (sm.vbo_nrm, "3f", "in_normal"),
+                      (self.buffers[0], "3f", "in_albedo"), (self.buffers[1], "2f", "in_material"),
+                      (sm.vbo_uv, "2f", "in_uv")]
+        if sm._pbr:
+            attributes += [(self.buffers[2], "4f", "in_pbr"), (self.buffers[3], "3f", "in_sheen")]
+        program = sm._programs["gbuffer_pbr" if sm._pbr else "gbuffer"]
+        self.parts: list[TexturePart] = []
+        self._own_ibos = face_sets is not None
+        for k, textures in enumerate(groups):
+            if face_sets is None:
+                ibo, n_faces = sm.ibo, int(sm.mesh.faces.shape[0])
+            else:
+                faces = sm.mesh.faces[face_sets == k]
+                if not len(faces):
+                    continue   # a set no triangle reads
+                ibo, n_faces = ctx.buffer(np.ascontiguousarray(faces, np.int32).tobytes()), len(faces)
+            self.parts.append(TexturePart(ctx, textures, material.is_pbr, program, attributes, ibo, n_faces))
+
     def release(self) -> None:
-        for obj in (self.vao_gbuffer, *self.buffers, *self.textures):
+        for part in self.parts:
+            part.release(self._own_ibos)
+        for obj in self.buffers:
             obj.release()
 
 

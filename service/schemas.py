@@ -10,6 +10,7 @@ from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Fie
 
 from renderer import config
 from renderer.presets import PRESET_NAMES
+from renderer.shading.material import MAX_TEXTURE_SETS
 
 Preset = Enum("Preset", {name.upper(): name for name in PRESET_NAMES}, type=str)
 Preset.__doc__ = "A quality preset (renderer/presets/*.toml)."
@@ -138,6 +139,17 @@ class CameraSpec(_Strict):
 # -- meshes and materials --------------------------------------------------------------------------
 
 
+class TextureSetSpec(_Strict):
+    """One set of a material's textures (the MaterialSpec fields of the same names)."""
+
+    albedo_map: list[list[list[float]]] | None = None
+    gloss_map: list[list[list[float]]] | None = None
+    metallic_roughness_map: list[list[list[float]]] | None = None
+    normal_map: list[list[list[float]]] | None = None
+    normal_scale: float = Field(1.0, ge=0.0, le=10.0)
+    sheen_map: list[list[list[float]]] | None = None
+
+
 class MaterialSpec(_Strict):
     """Scalars or per-vertex lists; maps are (H, W, 3) / (H, W, 2) nested lists and need mesh UVs."""
 
@@ -162,6 +174,11 @@ class MaterialSpec(_Strict):
     sheen_map: list[list[list[float]]] | None = Field(
         None, description="pbr: (H, W, 4) texture whose rgb multiplies sheen_colour and a sheen_roughness "
         "(KHR_materials_sheen's textures); needs mesh UVs")
+    texture_sets: list[TextureSetSpec] = Field(
+        default_factory=list, max_length=MAX_TEXTURE_SETS, description="several sets of the maps above, one per "
+        "part of the mesh (a shirt's fabric, its buttons); the maps above then stay empty")
+    texture_set: list[int] | None = Field(None, description="(V,) the texture set each vertex reads (a "
+                                          "triangle's three corners read the same)")
 
 
 # The rule of MeshSpec._one_source in the schema: a mesh_id and no inline arrays, or both arrays and

@@ -15,13 +15,13 @@ from renderer.lighting.pem import PEMSettings, pem_cost
 from renderer.mesh import Mesh, z_up_to_y_up
 from renderer.presets import base_knobs, frame_settings, merge_knobs, pem_settings
 from renderer.renderer import Background, FrameSettings, ShadingMode
-from renderer.shading.material import Material
+from renderer.shading.material import Material, TextureSet
 from renderer.shadows.proxy import caster_proxy_isolated
 from renderer.shadows.vsm import MOMENT_BYTES
 
 from .errors import InvalidRequestError, PayloadTooLargeError
 from .registry import MeshStore
-from .schemas import CameraSpec, MaterialSpec, MeshSpec, OutputSpec, QualitySpec, SceneCreate
+from .schemas import CameraSpec, MaterialSpec, MeshSpec, OutputSpec, QualitySpec, SceneCreate, TextureSetSpec
 from .settings import ServiceSettings
 
 _KNOBS = config.NAMES
@@ -154,11 +154,17 @@ def material_spec_of(m: Material) -> MaterialSpec:
     def value(x):   # a scalar, or a list per vertex (a file of several materials)
         return float(x) if np.ndim(x) == 0 else listed(x)
 
+    def maps(ts) -> dict:
+        return {"albedo_map": listed(ts.albedo_map), "metallic_roughness_map": listed(ts.metallic_roughness_map),
+                "normal_map": listed(ts.normal_map), "normal_scale": float(ts.normal_scale),
+                "sheen_map": listed(ts.sheen_map)}
+
+    sets = {} if not m.texture_sets else {
+        "texture_sets": [TextureSetSpec(**maps(ts)) for ts in m.texture_sets],
+        "texture_set": np.asarray(m.texture_set, np.int64).tolist()}
     return MaterialSpec(model=m.model, albedo=listed(m.albedo), metallic=value(m.metallic), roughness=value(m.roughness),
                         sheen_colour=listed(m.sheen_colour), sheen_roughness=value(m.sheen_roughness),
-                        albedo_map=listed(m.albedo_map), metallic_roughness_map=listed(m.metallic_roughness_map),
-                        normal_map=listed(m.normal_map), normal_scale=float(m.normal_scale),
-                        sheen_map=listed(m.sheen_map))
+                        **({} if m.texture_sets else maps(m)), **sets)
 
 
 def file_material(spec: MeshSpec, meshes: MeshStore) -> MaterialSpec:
@@ -176,14 +182,20 @@ def build_material(spec: MaterialSpec, mesh: Mesh, role: str) -> Material:
     def arr(x):
         return None if x is None else np.asarray(x, np.float32) if _rectangular_any(x) else _ragged(role, x)
 
+    def maps(ts) -> dict:
+        return {"albedo_map": arr(ts.albedo_map), "gloss_map": arr(ts.gloss_map),
+                "metallic_roughness_map": arr(ts.metallic_roughness_map), "normal_map": arr(ts.normal_map),
+                "normal_scale": ts.normal_scale, "sheen_map": arr(ts.sheen_map)}
+
     try:
         mat = Material(albedo=arr(spec.albedo), specular=arr(spec.specular), glossiness=arr(spec.glossiness),
-                       albedo_map=arr(spec.albedo_map), gloss_map=arr(spec.gloss_map), model=spec.model,
-                       metallic=arr(spec.metallic), roughness=arr(spec.roughness), sheen_colour=arr(spec.sheen_colour),
-                       sheen_roughness=arr(spec.sheen_roughness), metallic_roughness_map=arr(spec.metallic_roughness_map),
-                       normal_map=arr(spec.normal_map), normal_scale=spec.normal_scale, sheen_map=arr(spec.sheen_map))
+                       model=spec.model, metallic=arr(spec.metallic), roughness=arr(spec.roughness),
+                       sheen_colour=arr(spec.sheen_colour), sheen_roughness=arr(spec.sheen_roughness), **maps(spec),
+                       texture_sets=tuple(TextureSet(**maps(ts)) for ts in spec.texture_sets),
+                       texture_set=None if spec.texture_set is None else np.asarray(spec.texture_set, np.int64))
         mat.vertex_arrays(mesh.n_vertices)
         mat.pbr_arrays(mesh.n_vertices)
+        mat.face_texture_sets(mesh.faces, mesh.n_vertices)
         textured = mat.has_textures()   # validates every map
     except ValueError as e:  # InvalidInputError is a ValueError
         raise type(e)(f"{role} material: {e}") from None

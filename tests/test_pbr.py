@@ -271,24 +271,26 @@ def test_the_stored_figure_7_table_is_what_the_tables_give():
 
 
 def _glb_with_sheen(path, colour=(0.9, 0.5, 0.6), roughness=0.45, textured=True, two_materials=False,
-                    sheen_textures=None):
+                    sheen_textures=None, tints=(None, None)):
     """A GLB written by trimesh (a sphere with UVs, a metallic-roughness material and its textures),
     its JSON then given the sheen extension, as exporters of KHR_materials_sheen write it.
-    sheen_textures: (colour RGB uint8 image, roughness RGBA uint8 image), stored in the binary chunk."""
+    sheen_textures: (colour RGB uint8 image, roughness RGBA uint8 image), stored in the binary chunk.
+    tints: per sphere, an RGB uint8 colour its base colour texture is filled with (None: noise)."""
     import json
     import struct
 
     import trimesh
     from PIL import Image
 
-    def piece(offset, roughness_factor=0.9):
+    def piece(offset, roughness_factor=0.9, tint=None):
         m = trimesh.creation.uv_sphere(0.5, count=(24, 24))
         m.apply_translation(offset)
         uv = np.asarray(m.vertices)[:, :2] * 0.5 + 0.5
         rng = np.random.default_rng(0)
         kw = {}
         if textured:
-            kw["baseColorTexture"] = Image.fromarray(rng.integers(60, 200, (8, 8, 3), dtype=np.uint8))
+            kw["baseColorTexture"] = Image.fromarray(rng.integers(60, 200, (8, 8, 3), dtype=np.uint8) if tint is None
+                                                     else np.full((8, 8, 3), tint, np.uint8))
             mr = np.zeros((8, 8, 3), np.uint8)
             mr[..., 1], mr[..., 2] = 200, 0   # roughness 0.78 x factor, metallic 0
             kw["metallicRoughnessTexture"] = Image.fromarray(mr)
@@ -298,7 +300,8 @@ def _glb_with_sheen(path, colour=(0.9, 0.5, 0.6), roughness=0.45, textured=True,
         m.visual = trimesh.visual.TextureVisuals(uv=uv, material=mat)
         return m
 
-    scene = trimesh.Scene([piece((0, 0, 0))] + ([piece((2.0, 0, 0), 0.4)] if two_materials else []))
+    scene = trimesh.Scene([piece((0, 0, 0), tint=tints[0])]
+                          + ([piece((2.0, 0, 0), 0.4, tints[1])] if two_materials else []))
     data = scene.export(file_type="glb")
     (n_json,) = struct.unpack_from("<I", data, 12)
     doc = json.loads(data[20:20 + n_json])
@@ -453,12 +456,104 @@ def test_a_gltf_garment_of_two_materials_renders_each_piece_with_its_own(rendere
         assert abs(img[left][:, :3].max() - img[right][:, :3].max()) > 0.05 * img[half][:, :3].max()
 
 
-def test_a_gltf_file_of_materials_with_different_textures_is_refused_naming_them(tmp_path):
-    from renderer.shading.gltf import material_from_gltf
+def test_a_gltf_garment_whose_materials_have_their_own_textures_renders_each_piece_with_its_own(
+        renderer, sun, tmp_path):
+    """Pieces whose materials use different textures (a red and a blue base colour texture): one
+    texture set per material, each vertex its piece's; drawn part by part, the image matches the
+    reference's, and the service's scene schema carries the sets."""
+    from renderer.mesh import load_mesh
+    from renderer.shading.gltf import material_from_gltf, srgb_to_linear
+    from service.specs import build_material, material_spec_of
 
-    path = _glb_with_sheen(tmp_path / "two.glb", textured=True, two_materials=True)
-    with pytest.raises(InvalidInputError, match="uses 2 materials with different textures"):
-        material_from_gltf(path)
+    red, blue = (220, 40, 40), (40, 40, 220)
+    path = _glb_with_sheen(tmp_path / "two.glb", colour=(0.0, 0.0, 0.0), two_materials=True, tints=(red, blue))
+    m, mesh = material_from_gltf(path), load_mesh(path)
+    assert len(m.texture_sets) == 2 and m.albedo_map is None
+    second = np.asarray(mesh.positions)[:, 0] > 1.0   # the sphere translated along x, the blue one
+    np.testing.assert_array_equal(m.texture_set, second.astype(np.int64))
+    for ts, tint in zip(m.texture_sets, (red, blue)):
+        np.testing.assert_allclose(ts.albedo_map[0, 0], srgb_to_linear(np.asarray(tint) / 255.0), atol=1e-6)
+        assert ts.metallic_roughness_map is not None and ts.normal_map is not None
+    again = build_material(material_spec_of(m), mesh, "garment")
+    np.testing.assert_array_equal(again.texture_set, m.texture_set)
+    np.testing.assert_allclose(again.texture_sets[1].albedo_map, m.texture_sets[1].albedo_map, atol=1e-6)
+
+    cube, pems = sun
+    camera = Camera((1.0, 0.4, 4.0), (1.0, 0.0, 0.0), fov_y_deg=45.0)
+    frame = _frame(renderer, pems, mesh, m, camera)
+    ref = render_reference([mesh], [m], cube, camera, 64, 64, spp=64)
+    assert relative_rmse(frame.image, ref.image) < 0.2
+    both = covered(frame) & covered(ref)
+    left, right = both.copy(), both.copy()
+    left[:, 32:], right[:, :32] = False, False
+    for img in (frame.image, ref.image):   # red on the left, blue on the right, in both
+        lo, hi = img[left][:, :3].mean(axis=0), img[right][:, :3].mean(axis=0)
+        assert lo[0] > 3.0 * lo[2] and hi[2] > 3.0 * hi[0], (lo, hi)
+
+
+@pytest.mark.parametrize("model", ["phong", "pbr"])
+def test_texture_sets_shade_each_part_as_its_material_values_would(renderer, sun, model):
+    """Two spheres in one mesh, each reading its own texture set of uniform textures, render and
+    reference exactly as the same colours and roughnesses given per vertex do: each part is drawn
+    with its own set, and no triangle reads the other's."""
+    from renderer.mesh import Mesh
+    from renderer.shading.material import TextureSet
+
+    a = _uv_sphere()
+    mesh = Mesh.from_arrays(np.concatenate([a.positions - (0.6, 0, 0), a.positions + (0.6, 0, 0)]),
+                            np.concatenate([a.faces, a.faces + a.n_vertices]), np.concatenate([a.uvs, a.uvs]))
+    which = np.repeat([0, 1], a.n_vertices)
+    colours, values = np.array([[0.9, 0.2, 0.1], [0.1, 0.3, 0.8]]), np.array([[0.0, 0.3], [1.0, 0.7]])
+    second = "metallic_roughness_map" if model == "pbr" else "gloss_map"
+    sets = tuple(TextureSet(albedo_map=np.full((4, 4, 3), c), **{second: np.full((4, 4, 2), v)})
+                 for c, v in zip(colours, values))
+    if model == "pbr":   # the map multiplies the factors, which are 1
+        plain = Material(model="pbr", albedo=colours[which], metallic=values[which, 0], roughness=values[which, 1])
+        textured = Material(model="pbr", albedo=(1.0, 1.0, 1.0), metallic=1.0, roughness=1.0, texture_sets=sets,
+                            texture_set=which)
+    else:   # the gloss map replaces (specular, glossiness)
+        plain = Material(colours[which], values[which, 0] * 0.5 + 0.2, values[which, 1])
+        sets = tuple(dataclasses.replace(ts, gloss_map=np.full((4, 4, 2), (v[0] * 0.5 + 0.2, v[1])))
+                     for ts, v in zip(sets, values))
+        textured = Material((1.0, 1.0, 1.0), 0.0, 0.5, texture_sets=sets, texture_set=which)
+    cube, pems = sun
+    camera = Camera((0.0, 0.3, 3.0), (0.0, 0.0, 0.0), fov_y_deg=50.0)
+    got, want = (_frame(renderer, pems, mesh, mat, camera).image for mat in (textured, plain))
+    assert covered_pixels(want) > 500
+    np.testing.assert_allclose(got, want, atol=2e-4 * float(want[..., :3].max()))
+    ref_got, ref_want = (render_reference([mesh], [mat], cube, camera, 24, 24, spp=4, seed=3).image
+                         for mat in (textured, plain))
+    np.testing.assert_allclose(ref_got, ref_want, rtol=1e-6, atol=1e-9)
+
+
+def covered_pixels(image) -> int:
+    return int((image[..., 3] > 0.5).sum())
+
+
+def test_texture_sets_are_checked_before_any_gpu_work():
+    from renderer.shading.material import MAX_TEXTURE_SETS, TextureSet
+
+    white = TextureSet(albedo_map=np.ones((2, 2, 3)))
+    faces = np.array([[0, 1, 2], [2, 3, 0]])
+    with pytest.raises(InvalidInputError, match="corners of different sets.*triangle 0"):
+        Material(texture_sets=(white, white), texture_set=np.array([0, 0, 1, 0])).face_texture_sets(faces, 4)
+    with pytest.raises(InvalidInputError, match=r"must lie in \[0, 1\]"):
+        Material(texture_sets=(white, white), texture_set=np.array([0, 0, 2, 0])).vertex_texture_sets(4)
+    with pytest.raises(InvalidInputError, match=r"shape \(4,\)"):
+        Material(texture_sets=(white,), texture_set=np.zeros(3, np.int64)).vertex_texture_sets(4)
+    with pytest.raises(InvalidInputError, match="names its textures there"):
+        Material(albedo_map=np.ones((2, 2, 3)), texture_sets=(white,), texture_set=np.zeros(4, np.int64))
+    with pytest.raises(InvalidInputError, match="need texture_set"):
+        Material(texture_sets=(white,))
+    with pytest.raises(InvalidInputError, match=f"at most {MAX_TEXTURE_SETS}"):
+        Material(texture_sets=(white,) * (MAX_TEXTURE_SETS + 1), texture_set=np.zeros(4, np.int64))
+    with pytest.raises(InvalidInputError, match="belongs to the phong model"):
+        Material(model="pbr", texture_sets=(TextureSet(gloss_map=np.ones((2, 2, 2))),), texture_set=np.zeros(4, int))
+    with pytest.raises(InvalidInputError, match=r"albedo_map must be \(H, W, 3\)"):
+        Material(texture_sets=(TextureSet(albedo_map=np.ones((2, 2))),), texture_set=np.zeros(4, int)).has_textures()
+    # Both halves read, each its own set.
+    k = Material(texture_sets=(white, white), texture_set=np.array([0, 0, 0, 0])).face_texture_sets(faces, 4)
+    np.testing.assert_array_equal(k, [0, 0])
 
 
 def _uv_sphere():

@@ -268,6 +268,30 @@ def test_an_uploaded_glb_brings_its_material_unless_the_scene_names_one(http, en
     assert not np.array_equal(images[0], images[1])   # the file's velvet, then the named Phong material
 
 
+def test_an_uploaded_glb_of_materials_with_their_own_textures_renders_with_each(http, env_upload, tmp_path):
+    from test_pbr import _glb_with_sheen
+
+    path = _glb_with_sheen(tmp_path / "two.glb", colour=(0.0, 0.0, 0.0), two_materials=True,
+                           tints=((220, 40, 40), (40, 40, 220)))
+    r = http.post("/meshes", content=path.read_bytes(), headers=OCTET, params={"format": "glb"})
+    assert r.status_code == 201, r.text
+    info = r.json()
+    assert "roughness 0.4-0.9 per vertex" in info["material"] and "2 texture sets" in info["material"]
+    body = {"environment_id": env_upload[0]["id"], "garment": {"mesh_id": info["id"]},
+            "quality": FAST_QUALITY, "output": SMALL_OUTPUT}
+    r = http.post("/render", json=body, params={"format": "json"})
+    assert r.status_code == 200, r.text
+    # Inline: a triangle whose corners read different sets is refused, naming the triangle.
+    white = {"albedo_map": [[[1.0, 1.0, 1.0]]]}
+    bad = {"environment_id": env_upload[0]["id"], "quality": FAST_QUALITY, "output": SMALL_OUTPUT,
+           "garment": {"positions": [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], "faces": [[0, 1, 2], [1, 3, 2]],
+                       "uvs": [[0, 0], [1, 0], [0, 1], [1, 1]],
+                       "material": {"texture_sets": [white, white], "texture_set": [0, 1, 1, 1]}}}
+    assert_error(http.post("/render", json=bad), 422, "garment material", "triangle 0", "different sets")
+    bad["garment"]["material"]["texture_set"] = [0, 0, 0, 2]
+    assert_error(http.post("/render", json=bad), 422, "texture_set must lie in [0, 1]")
+
+
 def test_mesh_file_upload_keeps_vertex_order(http, env_upload, mesh, tmp_path):
     import trimesh
 

@@ -176,10 +176,11 @@ class _SceneArrays:
     sheen: np.ndarray       # float64 (V, 3) sheen colour
     uvs: np.ndarray         # float64 (V, 2) (zeros for meshes without UVs)
     face_mesh: np.ndarray   # int64 (T,) the mesh of each triangle
-    maps: tuple             # per mesh: (albedo_map, gloss_map / metallic_roughness_map, sheen_map), each or None
+    maps: tuple             # per texture part: (albedo_map, gloss_map / metallic_roughness_map, sheen_map), each or None
     intersector: object     # trimesh.ray.ray_pyembree.RayMeshIntersector
-    pbr_meshes: tuple = ()  # per mesh: its material is "pbr"
-    normal_maps: tuple = ()  # per mesh: (normal map or None, its scale)
+    pbr_parts: tuple = ()   # per texture part: its material is "pbr"
+    normal_maps: tuple = ()  # per texture part: (normal map or None, its scale)
+    face_part: np.ndarray | None = None   # int64 (T,) the texture part of each triangle (a mesh's texture set)
 
     @classmethod
     def build(cls, meshes: list[Mesh], materials: list[Material]) -> _SceneArrays:
@@ -190,7 +191,7 @@ class _SceneArrays:
         if not meshes or len(meshes) != len(materials):
             raise InvalidInputError(f"need one material per mesh; got {len(meshes)} meshes, {len(materials)} materials")
         pos, faces, nrm, alb, mat, uvs, face_mesh, maps, pbr, sheen = [], [], [], [], [], [], [], [], [], []
-        normal_maps = []
+        normal_maps, face_part, pbr_parts = [], [], []
         offset = 0
         for i, (mesh, material) in enumerate(zip(meshes, materials)):
             if not isinstance(mesh, Mesh) or not isinstance(material, Material):
@@ -200,8 +201,12 @@ class _SceneArrays:
             p, sh = material.pbr_arrays(n)
             pbr.append(p)
             sheen.append(sh)
-            albedo_map, gloss_map = material.maps()
-            normal_maps.append((material.normal_texture(), float(material.normal_scale)))
+            sets = material.face_texture_sets(mesh.faces, n)
+            face_part.append(sets.astype(np.int64) + len(maps))
+            for ts in material.texture_groups():   # as the geometry pass draws them: one part per set
+                maps.append((*ts.maps(material.is_pbr), ts.sheen_texture()))
+                normal_maps.append((ts.normal_texture(), float(ts.normal_scale)))
+                pbr_parts.append(material.is_pbr)
             if material.has_textures() and mesh.uvs is None:
                 raise MeshError(f"mesh {mesh.name!r} has material maps but no UVs")
             pos.append(mesh.positions)
@@ -211,7 +216,6 @@ class _SceneArrays:
             mat.append(m)
             uvs.append(mesh.uvs if mesh.uvs is not None else np.zeros((n, 2), np.float32))
             face_mesh.append(np.full(mesh.n_faces, i, np.int64))
-            maps.append((albedo_map, gloss_map, material.sheen_texture()))
             offset += n
         positions = np.concatenate(pos).astype(np.float64)
         faces = np.concatenate(faces)
@@ -221,7 +225,7 @@ class _SceneArrays:
 
         return cls(positions, faces, cat(nrm), cat(alb), cat(mat), cat(pbr), cat(sheen), cat(uvs),
                    np.concatenate(face_mesh), tuple(maps), RayMeshIntersector(tm),
-                   tuple(m.is_pbr for m in materials), tuple(normal_maps))
+                   tuple(pbr_parts), tuple(normal_maps), np.concatenate(face_part))
 
 
 @dataclass
@@ -262,9 +266,9 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
     n = _normalize(mix(scene.normals), fallback=n_geom)
     n_geom = np.where(_dot(n_geom, -dirs)[:, None] < 0.0, -n_geom, n_geom)  # the side the camera sees
     n = np.where(_dot(n, n_geom)[:, None] < 0.0, -n, n)  # two-sided: turned to the seen side, as in gbuffer.frag
-    mesh_of = scene.face_mesh[tri]
+    part_of = scene.face_part[tri]
     for i, (normal_map, scale) in enumerate(scene.normal_maps):
-        sel = np.flatnonzero(mesh_of == i) if normal_map is not None else ()
+        sel = np.flatnonzero(part_of == i) if normal_map is not None else ()
         if len(sel):
             n[sel] = _normal_mapped(n[sel], n_geom[sel], e1[sel], e2[sel], scene.uvs[f[sel]], bary[sel], normal_map,
                                     scale)
@@ -273,11 +277,11 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
     albedo = mix(scene.albedo)
     material = mix(scene.material)
     pbr = mix(scene.pbr)
-    pbr_of = scene.pbr_meshes
+    pbr_of = scene.pbr_parts
     sheen = mix(scene.sheen)
     uv_all = mix(scene.uvs) if any(m is not None for maps in scene.maps for m in maps) else None
     for i, (albedo_map, gloss_map, sheen_map) in enumerate(scene.maps):
-        sel = np.flatnonzero(mesh_of == i)
+        sel = np.flatnonzero(part_of == i)
         if sel.size == 0 or (albedo_map is None and gloss_map is None and sheen_map is None):
             continue
         uv = uv_all[sel]

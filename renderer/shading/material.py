@@ -52,6 +52,51 @@ def _texture(name: str, value, channels: int, meaning: str = "") -> np.ndarray |
     return _finite(name, tex, 0.0, 1.0)
 
 
+@dataclass(frozen=True, eq=False)
+class TextureSet:
+    """One set of a material's textures (the fields of Material of the same names): what the
+    triangles of one part of a mesh read, where the parts of a garment use different textures (a
+    shirt's fabric and its buttons, each material of a glTF file with its own images)."""
+
+    albedo_map: np.ndarray | None = None
+    gloss_map: np.ndarray | None = None
+    metallic_roughness_map: np.ndarray | None = None
+    normal_map: np.ndarray | None = None
+    normal_scale: float = 1.0
+    sheen_map: np.ndarray | None = None
+
+    def check(self, model: str) -> None:
+        if model == "pbr" and self.gloss_map is not None:
+            raise InvalidInputError("a gloss_map (specular, glossiness) belongs to the phong model, not pbr")
+        if model != "pbr" and self.metallic_roughness_map is not None:
+            raise InvalidInputError("a metallic_roughness_map belongs to the pbr model, not phong")
+        if model != "pbr" and self.sheen_map is not None:
+            raise InvalidInputError("a sheen_map belongs to the pbr model, not phong")
+        if not (np.isfinite(self.normal_scale) and 0.0 <= self.normal_scale <= 10.0):
+            raise InvalidInputError(f"normal_scale must lie in [0, 10], got {self.normal_scale}")
+
+    def maps(self, is_pbr: bool) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """(albedo map, second map): the gloss map of a Phong material, the metallic-roughness map of
+        a pbr one (both (H, W, 2) in [0, 1]), validated."""
+        second = ("metallic_roughness_map", self.metallic_roughness_map, " = (metallic, roughness)") if is_pbr \
+            else ("gloss_map", self.gloss_map, " = (specular, glossiness)")
+        return _texture("albedo_map", self.albedo_map, 3), _texture(second[0], second[1], 2, second[2])
+
+    def normal_texture(self) -> np.ndarray | None:
+        """The normal map (H, W, 3) float32 in [0, 1], validated (None without one)."""
+        return _texture("normal_map", self.normal_map, 3)
+
+    def sheen_texture(self) -> np.ndarray | None:
+        """The sheen map (H, W, 4) float32 in [0, 1] = (sheen colour, sheen roughness), validated."""
+        return _texture("sheen_map", self.sheen_map, 4, " = (sheen colour rgb, sheen roughness)")
+
+    def has_textures(self, is_pbr: bool) -> bool:
+        return any(m is not None for m in (*self.maps(is_pbr), self.normal_texture(), self.sheen_texture()))
+
+
+MAX_TEXTURE_SETS = 16   # one geometry-pass draw each: a garment's materials, not a texture per triangle
+
+
 @dataclass(frozen=True)
 class Material:
     """model: "phong" (albedo, specular, glossiness: the paper's model) or "pbr" (glTF 2.0
@@ -73,6 +118,9 @@ class Material:
     x = 2 r - 1 along the direction of growing u, y along growing v, z along the normal), any model;
     normal_scale scales its x and y. The tangent frame is the triangle's own (the surface gradients
     of u and v, as the geometry pass's screen derivatives give them), not MikkTSpace's.
+    texture_sets, texture_set: several sets of the five textures above (TextureSet, at most
+    MAX_TEXTURE_SETS) and, per vertex (V,), the one its triangles read (a triangle's three corners
+    read the same); the fields above then name no texture.
     """
 
     albedo: tuple | np.ndarray = (0.8, 0.8, 0.8)
@@ -89,18 +137,59 @@ class Material:
     normal_map: np.ndarray | None = None
     normal_scale: float = 1.0
     sheen_map: np.ndarray | None = None
+    texture_sets: tuple[TextureSet, ...] = ()
+    texture_set: np.ndarray | None = None
 
     def __post_init__(self):
         if self.model not in MODELS:
             raise InvalidInputError(f"material model must be one of {', '.join(MODELS)}, got {self.model!r}")
-        if self.model == "pbr" and self.gloss_map is not None:
-            raise InvalidInputError("a gloss_map (specular, glossiness) belongs to the phong model, not pbr")
-        if self.model != "pbr" and self.metallic_roughness_map is not None:
-            raise InvalidInputError("a metallic_roughness_map belongs to the pbr model, not phong")
-        if self.model != "pbr" and self.sheen_map is not None:
-            raise InvalidInputError("a sheen_map belongs to the pbr model, not phong")
-        if not (np.isfinite(self.normal_scale) and 0.0 <= self.normal_scale <= 10.0):
-            raise InvalidInputError(f"normal_scale must lie in [0, 10], got {self.normal_scale}")
+        own = self._own_set()
+        own.check(self.model)
+        if self.texture_sets:
+            if any(getattr(own, f) is not None for f in ("albedo_map", "gloss_map", "metallic_roughness_map",
+                                                          "normal_map", "sheen_map")):
+                raise InvalidInputError("a material with texture_sets names its textures there, not in its own maps")
+            if not 1 <= len(self.texture_sets) <= MAX_TEXTURE_SETS:
+                raise InvalidInputError(f"texture_sets: at most {MAX_TEXTURE_SETS} sets, got {len(self.texture_sets)}")
+            if self.texture_set is None:
+                raise InvalidInputError("texture_sets need texture_set: the set each vertex reads, (V,)")
+            for k, ts in enumerate(self.texture_sets):
+                if not isinstance(ts, TextureSet):
+                    raise InvalidInputError(f"texture_sets[{k}] must be a TextureSet, got {type(ts).__name__}")
+                ts.check(self.model)
+        elif self.texture_set is not None:
+            raise InvalidInputError("texture_set names sets of texture_sets, and the material has none")
+
+    def _own_set(self) -> TextureSet:
+        return TextureSet(self.albedo_map, self.gloss_map, self.metallic_roughness_map, self.normal_map,
+                          self.normal_scale, self.sheen_map)
+
+    def texture_groups(self) -> tuple[TextureSet, ...]:
+        """The material's texture sets: its texture_sets, or its own maps as the one set."""
+        return self.texture_sets or (self._own_set(),)
+
+    def vertex_texture_sets(self, n_vertices: int) -> np.ndarray:
+        """Each vertex's texture set (V,) int32, validated (zeros with one set)."""
+        if not self.texture_sets:
+            return np.zeros(n_vertices, np.int32)
+        k = np.asarray(self.texture_set)
+        if k.shape != (n_vertices,) or not np.issubdtype(k.dtype, np.integer):
+            raise InvalidInputError(f"texture_set must be integers of shape ({n_vertices},), got {k.dtype} {k.shape}")
+        if k.size and (k.min() < 0 or k.max() >= len(self.texture_sets)):
+            raise InvalidInputError(f"texture_set must lie in [0, {len(self.texture_sets) - 1}] (one per set), got "
+                                    f"[{k.min()}, {k.max()}]")
+        return k.astype(np.int32)
+
+    def face_texture_sets(self, faces: np.ndarray, n_vertices: int) -> np.ndarray:
+        """Each triangle's texture set (T,) int32: its corners', which must agree."""
+        per_vertex = self.vertex_texture_sets(n_vertices)
+        corners = per_vertex[np.asarray(faces)]
+        mixed = np.flatnonzero((corners != corners[:, :1]).any(axis=1))
+        if mixed.size:
+            raise InvalidInputError(f"texture_set: {mixed.size} triangles have corners of different sets (the first, "
+                                    f"triangle {mixed[0]}, reads {sorted(set(corners[mixed[0]].tolist()))}); a triangle "
+                                    "reads one set")
+        return corners[:, 0].copy() if corners.size else np.zeros(0, np.int32)
 
     @property
     def is_pbr(self) -> bool:
@@ -124,8 +213,10 @@ class Material:
         always for "pbr": a dielectric reflects at least 4 % head-on)."""
         if self.is_pbr:
             return True
-        if self.gloss_map is not None:
-            return bool((np.asarray(self.gloss_map, np.float64)[..., 0] > 0).any())
+        maps = [ts.gloss_map for ts in self.texture_groups() if ts.gloss_map is not None]
+        if maps:   # a gloss map replaces the values where it is read
+            return any(bool((np.asarray(m, np.float64)[..., 0] > 0).any()) for m in maps) \
+                or (len(maps) < len(self.texture_groups()) and bool((np.asarray(self.specular, np.float64) > 0).any()))
         return bool((np.asarray(self.specular, np.float64) > 0).any())
 
     def max_glossiness(self) -> float:
@@ -137,9 +228,11 @@ class Material:
             return 0.0
         if self.is_pbr:
             return 1.0   # the fitted lobes reach the finest levels (a smooth metal's)
-        if self.gloss_map is not None:
-            return float(np.asarray(self.gloss_map, np.float64)[..., 1].max())
-        return float(np.max(np.asarray(self.glossiness, np.float64)))
+        maps = [ts.gloss_map for ts in self.texture_groups() if ts.gloss_map is not None]
+        values = [float(np.asarray(m, np.float64)[..., 1].max()) for m in maps]
+        if len(maps) < len(self.texture_groups()):   # a set without one reads the values
+            values.append(float(np.max(np.asarray(self.glossiness, np.float64))))
+        return max(values)
 
     def vertex_arrays(self, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
         """(albedo (V, 3), material (V, 2) = (specular, glossiness)) float32, validated."""
@@ -152,20 +245,17 @@ class Material:
         return albedo, out
 
     def maps(self) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """(albedo map, second map): the gloss map of a Phong material, the metallic-roughness map of
-        a pbr one (both (H, W, 2) in [0, 1]), validated."""
-        second = ("metallic_roughness_map", self.metallic_roughness_map, " = (metallic, roughness)") if self.is_pbr \
-            else ("gloss_map", self.gloss_map, " = (specular, glossiness)")
-        return _texture("albedo_map", self.albedo_map, 3), _texture(second[0], second[1], 2, second[2])
+        """The own set's (albedo map, second map) (TextureSet.maps), validated."""
+        return self._own_set().maps(self.is_pbr)
 
     def normal_texture(self) -> np.ndarray | None:
-        """The normal map (H, W, 3) float32 in [0, 1], validated (None without one)."""
-        return _texture("normal_map", self.normal_map, 3)
+        """The own set's normal map (H, W, 3) float32 in [0, 1], validated (None without one)."""
+        return self._own_set().normal_texture()
 
     def sheen_texture(self) -> np.ndarray | None:
-        """The sheen map (H, W, 4) float32 in [0, 1] = (sheen colour, sheen roughness), validated."""
-        return _texture("sheen_map", self.sheen_map, 4, " = (sheen colour rgb, sheen roughness)")
+        """The own set's sheen map (H, W, 4) float32 in [0, 1], validated."""
+        return self._own_set().sheen_texture()
 
     def has_textures(self) -> bool:
-        """Whether any texture is read (then the mesh needs UVs)."""
-        return any(m is not None for m in (*self.maps(), self.normal_texture(), self.sheen_texture()))
+        """Whether any texture is read (then the mesh needs UVs); validates every set's maps."""
+        return any([ts.has_textures(self.is_pbr) for ts in self.texture_groups()])

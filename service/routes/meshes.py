@@ -8,6 +8,7 @@ import warnings
 from typing import Annotated, Literal
 
 import anyio
+import numpy as np
 from fastapi import APIRouter, Depends, Query, Request, Response, status
 
 from renderer.errors import InvalidInputError, MeshError
@@ -41,10 +42,19 @@ def _material_summary(rec: MeshRecord) -> str | None:
     m = rec.material
     if m is None:
         return None
-    maps = [name for name, x in (("base colour", m.albedo_map), ("metallic-roughness", m.metallic_roughness_map),
-                                 ("normal", m.normal_map)) if x is not None]
-    text = (f"pbr: metallic {m.metallic:g}, roughness {m.roughness:g}"
-            + (f", sheen {tuple(round(c, 4) for c in m.sheen_colour)}" if m.has_sheen() else "")
+    maps = list(dict.fromkeys(name for ts in m.texture_groups() for name, x in (
+        ("base colour", ts.albedo_map), ("metallic-roughness", ts.metallic_roughness_map), ("normal", ts.normal_map),
+        ("sheen", ts.sheen_map)) if x is not None))
+    if len(m.texture_groups()) > 1:
+        maps.append(f"{len(m.texture_groups())} texture sets")
+    def value(x) -> str:   # a scalar, or its range over the vertices (a file of several materials)
+        a = np.asarray(x, np.float64)
+        return f"{float(a):g}" if a.ndim == 0 else f"{a.min():g}-{a.max():g} per vertex"
+
+    sheen = np.asarray(m.sheen_colour, np.float64)
+    text = (f"pbr: metallic {value(m.metallic)}, roughness {value(m.roughness)}"
+            + ((f", sheen {tuple(round(float(c), 4) for c in sheen)}" if sheen.ndim == 1 else ", sheen per vertex")
+               if m.has_sheen() else "")
             + (f", textures: {', '.join(maps)}" if maps else ""))
     return text + (f" ({rec.material_notes})" if rec.material_notes else "")
 
