@@ -91,6 +91,25 @@ def test_a_sun_gives_one_small_light_where_it_is():
     assert lum == pytest.approx(light.share * dec.total_luminance, rel=1e-9)
 
 
+@pytest.mark.parametrize("per_region", [1, 2])
+def test_an_area_lights_closed_form_disc_is_where_its_light_is(per_region):
+    # A half-degree sun is found as a disc of a few degrees (the smallest filter is 4.5 degrees): the
+    # glossy term's discs (sub_lights) must keep the sun's own direction and half-degree radius, as
+    # the median cut's region around it does, or a glossy floor's highlight is spread over the disc.
+    from renderer.lighting.area_lights import area_regions
+    from renderer.lighting.median_cut import median_cut, sub_lights
+
+    sun = np.array([0.0, np.sin(0.6), -np.cos(0.6)])
+    cube = sun_sky_cube(N, sun, sun_radiance=1e5, sun_radius_deg=0.5)
+    area, _ = area_regions(cube, 48)
+    assert area.area_mask.sum() == 1
+    for regions in (area, median_cut(cube[..., :3], 48, True)):
+        sub = sub_lights(cube[..., :3], regions, per_region, True)
+        i = int(np.argmax(sub.energy_rgb @ LUMINANCE_RGB))
+        assert np.degrees(np.arccos(min(1.0, float(sub.directions[i] @ sun)))) < 0.3   # texels of 0.7 degrees
+        assert 0.4 < np.degrees(sub.disc_radius_rad[i]) < 0.7
+
+
 def test_an_area_pem_set_has_a_region_per_light_and_keeps_the_energy(renderer):
     from renderer.lighting.pem import PEMSet, PEMSettings
 

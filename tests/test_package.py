@@ -29,6 +29,7 @@ def _packages() -> list[str]:
 def test_the_package_list_names_every_folder_of_code_and_shaders():
     on_disk = {p.parent.relative_to(ROOT).as_posix().replace("/", ".")
                for top in ("renderer", "service", "simulation") for p in (ROOT / top).rglob("*.py")}
+    on_disk |= {p.parent.relative_to(ROOT).as_posix().replace("/", ".") for p in (ROOT / "renderer").rglob("*.npz")}
     on_disk |= {"renderer." + p.relative_to(ROOT).as_posix().replace("/", ".")
                 for p in [ROOT / "shaders", *(d for d in (ROOT / "shaders").rglob("*") if d.is_dir())]}
     assert sorted(_packages()) == sorted(on_disk)

@@ -317,10 +317,7 @@ def write_preview(cube: np.ndarray, dec: Decomposition, path, title: str = "") -
         ax.set_axis_off()
     for k, light in enumerate(dec.lights):
         c = np.asarray(light.direction)
-        helper = np.array([0.0, 1.0, 0.0]) if abs(c[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
-        t = np.cross(c, helper)
-        t /= np.linalg.norm(t)
-        b = np.cross(c, t)
+        t, b = _tangents(c)
         a = np.linspace(0.0, 2.0 * np.pi, 181)[:, None]
         ring = np.cos(light.radius_rad) * c + np.sin(light.radius_rad) * (np.cos(a) * t + np.sin(a) * b)
         u, v, _ = dir_to_image(ring, Layout.LATLONG, h, w)

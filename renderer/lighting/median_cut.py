@@ -261,21 +261,24 @@ def sub_lights(cube: np.ndarray, regions: RegionSet, per_region: int, whole_sour
     labels = np.empty((6, n, n), np.int32)
     n_sub = regions.n_regions * per_region
     area = regions.area_mask
+    cut = energy   # what the remainder's regions are halved by
     if area.any():   # an area light's disc is one sub-light; the remainder's regions are cut without it
         inside = area[regions.labels]
-        energy = np.where(inside, 0.0, energy)
+        cut = np.where(inside, 0.0, energy)
         labels[inside] = regions.labels[inside] * per_region
     for rid, (face, r0, r1, c0, c1) in enumerate(regions.rects):
         if area[rid]:
             continue
         rects = [(r0, r1, c0, c1)]
         while len(rects) < per_region:
-            rects = [half for rect in rects for half in _halves(energy[face], rect, whole_sources)]
+            rects = [half for rect in rects for half in _halves(cut[face], rect, whole_sources)]
         for j, rect in enumerate(rects):
             if rect is not None:
                 block = labels[face, rect[0]:rect[1], rect[2]:rect[3]]
                 keep = inside[face, rect[0]:rect[1], rect[2]:rect[3]] if area.any() else False
                 labels[face, rect[0]:rect[1], rect[2]:rect[3]] = np.where(keep, block, rid * per_region + j)
+    # Each sub-light's direction and disc from its texels' own energy (an area light's too: its
+    # disc is where the light is, the sun's half a degree within the few degrees found around it).
     with np.errstate(invalid="ignore", divide="ignore"):   # the padding's empty sums, replaced below
         dirs, omega, energy_rgb, _, mean_cos = _region_stats(rgb, energy, labels, n_sub)
     # Padding (a one-texel region cannot be cut): no texels, no energy, any direction.
