@@ -30,8 +30,9 @@ log = logging.getLogger(__name__)
 
 # Bump when the stored arrays or the build's numerical output change.
 # 2: solid-angle weighted chains (A = chain(L * w)); 3: regions carry mean_cos; 4: entries carry their key;
-# 5: an area set's remainder takes every light of the budget the area lights leave.
-FORMAT_VERSION = 5
+# 5: an area set's remainder takes every light of the budget the area lights leave; 6: a wide area light
+# is cut into pieces by its energy.
+FORMAT_VERSION = 6
 
 
 @dataclass

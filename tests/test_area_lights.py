@@ -192,16 +192,19 @@ def test_the_area_lights_command_reports_and_previews_a_map(tmp_path):
     assert (tmp_path / "openexr_StageEnvLatLong.png").stat().st_size > 10_000
 
 
-def test_auto_takes_area_lights_where_they_hold_the_energy_and_the_budget_holds():
-    from renderer.lighting.area_lights import AUTO_MAX_RADIUS_DEG, area_regions, auto_regions
+def test_auto_takes_area_lights_where_none_is_too_wide_and_the_budget_holds():
+    from renderer.lighting.area_lights import MAX_PIECE_RADIUS_DEG, area_regions, auto_regions
 
     discs, _ = _discs(DISCS, n=64, background=0.05)
     regions, dec, used = auto_regions(discs, 24)
     assert used == "area" and regions.area.sum() == 3
-    # A window-sized source (a 25 degree disc): one light would be too coarse, so the median cut.
+    # A window-sized source (a 25 degree disc): wider than the limit, so the median cut.
     window, _ = _discs([((0, 0.2, 1), 25.0, 20.0)], n=64, background=0.05)
     regions, dec, used = auto_regions(window, 24)
-    assert max(np.degrees(lt.radius_rad) for lt in dec.lights) > AUTO_MAX_RADIUS_DEG
+    assert max(np.degrees(lt.radius_rad) for lt in dec.lights) > MAX_PIECE_RADIUS_DEG
+    assert used == "median-cut" and regions.area is None and regions.n_regions == 24
+    # No light at all (a uniform map): the median cut.
+    regions, dec, used = auto_regions(np.ones((6, 64, 64, 3)), 24)
     assert used == "median-cut" and regions.area is None and regions.n_regions == 24
     # Twelve discs and a budget of 12: the six remainder regions leave room for the six strongest.
     many = [((np.cos(a), 0.3 * np.sin(3 * a), np.sin(a)), 4.0, 50.0 + 10 * k)
@@ -210,15 +213,20 @@ def test_auto_takes_area_lights_where_they_hold_the_energy_and_the_budget_holds(
     assert regions.n_regions == 12 and regions.area.sum() == 6 and dec.stopped_by == "max lights"
 
 
-def test_a_wide_light_is_cut_into_pieces_no_wider_than_the_limit_each_with_its_shadow():
-    """A window found as one light wider than the limit becomes ceil((radius / limit)^2) regions: each
-    piece of its disc a region of its own (its own shadow map), together the light's texels and energy."""
-    from renderer.lighting.area_lights import AUTO_MAX_RADIUS_DEG, area_regions
+@pytest.mark.parametrize("radiance", [20.0, 0.5])
+def test_a_wide_light_is_cut_into_pieces_no_wider_than_the_limit_each_with_its_shadow(radiance):
+    """A window found as one light wider than the limit becomes as many regions as the median cut
+    would give its energy (its share of the budget), at least ceil((radius / limit)^2), within the
+    budget: each piece of its disc a region of its own (its own shadow map), together the light's
+    texels and energy."""
+    from renderer.lighting.area_lights import INNER_RATIO, MAX_PIECE_RADIUS_DEG, MIN_OUTER_DEG, area_regions
 
-    window, _ = _discs([((0, 0.2, 1), 25.0, 20.0)], n=64, background=0.05)
+    window, _ = _discs([((0, 0.2, 1), 25.0, radiance)], n=64, background=0.05)
     regions, dec = area_regions(window, 24)
     (light,) = dec.lights
-    pieces = int(np.ceil((light.radius_rad / np.radians(AUTO_MAX_RADIUS_DEG)) ** 2))
+    by_width = int(np.ceil((light.radius_rad / np.radians(MAX_PIECE_RADIUS_DEG)) ** 2))
+    by_energy = min(round(light.share * 24), int((np.degrees(light.radius_rad) / (MIN_OUTER_DEG * INNER_RATIO)) ** 2))
+    pieces = min(max(by_width, by_energy), 24 - 6)
     assert pieces >= 2 and regions.area.sum() == pieces and regions.n_regions == 24
     area_ids = np.flatnonzero(regions.area)
     taken = np.isin(regions.labels, area_ids)

@@ -40,7 +40,8 @@ def _errors(renderer, radius_deg: float, height: float) -> dict[str, float]:
     pems = renderer.build_pems(cube, PEMSettings(n_lights=24, lights_from="area"))
     scene = renderer.create_scene(meshes, [GREY, GREY])
     try:
-        assert pems.regions.area_mask.sum() == (2 if radius_deg > 15.0 else 1)   # a wider light in pieces
+        pieces = int(pems.regions.area_mask.sum())
+        assert pieces > 1 if radius_deg > 15.0 else pieces == 1, pieces   # a wider light in pieces
         errors = {}
         for penumbra in ("fixed", "blocker"):
             frame = renderer.render(scene, pems, FrameSettings(SIZE, SIZE, penumbra=penumbra), CAM)
@@ -57,12 +58,16 @@ def _errors(renderer, radius_deg: float, height: float) -> dict[str, float]:
 
 
 def test_a_sphere_far_above_a_floor_casts_the_soft_shadow_of_a_large_light(renderer):
-    """A 20-degree disc, the sphere 0.6 above the floor: the reference's shadow is all penumbra, which
-    the fixed maps (every preset's blur 0) draw as a hard disc. The disc, wider than 15 degrees, is two
-    pieces, each a shadow map. Measured at 64^2: fixed 0.166, blocker 0.091 (as one piece: 0.23 and
+    """The sphere 0.6 above the floor: the reference's shadow is all penumbra, which the fixed maps
+    (every preset's blur 0) draw as a hard disc. Under a 14-degree disc (one light) the blocker's
+    penumbra comes closer: measured at 64^2, fixed 0.210, blocker 0.154. A 20-degree disc, wider than
+    15 degrees, is cut into pieces by its energy (18 of the 24 lights here), each with its own map,
+    whose shadows together are already soft: fixed 0.063, blocker 0.056 (as one piece: 0.23 and
     0.11)."""
-    errors = _errors(renderer, 20.0, 0.6)
-    assert errors["blocker"] < 0.7 * errors["fixed"], errors
+    one = _errors(renderer, 14.0, 0.6)
+    assert one["blocker"] < 0.8 * one["fixed"], one
+    pieces = _errors(renderer, 20.0, 0.6)
+    assert pieces["blocker"] <= pieces["fixed"] < 0.5 * one["fixed"], pieces
 
 
 def test_near_contact_the_penumbra_stays_close_to_the_reference(renderer):

@@ -205,33 +205,41 @@ def light_regions(cube: np.ndarray, n_lights: int, whole_sources: bool, lights_f
 # (angular radius), else the median cut. Chosen on the tuning maps of `garment-render bench --area`
 # at equal frame time: area won on the three whose widest light was 3.4-8.9 degrees and lost on the two
 # whose widest was 23.5 and 30 degrees (one disc standing for a window or a sky is too coarse a light);
-# the share of energy the lights hold did not separate them (docs/area-lights.md). It is also the
-# widest piece an area light is shadowed as (`_light_pieces`): a wider one is cut.
-AUTO_MAX_RADIUS_DEG = 15.0
+# the share of energy the lights hold did not separate them (docs/area-lights.md). Since wide lights
+# are cut in pieces area wins on those two as well, but loses on the bundled studio dress (its
+# softboxes wider than this), so the rule stays. It is also the widest piece an area light is
+# shadowed as (`_light_pieces`): a wider one is cut.
+MAX_PIECE_RADIUS_DEG = 15.0
 
 
 def auto_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False):
     """(RegionSet, Decomposition, what was used): `area_regions` where the decomposition found lights
-    and none is wider than AUTO_MAX_RADIUS_DEG, else the median cut."""
+    and none is wider than MAX_PIECE_RADIUS_DEG, else the median cut."""
     from .median_cut import median_cut
 
     dec = decompose(cube, max_lights=max(0, n_lights - 6))
-    if dec.lights and max(lt.radius_rad for lt in dec.lights) <= np.radians(AUTO_MAX_RADIUS_DEG):
+    if dec.lights and max(lt.radius_rad for lt in dec.lights) <= np.radians(MAX_PIECE_RADIUS_DEG):
         return area_regions(cube, n_lights, whole_sources, dec)[0], dec, "area"
     return median_cut(cube[..., :3], n_lights, whole_sources), dec, "median-cut"
 
 
-def _light_pieces(dec: Decomposition, energy: np.ndarray, max_pieces: int) -> np.ndarray:
-    """Each texel's piece of an area light (int32 (6, F, F); -1: the remainder). A light wider than
-    AUTO_MAX_RADIUS_DEG is cut into ceil((radius / that)^2) pieces, each no wider, so that a window
-    or a bright sky is seen past a fold from several directions (each piece a region with its own
-    shadow map), the way the median cut would see it; at most `max_pieces` in all."""
+def _light_pieces(dec: Decomposition, energy: np.ndarray, n_lights: int) -> np.ndarray:
+    """Each texel's piece of an area light (int32 (6, F, F); -1: the remainder), at most n_lights - 6
+    pieces in all (room for the remainder's six). A light wider than MAX_PIECE_RADIUS_DEG is cut, so
+    that a window or a bright sky is seen past a fold from several directions (each piece a region
+    with its own shadow map), the way the median cut sees it: into as many pieces as the median cut
+    would give its energy (its share of the n_lights), at least ceil((radius / that)^2) so that none is
+    wider, and none narrower than the filter bank's smallest disc."""
     n = dec.owner.shape[1]
     d = texel_directions(n).reshape(-1, 3)
     owner, e = dec.owner.reshape(-1), energy.reshape(-1)
-    limit = np.radians(AUTO_MAX_RADIUS_DEG)
-    wanted = [max(1, int(np.ceil((lt.radius_rad / limit) ** 2))) for lt in dec.lights]
-    while sum(wanted) > max_pieces and max(wanted) > 1:   # the budget first: the widest gives up pieces
+    limit, finest = np.radians(MAX_PIECE_RADIUS_DEG), np.radians(MIN_OUTER_DEG * INNER_RATIO)
+    wanted = [1 if lt.radius_rad <= limit else
+              max(int(np.ceil((lt.radius_rad / limit) ** 2)),
+                  min(int(round(lt.share * n_lights)), int((lt.radius_rad / finest) ** 2)))
+              for lt in dec.lights]
+    max_pieces = n_lights - 6
+    while sum(wanted) > max_pieces and max(wanted) > 1:   # the budget first: the most cut gives up pieces
         wanted[int(np.argmax(wanted))] -= 1
     out = np.full(owner.shape, -1, np.int32)
     next_id = 0
@@ -266,7 +274,7 @@ def _tangents(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def area_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False, dec: Decomposition | None = None):
     """The PEM set's regions from the decomposition (`PEMSettings.lights_from` "area"): one region
-    per area light (its disc's texels; a light wider than AUTO_MAX_RADIUS_DEG in pieces, a region
+    per area light (its disc's texels; a light wider than MAX_PIECE_RADIUS_DEG in pieces, a region
     each, `_light_pieces`), and the ambient remainder median-cut into the n_lights - k
     regions the k area lights leave (`median_cut_to`; at least 6), each a light with its own PEM
     and shadow map like any other. Returns (RegionSet, Decomposition); a map without area lights
@@ -281,7 +289,7 @@ def area_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False, d
     n = cube.shape[1]
     rgb = np.asarray(cube[..., :3], np.float64)
     energy = np.maximum(rgb @ LUMINANCE_RGB, 0.0) * cube_solid_angles(n)
-    pieces = _light_pieces(dec, energy, n_lights - 6)
+    pieces = _light_pieces(dec, energy, n_lights)
     k = int(pieces.max()) + 1
     m = max(6, n_lights - k)   # the whole budget: the remainder gets every light the area lights leave
     rest = median_cut_to(dec.ambient.astype(np.float64), m, whole_sources)
