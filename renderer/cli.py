@@ -649,6 +649,22 @@ def cmd_brdf_lobes(args) -> int:
     return 0
 
 
+def cmd_devices(args) -> int:
+    from .gpu.context import GLContext
+    from .gpu.egl_devices import cuda_visible, egl_devices, egl_index_for_gpu
+
+    devices = egl_devices()
+    for d in devices:
+        print(d.describe())
+    if args.gpu is not None:
+        index, how = egl_index_for_gpu(args.gpu, devices, cuda_visible())
+        print(f"GPU {args.gpu}: EGL device {index} ({how})")
+        gl = GLContext(device_index=index)
+        print(f"  renders on {gl.renderer_name}, OpenGL {gl.version}")
+        gl.release()
+    return 0
+
+
 def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     """The command line; `show_all` False: `render`, `sequence` and `reference` list only COMMON_FLAGS
     in their help (what `--help` shows; `--help-all` shows everything)."""
@@ -770,6 +786,10 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     al.add_argument("--face-size", type=int, default=128, help="the cube the lights are found on (the PEM face size)")
     al.add_argument("--out", type=Path, default=Path("out/area-lights"))
     al.set_defaults(func=cmd_area_lights)
+    dv = sub.add_parser("devices", help="the EGL devices in moderngl's order, with the CUDA device each is, and "
+                                       "which one a GPU number (as Ray and CUDA_VISIBLE_DEVICES give it) renders on")
+    dv.add_argument("--gpu", type=int, help="also say which EGL device this GPU is, and open a context on it")
+    dv.set_defaults(func=cmd_devices)
     return p
 
 

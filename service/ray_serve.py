@@ -22,8 +22,9 @@ request. What Ray adds:
   named Ray actor (MetricsBoard) every REPORT_EVERY_S, and `/metrics`, on whichever replica answers
   it, is every live replica's series, labelled `replica`, plus `garment_render_replicas_reporting`.
   A replica silent for STALE_AFTER_S has gone and drops out.
-- **GPUs**: with `--gpus-per-replica 1` each replica gets one GPU from Ray, and its EGL device is that
-  GPU's index (GARMENT_RENDER_EGL_DEVICE), not the first device.
+- **GPUs**: with `--gpus-per-replica 1` each replica gets one GPU from Ray (GARMENT_RENDER_GPU), and
+  renders on the EGL device that reports that GPU's CUDA ordinal (renderer/gpu/egl_devices.py), not on
+  the first device nor on the EGL device of the GPU's number: EGL's order need not be CUDA's.
 """
 
 from __future__ import annotations
@@ -114,8 +115,8 @@ class _HeldScene:
 class RenderReplica:
     def __init__(self, settings: dict | None = None):
         gpu_ids = _ray_gpu_ids()
-        if gpu_ids:   # the EGL device of the GPU Ray gave this replica
-            os.environ["GARMENT_RENDER_EGL_DEVICE"] = str(int(gpu_ids[0]))
+        if gpu_ids:   # the GPU Ray gave this replica; its EGL device is found by its CUDA ordinal
+            os.environ["GARMENT_RENDER_GPU"] = str(int(gpu_ids[0]))
         from .app import create_app
         from .settings import ServiceSettings
 

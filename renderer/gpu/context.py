@@ -18,6 +18,7 @@ import moderngl
 
 from ..errors import GLContextError
 from . import rawgl
+from .egl_devices import cuda_visible, egl_devices, egl_index_for_gpu
 
 
 @dataclass
@@ -36,13 +37,26 @@ class StageTimer:
 class GLContext:
     """Owner of one headless OpenGL 4.5 core context; not thread-safe by design (see module doc)."""
 
-    def __init__(self, backend: str | None = "egl", device_index: int | None = None):
+    def __init__(self, backend: str | None = "egl", device_index: int | None = None, gpu: int | None = None):
+        """`device_index`: moderngl's EGL device index (or GARMENT_RENDER_EGL_DEVICE); else `gpu`
+        (or GARMENT_RENDER_GPU): a GPU numbered as CUDA_VISIBLE_DEVICES and Ray number them, whose EGL
+        device is found by its CUDA ordinal (egl_devices.py); else EGL's first device."""
         t0 = time.perf_counter()
         kwargs = {"require": 450}
         if backend:
             kwargs["backend"] = backend
+        self.device_choice = "EGL's first device"
         if device_index is None and os.environ.get("GARMENT_RENDER_EGL_DEVICE"):
             device_index = int(os.environ["GARMENT_RENDER_EGL_DEVICE"])
+        if device_index is not None:
+            self.device_choice = f"EGL device {device_index}, as asked"
+        else:
+            if gpu is None and os.environ.get("GARMENT_RENDER_GPU"):
+                gpu = int(os.environ["GARMENT_RENDER_GPU"])
+            if gpu is not None and backend == "egl":
+                device_index, how = egl_index_for_gpu(gpu, egl_devices(), cuda_visible())
+                self.device_choice = f"EGL device {device_index} for GPU {gpu}: {how}"
+        self.device_index = device_index
         if device_index is not None:
             kwargs["device_index"] = device_index
         try:
@@ -96,7 +110,7 @@ class GLContext:
             timer.gpu_ms[name] = timer.gpu_ms.get(name, 0.0) + query.elapsed / 1e6
 
     def info(self) -> dict:
-        return {"renderer": self.renderer_name, "version": self.version,
+        return {"renderer": self.renderer_name, "version": self.version, "device": self.device_choice,
                 "context_create_ms": round(self.create_ms, 2)}
 
     def cached(self, key: tuple, make):
