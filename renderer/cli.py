@@ -548,6 +548,12 @@ def cmd_bench(args) -> int:
         run_area(args.out, quick=args.quick)
         print(f"wrote {args.out}/area.json, area.md")
         return 0
+    if args.sizes:
+        from .bench.sizes import run as run_sizes
+
+        run_sizes(args.out, quick=args.quick)
+        print(f"wrote {args.out}/sizes.json, sizes.md")
+        return 0
     if args.views:
         from .bench.views import run as run_views
 
@@ -714,6 +720,9 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     b.add_argument("--area", action="store_true",
                    help="median cut against area lights (and auto) on every shared map, at equal light count and "
                         "equal frame time (renderer/bench/area.py)")
+    b.add_argument("--sizes", action="store_true",
+                   help="balanced at 256, 512 and 1024 pixels a side against references of each size, and with its "
+                        "shadow maps following the image (renderer/bench/sizes.py)")
     b.add_argument("--views", action="store_true",
                    help="a turntable's views and colourways in one call against one by one: what sharing the shadow "
                         "pass saves (renderer/bench/views.py)")

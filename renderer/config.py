@@ -107,7 +107,8 @@ SETTINGS: tuple[Setting, ...] = (
             sweep=(False,)),
     Setting("lights_from", str, "median-cut", "how the map becomes lights: median-cut (the paper), area (Arbree, "
             "Walter and Bala's area lights, each a disc with its own map, plus the remainder's median cut, at most "
-            "`lights` in all) or auto (area where its lights hold enough of the map's energy)", "lights", "pem set",
+            "`lights` in all) or auto (area where the map has area lights and none is wider than 15 degrees, else "
+            "the median cut)", "lights", "pem set",
             choices=("median-cut", "area", "auto"),
             sweep=("median-cut", "area")),
     # Shadow maps.

@@ -77,7 +77,7 @@ class PEMSettings:
     whole_sources: bool = balanced("whole_sources")
     # How the map is cut into lights: "median-cut" (the paper), "area" (Arbree, Walter and Bala's
     # area lights plus the remainder's median cut, lighting/area_lights.py; at most n_lights in all) or
-    # "auto" (area where its lights hold enough of the energy: area_lights.auto_regions).
+    # "auto" (area where the map has area lights none wider than 15 degrees: area_lights.auto_regions).
     lights_from: str = balanced("lights_from")
 
     def key(self) -> tuple:
