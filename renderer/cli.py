@@ -548,6 +548,12 @@ def cmd_bench(args) -> int:
         run_area(args.out, quick=args.quick)
         print(f"wrote {args.out}/area.json, area.md")
         return 0
+    if args.shadow_maps:
+        from .bench.shadow_maps import run as run_shadow_maps
+
+        run_shadow_maps(args.out, quick=args.quick, preset_name=args.preset)
+        print(f"wrote {args.out}/shadow_maps.json, shadow_maps.md")
+        return 0
     if args.sizes:
         from .bench.sizes import run as run_sizes
 
@@ -720,6 +726,11 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     b.add_argument("--area", action="store_true",
                    help="median cut against area lights (and auto) on every shared map, at equal light count and "
                         "equal frame time (renderer/bench/area.py)")
+    b.add_argument("--shadow-maps", action="store_true",
+                   help="balanced's main shadow maps at 256^2 and 512^2 with the casters at 1/4, 1/2 and full detail, "
+                        "on the broad catalogue's 256 x 256 scenes, tuning and held-out apart (renderer/bench/shadow_maps.py)")
+    b.add_argument("--preset", choices=PRESET_NAMES, default="balanced",
+                   help="the preset --shadow-maps varies (default balanced)")
     b.add_argument("--sizes", action="store_true",
                    help="balanced at 256, 512 and 1024 pixels a side against references of each size, and with its "
                         "shadow maps following the image (renderer/bench/sizes.py)")

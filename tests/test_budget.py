@@ -72,7 +72,7 @@ def test_a_budget_sets_every_measured_knob_unless_a_flag_says_otherwise(monkeypa
 
 
     rows = [dict(_row("a", 24, 30, 0.08)), dict(_row("a", 48, 60, 0.04))]
-    rows[1]["settings"] = {**rows[1]["settings"], "sub_lights": 4, "whole_sources": False, "caster_detail": 0.5}
+    rows[1]["settings"] = {**rows[1]["settings"], "sub_lights": 4, "whole_sources": False, "caster_detail": 0.1}
     table = summarize({**BENCH, "rows": rows})
     monkeypatch.setattr(budget, "load_table", lambda path=None: table)
 
@@ -81,11 +81,11 @@ def test_a_budget_sets_every_measured_knob_unless_a_flag_says_otherwise(monkeypa
         return q, (q["sub_lights"], q["whole_sources"], q["caster_detail"])
 
     q, k = knobs("--error-budget", "0.05")
-    assert (q["lights"], k) == (48, (4, False, 0.5))
+    assert (q["lights"], k) == (48, (4, False, 0.1))
     assert "budget" in q["source"]
-    assert knobs("--error-budget", "0.05", "--sub-lights", "8", "--whole-sources")[1] == (8, True, 0.5)
+    assert knobs("--error-budget", "0.05", "--sub-lights", "8", "--whole-sources")[1] == (8, True, 0.1)
     q, k = knobs()                                              # no budget: the balanced preset's file
-    assert k == (2, True, 0.25) and q["small_light_scale"] == 4 and "preset balanced" in q["source"]
+    assert k == (2, True, 0.5) and q["small_light_scale"] == 4 and "preset balanced" in q["source"]
 
 
 def test_a_presets_small_light_scale_yields_to_a_large_shadow_map():
