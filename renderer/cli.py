@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import sys
 import time
@@ -542,36 +543,14 @@ def cmd_speed(args) -> int:
 def cmd_bench(args) -> int:
     from .bench.run import BenchConfig, run_bench
 
-    if args.area:
-        from .bench.area import run as run_area
-
-        run_area(args.out, quick=args.quick)
-        print(f"wrote {args.out}/area.json, area.md")
-        return 0
-    if args.shadow_maps:
-        from .bench.shadow_maps import run as run_shadow_maps
-
-        run_shadow_maps(args.out, quick=args.quick, preset_name=args.preset)
-        print(f"wrote {args.out}/shadow_maps.json, shadow_maps.md")
-        return 0
-    if args.sizes:
-        from .bench.sizes import run as run_sizes
-
-        run_sizes(args.out, quick=args.quick)
-        print(f"wrote {args.out}/sizes.json, sizes.md")
-        return 0
-    if args.views:
-        from .bench.views import run as run_views
-
-        run_views(args.out, quick=args.quick)
-        print(f"wrote {args.out}/views.json, views.md")
-        return 0
-    if args.materials:
-        from .bench.materials import run as run_materials
-
-        run_materials(args.out, quick=args.quick)
-        print(f"wrote {args.out}/materials.json, materials.md")
-        return 0
+    # The side benchmarks: flag -> extra keyword arguments of renderer.bench.<flag>.run, which writes
+    # <flag>.json and <flag>.md.
+    side = {"area": {}, "shadow_maps": {"preset_name": args.preset}, "sizes": {}, "views": {}, "materials": {}}
+    for name, extra in side.items():
+        if getattr(args, name):
+            importlib.import_module(f"renderer.bench.{name}").run(args.out, quick=args.quick, **extra)
+            print(f"wrote {args.out}/{name}.json, {name}.md")
+            return 0
     if args.broad:
         from .bench.broad import BroadConfig, run_broad
 
@@ -598,9 +577,7 @@ def cmd_bench(args) -> int:
 
 def cmd_serve(args) -> int:
     # The one place the command line reaches the service layer; the renderer's library code never
-    # imports it (the dependency arrow is service -> renderer).
-    import importlib
-
+    # imports it (the dependency arrow is service -> renderer), hence importlib.
     if args.ray:
         if args.workers != 1:
             raise InvalidInputError("--workers is for uvicorn's processes; with --ray give --replicas")

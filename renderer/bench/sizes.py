@@ -2,9 +2,9 @@
 
 Per scene (the knob sweep's newton shirt under its four probes: tuning; the polo on two held-out
 maps), at each image size of `SIZES`, two references of `spp` samples per technique (their mean the
-truth, its own rel. RMSE the floor) and the balanced preset, whose shadow maps are 256^2 whatever the
-image. Beside it, from the second size on, two ways for the maps to follow the image (side x size /
-256):
+truth, its own rel. RMSE the floor) and the balanced preset, whose shadow maps keep their side
+whatever the image. Beside it, from the second size on, two ways for the maps to follow the image
+(balanced's side x size / 256):
 
 - "maps follow": the maps grow, the knobs counted in map texels (normal offset, least blur, contact
   reach) keep their counts, so penumbrae, bias and the contact search shrink in the scene with the
@@ -75,12 +75,9 @@ def excess(error: float, floor: float) -> float:
 
 def _rim(mask: np.ndarray) -> np.ndarray:
     """The mask's pixels with a 4-neighbour outside it."""
-    inner = mask.copy()
-    inner[1:] &= mask[:-1]
-    inner[:-1] &= mask[1:]
-    inner[:, 1:] &= mask[:, :-1]
-    inner[:, :-1] &= mask[:, 1:]
-    return mask & ~inner
+    from scipy.ndimage import binary_erosion
+
+    return mask & ~binary_erosion(mask, border_value=1)   # the image edge is not the object's edge
 
 
 def _scenes(quick: bool):

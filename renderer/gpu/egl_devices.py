@@ -102,6 +102,10 @@ def egl_devices() -> list[EGLDevice]:
     return out
 
 
+_ADVICE = ("Name the EGL device directly with GARMENT_RENDER_EGL_DEVICE (an index from `garment-render devices`), "
+           "or, on an NVIDIA host, check that the driver's EGL vendor file (10_nvidia.json) is installed.")
+
+
 def cuda_visible() -> list[str] | None:
     """CUDA_VISIBLE_DEVICES as a list, or None when it is not set."""
     raw = os.environ.get("CUDA_VISIBLE_DEVICES")
@@ -123,7 +127,8 @@ def egl_index_for_gpu(gpu: int, devices: list[EGLDevice], visible: list[str] | N
     if not reporting:
         if not 0 <= gpu < len(devices):
             raise GLContextError(f"GPU {gpu} was asked for, but EGL lists {len(devices)} device(s) and none "
-                                 f"reports a CUDA device: {'; '.join(d.describe() for d in devices) or 'none'}")
+                                 f"reports a CUDA device: {'; '.join(d.describe() for d in devices) or 'none'}. "
+                                 f"{_ADVICE}")
         return gpu, "by index: no EGL device reports a CUDA device (EGL_NV_device_cuda)"
     ordinal, numbering = gpu, "physical"
     if visible is not None and str(gpu) in visible and len(reporting) <= len(visible):
@@ -131,5 +136,6 @@ def egl_index_for_gpu(gpu: int, devices: list[EGLDevice], visible: list[str] | N
     if ordinal not in reporting:
         raise GLContextError(
             f"GPU {gpu} (CUDA device {ordinal}, {numbering} numbering) matches no EGL device: "
-            f"{'; '.join(d.describe() for d in devices)}; CUDA_VISIBLE_DEVICES={os.environ.get('CUDA_VISIBLE_DEVICES')!r}")
+            f"{'; '.join(d.describe() for d in devices)}; CUDA_VISIBLE_DEVICES={os.environ.get('CUDA_VISIBLE_DEVICES')!r}. "
+            f"{_ADVICE}")
     return reporting[ordinal].index, f"CUDA device {ordinal} ({numbering} numbering) by EGL_NV_device_cuda"
