@@ -34,6 +34,19 @@ class StageTimer:
                 "total_wall_ms": float(sum(self.wall_ms.values()))}
 
 
+def _env_index(name: str) -> int | None:
+    """A device number from the environment (None when unset or empty)."""
+    raw = os.environ.get(name, "").strip()
+    if not raw:
+        return None
+    try:
+        return int(raw)
+    except ValueError:
+        raise GLContextError(f"{name} must be a whole number (GARMENT_RENDER_EGL_DEVICE: an EGL device index as "
+                             "`garment-render devices` lists them; GARMENT_RENDER_GPU: a GPU as CUDA_VISIBLE_DEVICES "
+                             f"numbers it), got {raw!r}") from None
+
+
 class GLContext:
     """Owner of one headless OpenGL 4.5 core context; not thread-safe by design (see module doc)."""
 
@@ -46,13 +59,13 @@ class GLContext:
         if backend:
             kwargs["backend"] = backend
         self.device_choice = "EGL's first device"
-        if device_index is None and os.environ.get("GARMENT_RENDER_EGL_DEVICE"):
-            device_index = int(os.environ["GARMENT_RENDER_EGL_DEVICE"])
+        if device_index is None:
+            device_index = _env_index("GARMENT_RENDER_EGL_DEVICE")
         if device_index is not None:
             self.device_choice = f"EGL device {device_index}, as asked"
         else:
-            if gpu is None and os.environ.get("GARMENT_RENDER_GPU"):
-                gpu = int(os.environ["GARMENT_RENDER_GPU"])
+            if gpu is None:
+                gpu = _env_index("GARMENT_RENDER_GPU")
             if gpu is not None and backend == "egl":
                 device_index, how = egl_index_for_gpu(gpu, egl_devices(), cuda_visible())
                 self.device_choice = f"EGL device {device_index} for GPU {gpu}: {how}"
