@@ -503,13 +503,13 @@ def cmd_reference(args) -> int:
 
 
 def cmd_error_split(args) -> int:
-    from .bench.split import markdown, run_split
+    from .bench.split import run
 
-    if args.size < 8 or args.spp < 1:
-        raise InvalidInputError(f"--size must be >= 8 and --spp >= 1, got {args.size} and {args.spp}")
-    result = run_split(args.out, args.preset, args.size, args.spp, shared=not args.no_shared)
-    print(markdown(result))
-    print(f"wrote {args.out / 'split.md'}, split.json, split.png")
+    if args.spp < 1 or args.rays < 1:
+        raise InvalidInputError(f"--spp and --rays must be >= 1, got {args.spp} and {args.rays}")
+    data = run(args.out, args.set, args.spp, args.rays, args.quick)
+    print((args.out / "error_split.md").read_text())
+    print(f"wrote {args.out / 'error_split.md'}, error_split.json, error_split.png ({data['wall_s'] / 60:.1f} min)")
     return 0
 
 
@@ -748,12 +748,13 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     sp.add_argument("--workers", type=int, help="reference processes (default: one per core)")
     sp.add_argument("--out", type=Path, help="write the medians and ratios as JSON")
     sp.set_defaults(func=cmd_speed)
-    es = sub.add_parser("error-split", help="where a preset's error comes from: lighting alone, the worst pixels, "
-                                            "the silhouette (split.md, split.json, split.png)")
-    es.add_argument("--preset", choices=PRESET_NAMES, default="balanced")
-    es.add_argument("--size", type=int, default=128)
-    es.add_argument("--spp", type=int, default=512, help="samples per technique of each of the four references")
-    es.add_argument("--no-shared", action="store_true", help="bundled scene only (skip ../shared/assets)")
+    es = sub.add_parser("error-split", help="where each preset's error comes from: the lights alone, the same "
+                                            "lights with exact visibility (rays), the shadow maps, per pixel class "
+                                            "(needs ../shared/assets; error_split.md, .json, .png)")
+    es.add_argument("--set", choices=("held-out", "tuning"), default="held-out", help="the broad catalogue's maps")
+    es.add_argument("--spp", type=int, default=64, help="samples per technique of each of the four references")
+    es.add_argument("--rays", type=int, default=8, help="exact visibility's rays per light and pixel")
+    es.add_argument("--quick", action="store_true", help="one scene, fast and balanced (a check, minutes)")
     es.add_argument("--out", type=Path, default=Path("out/error-split"))
     es.set_defaults(func=cmd_error_split)
     sv = sub.add_parser("serve", help="run the HTTP render service (uvicorn); settings: GARMENT_RENDER_* variables")

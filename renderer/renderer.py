@@ -12,6 +12,7 @@ import os
 import time
 from dataclasses import asdict, dataclass, field
 from enum import Enum
+from collections.abc import Callable
 from typing import TypedDict
 
 import moderngl
@@ -57,6 +58,10 @@ _MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_
                ShadingMode.MANY_LIGHTS: 4}
 
 
+
+
+# The error split's oracle (render_views(visibility=)): (points, geometric normals, coverage) -> VIS_i.
+VisibilityOracle = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
 
 class Background(str, Enum):
@@ -343,7 +348,7 @@ class Renderer:
 
     def _shade_variant(self, mode: ShadingMode, diffuse: str, two_textures: bool,
                        glossy: str = "pem", contact: bool = False, sub_lights: int = 1,
-                       lobes: tuple[int, int] | None = None, blocker: bool = False
+                       lobes: tuple[int, int] | None = None, blocker: bool = False, oracle: bool = False
                        ) -> tuple[moderngl.Program | moderngl.ComputeShader, moderngl.VertexArray | None]:
         """The lighting program of a mode and diffuse source (a full-screen pass over the geometry
         pass's targets), compiled on first use (one variant each; the diffuse source matters to the
@@ -352,12 +357,16 @@ class Renderer:
         region in the glossy closed form (FrameSettings.sub_lights; 1 where no glossy term is in
         closed form, `_glossy_closed_form`); `lobes`: (GGX lobes, sheen lobes) of a scene with a
         physically based material (None: Phong materials only, one lobe a pixel); `blocker`: some
-        light's penumbra follows the blocker's distance (FrameSettings.penumbra, area lights)."""
+        light's penumbra follows the blocker's distance (FrameSettings.penumbra, area lights); `oracle`:
+        the full mode with each light's visibility read from a texture (`render_views(visibility=)`)."""
         closed = _no_diffuse_pems(mode, diffuse)
         wide = glossy == "wide" and mode in _CLOSED_FORM_MODES
-        contact = contact and mode is ShadingMode.FULL
+        oracle = oracle and mode is ShadingMode.FULL
+        contact = contact and mode is ShadingMode.FULL and not oracle
+        blocker = blocker and not oracle
         compute = self.lighting_pass == "compute"
-        key = (mode, diffuse if closed else "pem", two_textures, wide, contact, compute, sub_lights, lobes, blocker)
+        key = (mode, diffuse if closed else "pem", two_textures, wide, contact, compute, sub_lights, lobes, blocker,
+               oracle)
         if key not in self._shade_progs:
             defines = {**self._defines, "MODE": _MODE_INDEX[mode], "TWO_PEM_TEXTURES": int(two_textures)}
             if wide:
@@ -372,6 +381,8 @@ class Renderer:
                                TABLE_THETA_MAX=f"{material_lobes.THETA_V[-1]:.9g}")
             if blocker:
                 defines["PENUMBRA_BLOCKER"] = 1
+            if oracle:
+                defines["ORACLE_VISIBILITY"] = 1
             if contact:
                 defines.update(CONTACT_SHADOWS=1, CONTACT_SLICES=CONTACT_SLICES, CONTACT_STEPS=CONTACT_STEPS)
             if compute:
@@ -455,23 +466,31 @@ class Renderer:
 
     def render(self, scene: Scene, pems: PEMSet, settings: FrameSettings = FrameSettings(),
                camera: Camera | None = None, positions: list[np.ndarray | None] | None = None,
-               normals: list[np.ndarray | None] | None = None, background: BackgroundMap | None = None) -> Frame:
+               normals: list[np.ndarray | None] | None = None, background: BackgroundMap | None = None,
+               visibility: VisibilityOracle | None = None) -> Frame:
         """One frame. background: the map seen behind the scene (`background_map`); None shows the
         PEM set's own cube, as coarse as its faces. The stages: upload, the light plan (numpy), the
-        shadow maps, the geometry pass, the lighting pass, the readback."""
-        return self.render_views(scene, pems, settings, [camera], positions, normals, background)[0]
+        shadow maps, the geometry pass, the lighting pass, the readback. `visibility`: see render_views."""
+        return self.render_views(scene, pems, settings, [camera], positions, normals, background,
+                                 visibility=visibility)[0]
 
     def render_views(self, scene: Scene, pems: PEMSet, settings: FrameSettings = FrameSettings(),
                      cameras: list[Camera | None] = (None,), positions: list[np.ndarray | None] | None = None,
                      normals: list[np.ndarray | None] | None = None, background: BackgroundMap | None = None,
-                     variants: list[int] = (0,)) -> list[Frame]:
+                     variants: list[int] = (0,), visibility: VisibilityOracle | None = None) -> list[Frame]:
         """One frame of the scene seen from several cameras (a turntable, named views) in several
         material variants (colourways, `Scene.add_variant`): the positions are uploaded, the lights
         planned and the shadow maps drawn once (they are in light space, fitted to what any camera
         sees), then each (camera, variant) pair has its own geometry pass, lighting pass and readback.
         Frames come camera by camera, each camera's variants in the order given. The first frame's
         timings hold the shared stages; every frame's hold its own passes (`views`: how many frames
-        shared them)."""
+        shared them).
+
+        `visibility` (the error split's oracle, full mode only; renderer/reference/visibility.py): a
+        function of the geometry pass's surface points and geometric normals (float32 (H, W, 3) each,
+        row 0 at the bottom) and their coverage (bool (H, W)) that gives every light's VIS_i there
+        (float32 (n_lights, H, W)); the lighting pass reads it instead of the shadow maps and the
+        contact search, and shades as ever."""
         gl = self.gl
         gl.check_thread()
         cameras = list(cameras) or [None]
@@ -516,8 +535,11 @@ class Renderer:
                 timer = shared if not frames else StageTimer()
                 t_view = time.perf_counter()
                 self._geometry_pass(scene, camera, vp_bytes, gbuf_fbo, w, h, timer, variant)
+                oracle = self._oracle_texture(visibility, gbuf, lp.n, w, h) if visibility is not None else None
                 contact_radius = self._lighting_pass(scene, pems, settings, camera, view_proj, vp_bytes, lp, arrays,
-                                                     lights_buf, fbo, gbuf, discs, background, timer)
+                                                     lights_buf, fbo, gbuf, discs, background, timer, oracle)
+                if oracle is not None:
+                    oracle.release()
                 image = self._readback_image(fbo, w, h, timer)
                 timings: FrameTimings = {**timer.as_dict(), **report[0]}   # its stages, then the frame's counts
                 timings["frame_wall_ms"] = (time.perf_counter() - t_view) * 1e3 + (shared_ms if not frames else 0.0)
@@ -650,7 +672,7 @@ class Renderer:
     def _lighting_pass(self, scene: Scene, pems: PEMSet, settings: FrameSettings, camera: Camera,
                        view_proj: np.ndarray, vp_bytes: bytes, lp: _LightPlan, arrays: dict[str, ShadowMaps],
                        lights_buf: moderngl.Buffer, fbo, gbuf, discs: int, background: BackgroundMap | None,
-                       timer: StageTimer) -> float:
+                       timer: StageTimer, oracle: moderngl.TextureArray | None = None) -> float:
         """The background, then per covered pixel c = sum_i VIS_i * PEM_i (lighting.frag). Returns the
         contact search's distance in world units (0: none)."""
         gl, ctx = self.gl, self.gl.ctx
@@ -690,7 +712,9 @@ class Renderer:
             contact = settings.contact_shadow_texels > 0 and n_shadowed > 0
             lobes = (settings.lobes, settings.lobes if scene.has_sheen else 0) if scene.has_pbr else None
             p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE, settings.glossy,
-                                         contact, discs, lobes, lp.blocker)
+                                         contact, discs, lobes, lp.blocker, oracle is not None)
+            if oracle is not None:
+                oracle.use(location=15)
             if lobes is not None:
                 table, sheen_offset = self._lobe_table(*lobes)
                 table.bind_to_storage_buffer(7)
@@ -740,6 +764,19 @@ class Renderer:
             ctx.depth_func = "<"
             ctx.disable(moderngl.DEPTH_TEST)
         return contact_radius
+
+    def _oracle_texture(self, visibility: VisibilityOracle, gbuf: list[moderngl.Texture], n: int, w: int,
+                        h: int) -> moderngl.TextureArray:
+        """The oracle's VIS_i per pixel and light as a texture array (`render_views(visibility=)`)."""
+        position = np.frombuffer(gbuf[0].read(), np.float32).reshape(h, w, 4)
+        geometric = np.frombuffer(gbuf[2].read(), np.float32).reshape(h, w, 4)
+        vis = np.asarray(visibility(position[..., :3], geometric[..., :3], position[..., 3] >= 0.0), np.float32)
+        if vis.shape != (n, h, w) or not np.isfinite(vis).all():
+            raise InvalidInputError(f"the visibility oracle must give finite values of shape {(n, h, w)}, "
+                                    f"got {vis.shape}")
+        tex = self.gl.ctx.texture_array((w, h, n), 1, np.clip(vis, 0.0, 1.0).tobytes(), dtype="f4")
+        tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        return tex
 
     def _lobe_table(self, ggx: int, sheen: int) -> tuple[moderngl.Buffer, int]:
         """The fitted lobes the PBR variant reads (lobes.glsl): the GGX table, then the sheen table,

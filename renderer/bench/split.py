@@ -1,18 +1,24 @@
-"""`garment-render error-split`: where a preset's error against the reference comes from.
+"""`garment-render error-split`: where each preset's error comes from, split against an oracle.
 
-The benchmark gives one number per scene; a user deciding which knob to turn needs to know what
-that number is made of. Per scene, at one preset:
+The benchmark gives one number per scene; deciding where a frame's time should go needs to know what
+that number is made of. Per scene of the broad catalogue's 256 x 256 subset (every map x the shirt,
+the polo and the dress on their bodies, the sheen fabric, front view; held-out maps by default), for
+each of `CONFIGS` (the presets, and balanced at 24 / 96 / 192 lights), three renders of the same lights
+and PEMs against the reference:
 
-* **lighting alone**: the renderer without occlusion against a reference without occlusion
-  (V = 1): the PEM lookups and lobe calibration, with every shadow term left out on both sides;
-* **the worst 1 % of pixels**: their share of the squared relative error (relMSE), and the error
-  of the rest, since a few pixels (a shadow edge, a contact shadow) can carry most of it;
-* **the worst ten pixels**: their share, and where the worst one is (row, column from the top left),
-  since a handful of dark pixels rendered bright can decide the relative RMSE;
-* **the silhouette**: the covered pixels with an uncovered neighbour, and their share;
+* **(a) the lights alone**: the no-occlusion mode against a reference without occlusion (V = 1 on
+  both sides): the median cut, the PEMs and the closed forms;
+* **(b) exact visibility**: the full mode with each light's VIS_i from rays towards its region
+  (renderer/reference/visibility.py) instead of the shadow maps and the contact search: what perfect
+  shadow maps of these lights would give. (b) against the truth is what the light count costs;
+* **(c) the renderer's shadow maps**: the frame as it ships. (c) against (b) is what the maps cost.
 
-each beside the references' own noise floors (two seeds compared). An image per scene shows the
-reference, the render and the per-pixel relative error.
+Errors are relative RMSEs over the object's pixels, each beside its excess over the references' own
+noise (sqrt(e^2 - floor^2); the references are cheap, 2 x `spp`); (c) against (b) has no reference and
+no floor. Both the light-count and the maps' errors are split by pixel class: **contact** (a surface
+point within CONTACT_M of another mesh: the garment over the body), **silhouette** (a covered pixel
+with an uncovered 4-neighbour) and **open** (the rest): each class's share of the pixels, its share of
+the relMSE and its own rel. RMSE.
 """
 
 from __future__ import annotations
@@ -23,135 +29,231 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import frame_meshes
 from ..errors import InvalidInputError
-from ..presets import frame_settings as preset_frame_settings
-from ..presets import merge_knobs, pem_settings, presets
-from ..reference import mean_flip, relative_rmse, relative_squared_errors, render_reference
+from ..presets import frame_settings, pem_settings, preset
+from ..reference import relative_rmse, relative_squared_errors, render_reference
+from ..reference.visibility import ExactVisibility
 from ..renderer import Renderer, ShadingMode
-from .run import BALANCED
-from .scenes import bundled_scene, shared_scenes
+from .catalogue import GARMENTS, LARGE_FABRIC, LARGE_VIEW, MAPS, Scene, environment_cube, split
+from .materials import SEEDS, ReferencePair
+from .report import machine_info
+from .sizes import excess
 
-WORST_SHARE = 0.01   # "the worst 1 % of pixels"
-WORST_PIXELS = 10    # "the worst ten pixels"
+SIZE = 256
+REFERENCE_FACE = 256
+# A pixel is "contact" when its surface point lies within this distance of another mesh's vertex.
+CONTACT_M = 0.03
+CLASSES = ("contact", "silhouette", "open")
+# (label, preset, knobs changed): every preset, and balanced over the light counts.
+CONFIGS = (("fast", "fast", {}), ("balanced", "balanced", {}), ("accurate", "accurate", {}),
+           ("balanced, 24 lights", "balanced", {"lights": 24}), ("balanced, 96 lights", "balanced", {"lights": 96}),
+           ("balanced, 192 lights", "balanced", {"lights": 192}))
+QUICK_CONFIGS = ("fast", "balanced")
 
 
-def _silhouette(mask: np.ndarray) -> np.ndarray:
-    """Covered pixels with an uncovered 4-neighbour (the image border counts as uncovered)."""
-    m = np.pad(mask, 1, constant_values=False)
-    inner = m[1:-1, 1:-1] & m[:-2, 1:-1] & m[2:, 1:-1] & m[1:-1, :-2] & m[1:-1, 2:]
-    return mask & ~inner
+class _Recording(ExactVisibility):
+    """The oracle, keeping the surface points it was given (for the pixel classes)."""
+
+    points: np.ndarray | None = None
+    covered: np.ndarray | None = None
+
+    def __call__(self, points, geometric, covered):
+        self.points, self.covered = points.copy(), covered.copy()
+        return super().__call__(points, geometric, covered)
 
 
-def split_scene(r: Renderer, bs, knobs: dict, size: int, spp: int, log=print) -> tuple[dict, dict]:
-    """The split of one scene's error; returns (row, images for the figure)."""
-    camera = frame_meshes(bs.meshes, 1.0)
-    cube = bs.cube(2 * BALANCED["face_size"])     # the benchmark's reference cube
+def pixel_classes(meshes, points_top_down: np.ndarray, mask: np.ndarray) -> dict[str, np.ndarray]:
+    """bool (H, W) per class of `CLASSES`, within `mask` and disjoint (contact first, then silhouette)."""
+    from scipy.ndimage import binary_erosion
+    from scipy.spatial import cKDTree
+
+    trees = [cKDTree(m.positions.astype(np.float64)) for m in meshes]
+    p = points_top_down[mask].astype(np.float64)
+    d = np.stack([t.query(p)[0] for t in trees])          # (meshes, pixels)
+    own = np.argmin(d, axis=0)
+    d[own, np.arange(len(own))] = np.inf
+    near = d.min(axis=0) < CONTACT_M if len(trees) > 1 else np.zeros(len(p), bool)
+    contact = np.zeros(mask.shape, bool)
+    contact[mask] = near
+    rim = mask & ~binary_erosion(mask, border_value=1) & ~contact
+    return {"contact": contact, "silhouette": rim, "open": mask & ~contact & ~rim}
+
+
+def _by_class(image: np.ndarray, against: np.ndarray, mask: np.ndarray, classes: dict) -> dict:
+    per_px = np.zeros(mask.shape)
+    per_px[mask] = relative_squared_errors(image, against, mask)
+    total = max(float(per_px[mask].sum()), 1e-300)
+    return {c: {"pixels": float(m.sum() / max(mask.sum(), 1)), "share": float(per_px[m].sum() / total),
+                "rel_rmse": float(np.sqrt(per_px[m].mean())) if m.any() else 0.0} for c, m in classes.items()}
+
+
+def split_scene(r: Renderer, scene: Scene, configs, spp: int, rays: int, log=print) -> dict:
+    meshes, camera, materials = scene.meshes(), scene.camera(), scene.materials()
     t0 = time.perf_counter()
-    refs = [render_reference(bs.meshes, bs.materials, cube, camera, size, size, spp, seed=s, occlusion=occ).image
-            for occ, s in ((True, 1), (True, 2), (False, 3), (False, 4))]
+    truth = ReferencePair.render(meshes, materials, environment_cube(scene.map, REFERENCE_FACE), camera, SIZE, spp)
+    free_a, free_b = (render_reference(meshes, materials, environment_cube(scene.map, REFERENCE_FACE), camera, SIZE,
+                                       SIZE, spp, seed=s, occlusion=False).image for s in SEEDS)
+    free = 0.5 * (free_a + free_b)
+    free_floor = relative_rmse(free_a, free_b, truth.mask) / 2.0
     ref_s = time.perf_counter() - t0
-    truth, free = 0.5 * (refs[0] + refs[1]), 0.5 * (refs[2] + refs[3])
-    mask = truth[..., 3] > 0.5
-    pem = pem_settings(knobs, "sqrt-cosine", None, bs.materials)
-    pems = r.build_pems(bs.cube(int(knobs["face_size"])), pem)
-    scene = r.create_scene(bs.meshes, bs.materials)
+    gs = r.create_scene(meshes, materials)
+    row = {"map": scene.map, "garment": scene.garment, "floor": truth.floor, "free_floor": free_floor,
+           "reference_s": ref_s, "configs": {}}
+    classes = None
     try:
-        full = r.render(scene, pems, preset_frame_settings(knobs, size, size), camera).image
-        unoccluded = r.render(scene, pems, preset_frame_settings(knobs, size, size, mode=ShadingMode.NO_OCCLUSION),
-                              camera).image
+        for label, name, knobs in configs:
+            base = {**preset(name), **knobs}
+            cube = environment_cube(scene.map, int(base["face_size"]))
+            pems = r.build_pems(cube, pem_settings(base, "sqrt-cosine", None))
+            try:
+                fs = frame_settings(base, SIZE, SIZE)
+                maps = r.render(gs, pems, fs, camera).image
+                lights = r.render(gs, pems, frame_settings(base, SIZE, SIZE, mode=ShadingMode.NO_OCCLUSION),
+                                  camera).image
+                oracle = _Recording(meshes, cube, pems.regions, rays)
+                t1 = time.perf_counter()
+                exact = r.render(gs, pems, fs, camera, visibility=oracle).image
+                oracle_s = time.perf_counter() - t1
+                n = pems.regions.n_regions
+            finally:
+                pems.release()
+            if classes is None:
+                classes = pixel_classes(meshes, oracle.points[::-1], truth.mask)
+            e = {k: relative_rmse(img, truth.image, truth.mask) for k, img in (("maps", maps), ("exact", exact))}
+            lights_err = relative_rmse(lights, free, truth.mask)
+            got = {"lights": n, "lights_alone": lights_err, "lights_alone_excess": excess(lights_err, free_floor),
+                   "exact": e["exact"], "exact_excess": excess(e["exact"], truth.floor),
+                   "maps": e["maps"], "maps_excess": excess(e["maps"], truth.floor),
+                   "maps_vs_exact": relative_rmse(maps, exact, truth.mask),
+                   "exact_classes": _by_class(exact, truth.image, truth.mask, classes),
+                   "maps_vs_exact_classes": _by_class(maps, exact, truth.mask, classes),
+                   "oracle_s": oracle_s, "oracle_rays": oracle.rays_cast}
+            row["configs"][label] = got
+            log(f"  {scene.garment:6s} {scene.map:30s} {label:22s} lights alone {lights_err:.3f} | exact visibility "
+                f"{e['exact']:.3f} (excess {got['exact_excess']:.3f}) | maps {e['maps']:.3f} (excess "
+                f"{got['maps_excess']:.3f}) | maps vs exact {got['maps_vs_exact']:.3f} | floor {truth.floor:.3f}")
     finally:
-        scene.release()
-        pems.release()
-    per_px = relative_squared_errors(full, truth, mask)
-    if per_px.size < 2 or per_px.sum() <= 0:
-        raise InvalidInputError(f"{bs.name}: {per_px.size} covered pixels and a total error of "
-                                f"{per_px.sum():.3g}: nothing to split (a larger --size?)")
-    ranked = np.argsort(per_px)[::-1]
-    order = per_px[ranked]
-    worst_row, worst_col = (int(v[ranked[0]]) for v in np.nonzero(mask))   # per_px is in the mask's row-major order
-    n_worst = max(1, int(round(WORST_SHARE * len(order))))
-    rim = _silhouette(mask)[mask]
-    # The noise floors: one seed against the other is sqrt(2) x one image's noise; the averaged
-    # references used here carry 1/sqrt(2) of one image's, so half of the pair's difference.
-    row = {
-        "scene": bs.name, "env": bs.env_name, "pixels": int(mask.sum()),
-        "rel_rmse": float(np.sqrt(per_px.mean())), "flip": mean_flip(full, truth, mask),
-        "noise_rel_rmse": relative_rmse(refs[1], refs[0], mask) / 2.0,
-        "lighting_rel_rmse": relative_rmse(unoccluded, free, mask),
-        "lighting_flip": mean_flip(unoccluded, free, mask),
-        "lighting_noise_rel_rmse": relative_rmse(refs[3], refs[2], mask) / 2.0,
-        "worst_share": float(order[:n_worst].sum() / order.sum()),
-        "rel_rmse_without_worst": float(np.sqrt(order[n_worst:].mean())),
-        "worst_pixels_share": float(order[:WORST_PIXELS].sum() / order.sum()),
-        "worst_pixel": [worst_row, worst_col],
-        "silhouette_pixels": float(rim.mean()), "silhouette_share": float(per_px[rim].sum() / per_px.sum()),
-        "reference_s": ref_s,
-    }
-    err = np.zeros(mask.shape)
-    err[mask] = np.sqrt(per_px)
-    log(f"  {bs.name}: rel. RMSE {row['rel_rmse']:.3f} (noise {row['noise_rel_rmse']:.3f}); lighting alone "
-        f"{row['lighting_rel_rmse']:.3f} (noise {row['lighting_noise_rel_rmse']:.3f}); worst 1 % of pixels "
-        f"{100 * row['worst_share']:.0f} % of relMSE, the rest {row['rel_rmse_without_worst']:.3f}; worst "
-        f"{WORST_PIXELS} pixels {100 * row['worst_pixels_share']:.0f} % (the worst at {tuple(row['worst_pixel'])}); silhouette "
-        f"{100 * row['silhouette_pixels']:.0f} % of pixels, {100 * row['silhouette_share']:.0f} % of relMSE")
-    return row, {"reference": truth, "render": full, "error": err, "mask": mask}
+        gs.release()
+    return row
 
 
-def run_split(out: Path, preset: str = "balanced", size: int = 128, spp: int = 512, shared: bool = True,
-              log=print) -> dict:
-    table, source = presets()
-    knobs = merge_knobs(table[preset], {})
-    scenes = [bundled_scene()] + (shared_scenes() if shared else [])
-    out.mkdir(parents=True, exist_ok=True)
-    rows, images = [], []
+def run(out_dir: Path, which: str = "held-out", spp: int = 64, rays: int = 8, quick: bool = False,
+        log=print) -> dict:
+    if which not in ("held-out", "tuning"):
+        raise InvalidInputError(f"the set must be held-out or tuning, got {which!r}")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    maps = [m for m in MAPS if split()[m] == which]
+    garments = GARMENTS
+    configs = CONFIGS
+    if quick:
+        maps, garments = maps[:1], GARMENTS[1:2]
+        configs = tuple(c for c in CONFIGS if c[0] in QUICK_CONFIGS)
+    t_start = time.perf_counter()
+    rows = []
     with Renderer() as r:
-        for bs in scenes:
-            row, img = split_scene(r, bs, knobs, size, spp, log)
-            rows.append(row)
-            images.append((bs.name, img))
-    result = {"preset": preset, "presets": source, "knobs": knobs, "size": size, "spp": spp, "rows": rows}
-    (out / "split.json").write_text(json.dumps(result, indent=1, default=float))
-    (out / "split.md").write_text(markdown(result) + "\n")
-    _figure(out / "split.png", images)
-    return result
+        for garment in garments:
+            for name in maps:
+                rows.append(split_scene(r, Scene(name, garment, LARGE_FABRIC, LARGE_VIEW, SIZE), configs, spp, rays,
+                                        log))
+        machine = machine_info(r.gl)
+    data = {"machine": machine, "set": which, "spp": spp, "rays_per_light": rays, "size": SIZE, "quick": quick,
+            "contact_m": CONTACT_M, "configs": {c[0]: {"preset": c[1], "knobs": c[2]} for c in configs},
+            "wall_s": time.perf_counter() - t_start, "rows": rows, "summary": summary(rows, [c[0] for c in configs])}
+    (out_dir / "error_split.json").write_text(json.dumps(data, indent=1))
+    (out_dir / "error_split.md").write_text(markdown(data))
+    figure(data, out_dir / "error_split.png")
+    return data
 
 
-def markdown(result: dict) -> str:
-    lines = [f"Preset {result['preset']} at {result['size']}x{result['size']}, references 2 x {result['spp']} spp "
-             "per term (with and without occlusion), noise floors of their averages in brackets.", "",
-             "| scene | rel. RMSE | FLIP | lighting alone (no occlusion) | worst 1 % of pixels: share of relMSE | "
-             f"rel. RMSE of the other 99 % | worst {WORST_PIXELS} pixels: share (worst at row, column) | "
-             "silhouette: pixels, share of relMSE |",
-             "|---|---|---|---|---|---|---|---|"]
-    for w in result["rows"]:
-        lines.append(f"| {w['scene']} | {w['rel_rmse']:.3f} ({w['noise_rel_rmse']:.3f}) | {w['flip']:.3f} | "
-                     f"{w['lighting_rel_rmse']:.3f} ({w['lighting_noise_rel_rmse']:.3f}) | "
-                     f"{100 * w['worst_share']:.0f} % | {w['rel_rmse_without_worst']:.3f} | "
-                     f"{100 * w['worst_pixels_share']:.0f} % ({w['worst_pixel'][0]}, {w['worst_pixel'][1]}) | "
-                     f"{100 * w['silhouette_pixels']:.0f} %, {100 * w['silhouette_share']:.0f} % |")
-    return "\n".join(lines)
+def summary(rows: list[dict], labels: list[str]) -> list[dict]:
+    """Per config: medians over the scenes of each part, and the share of scenes where the maps'
+    part (maps vs exact) is larger than the light count's (the exact render's excess)."""
+    out = []
+    for label in labels:
+        got = [r["configs"][label] for r in rows if label in r["configs"]]
+        if not got:
+            continue
+
+        def med(key, g=got):
+            return float(np.median([x[key] for x in g]))
+
+        out.append({"config": label, "scenes": len(got), "lights": int(got[0]["lights"]),
+                    "lights_alone": med("lights_alone"), "exact": med("exact"), "exact_excess": med("exact_excess"),
+                    "maps": med("maps"), "maps_excess": med("maps_excess"), "maps_vs_exact": med("maps_vs_exact"),
+                    "maps_dominate": float(np.mean([x["maps_vs_exact"] > x["exact_excess"] for x in got])),
+                    "classes": {c: {part: float(np.median([x[key][c]["share"] for x in got]))
+                                    for part, key in (("exact", "exact_classes"), ("maps", "maps_vs_exact_classes"))}
+                                for c in CLASSES},
+                    "class_pixels": {c: float(np.median([x["exact_classes"][c]["pixels"] for x in got]))
+                                     for c in CLASSES}})
+    return out
 
 
-def _figure(path: Path, images: list) -> None:
+def markdown(data: dict) -> str:
+    m = data["machine"]
+    lines = ["# Where the error comes from: the light count against the shadow maps", "",
+             f"Made by `garment-render error-split` on {m['gl_renderer']}, {m['cores']} cores ({m['date']}): the broad "
+             f"catalogue's {data['size']} x {data['size']} scenes on the {data['set']} maps (sheen, front), "
+             f"{len(data['rows'])} scenes, against the mean of two references of {data['spp']} spp per technique "
+             f"(with and without occlusion); exact visibility from {data['rays_per_light']} rays per light and "
+             f"pixel; {data['wall_s'] / 60:.0f} min.", "",
+             "Medians over the scenes. *lights alone*: the no-occlusion mode against a reference without "
+             "occlusion. *exact*: the same lights and PEMs with each light's visibility from rays (perfect shadow "
+             "maps); its excess over the references' noise is what the light count costs. *maps*: the frame as "
+             "it ships. *maps vs exact*: what the shadow maps cost (no reference involved). *maps larger*: the "
+             "share of scenes where the maps' part exceeds the light count's.", "",
+             "| config | lights | lights alone | exact (excess) | maps (excess) | maps vs exact | maps larger |",
+             "|---|---|---|---|---|---|---|"]
+    for s in data["summary"]:
+        lines.append(f"| {s['config']} | {s['lights']} | {s['lights_alone']:.3f} | {s['exact']:.3f} "
+                     f"({s['exact_excess']:.3f}) | {s['maps']:.3f} ({s['maps_excess']:.3f}) | "
+                     f"{s['maps_vs_exact']:.3f} | {100 * s['maps_dominate']:.0f} % |")
+    lines += ["", f"By pixel class (contact: within {100 * data['contact_m']:.0f} cm of another mesh; silhouette: "
+              "a covered pixel with an uncovered neighbour; open: the rest): the class's share of the pixels, "
+              "then its share of the light count's relMSE (exact against the truth) and of the maps' (maps "
+              "against exact), medians over the scenes.", "",
+              "| config | " + " | ".join(f"{c}: pixels, light count, maps" for c in CLASSES) + " |",
+              "|---|" + "---|" * len(CLASSES)]
+    for s in data["summary"]:
+        lines.append(f"| {s['config']} | " + " | ".join(
+            f"{100 * s['class_pixels'][c]:.0f} %, {100 * s['classes'][c]['exact']:.0f} %, "
+            f"{100 * s['classes'][c]['maps']:.0f} %" for c in CLASSES) + " |")
+    lines += ["", "Per scene (balanced):", "",
+              "| garment | map | floor | lights alone | exact (excess) | maps (excess) | maps vs exact |",
+              "|---|---|---|---|---|---|---|"]
+    for r in data["rows"]:
+        b = r["configs"].get("balanced")
+        if b:
+            lines.append(f"| {r['garment']} | {r['map']} | {r['floor']:.3f} | {b['lights_alone']:.3f} | "
+                         f"{b['exact']:.3f} ({b['exact_excess']:.3f}) | {b['maps']:.3f} ({b['maps_excess']:.3f}) | "
+                         f"{b['maps_vs_exact']:.3f} |")
+    return "\n".join(lines) + "\n"
+
+
+def figure(data: dict, path: Path) -> None:
+    """Light count's part (exact's excess) and the maps' part (maps vs exact) against the light count."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..shading.tonemap import ToneCurve, auto_exposure_ev, tonemap
-
-    fig, axes = plt.subplots(len(images), 3, figsize=(9, 3 * len(images)), squeeze=False)
-    for ax_row, (name, img) in zip(axes, images):
-        ev = auto_exposure_ev(img["reference"][..., :3], img["reference"][..., 3])
-        for ax, key in zip(ax_row[:2], ("reference", "render")):
-            ax.imshow(tonemap(img[key][..., :3], ev, ToneCurve.FILMIC))
-            ax.set_title(f"{name}: {key}", fontsize=8)
-        shown = ax_row[2].imshow(np.where(img["mask"], img["error"], np.nan), cmap="magma", vmin=0.0, vmax=1.0)
-        ax_row[2].set_title("relative error per pixel", fontsize=8)
-        fig.colorbar(shown, ax=ax_row[2], fraction=0.046)
-        for ax in ax_row:
-            ax.set_axis_off()
+    sweep = [s for s in data["summary"] if s["config"].startswith("balanced")]
+    sweep.sort(key=lambda s: s["lights"])
+    fig, ax = plt.subplots(figsize=(6, 4))
+    x = [s["lights"] for s in sweep]
+    ax.plot(x, [s["exact_excess"] for s in sweep], "o-", label="light count (exact visibility, excess)")
+    ax.plot(x, [s["maps_vs_exact"] for s in sweep], "s-", label="shadow maps (maps vs exact)")
+    ax.plot(x, [s["maps_excess"] for s in sweep], "^--", label="the frame (maps, excess)")
+    for s in data["summary"]:
+        if s["config"] in ("fast", "accurate"):
+            ax.plot([s["lights"]], [s["maps_excess"]], "k*")
+            ax.annotate(s["config"], (s["lights"], s["maps_excess"]))
+    ax.set_xscale("log", base=2)
+    ax.set_xlabel("lights (balanced otherwise)")
+    ax.set_ylabel("median rel. RMSE")
+    ax.set_title(f"error split, {data['set']} scenes ({len(data['rows'])})")
+    ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -44,6 +44,11 @@ layout(binding = 12) uniform sampler2DArray u_moments_sharp; // the small lights
 #ifdef PENUMBRA_BLOCKER
 layout(binding = 14) uniform sampler2DArray u_casters;        // the main maps' caster share per group, with MIPs
 #endif
+#ifdef ORACLE_VISIBILITY
+// The error split's oracle (renderer/reference/visibility.py): VIS_i of every covered pixel from rays
+// cast on the CPU, layer i = light i, instead of the shadow maps (and no contact search).
+layout(binding = 15) uniform sampler2DArray u_oracle_visibility;
+#endif
 layout(binding = 8) uniform sampler2D u_g_position;         // the geometry pass's targets (gbuffer.frag)
 layout(binding = 9) uniform sampler2D u_g_normal;
 layout(binding = 10) uniform sampler2D u_g_geometric;
@@ -87,6 +92,7 @@ float gloss_level(float g) {
 
 // Accumulators of main(), shared with add_light() (GLSL has no closures).
 vec3 g_geometric_normal = vec3(0.0, 0.0, 1.0);  // the triangle's plane, facing the camera
+ivec2 g_px = ivec2(0);                          // the pixel shaded
 vec3 g_to_eye = vec3(0.0, 0.0, 1.0);            // unit, from the pixel's surface point to the eye
 vec3 g_diffuse = vec3(0.0), g_ao_rgb = vec3(0.0), g_ao_norm = vec3(0.0);
 // The pixel's lobes: axis, PEM level, 1 / exponent (the closed forms' width) and weight (rgb), set by
@@ -140,9 +146,13 @@ void add_light(int i, vec3 pem_d, vec3 pem_g[N_LOBES], vec3 n, vec3 ws_pos, bool
     add_glossy(i, pem_g, pem_glossy, g_clip_lobes ? disc_share_above(i, n) : 1.0, scale,
                lights[i].shadow.w > 0.5);
 #elif MODE == 0
+#ifdef ORACLE_VISIBILITY
+    float vis = texelFetch(u_oracle_visibility, ivec3(g_px, i), 0).r;
+#else
     float vis = visibility(i, ws_pos, n, sharp);
 #ifdef CONTACT_SHADOWS
     if (lights[i].shadow.x >= 0.0) vis = min(vis, contact_visibility(i, g_to_eye));
+#endif
 #endif
     // Light from below the surface's own plane (the triangle's, not the interpolated normal's) is
     // blocked by the surface for a closed body and by the body under a garment; a shadow map cannot
@@ -201,6 +211,7 @@ void main() {
     ivec2 px = ivec2(gl_FragCoord.xy);
     vec4 g_pos = texelFetch(u_g_position, px, 0);
 #endif
+    g_px = px;
     vec4 g_nrm = texelFetch(u_g_normal, px, 0);
     vec3 ws_position = g_pos.xyz;
     vec3 n = g_nrm.xyz;
