@@ -588,6 +588,9 @@ class Renderer:
         regions = pems.regions
         n = regions.n_regions
         lo, hi = scene.bounds(casters_only=True)
+        # The projections' boxes, kept while what moves stays inside them (the still casters' maps
+        # are then kept too: Scene.stable_fit); the contact search's reach follows the casters' own.
+        fit_lo, fit_hi, fit_receivers = scene.stable_fit(lo, hi, receivers)
         shadowed = settings.mode is not ShadingMode.NO_OCCLUSION
         # Every light has a map (none in the no-occlusion mode).
         layers = np.arange(n, dtype=np.int32) if shadowed else np.full(n, -1, np.int32)
@@ -606,8 +609,7 @@ class Renderer:
         blur = bool((sigma > 0).any())   # blur scale 0 (every preset): the maps stay as drawn
         # Square texels: the blur's sigma is in texels, the same on both axes, so rectangular texels
         # would make penumbrae anisotropic (a side run fitting x and y separately gained 0-2.5 %).
-        vp = fit_light_view_projs(shadow_dirs, lo, hi, sigma, sizes, scene.footprint_unit,
-                                  receivers)
+        vp = fit_light_view_projs(shadow_dirs, fit_lo, fit_hi, sigma, sizes, scene.footprint_unit, fit_receivers)
         # Lights sharing a map look it up through the projection it was drawn with (its first light's:
         # with a blur the fit's margin follows each light's own width).
         sharp_layer = plan.layer[plan.sharp]
@@ -632,9 +634,12 @@ class Renderer:
         shadow_maps = self._shadow_maps_for("main", settings.shadow_size, max(len(plan.main_lights), 1), groups)
         arrays = {"main": shadow_maps}
         if len(plan.main_lights):
+            # The still group's maps (group 1: the body a garment is worn on) are kept while its
+            # meshes, their proxy's detail and every light's projection stay the same (ShadowMaps.render).
+            still = (scene.still_key(1), settings.caster_detail, lp.lights.tobytes(), plan.main_lights.tobytes())
             shadow_maps.render([(sm.shadow_vao(settings.caster_detail), sm.group) for sm in casters], lights_buf,
                                self._buffer("shadow_lights_main", plan.main_lights.tobytes()), timer, blur=blur,
-                               mipmaps=lp.blocker)
+                               mipmaps=lp.blocker, still_key=still)
         if len(plan.sharp_lights):
             # The sharp maps draw the casters themselves, never a proxy: a proxy's facets show in a
             # sharp shadow (and drawn from one, the interiors' lamps measured no faster on the held-out

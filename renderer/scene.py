@@ -118,6 +118,10 @@ def longest_edge(positions: np.ndarray, faces: np.ndarray) -> float:
 # Work groups per dispatch dimension that every GL 4.5 driver takes (llvmpipe's limit): larger meshes'
 # normals pass dispatches a second dimension.
 MAX_GROUPS_X = 65535
+# Scene.stable_fit: a kept box serves while the new one's extent is at least this share of its own;
+# a box that is left is fitted anew with this margin on every side (of its extent).
+KEEP_SHRINK = 0.8
+REFIT_MARGIN = 0.05
 
 
 class SceneMesh:
@@ -131,6 +135,9 @@ class SceneMesh:
         ctx = gl.ctx
         self.mesh, self.material, self.caster, self.group = mesh, material, caster, group
         self.n_vertices = mesh.positions.shape[0]
+        # Bumped by every set_positions: the shadow pass keeps the maps of casters that hold still
+        # (shadows/vsm.py, the still group's copy) while their versions stay the same.
+        self.version = 0
         self._pbr, self._programs = pbr, programs
         # Checked before any GL object exists, so that a refused proxy leaks nothing.
         self._check_maps(material)
@@ -210,6 +217,7 @@ class SceneMesh:
         if normals is None and self._normals_prog is None:
             normals = vertex_normals(positions, self.mesh.faces)
         self.positions = positions
+        self.version += 1
         self.box = box(positions)
         self.vbo_pos.write(np.ascontiguousarray(positions, np.float32).tobytes())
         if normals is None:
@@ -426,6 +434,38 @@ class Scene:
         for sm, p, n in zip(self.meshes, positions, normals):
             if p is not None:
                 sm.set_positions(p, n)
+
+    def still_key(self, group: int) -> tuple:
+        """What the shadow maps of one group's casters depend on in the scene: which meshes, and the
+        version of their positions."""
+        return tuple((id(sm), sm.version) for sm in self.meshes if sm.caster and sm.group == group)
+
+    def stable_fit(self, lo: np.ndarray, hi: np.ndarray, receivers: tuple[np.ndarray, np.ndarray] | None):
+        """The boxes the shadow maps are fitted to (casters, receivers), kept from frame to frame
+        while the new ones lie inside them and have not shrunk below KEEP_SHRINK of their extent: a
+        garment moving inside its box keeps its maps' projections, so the casters that hold still
+        need not be drawn again (shadows/vsm.py). A box that is left is fitted anew, grown by
+        REFIT_MARGIN of its extent on every side; the first frame's fit is exact."""
+        def inside(new, kept):
+            if new is None or kept is None:
+                return new is None and kept is None
+            ext_new, ext_kept = new[1] - new[0], kept[1] - kept[0]
+            return bool((new[0] >= kept[0]).all() and (new[1] <= kept[1]).all()
+                        and (ext_new >= KEEP_SHRINK * ext_kept).all())
+
+        kept = getattr(self, "_fit", None)
+        if kept is not None and inside((lo, hi), kept[0]) and inside(receivers, kept[1]):
+            return kept[0][0], kept[0][1], kept[1]
+
+        def grown(b):
+            if b is None:
+                return None
+            m = REFIT_MARGIN * (b[1] - b[0])
+            return b[0] - m, b[1] + m
+
+        fit = ((lo, hi), receivers) if kept is None else (grown((lo, hi)), grown(receivers))
+        self._fit = fit
+        return fit[0][0], fit[0][1], fit[1]
 
     def bounds(self, casters_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
         los, his = [], []

@@ -1,4 +1,5 @@
-"""The few raw OpenGL calls that moderngl does not wrap: cube-map-array textures.
+"""The few raw OpenGL calls that moderngl does not wrap: cube-map-array textures, and copies between
+texture layers (glCopyImageSubData: the shadow pass's still casters, shadows/vsm.py).
 
 moderngl has no cube-map-array type (GL-NOTES). The PEM set is one GL_TEXTURE_CUBE_MAP_ARRAY
 (layer = region) so that the shading pass reads every region with one sampler and hardware
@@ -15,6 +16,7 @@ import numpy as np
 from ..errors import GLContextError
 
 GL_TEXTURE_CUBE_MAP_ARRAY = 0x9009
+GL_TEXTURE_2D_ARRAY = 0x8C1A
 GL_RGBA16F = 0x881A
 GL_RGBA32F = 0x8814
 GL_RGBA = 0x1908
@@ -45,6 +47,7 @@ class RawGL:
         "glGetTextureImage": (_u, _i, _u, _u, _i, ctypes.c_void_p),
         "glGetTextureSubImage": (_u, _i, _i, _i, _i, _i, _i, _i, _u, _u, _i, ctypes.c_void_p),
         "glTextureSubImage3D": (_u, _i, _i, _i, _i, _i, _i, _i, _u, _u, ctypes.c_void_p),
+        "glCopyImageSubData": (_u, _u, _i, _i, _i, _i, _u, _u, _i, _i, _i, _i, _i, _i, _i),
     }
 
     def __init__(self):
@@ -59,6 +62,13 @@ class RawGL:
             if not ptr:
                 raise GLContextError(f"the OpenGL driver does not export {name} (GL 4.5 is required)")
             setattr(self, name, ctypes.CFUNCTYPE(None, *args)(ptr))
+
+
+def copy_layers(gl: RawGL, src_glo: int, src_first: int, dst_glo: int, dst_first: int, size: int,
+                count: int) -> None:
+    """Level 0 of `count` layers of one size^2 2D texture array into another of the same format."""
+    gl.glCopyImageSubData(src_glo, GL_TEXTURE_2D_ARRAY, 0, 0, 0, src_first,
+                          dst_glo, GL_TEXTURE_2D_ARRAY, 0, 0, 0, dst_first, size, size, count)
 
 
 class CubeMapArray:

@@ -11,6 +11,12 @@ region's angular size then softens them. The arrays are allocated once per (size
 reused frame after frame. For contact-hardening penumbrae (FrameSettings.penumbra "blocker") the main
 array also carries a MIP chain, made anew every frame after the maps are drawn: the lighting pass
 averages the moments over each pixel's penumbra from it (shading/vsm.glsl).
+
+Casters that hold still (the body under a simulated garment: shadow group 1) are drawn once: their
+layers are copied aside after they are drawn, and while the caller's `still_key` (the still meshes'
+versions, the lights' projections) stays the same, a frame starts each layer from that copy instead
+of a clear and draws the moving group alone. The images are the same either way (MIN blending is
+order-free); the copy costs the main maps' memory once more.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ import moderngl
 import numpy as np
 
 from ..errors import InvalidInputError
+from ..gpu import rawgl
 from ..gpu.context import GLContext, StageTimer
 from ..gpu.shaders import compute_shader
 from .lights import MAX_BLUR_RADIUS
@@ -67,14 +74,19 @@ class ShadowMaps:
         self.blur = compute_shader(ctx, "shadows/blur.comp", fmt)
         self._format = fmt
         self.coverage: moderngl.ComputeShader | None = None   # compiled by the first frame that asks for mipmaps
-        self.copy = compute_shader(ctx, "shadows/copy_layers.comp", fmt) if self.target is not self.moments else None
+        self.copy = compute_shader(ctx, "shadows/copy_layers.comp", fmt)
+        # The still group's layers as drawn (before any blur), and the key they were drawn for.
+        self.still: moderngl.TextureArray | None = None
+        self.still_key = None
+        self.still_hits = 0   # frames that started from the copy (tests, the benchmark's report)
 
     @property
     def nbytes(self) -> int:
         # moments, the blur's scratch once a frame has blurred, and the batch target when the lights
         # need more than one draw
         layers = (self.n_lights + (0 if self.scratch is None else self.batch_layers)
-                  + (0 if self.target is self.moments else self.batch_layers))
+                  + (0 if self.target is self.moments else self.batch_layers)
+                  + (0 if self.still is None else self.n_lights))
         # A MIP chain adds a third of the moments' own texels (1/4 + 1/16 + ...).
         chain = sum((self.size >> k) ** 2 for k in range(1, self.size.bit_length())) if self.mipmapped else 0
         moments = (self.size * self.size * layers + chain * self.n_lights) * GROUP_MOMENT_BYTES * self.groups
@@ -83,12 +95,14 @@ class ShadowMaps:
 
     def render(self, casters: list[tuple[moderngl.VertexArray, int]], lights_buffer: moderngl.Buffer,
                shadow_lights_buffer: moderngl.Buffer, timer: StageTimer | None = None, enabled: bool = True,
-               blur: bool = True, mipmaps: bool = False) -> None:
+               blur: bool = True, mipmaps: bool = False, still_key=None) -> None:
         """Render and blur the moments of every shadowed light (layer k: light shadow_lights[k]).
         `casters`: (vertex array, shadow group) per caster, drawn with `self.prog` into every layer.
         `blur` False: no light has a blur width (the blur passes would leave every layer as drawn).
         `mipmaps`: then make the moments' MIP chain (each layer's own), for the lighting pass's
-        penumbrae; a chain an earlier frame made stays allocated but unread (level 0 is read)."""
+        penumbrae; a chain an earlier frame made stays allocated but unread (level 0 is read).
+        `still_key`: group 1's casters hold still while it stays the same (any comparable value; None:
+        draw everything every frame, and give the copy's memory back)."""
         gl, ctx = self.gl, self.gl.ctx
         gl.check_thread()
         lights_buffer.bind_to_storage_buffer(0)
@@ -99,34 +113,54 @@ class ShadowMaps:
             # frame reports (nbytes) is what its own settings need.
             self.scratch.release()
             self.scratch = None
+        keep = (still_key is not None and enabled and self.groups == 2
+                and any(group == 1 for _, group in casters) and any(group != 1 for _, group in casters))
+        if not keep and self.still is not None:
+            self.still.release()
+            self.still, self.still_key = None, None
+        hit = keep and self.still is not None and self.still_key == still_key
+        if keep and self.still is None:
+            self.still = ctx.texture_array((self.size, self.size, self.n_lights), 2 * self.groups, dtype="f4")
         for first in range(0, self.n_lights, self.batch_layers):
             count = min(self.batch_layers, self.n_lights - first)
             with gl.stage(timer, "shadow_maps"):
-                self.fbo.use()
-                ctx.viewport = (0, 0, self.size, self.size)
-                self.fbo.clear(1.0, 1.0, 1.0, 1.0)   # both groups' pairs at the far plane
+                ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+                if hit:
+                    self._copy_layers(self.still, first, self.target, 0, count)
+                else:
+                    self.fbo.use()
+                    ctx.viewport = (0, 0, self.size, self.size)
+                    self.fbo.clear(1.0, 1.0, 1.0, 1.0)   # both groups' pairs at the far plane
                 if enabled:
-                    ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+                    self.fbo.use()
+                    ctx.viewport = (0, 0, self.size, self.size)
                     ctx.enable(moderngl.BLEND)
                     ctx.blend_equation = moderngl.MIN
                     self.prog["u_first_light"].value = first
-                    for vao, group in casters:
-                        self.prog["u_group"].value = group
-                        vao.render(moderngl.TRIANGLES, instances=count)
+                    # The still group first, then its layers set aside (a frame that starts from
+                    # them draws the moving group alone).
+                    for pass_groups in ((1,), (0,)) if keep else ((0, 1),):
+                        if hit and pass_groups == (1,):
+                            continue
+                        for vao, group in casters:
+                            if group in pass_groups:
+                                self.prog["u_group"].value = group
+                                vao.render(moderngl.TRIANGLES, instances=count)
+                        if keep and not hit and pass_groups == (1,):
+                            self._copy_layers(self.target, 0, self.still, first, count)
+                            self.fbo.use()
                     ctx.blend_equation = moderngl.FUNC_ADD
                     ctx.disable(moderngl.BLEND)
             if blur:
                 with gl.stage(timer, "blur"):
                     self._blur_batch(first, count)
-            if self.copy is not None:
+            if self.target is not self.moments:
                 # The batch's layers into place: part of making the maps, whether blurred or not.
                 with gl.stage(timer, "shadow_maps"):
-                    ctx.memory_barrier()
-                    self.target.bind_to_image(1, read=True, write=False)
-                    self.moments.bind_to_image(2, read=False, write=True)
-                    self.copy["u_first_layer"].value = first
-                    self.copy.run(*groups, count)
-                    ctx.memory_barrier()
+                    self._copy_layers(self.target, 0, self.moments, first, count)
+        if keep:
+            self.still_key = still_key
+            self.still_hits += int(hit)
         if mipmaps:
             with gl.stage(timer, "blur"):   # the penumbrae's filtering, as the blur is
                 if self.casters is None:
@@ -142,6 +176,19 @@ class ShadowMaps:
                     t.build_mipmaps()
                     t.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
                 self.mipmapped = True
+
+    def _copy_layers(self, src, src_first: int, dst, dst_first: int, count: int) -> None:
+        if src is self.still or dst is self.still:   # a plain copy: the driver's, no shader
+            rawgl.copy_layers(self.gl.gl, src.glo, src_first, dst.glo, dst_first, self.size, count)
+            return
+        ctx = self.gl.ctx
+        ctx.memory_barrier()
+        src.bind_to_image(1, read=True, write=False)
+        dst.bind_to_image(2, read=False, write=True)
+        self.copy["u_src_first"].value = src_first
+        self.copy["u_first_layer"].value = dst_first
+        self.copy.run((self.size + 7) // 8, (self.size + 7) // 8, count)
+        ctx.memory_barrier()
 
     def _blur_batch(self, first: int, count: int) -> None:
         ctx = self.gl.ctx
@@ -168,11 +215,10 @@ class ShadowMaps:
                                                                        2 * self.groups)
 
     def release(self) -> None:
-        for obj in {id(o): o for o in (self.fbo, self.target, self.moments, self.scratch, self.casters)
+        for obj in {id(o): o for o in (self.fbo, self.target, self.moments, self.scratch, self.casters, self.still)
                     if o is not None}.values():
             obj.release()
         self.blur.release()
         if self.coverage is not None:
             self.coverage.release()
-        if self.copy is not None:
-            self.copy.release()
+        self.copy.release()
