@@ -75,29 +75,20 @@ def test_speed_times_the_gpu_targets_large_scene(tmp_path):
         run_speed(None, variants=["fast"])
 
 
-def test_error_split_accounts_for_the_whole_error(tmp_path):
-    import json
+def test_error_split_summary_says_which_part_is_larger():
+    from renderer.bench.split import CLASSES, summary
 
-    from renderer.bench.split import run_split
+    def config(exact_excess, maps_vs_exact):
+        classes = {c: {"pixels": 1 / 3, "share": 1 / 3, "rel_rmse": 0.1} for c in CLASSES}
+        return {"lights": 48, "lights_alone": 0.05, "exact": 0.1, "exact_excess": exact_excess, "maps": 0.12,
+                "maps_excess": 0.1, "maps_vs_exact": maps_vs_exact, "exact_classes": classes,
+                "maps_vs_exact_classes": classes}
 
-    result = run_split(tmp_path, size=24, spp=8, shared=False, log=lambda *_: None)
-    (row,) = result["rows"]
-    assert row["scene"] == "studio-dress" and row["pixels"] > 50
-    assert 0.0 < row["rel_rmse"] < 1.0 and 0.0 < row["lighting_rel_rmse"] < 1.0
-    # The worst 1 % and the rest make up the whole relMSE.
-    n = row["pixels"]
-    worst = max(1, round(0.01 * n))
-    total = row["rel_rmse"] ** 2 * n
-    assert row["worst_share"] * total + row["rel_rmse_without_worst"] ** 2 * (n - worst) == pytest.approx(total)
-    assert 0.01 <= row["worst_share"] <= 1.0     # the worst pixels carry at least their own share
-    # The worst ten are among the worst 1 % or hold it (here 1 % is fewer than ten pixels), and the
-    # worst pixel is a covered one.
-    assert 0.0 < row["worst_pixels_share"] <= 1.0 and row["worst_pixels_share"] >= row["worst_share"] - 1e-12
-    assert all(0 <= v < 24 for v in row["worst_pixel"])
-    assert 0.0 < row["silhouette_pixels"] < 1.0 and 0.0 <= row["silhouette_share"] <= 1.0
-    assert json.loads((tmp_path / "split.json").read_text())["rows"][0]["rel_rmse"] == pytest.approx(row["rel_rmse"])
-    assert (tmp_path / "split.png").stat().st_size > 1000 and "studio-dress" in (tmp_path / "split.md").read_text()
-
+    rows = [{"configs": {"balanced": config(0.08, 0.05)}}, {"configs": {"balanced": config(0.04, 0.06)}},
+            {"configs": {"balanced": config(0.02, 0.09)}}]
+    (s,) = summary(rows, ["balanced"])
+    assert s["scenes"] == 3 and s["exact_excess"] == 0.04 and s["maps_vs_exact"] == 0.06
+    assert abs(s["maps_dominate"] - 2 / 3) < 1e-12
 
 def test_the_assets_folder_can_be_named(monkeypatch, tmp_path):
     from conftest import asset
