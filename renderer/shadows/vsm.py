@@ -137,18 +137,13 @@ class ShadowMaps:
                     ctx.enable(moderngl.BLEND)
                     ctx.blend_equation = moderngl.MIN
                     self.prog["u_first_light"].value = first
-                    # The still group first, then its layers set aside (a frame that starts from
-                    # them draws the moving group alone).
-                    for pass_groups in ((1,), (0,)) if keep else ((0, 1),):
-                        if hit and pass_groups == (1,):
-                            continue
-                        for vao, group in casters:
-                            if group in pass_groups:
-                                self.prog["u_group"].value = group
-                                vao.render(moderngl.TRIANGLES, instances=count)
-                        if keep and not hit and pass_groups == (1,):
-                            self._copy_layers(self.target, 0, self.still, first, count)
-                            self.fbo.use()
+                    # The still group first, then its layers set aside; a frame that starts from
+                    # them draws the moving group alone.
+                    if keep and not hit:
+                        self._draw(casters, (1,), count)
+                        self._copy_layers(self.target, 0, self.still, first, count)
+                        self.fbo.use()
+                    self._draw(casters, (0,) if keep else (0, 1), count)
                     ctx.blend_equation = moderngl.FUNC_ADD
                     ctx.disable(moderngl.BLEND)
             if blur:
@@ -176,6 +171,12 @@ class ShadowMaps:
                     t.build_mipmaps()
                     t.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
                 self.mipmapped = True
+
+    def _draw(self, casters, groups: tuple[int, ...], count: int) -> None:
+        for vao, group in casters:
+            if group in groups:
+                self.prog["u_group"].value = group
+                vao.render(moderngl.TRIANGLES, instances=count)
 
     def _copy_layers(self, src, src_first: int, dst, dst_first: int, count: int) -> None:
         if src is self.still or dst is self.still:   # a plain copy: the driver's, no shader
