@@ -28,7 +28,7 @@ from .lighting import material_lobes
 from .lighting.pem import REGIONS_PER_TEXTURE, PEMSet, PEMSettings
 from .mesh import Mesh
 from .presets import balanced
-from .scene import Scene
+from .scene import Scene, snap_box
 from .shading.background import BackgroundMap
 from .shading.material import Material
 from .shadows.lights import (
@@ -588,9 +588,11 @@ class Renderer:
         regions = pems.regions
         n = regions.n_regions
         lo, hi = scene.bounds(casters_only=True)
-        # The projections' boxes, kept while what moves stays inside them (the still casters' maps
-        # are then kept too: Scene.stable_fit); the contact search's reach follows the casters' own.
-        fit_lo, fit_hi, fit_receivers = scene.stable_fit(lo, hi, receivers)
+        # The projections' boxes, snapped to a grid: the same while what moves stays inside its
+        # cells, so the still casters' maps are kept too (snap_box); the contact search's reach
+        # follows the casters' own box.
+        fit_lo, fit_hi = snap_box(lo, hi, scene.footprint_unit)
+        fit_receivers = None if receivers is None else snap_box(*receivers, scene.footprint_unit)
         shadowed = settings.mode is not ShadingMode.NO_OCCLUSION
         # Every light has a map (none in the no-occlusion mode).
         layers = np.arange(n, dtype=np.int32) if shadowed else np.full(n, -1, np.int32)

@@ -115,13 +115,25 @@ def longest_edge(positions: np.ndarray, faces: np.ndarray) -> float:
     return float(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max())
 
 
+def snap_box(lo: np.ndarray, hi: np.ndarray, unit: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """The box (lo, hi) grown outwards to a grid of cells `unit` x a power of two, between
+    1/(2 SNAP_CELLS) and 1/SNAP_CELLS of its longest side (`unit`: a length fixed for the scene,
+    Scene.footprint_unit, so that a scene's scale does not change its picture). A function of the box
+    alone (the same positions give the same maps), and the same box while what moves stays inside its
+    cells: the shadow maps are fitted to snapped boxes, so a garment moving a little keeps its maps'
+    projections and the casters that hold still need not be drawn again (shadows/vsm.py)."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    extent = float((hi - lo).max())
+    scale = max(extent, float(np.abs(np.concatenate([lo, hi])).max()) * 1e-6, 1e-300)
+    cell = unit * float(np.exp2(np.floor(np.log2(scale / unit / SNAP_CELLS))))
+    return np.floor(lo / cell) * cell, np.ceil(hi / cell) * cell
+
+
 # Work groups per dispatch dimension that every GL 4.5 driver takes (llvmpipe's limit): larger meshes'
 # normals pass dispatches a second dimension.
 MAX_GROUPS_X = 65535
-# Scene.stable_fit: a kept box serves while the new one's extent is at least this share of its own;
-# a box that is left is fitted anew with this margin on every side (of its extent).
-KEEP_SHRINK = 0.8
-REFIT_MARGIN = 0.05
+# snap_box: a box's sides snap outwards to a grid of at least this many cells along its longest side.
+SNAP_CELLS = 16
 
 
 class SceneMesh:
@@ -439,33 +451,6 @@ class Scene:
         """What the shadow maps of one group's casters depend on in the scene: which meshes, and the
         version of their positions."""
         return tuple((id(sm), sm.version) for sm in self.meshes if sm.caster and sm.group == group)
-
-    def stable_fit(self, lo: np.ndarray, hi: np.ndarray, receivers: tuple[np.ndarray, np.ndarray] | None):
-        """The boxes the shadow maps are fitted to (casters, receivers), kept from frame to frame
-        while the new ones lie inside them and have not shrunk below KEEP_SHRINK of their extent: a
-        garment moving inside its box keeps its maps' projections, so the casters that hold still
-        need not be drawn again (shadows/vsm.py). A box that is left is fitted anew, grown by
-        REFIT_MARGIN of its extent on every side; the first frame's fit is exact."""
-        def inside(new, kept):
-            if new is None or kept is None:
-                return new is None and kept is None
-            ext_new, ext_kept = new[1] - new[0], kept[1] - kept[0]
-            return bool((new[0] >= kept[0]).all() and (new[1] <= kept[1]).all()
-                        and (ext_new >= KEEP_SHRINK * ext_kept).all())
-
-        kept = getattr(self, "_fit", None)
-        if kept is not None and inside((lo, hi), kept[0]) and inside(receivers, kept[1]):
-            return kept[0][0], kept[0][1], kept[1]
-
-        def grown(b):
-            if b is None:
-                return None
-            m = REFIT_MARGIN * (b[1] - b[0])
-            return b[0] - m, b[1] + m
-
-        fit = ((lo, hi), receivers) if kept is None else (grown((lo, hi)), grown(receivers))
-        self._fit = fit
-        return fit[0][0], fit[0][1], fit[1]
 
     def bounds(self, casters_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
         los, his = [], []

@@ -1,5 +1,6 @@
 """Casters that hold still are drawn once (shadows/vsm.py): a body under a moving garment keeps its
-shadow-map layers while its positions and the lights' projections stay the same (Scene.stable_fit)."""
+shadow-map layers while its positions and the lights' projections stay the same (the projections are
+fitted to boxes snapped to a grid: renderer.scene.snap_box)."""
 
 import numpy as np
 from conftest import paper, paper_pems, plane, sphere, sun_sky_cube
@@ -7,7 +8,7 @@ from conftest import paper, paper_pems, plane, sphere, sun_sky_cube
 from renderer.camera import Camera
 from renderer.gpu.context import GLContext
 from renderer.renderer import Background, Renderer
-from renderer.scene import KEEP_SHRINK, REFIT_MARGIN
+from renderer.scene import SNAP_CELLS, snap_box
 from renderer.shading.material import Material
 from renderer.shadows.vsm import ShadowMaps
 
@@ -24,12 +25,12 @@ def test_the_still_group_is_drawn_once_and_the_frames_are_the_same(monkeypatch):
     mats = [Material((0.7, 0.3, 0.3), 0.2, 0.6), Material((0.6, 0.5, 0.45)), Material((0.8, 0.8, 0.8))]
     up = np.array([0.0, 0.01, 0.0], np.float32)
     frames = [None,                                                   # the first: draws everything
-              [garment.positions + up, None, None],                   # leaves the first (exact) box: refit
-              [garment.positions + 2 * up, None, None],               # inside the grown box: kept
-              [garment.positions + up, None, None],                   # again
-              [garment.positions + up, body.positions + up, None],    # the body moves: drawn again
-              [garment.positions + 40 * up, None, None]]              # the garment leaves the box: refit
-    expected_hits = [0, 0, 1, 1, 0, 0]
+              [garment.positions + 0.1 * up, None, None],             # inside the snapped boxes: kept
+              [garment.positions, None, None],                        # back where it was: kept
+              [garment.positions, body.positions + up, None],         # the body moves: drawn again
+              [garment.positions + 40 * up, None, None],              # the garment leaves the box: refit
+              [garment.positions, body.positions, None]]              # everything as at first: refit
+    expected_hits = [0, 1, 1, 0, 0, 0]
     gl = GLContext()
     keeps, draws = Renderer(gl), Renderer(gl)
     original = ShadowMaps.render
@@ -40,7 +41,7 @@ def test_the_still_group_is_drawn_once_and_the_frames_are_the_same(monkeypatch):
         scenes = [r.create_scene(meshes, mats) for r in (keeps, draws)]
         pems = keeps.build_pems(cube, paper_pems(24))
         fs = paper(64, 64, small_light_scale=1, background=Background.BLACK)
-        hits = []
+        hits, first = [], None
         for positions in frames:
             images = []
             for r, scene in zip((keeps, draws), scenes):
@@ -50,7 +51,10 @@ def test_the_still_group_is_drawn_once_and_the_frames_are_the_same(monkeypatch):
             hits.append(maps.still_hits - sum(hits))
             np.testing.assert_array_equal(images[0], images[1])
             assert draws._shadow_maps["main"].still is None
+            first = images[0] if first is None else first
         assert hits == expected_hits
+        # The same positions give the same picture, whatever came between.
+        np.testing.assert_array_equal(images[0], first)
         assert (images[0][..., 3] > 0.5).mean() > 0.3
     finally:
         del ShadowMaps._keeps
@@ -62,21 +66,29 @@ def test_the_still_group_is_drawn_once_and_the_frames_are_the_same(monkeypatch):
         gl.release()
 
 
-def test_the_fit_is_kept_inside_its_box_and_refit_with_a_margin_outside(renderer):
-    scene = renderer.create_scene([sphere(0.5)], [Material()])
-    try:
-        lo, hi = np.zeros(3), np.ones(3)
-        rec = (np.zeros(3), np.full(3, 0.5))
-        first = scene.stable_fit(lo, hi, rec)
-        assert np.array_equal(first[0], lo) and np.array_equal(first[1], hi)   # the first fit is exact
-        inside = scene.stable_fit(lo + 0.05, hi - 0.05, (rec[0] + 0.01, rec[1]))
-        assert np.array_equal(inside[0], lo) and np.array_equal(inside[2][1], rec[1])   # kept
-        out = scene.stable_fit(lo, hi + 0.5, rec)
-        np.testing.assert_allclose(out[1], hi + 0.5 + REFIT_MARGIN * 1.5)
-        np.testing.assert_allclose(out[0], lo - REFIT_MARGIN * 1.5)
-        # Shrunk below KEEP_SHRINK of the kept extent: fitted anew.
-        small = 0.5 * KEEP_SHRINK
-        shrunk = scene.stable_fit(lo + 0.1, lo + 0.1 + small, rec)
-        np.testing.assert_allclose(shrunk[1] - shrunk[0], small * (1 + 2 * REFIT_MARGIN))
-    finally:
-        scene.release()
+def test_a_snapped_box_holds_the_box_and_depends_on_it_alone():
+    lo, hi = np.array([-0.3, 0.02, -0.25]), np.array([0.31, 1.47, 0.2])
+    slo, shi = snap_box(lo, hi)
+    assert (slo <= lo).all() and (shi >= hi).all()
+    cell = float((shi - slo).max() - (hi - lo).max())   # grown by less than two cells on the longest side
+    assert 0 <= cell < 2 * (hi - lo).max() / SNAP_CELLS
+    # Cells of a power of two between 1/(2 SNAP_CELLS) and 1/SNAP_CELLS of the longest side.
+    size = 2.0 ** np.floor(np.log2((hi - lo).max() / SNAP_CELLS))
+    np.testing.assert_allclose(slo / size, np.round(slo / size))
+    np.testing.assert_allclose(shi / size, np.round(shi / size))
+    # A move inside the cells keeps the box; one across a cell's side does not; the way back restores it.
+    moved = snap_box(lo + 1e-3, hi + 1e-3)
+    assert all(np.array_equal(a, b) for a, b in zip(moved, (slo, shi)))
+    away = snap_box(lo + size, hi + size)
+    assert not np.array_equal(away[0], slo)
+    assert all(np.array_equal(a, b) for a, b in zip(snap_box(lo.copy(), hi.copy()), (slo, shi)))
+    # Far from the origin, and a box of no extent: finite, and still holding it.
+    far = snap_box(lo + 1e4, hi + 1e4)
+    assert np.isfinite(far).all() and (far[0] <= lo + 1e4).all() and (far[1] >= hi + 1e4).all()
+    flat = snap_box(np.ones(3), np.ones(3))
+    assert np.isfinite(flat).all() and (flat[0] <= 1).all() and (flat[1] >= 1).all()
+    # In the scene's unit: a scene a million times larger snaps to a box a million times larger.
+    big = snap_box(lo * 1e6, hi * 1e6, unit=3.7e6)
+    small = snap_box(lo, hi, unit=3.7)
+    np.testing.assert_allclose(big[0], small[0] * 1e6)
+    np.testing.assert_allclose(big[1], small[1] * 1e6)
