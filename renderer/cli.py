@@ -129,6 +129,9 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--out", type=Path, help="tone-mapped sRGB PNG")
     o.add_argument("--exr", type=Path, help="linear HDR EXR (RGBA float32)")
     o.add_argument("--timings", type=Path, help="per-stage timings JSON")
+    o.add_argument("--no-cache", action="store_true",
+                   help="build the PEM set anew, and keep it out of the cache folder ($GARMENT_RENDER_CACHE_DIR, "
+                        "else ~/.cache/garment-render: the PEM sets of the maps rendered before)")
     o.add_argument("--exposure", type=float, help="exposure in EV (default: automatic)")
     o.add_argument("--tone", default="filmic", choices=["filmic", "reinhard", "linear"])
     o.add_argument("--background", default="env", choices=["env", "black"],
@@ -327,6 +330,26 @@ def png_image(img: np.ndarray, opaque: bool) -> np.ndarray:
     return out
 
 
+def pem_set(r, env, settings, args):
+    """`env`'s PEM set for `settings`: from the user's cache folder (user_cache.py), else built and
+    stored there for the next command (the light decomposition is in it); built and not stored with
+    --no-cache. Returns (the set, where it came from: "memory", "disk" or "built")."""
+    if getattr(args, "no_cache", False):
+        return r.build_pems(env.cube, settings), "built"
+    from .cache import PEMCache
+    from .user_cache import user_cache_dir
+
+    cache = PEMCache(r.gl, disk_dir=user_cache_dir("pem-sets"), name="user")
+    pems = cache.get(env.content_hash, env.cube, settings)
+    return pems, "disk" if cache.stats.disk_hits else "built"
+
+
+def _pem_line(pems, source: str) -> str:
+    if source == "built":
+        return f"PEM build {pems.build_ms:.0f} ms"
+    return f"PEM set from the cache folder ({pems.build_ms:.0f} ms)"
+
+
 def cmd_render(args) -> int:
     from .envmap import write_exr
     from .renderer import Renderer
@@ -344,7 +367,7 @@ def cmd_render(args) -> int:
     bg_cube = background_cube(args, env)
     with Renderer() as r:
         check_budget_device(q, r)
-        pems = r.build_pems(env.cube, pem_settings(args, q, materials + colourways))
+        pems, pem_source = pem_set(r, env, pem_settings(args, q, materials + colourways), args)
         scene = r.create_scene(meshes, materials, casters=casters)
         background = r.background_map(bg_cube) if bg_cube is not None else None
         try:
@@ -368,6 +391,7 @@ def cmd_render(args) -> int:
     if args.out and len(frames) == 1:
         write_png(args.out, png_image(img, args.background == "env"), exposure, ToneCurve(args.tone))
     report = {"timings": frame.timings, "settings": frame.settings, "quality": q, "exposure_ev": exposure,
+              "pem_source": pem_source, "pem_ms": pems.build_ms,
               "environment": {"name": env.name, "layout": env.layout.value, "face_size": q["face_size"],
                               "texel_report": env.texel_report.as_dict() if env.texel_report else None},
               "meshes": [{"name": m.name, "vertices": int(m.positions.shape[0]), "faces": int(m.faces.shape[0])}
@@ -378,7 +402,7 @@ def cmd_render(args) -> int:
     if args.timings:
         args.timings.write_text(json.dumps(report, indent=2, default=float))
     stages = ", ".join(f"{k} {v:.1f} ms" for k, v in frame.timings["wall_ms"].items())
-    print(f"rendered {w}x{h}, {q['lights']} lights, PEM build {pems.build_ms:.0f} ms; frame: {stages}")
+    print(f"rendered {w}x{h}, {q['lights']} lights, {_pem_line(pems, pem_source)}; frame: {stages}")
     return 0
 
 
@@ -420,7 +444,7 @@ def cmd_sequence(args) -> int:
     bg_cube = background_cube(args, env)
     with Renderer() as r:
         check_budget_device(q, r)
-        pems = r.build_pems(env.cube, pem_settings(args, q, materials))
+        pems, pem_source = pem_set(r, env, pem_settings(args, q, materials), args)
         scene = r.create_scene(meshes, materials)
         background = r.background_map(bg_cube) if bg_cube is not None else None
         try:
@@ -451,10 +475,10 @@ def cmd_sequence(args) -> int:
     _write_preview(args.out, seq.n_frames)
     ms = np.array([t["frame_wall_ms"] for t in timings])
     summary = {"frames": seq.n_frames, "frame_ms_median": float(np.median(ms)), "frame_ms_p90": float(np.quantile(ms, 0.9)),
-               "pem_build_ms": pems.build_ms, "quality": q, "exposure_ev": exposure, "per_frame": timings}
+               "pem_build_ms": pems.build_ms, "pem_source": pem_source, "quality": q, "exposure_ev": exposure, "per_frame": timings}
     (args.out / "timings.json").write_text(json.dumps(summary, indent=1, default=float))
     print(f"rendered {seq.n_frames} frames to {args.out}: median {np.median(ms):.0f} ms per frame "
-          f"(p90 {np.quantile(ms, 0.9):.0f} ms), PEM build {pems.build_ms:.0f} ms once; preview.gif, timings.json")
+          f"(p90 {np.quantile(ms, 0.9):.0f} ms), {_pem_line(pems, pem_source)} once; preview.gif, timings.json")
     return 0
 
 

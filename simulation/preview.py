@@ -25,7 +25,7 @@ def render_preview(out: Path | str, garment: tuple[np.ndarray, np.ndarray, np.nd
     metres, Y-up, faces counter-clockwise seen from outside. views: (eye, target) per view,
     metres."""
     from renderer.camera import Camera
-    from renderer.cli import build_parser, frame_settings, pem_settings, png_image, resolve_quality
+    from renderer.cli import build_parser, frame_settings, pem_set, pem_settings, png_image, resolve_quality
     from renderer.envmap import environment_from_array, studio_environment
     from renderer.mesh import Mesh
     from renderer.renderer import Renderer
@@ -42,7 +42,7 @@ def render_preview(out: Path | str, garment: tuple[np.ndarray, np.ndarray, np.nd
                  Material(FLOOR_ALBEDO, 0.0, 0.2)]
     images = []
     with Renderer() as r:
-        pems = r.build_pems(env.cube, pem_settings(args, q, materials))
+        pems, _ = pem_set(r, env, pem_settings(args, q, materials), args)
         scene = r.create_scene(meshes, materials, casters=[True, True, False])
         for eye, target in views:
             frame = r.render(scene, pems, frame_settings(args, q), Camera(eye, target, fov_y_deg=fov_y_deg))

@@ -13,6 +13,16 @@ from renderer.camera import Camera
 from renderer.mesh import Mesh
 
 ASSETS = Path(__file__).resolve().parents[1].parent / "shared" / "assets"
+
+
+def pytest_configure(config):
+    """One cache folder (renderer/user_cache.py) for the session and the processes it starts, never
+    the user's own: its entries (lobe tables, PEM sets) are made once per run."""
+    import os
+    import tempfile
+
+    if "GARMENT_RENDER_CACHE_DIR" not in os.environ:
+        os.environ["GARMENT_RENDER_CACHE_DIR"] = tempfile.mkdtemp(prefix="garment-render-cache-")
 HDRI = ASSETS / "hdri"
 needs_assets = pytest.mark.skipif(not HDRI.is_dir(),
                                   reason=f"shared HDRI assets not found at {HDRI} (they live outside the repository)")

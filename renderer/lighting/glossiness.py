@@ -154,12 +154,38 @@ class LobeTable:
         return float((np.abs(approx ** 3 - target ** 3) * self.eval_omega).sum() / 3.0 / vt)
 
 
+_TABLE_FIELDS = ("impulse_dir", "eval_dirs", "eval_omega", "responses", "levels_grid", "volumes", "l2_log_s",
+                 "l2_levels")
+
+
 @functools.lru_cache(maxsize=16)
 def lobe_table(face_size: int, kind: Filter | str = Filter.SQRT_COSINE) -> LobeTable:
-    """Calibrate one (face size, filter) pair. Deterministic and cached per process (~1 s at 128^2)."""
+    """Calibrate one (face size, filter) pair. Deterministic, cached per process and in the user's
+    cache folder (user_cache.py; about 1 s to build at 128^2, a few ms to read)."""
     kind = Filter.parse(kind)
     if face_size < 2 or face_size & (face_size - 1):
         raise InvalidInputError(f"face size must be a power of two >= 2, got {face_size}")
+    import sys
+
+    from .. import user_cache
+    from ..envmap import cube as cube_module
+    from . import filters, pem_reference
+
+    digest = user_cache.code_digest(sys.modules[__name__], cube_module, filters, pem_reference)
+    path = user_cache.user_cache_dir("lobe-tables") / f"{face_size}-{kind.value}-{digest}.npz"
+
+    def build() -> dict[str, np.ndarray]:
+        t = _build_lobe_table(face_size, kind)
+        arrays = {k: np.asarray(getattr(t, k)) for k in _TABLE_FIELDS}
+        arrays.update({f"l2_terms_{i}": np.asarray(a) for i, a in enumerate(t.l2_terms)})
+        return arrays
+
+    a = user_cache.load_or_build(path, build)
+    terms = tuple(a[f"l2_terms_{i}"] for i in range(sum(k.startswith("l2_terms_") for k in a)))
+    return LobeTable(face_size, kind, *(a[k] for k in _TABLE_FIELDS), terms)
+
+
+def _build_lobe_table(face_size: int, kind: Filter) -> LobeTable:
     # Impulse at the texel just below-right of the +Z face centre (face 4).
     face, row, col = 4, face_size // 2, face_size // 2
     impulse = np.zeros((6, face_size, face_size, 1))

@@ -1,0 +1,61 @@
+"""A one-shot command keeps what the next one reuses (renderer/user_cache.py): the PEM set with its
+light decomposition, and the glossiness calibration's tables; the same pictures either way."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+
+from renderer import user_cache
+from renderer.envmap import read_hdr_image
+from renderer.lighting import glossiness
+from renderer.lighting.filters import Filter
+
+
+def _render(tmp_path, cache, out: str, *extra: str) -> str:
+    env = {**os.environ, user_cache.ENV_VAR: str(cache)}
+    done = subprocess.run([sys.executable, "-m", "renderer.cli", "render", "--preset", "fast", "--size", "40x40",
+                           "--exr", str(tmp_path / out), *extra], env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
+def test_the_second_render_reads_the_pem_set_and_draws_the_same_picture(tmp_path):
+    cache = tmp_path / "cache"
+    first = _render(tmp_path, cache, "a.exr")
+    assert "PEM build" in first, first
+    assert len(list((cache / "pem-sets").glob("*.npz"))) == 1
+    assert list((cache / "lobe-tables").glob("*.npz"))
+    second = _render(tmp_path, cache, "b.exr")
+    assert "PEM set from the cache folder" in second, second
+    np.testing.assert_array_equal(read_hdr_image(tmp_path / "a.exr"), read_hdr_image(tmp_path / "b.exr"))
+    # --no-cache builds and stores nothing.
+    other = tmp_path / "other"
+    assert "PEM build" in _render(tmp_path, other, "c.exr", "--no-cache")
+    assert not (other / "pem-sets").exists()
+    np.testing.assert_array_equal(read_hdr_image(tmp_path / "a.exr"), read_hdr_image(tmp_path / "c.exr"))
+
+
+def test_a_lobe_table_read_back_is_the_one_built_and_a_bad_entry_is_built_anew(tmp_path, monkeypatch):
+    monkeypatch.setenv(user_cache.ENV_VAR, str(tmp_path))
+    glossiness.lobe_table.cache_clear()
+    try:
+        built = glossiness.lobe_table(16, Filter.SQRT_COSINE)       # built and stored
+        (entry,) = (tmp_path / "lobe-tables").glob("16-sqrt-cosine-*.npz")
+        glossiness.lobe_table.cache_clear()
+        read = glossiness.lobe_table(16, Filter.SQRT_COSINE)        # read back
+        for g in (0.0, 0.3, 0.8, 0.97, 1.0):
+            assert read.level_for_glossiness(g, "l2") == built.level_for_glossiness(g, "l2")
+            assert read.level_for_glossiness(g, "volume") == built.level_for_glossiness(g, "volume")
+        np.testing.assert_array_equal(read.responses, built.responses)
+        assert len(read.l2_terms) == len(built.l2_terms) == 5
+        entry.write_bytes(b"not an npz")                             # a truncated or foreign entry
+        glossiness.lobe_table.cache_clear()
+        again = glossiness.lobe_table(16, Filter.SQRT_COSINE)
+        assert again.level_for_glossiness(0.8, "l2") == built.level_for_glossiness(0.8, "l2")
+        with np.load(entry) as data:                                 # and replaced
+            assert "responses" in data.files
+    finally:
+        glossiness.lobe_table.cache_clear()
