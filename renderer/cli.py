@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import json
 import sys
@@ -237,19 +238,41 @@ def material_file(path: Path):
     return material
 
 
+@functools.lru_cache(maxsize=2)
+def _source_image(path: str | None) -> np.ndarray:
+    """The environment's source pixels, read once per process (the PEMs' cube and the background's
+    are made from them); None: the bundled procedural studio."""
+    from .envmap import read_hdr_image, studio_environment
+
+    img = read_hdr_image(path) if path is not None else studio_environment(1024)
+    img.setflags(write=False)
+    return img
+
+
+def cube_cache(args):
+    """The folder where resampled cubes are kept (user_cache.py), None with --no-cache."""
+    if getattr(args, "no_cache", False):
+        return None
+    from .user_cache import user_cache_dir
+
+    return user_cache_dir("cubes")
+
+
 def load_scene_inputs(args, face_size: int):
     """Environment map, meshes, materials and which meshes cast shadows, from the arguments (or
     the bundled defaults: the studio, and the draped dress on the mannequin over a floor that only
     receives shadows, `procedural.default_scene`)."""
-    from .envmap import environment_from_array, load_environment, studio_environment
+    from .envmap import environment_from_array
     from .mesh import load_mesh
     from .procedural import default_scene
     from .shading.material import Material
 
     if args.env is not None:
-        env = load_environment(args.env, layout=args.layout, face_size=face_size, repair=args.repair)
+        env = environment_from_array(_source_image(str(args.env)), args.layout, face_size, name=Path(args.env).stem,
+                                     repair=args.repair, cube_cache=cube_cache(args))
     else:
-        env = environment_from_array(studio_environment(1024), "latlong", face_size, name="studio (bundled)")
+        env = environment_from_array(_source_image(None), "latlong", face_size, name="studio (bundled)",
+                                     cube_cache=cube_cache(args))
     garment = garment_material(args)
     body = Material(args.body_albedo, 0.1, 0.3)
     if args.mesh:
@@ -264,12 +287,13 @@ def background_cube(args, env):
     its own density; None without a background (--background black)."""
     if args.background != "env":
         return None
-    from .envmap import environment_from_array, read_hdr_image, studio_environment
+    from .envmap import environment_from_array
     from .shading.background import background_face_size
 
-    img = read_hdr_image(args.env) if args.env is not None else studio_environment(1024)
+    img = _source_image(None if args.env is None else str(args.env))
     face = background_face_size(img.shape, env.layout)
-    return environment_from_array(img, env.layout, face, name=env.name, repair=args.repair).cube
+    return environment_from_array(img, env.layout, face, name=env.name, repair=args.repair,
+                                  cube_cache=cube_cache(args)).cube
 
 
 def camera_from_args(args, framed_meshes, aspect: float):
@@ -540,6 +564,15 @@ def cmd_error_split(args) -> int:
 def cmd_speed(args) -> int:
     from .bench.speed import LARGE_VARIANTS, markdown, run_speed
 
+    if args.one_shot:
+        from .bench.one_shot import markdown as one_shot_markdown
+        from .bench.one_shot import run_one_shot
+
+        if args.rounds < 1:
+            raise InvalidInputError(f"--rounds must be positive, got {args.rounds}")
+        print(one_shot_markdown(run_one_shot(args.out, args.rounds)))
+        return 0
+
     size = args.size if args.size is not None else (1024 if args.large else 256)
     if args.rounds < 1 or size < 1 or args.min_triangles < 1:
         raise InvalidInputError(f"--rounds, --size and --min-triangles must be positive, got {args.rounds}, "
@@ -765,6 +798,10 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
                          "accurate and balanced with either lighting pass and either place for the normals, with the "
                          "PEM set's build time (needs ../shared/assets)")
     sp.add_argument("--min-triangles", type=int, default=100_000, help="the --large garment's least triangle count")
+    sp.add_argument("--one-shot", action="store_true",
+                    help="the wall time of whole render commands instead, each a new process: on a machine's first "
+                         "run, on a map not rendered before and on one rendered before (renderer/bench/one_shot.py; "
+                         "--out: the folder for one_shot.json and .md; --rounds: rounds, e.g. 3)")
     sp.add_argument("--equal-error", action="store_true",
                     help="with --large: the reference's samples and time to match each preset's error (a truth of "
                          "--workers renders of --truth-spp samples, one process per core; minutes at 1024x1024)")

@@ -40,14 +40,21 @@ def code_digest(*modules) -> str:
     return h.hexdigest()[:16]
 
 
-def load_or_build(path: Path, build: Callable[[], dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+def load_or_build(path: Path, build: Callable[[], dict[str, np.ndarray]],
+                  max_bytes: int | None = None) -> dict[str, np.ndarray]:
     """The arrays stored at `path`, else `build()`'s, stored there for the next process. An entry
     that cannot be read is built anew and replaced; a folder that cannot be written only costs the
-    build (logged)."""
+    build (logged). `max_bytes`: the entries of `path`'s folder are kept within it, the least
+    recently used deleted first (a read renews an entry)."""
     if path.exists():
         try:
             with np.load(path, allow_pickle=False) as data:
-                return {k: data[k] for k in data.files}
+                arrays = {k: data[k] for k in data.files}
+            try:
+                os.utime(path)
+            except OSError:
+                pass
+            return arrays
         except Exception as exc:   # truncated or foreign: rebuilt, never trusted
             log.warning("cache entry %s is unreadable (%s); building it anew", path, exc)
     arrays = build()
@@ -55,6 +62,25 @@ def load_or_build(path: Path, build: Callable[[], dict[str, np.ndarray]]) -> dic
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_file(path) as f:
             np.savez(f, **arrays)
+        if max_bytes is not None:
+            _keep_within(path.parent, max_bytes, keep=path)
     except OSError as exc:
         log.warning("could not write cache entry %s: %s", path, exc)
     return arrays
+
+
+def _keep_within(folder: Path, max_bytes: int, keep: Path) -> None:
+    entries = []
+    for p in folder.glob("*.npz"):
+        try:
+            st = p.stat()
+        except OSError:
+            continue
+        entries.append((st.st_mtime, st.st_size, p))
+    total = sum(size for _, size, _ in entries)
+    for _, size, p in sorted(entries, key=lambda e: e[0]):
+        if total <= max_bytes:
+            break
+        if p != keep:
+            p.unlink(missing_ok=True)
+            total -= size

@@ -27,7 +27,9 @@ def test_the_second_render_reads_the_pem_set_and_draws_the_same_picture(tmp_path
     first = _render(tmp_path, cache, "a.exr")
     assert "PEM build" in first, first
     assert len(list((cache / "pem-sets").glob("*.npz"))) == 1
-    assert list((cache / "lobe-tables").glob("*.npz"))
+    for folder in ("lobe-tables", "weight-chains", "cubes"):   # the calibration, the PEMs' normalizer, the map
+        assert list((cache / folder).glob("*.npz")), folder
+    assert len(list((cache / "cubes").glob("*.npz"))) == 2      # the PEMs' cube and the background's
     second = _render(tmp_path, cache, "b.exr")
     assert "PEM set from the cache folder" in second, second
     np.testing.assert_array_equal(read_hdr_image(tmp_path / "a.exr"), read_hdr_image(tmp_path / "b.exr"))
@@ -59,3 +61,16 @@ def test_a_lobe_table_read_back_is_the_one_built_and_a_bad_entry_is_built_anew(t
             assert "responses" in data.files
     finally:
         glossiness.lobe_table.cache_clear()
+
+
+def test_a_cache_folder_keeps_within_its_bytes_least_recently_used_first(tmp_path):
+    def entry(name):
+        return user_cache.load_or_build(tmp_path / f"{name}.npz", lambda: {"a": np.full(1000, ord(name[0]), np.float64)},
+                                        max_bytes=20_000)
+
+    entry("a")
+    entry("b")
+    os.utime(tmp_path / "a.npz", (0, 0))   # a: the least recently used
+    entry("c")                              # three of ~8 kB each: a goes
+    assert sorted(p.stem for p in tmp_path.glob("*.npz")) == ["b", "c"]
+    assert entry("b")["a"][0] == ord("b")   # read back, not built

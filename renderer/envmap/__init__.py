@@ -78,21 +78,27 @@ class EnvironmentMap:
         return int(self.cube.shape[1])
 
 
+# Bytes of resampled cubes kept in a cache folder (`cube_cache`): a 1k map's background cube is 19 MB.
+CUBE_CACHE_BYTES = 1 << 30
+
+
 def load_environment(path: str | Path, layout: Layout | str = "auto", face_size: int = 128,
-                     repair: bool = False) -> EnvironmentMap:
+                     repair: bool = False, cube_cache: Path | None = None) -> EnvironmentMap:
     """Read an .exr/.hdr environment map and resample it to a cube of face_size (a power of two, 4..2048).
 
     layout "auto" detects it from the aspect ratio. Without repair, NaN, Inf or negative texels raise
-    EnvironmentMapError; with repair they are fixed as `check_texels` describes.
+    EnvironmentMapError; with repair they are fixed as `check_texels` describes. `cube_cache`: a
+    folder where the resampled cube is kept for the next process (keyed by the source's content, the
+    face size, the repair and the resampling code; CUBE_CACHE_BYTES of them at most).
     """
     face_size = _check_face_size(face_size)
     path = Path(path)
     img = read_hdr_image(path)
-    return _build(img, layout, face_size, name=path.stem, source=str(path), repair=repair)
+    return _build(img, layout, face_size, name=path.stem, source=str(path), repair=repair, cube_cache=cube_cache)
 
 
 def environment_from_array(img: np.ndarray, layout: Layout | str, face_size: int, name: str,
-                           repair: bool = False) -> EnvironmentMap:
+                           repair: bool = False, cube_cache: Path | None = None) -> EnvironmentMap:
     """Like `load_environment` for an image already in memory: float (H, W, 3) linear radiance."""
     face_size = _check_face_size(face_size)
     arr = np.asarray(img)
@@ -102,7 +108,7 @@ def environment_from_array(img: np.ndarray, layout: Layout | str, face_size: int
         raise InvalidInputError(f"environment {name!r}: expected real numbers, got dtype {arr.dtype}")
     if not isinstance(name, str) or not name:
         raise InvalidInputError(f"environment name must be a non-empty string, got {name!r}")
-    return _build(arr, layout, face_size, name=name, source="<array>", repair=repair)
+    return _build(arr, layout, face_size, name=name, source="<array>", repair=repair, cube_cache=cube_cache)
 
 
 def _check_face_size(face_size) -> int:
@@ -113,13 +119,24 @@ def _check_face_size(face_size) -> int:
     return int(face_size)
 
 
-def _build(img: np.ndarray, layout, face_size: int, *, name: str, source: str, repair: bool) -> EnvironmentMap:
+def _build(img: np.ndarray, layout, face_size: int, *, name: str, source: str, repair: bool,
+           cube_cache: Path | None = None) -> EnvironmentMap:
     h, w = img.shape[:2]
     layout = detect_layout(h, w) if isinstance(layout, str) and layout == "auto" else check_layout_size(layout, h, w)
     pixels = np.ascontiguousarray(img, np.float32)
     content_hash = _content_hash(pixels, layout)
     pixels, report = check_texels(pixels, repair=repair, name=name)
-    cube = to_cube(pixels, layout, face_size)
+    if cube_cache is None:
+        cube = to_cube(pixels, layout, face_size)
+    else:
+        import sys
+
+        from .. import user_cache
+
+        digest = user_cache.code_digest(*(sys.modules[f.__module__] for f in (to_cube, check_texels, face_uv_to_dir)))
+        entry = Path(cube_cache) / f"{content_hash[:32]}-{face_size}-{int(repair)}-{digest}.npz"
+        cube = user_cache.load_or_build(entry, lambda: {"cube": to_cube(pixels, layout, face_size)},
+                                        CUBE_CACHE_BYTES)["cube"]
     cube.setflags(write=False)
     return EnvironmentMap(name=name, cube=cube, layout=layout, source=source, source_shape=tuple(img.shape),
                           texel_report=report, content_hash=content_hash)
