@@ -161,3 +161,46 @@ def test_bench_end_to_end_writes_its_three_outputs(tmp_path):
         assert text in md, text
     w, h = Image.open(tmp_path / "pareto.png").size
     assert w > 100 and h > 100
+
+
+def test_a_preset_over_its_frame_budget_is_a_missed_row():
+    from renderer.bench.catalogue import TARGETS
+    from renderer.bench.speed import budget_rows, markdown
+
+    def row(ms):
+        return {"median_ms": ms, "p10_ms": ms, "p90_ms": ms}
+
+    result = {"size": 256, "large": False, "scenes": {
+        "a": {"balanced": row(90.0), "fast": row(35.0), "accurate": row(500.0)},
+        "b": {"balanced": row(130.0), "fast": row(30.0), "accurate": row(450.0)},
+        "c": {"balanced": row(120.0), "fast": row(45.0), "accurate": row(300.0)}}}
+    got = {b["preset"]: b for b in budget_rows(result)}
+    assert got["balanced"]["budget_ms"] == TARGETS["balanced"]["frame_ms"] == 100.0
+    assert not got["balanced"]["met"] and got["balanced"]["median_ms"] == 120.0 and got["balanced"]["over"] == ["b", "c"]
+    assert got["fast"]["met"] and got["fast"]["over"] == ["c"]
+    assert not got["accurate"]["met"] and got["accurate"]["over"] == ["a", "b"]
+    text = markdown(result)
+    assert "| balanced | 100 ms | 120 ms | MISSED by 20 ms (1.20x) | b, c |" in text
+    assert "| fast | 40 ms | 35 ms | met | c |" in text
+    # Another size is judged by no budget here.
+    assert budget_rows({**result, "size": 512}) == []
+
+
+def test_the_one_shot_targets_are_rows_met_or_missed():
+    from renderer.bench.one_shot import CACHED_TARGET_S, NEW_MAP_TARGET_S, STATES, markdown, targets
+
+    def row(name, new, cached):
+        walls = {"first run": [5.0], "new map": [new], "cached": [cached]}
+        return {"scene": name, "wall_s": walls, "median_s": {s: v[0] for s, v in walls.items()}}
+
+    rows = [row("x", 2.0, 1.2), row("y", 3.0, 1.6), row("z", 2.4, 1.4)]
+    got = {t["state"]: t for t in targets(rows)}
+    assert got["cached"]["limit_s"] == CACHED_TARGET_S and got["cached"]["met"] and got["cached"]["scenes_over"] == ["y"]
+    assert got["new map"]["limit_s"] == NEW_MAP_TARGET_S and got["new map"]["met"]
+    assert got["new map"]["scenes_over"] == ["y"]
+    rows.append(row("w", 3.5, 2.0))
+    got = {t["state"]: t for t in targets(rows)}
+    assert not got["new map"]["met"] and got["new map"]["median_s"] == 2.7
+    text = markdown({"machine": {"gl_renderer": "llvmpipe", "cores": 2, "date": "2026-12-03"}, "rounds": 1,
+                     "size": 256, "preset": "balanced", "rows": rows, "targets": targets(rows)})
+    assert "MISSED by 0.20 s" in text and all(s in text for s in STATES)

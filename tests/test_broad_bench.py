@@ -114,11 +114,14 @@ def _row(scene, preset, size=256, **metrics):
 
 def test_misses_name_the_scene_the_target_and_the_factor():
     rows = [_row("a", "balanced", rel_rmse=0.1), _row("b", "balanced", artefact_share=0.01),
-            _row("c", "fast", frame_ms=100.0, equal_error_speedup=5.0), _row("d", "balanced", size=128, rel_rmse=1.0),
-            _row("e", "accurate"), _row("f", "paper", rel_rmse=1.0)]
+            _row("c", "fast", frame_ms=80.0, equal_error_speedup=5.0), _row("d", "balanced", size=128, rel_rmse=1.0),
+            _row("e", "accurate"), _row("f", "paper", rel_rmse=1.0),
+            _row("g", "accurate", frame_ms=800.0, equal_error_speedup=4.0), _row("h", "accurate", equal_error_speedup=1.5)]
     misses = {(m["scene"], m["metric"]): m["factor"] for m in broad.target_misses(rows)}
+    # Budgets (fast 40 ms, accurate 400 ms) are targets like the errors; accurate's equal-error one is 3x.
     assert misses == {("a", "rel_rmse"): pytest.approx(2.0), ("b", "artefact_share"): pytest.approx(2.0),
-                      ("c", "frame_ms"): pytest.approx(2.0), ("c", "equal_error_speedup"): pytest.approx(2.0)}
+                      ("c", "frame_ms"): pytest.approx(2.0), ("c", "equal_error_speedup"): pytest.approx(2.0),
+                      ("g", "frame_ms"): pytest.approx(2.0), ("h", "equal_error_speedup"): pytest.approx(2.0)}
 
 
 @needs_assets

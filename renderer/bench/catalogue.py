@@ -47,11 +47,12 @@ LARGE_FABRIC, LARGE_VIEW = "sheen", "front"
 
 # The issue's targets on the held-out set at 256 x 256 (None: no target).
 TARGETS = {
-    "fast": {"rel_rmse": 0.10, "flip": None, "artefact_share": 0.02, "frame_ms": 50.0},
+    "fast": {"rel_rmse": 0.10, "flip": None, "artefact_share": 0.02, "frame_ms": 40.0},
     "balanced": {"rel_rmse": 0.05, "flip": 0.05, "artefact_share": 0.005, "frame_ms": 100.0},
-    "accurate": {"rel_rmse": 0.03, "flip": None, "artefact_share": 0.002, "frame_ms": None},
+    "accurate": {"rel_rmse": 0.03, "flip": None, "artefact_share": 0.002, "frame_ms": 400.0},
 }
-EQUAL_ERROR_TARGET = 10.0
+# The least speed-up over the Monte Carlo tracer at the preset's own error (issue 35).
+EQUAL_ERROR_TARGETS = {"fast": 10.0, "balanced": 10.0, "accurate": 3.0}
 
 
 def split(maps=MAPS) -> dict[str, str]:

@@ -194,4 +194,30 @@ def markdown(result: dict) -> str:
     lines = [f"| scene | {' | '.join(names)} |", "|---|" + "---|" * len(names)]
     for scene, rows in result["scenes"].items():
         lines.append(f"| {scene} | {' | '.join(cell(rows[n]) for n in names)} |")
+    budgets = budget_rows(result)
+    if budgets:
+        lines += ["", "| preset | frame budget | median over the scenes | | scenes over the budget |", "|---|---|---|---|---|"]
+        for b in budgets:
+            verdict = "met" if b["met"] else f"MISSED by {b['median_ms'] - b['budget_ms']:.0f} ms ({b['factor']:.2f}x)"
+            lines.append(f"| {b['preset']} | {b['budget_ms']:.0f} ms | {b['median_ms']:.0f} ms | {verdict} | "
+                         f"{', '.join(b['over']) or 'none'} |")
     return "\n".join(lines)
+
+
+def budget_rows(result: dict) -> list[dict]:
+    """Each timed preset against its frame budget (catalogue.TARGETS at 256 x 256): the median over
+    the scenes of each scene's median, met or missed, and the scenes over it."""
+    from .catalogue import TARGETS
+
+    if result.get("size") != 256 or result.get("large"):
+        return []
+    out = []
+    for preset, targets in TARGETS.items():
+        budget = targets.get("frame_ms")
+        if budget is None or not all(preset in rows for rows in result["scenes"].values()):
+            continue
+        per_scene = {scene: rows[preset]["median_ms"] for scene, rows in result["scenes"].items()}
+        median = float(np.median(list(per_scene.values())))
+        out.append({"preset": preset, "budget_ms": budget, "median_ms": median, "met": median <= budget,
+                    "factor": median / budget, "over": [s for s, ms in per_scene.items() if ms > budget]})
+    return out
