@@ -419,6 +419,7 @@ class Renderer:
         sm = self._shadow_maps.get(which)
         if sm is None or sm.size != size or sm.n_lights != n_lights or sm.groups != groups:
             if sm is not None:
+                del self._shadow_maps[which]   # a failed allocation below leaves no released array behind
                 sm.release()
             sm = self._shadow_maps[which] = ShadowMaps(self.gl, size, n_lights, self._shadow_prog, groups)
         return sm

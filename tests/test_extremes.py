@@ -294,3 +294,22 @@ def test_coordinates_beyond_the_bound_are_refused_by_name():
     with pytest.raises(MeshError, match="beyond"):
         Mesh.from_arrays(p, [[0, 1, 2]])
     Mesh.from_arrays(np.eye(3) * MAX_COORDINATE, [[0, 1, 2]])   # at the bound: fine
+
+
+def test_shadow_maps_beyond_what_the_driver_allocates_are_refused_and_the_renderer_goes_on(renderer):
+    """2048 maps of 8192^2 (2 TiB of moments): no driver holds them. The error names the count, the
+    size and the bytes; the renderer drops the arrays it had and renders the next frame."""
+    from renderer.errors import InvalidInputError
+
+    pems = renderer.build_pems(sun_sky_cube(16, (0.3, 1.0, 0.2)), paper_pems(6))
+    scene = renderer.create_scene([uv_sphere(0.5, 12, 24), ground_plane(3.0)], [Material(), Material()])
+    try:
+        before = renderer.render(scene, pems, paper(24, 24)).image
+        assert "main" in renderer._shadow_maps
+        with pytest.raises(InvalidInputError, match=r"2048 shadow maps of 8192\^2 \(2097152 MiB"):
+            renderer._shadow_maps_for("main", 8192, 2048, 2)
+        assert "main" not in renderer._shadow_maps   # no released array left for the next frame
+        np.testing.assert_array_equal(renderer.render(scene, pems, paper(24, 24)).image, before)
+    finally:
+        scene.release()
+        pems.release()

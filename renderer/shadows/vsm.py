@@ -53,19 +53,18 @@ class ShadowMaps:
         self.gl, self.size, self.n_lights, self.groups = gl, size, n_lights, groups
         ctx = gl.ctx
         comps = 2 * groups
-        self.moments = ctx.texture_array((size, size, n_lights), comps, dtype="f4")
-        self.moments.filter = (moderngl.LINEAR, moderngl.LINEAR)
-        self.moments.repeat_x = self.moments.repeat_y = False
-        # The blur's ping-pong array, made by a frame that blurs and given back by one that does not
-        # (every preset's blur scale is 0: the array would double the maps' memory for nothing).
-        self.scratch: moderngl.TextureArray | None = None
-        self._fbos = []
-        # One framebuffer per batch of layers would need layer offsets that moderngl cannot set;
-        # instead each batch renders into a batch-sized array that is then blurred into place.
-        self.batch_layers = min(n_lights, LAYERS_PER_BATCH)
-        self.target = (self.moments if n_lights <= LAYERS_PER_BATCH
-                       else ctx.texture_array((size, size, self.batch_layers), comps, dtype="f4"))
-        self.fbo = ctx.framebuffer(color_attachments=[self.target])
+        self.moments = None
+        try:
+            self._allocate(ctx, size, n_lights, comps)
+        except moderngl.Error as exc:
+            target = getattr(self, "target", None)
+            for t in {id(t): t for t in (target, self.moments) if t is not None}.values():
+                t.release()
+            mib = size * size * n_lights * comps * 4 / 2**20
+            raise InvalidInputError(
+                f"{n_lights} shadow maps of {size}^2 ({mib:.0f} MiB of moments in one texture array) are more than "
+                f"this GL driver ({gl.renderer_name}) allocates ({exc}): ask for fewer lights, smaller maps or a "
+                "smaller small_light_scale") from None
         self.prog = moments_prog
         self.mipmapped = False   # the moments carry a MIP chain (render(mipmaps=True) made one)
         # With it, each texel's caster share per group and its chain (shadows/coverage.comp).
@@ -79,6 +78,21 @@ class ShadowMaps:
         self.still: moderngl.TextureArray | None = None
         self.still_key = None
         self.still_hits = 0   # frames that started from the copy (tests, the benchmark's report)
+
+    def _allocate(self, ctx, size: int, n_lights: int, comps: int) -> None:
+        self.moments = ctx.texture_array((size, size, n_lights), comps, dtype="f4")
+        self.moments.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        self.moments.repeat_x = self.moments.repeat_y = False
+        # The blur's ping-pong array, made by a frame that blurs and given back by one that does not
+        # (every preset's blur scale is 0: the array would double the maps' memory for nothing).
+        self.scratch: moderngl.TextureArray | None = None
+        self._fbos = []
+        # One framebuffer per batch of layers would need layer offsets that moderngl cannot set;
+        # instead each batch renders into a batch-sized array that is then blurred into place.
+        self.batch_layers = min(n_lights, LAYERS_PER_BATCH)
+        self.target = (self.moments if n_lights <= LAYERS_PER_BATCH
+                       else ctx.texture_array((size, size, self.batch_layers), comps, dtype="f4"))
+        self.fbo = ctx.framebuffer(color_attachments=[self.target])
 
     @property
     def nbytes(self) -> int:
