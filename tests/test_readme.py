@@ -56,3 +56,11 @@ def test_the_readme_library_example_renders_every_frame(files):
     for image, timings in seen:
         assert image.shape == (512, 512, 4) and np.isfinite(image).all() and image[..., 3].sum() > 1000
         assert timings["frame_wall_ms"] > 0
+
+
+def test_the_readme_is_a_newcomers_page_whose_links_lead_somewhere():
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 150
+    links = [link for link in re.findall(r"\]\(([^)#\s]+)\)", text) if "://" not in link]
+    assert len(links) > 10
+    assert [link for link in links if not (ROOT / link).exists()] == []

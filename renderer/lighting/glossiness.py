@@ -34,7 +34,7 @@ from enum import Enum
 
 import numpy as np
 
-from ..envmap.cube import sample_bilinear, texel_directions, texel_solid_angles
+from ..envmap.cube import face_uv_to_dir, sample_bilinear, texel_directions, texel_solid_angles
 from ..errors import InvalidInputError
 from .filters import Filter
 from .pem_reference import mip_levels, pem_chain
@@ -191,7 +191,9 @@ def _build_lobe_table(face_size: int, kind: Filter) -> LobeTable:
     impulse = np.zeros((6, face_size, face_size, 1))
     impulse[face, row, col, 0] = 1.0
     chain = pem_chain(impulse, kind)
-    impulse_dir = texel_directions(face_size)[face, row, col]
+    centre = (np.array([col, row]) + 0.5) * (2.0 / face_size) - 1.0       # the texel's (u, v), as texel_directions
+    impulse_dir = face_uv_to_dir(face, centre[0], centre[1])
+    impulse_dir = impulse_dir / np.linalg.norm(impulse_dir)
 
     m = min(face_size, _EVAL_FACE_MAX)
     dirs = texel_directions(m).reshape(-1, 3)
