@@ -12,6 +12,7 @@ from renderer import config
 from renderer.camera import Camera, frame_meshes
 from renderer.errors import MeshError
 from renderer.lighting.pem import PEMSettings, pem_cost
+from renderer.lighting.pem_reference import mip_levels
 from renderer.mesh import Mesh, z_up_to_y_up
 from renderer.presets import base_knobs, frame_settings, merge_knobs, pem_settings
 from renderer.renderer import Background, FrameSettings, ShadingMode
@@ -266,6 +267,11 @@ def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshe
     if not any(casters):
         raise InvalidRequestError("cast_shadows is false on every mesh, so nothing would cast a shadow: set "
                                   "cast_shadows: true on the garment (a floor alone may be false)")
+    # Judged before the glossiness calibration the materials' levels need is made (seconds and a GB
+    # at a 2048^2 face, once per process): the cheapest set of these settings (every level but the
+    # last left out) is what any base level costs at least.
+    levels = quality.pem.levels if quality.pem.levels is not None else mip_levels(quality.face_size)
+    check_pem_cost(quality.face_size, replace(quality.pem, base_level=max(0, levels - 1)), settings)
     # The scene's PEM set: only the levels its materials' glossiness reads.
     quality.pem = pem_settings(quality.knobs, quality.pem.filter, quality.pem.levels, materials + colourways)
     quality.info["base_level"] = quality.pem.base_level

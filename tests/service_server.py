@@ -34,7 +34,9 @@ class ServiceProcess:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.log_path = Path(log_dir) / f"service-{self.port}.log"
-        env = {k: v for k, v in os.environ.items() if not k.startswith("GARMENT_RENDER_")}
+        # The service's settings are the test's alone; the cache folder stays the session's (conftest).
+        env = {k: v for k, v in os.environ.items()
+               if not k.startswith("GARMENT_RENDER_") or k == "GARMENT_RENDER_CACHE_DIR"}
         env.update({f"GARMENT_RENDER_{k.upper()}": str(v) for k, v in settings.items()})
         self._log = open(self.log_path, "wb")
         self.proc = subprocess.Popen(

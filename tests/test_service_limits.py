@@ -278,6 +278,39 @@ def test_a_scene_whose_pem_set_is_too_costly_is_refused(http, env_id, mesh):
     assert_error(http.post("/scenes", json=body), 422, "refused before it is built", "384 lights")
 
 
+def test_a_huge_face_is_refused_before_any_table_of_it_is_made(tmp_path, mesh):
+    """face_size 2048 with 6 lights and no preset: refused from the settings alone, before the
+    glossiness calibration of a 2048^2 face is made (it once took 86-100 s and 8.6 GiB here), and the
+    service's memory stays where it was."""
+    import time
+
+    cache = tmp_path / "cache"
+    srv = ServiceProcess(tmp_path, cache_dir=cache)
+    try:
+        with httpx.Client(base_url=srv.url, timeout=120) as http:
+            data, name = environment_bytes(tmp_path)
+            env = http.post("/environments", content=data, headers=OCTET, params={"name": name, "preset": "fast"})
+            assert env.status_code in (200, 201), env.text
+            rss = _rss_mib(srv.proc.pid)
+            body = scene_body(env.json()["id"], mesh)
+            body["quality"] = {"face_size": 2048, "lights": 6}
+            t0 = time.perf_counter()
+            assert_error(http.post("/scenes", json=body), 422, "refused before it is built", "face_size 2048",
+                         "GARMENT_RENDER_MAX_PEM_BUILD_BYTES")
+            assert time.perf_counter() - t0 < 3.0
+            assert _rss_mib(srv.proc.pid) < rss + 64
+        assert not list((cache / "lobe-tables").glob("2048-*"))
+    finally:
+        srv.stop()
+
+
+def _rss_mib(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError("no VmRSS")
+
+
 def test_the_pem_cost_is_the_set_s_memory(renderer):
     from renderer.envmap import environment_from_array, studio_environment
     from renderer.lighting.pem import PEMSettings, pem_cost
