@@ -398,7 +398,9 @@ def target_misses(rows: list[BroadRow], size: int = 256) -> list[dict]:
 
 
 def write(out_dir: Path, rows: list[BroadRow], machine: dict, cfg: BroadConfig, source: str, ref_s: float) -> None:
-    data = {"machine": machine, "config": asdict(cfg), "presets": source, "split": split(),
+    from ..presets import presets_digest
+
+    data = {"machine": machine, "config": asdict(cfg), "presets": source, "presets_digest": presets_digest(), "split": split(),
             "reference_s": ref_s, "summary": summary(rows), "misses": target_misses(rows),
             "rows": [asdict(r) for r in rows]}
     (out_dir / "broad.json").write_text(json.dumps(data, indent=1, default=float))

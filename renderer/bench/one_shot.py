@@ -91,7 +91,9 @@ def run_one_shot(out_dir: Path | None, rounds: int = 3, log=print) -> dict:
         machine = machine_info(gl)
     finally:
         gl.release()
-    result = {"machine": machine, "rounds": rounds, "size": SIZE, "preset": "balanced", "rows": rows,
+    from ..presets import presets_digest
+
+    result = {"machine": machine, "presets_digest": presets_digest(), "rounds": rounds, "size": SIZE, "preset": "balanced", "rows": rows,
               "targets": targets(rows)}
     if out_dir is not None:
         out_dir = Path(out_dir)

@@ -100,7 +100,10 @@ def run_speed(out: Path | None, rounds: int = 15, size: int = 256, shared: bool 
     else:
         scenes = (shared_scenes() if shared else []) or [bundled_scene()]
     table, source = presets()
-    result = {"size": size, "rounds": rounds, "presets": source, "large": large, "scenes": {}}
+    from ..presets import presets_digest
+
+    result = {"size": size, "rounds": rounds, "presets": source, "presets_digest": presets_digest(), "large": large,
+              "scenes": {}}
     gl = GLContext()
     # One renderer per setting on the one context: each keeps its own shadow maps and targets, as a
     # service rendering one scene at one setting does (a shared renderer would re-make them at

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..presets import frame_settings, pem_settings, preset
+from ..presets import frame_settings, pem_settings, preset, presets_digest
 from ..reference import relative_rmse, relative_squared_errors, render_reference
 from ..reference.visibility import ExactVisibility
 from ..renderer import Renderer, ShadingMode
@@ -157,7 +157,7 @@ def run(out_dir: Path, which: str = "held-out", spp: int = 64, rays: int = 8, qu
                 rows.append(split_scene(r, Scene(name, garment, LARGE_FABRIC, LARGE_VIEW, SIZE), configs, spp, rays,
                                         log))
         machine = machine_info(r.gl)
-    data = {"machine": machine, "set": which, "spp": spp, "rays_per_light": rays, "size": SIZE, "quick": quick,
+    data = {"machine": machine, "presets_digest": presets_digest(), "set": which, "spp": spp, "rays_per_light": rays, "size": SIZE, "quick": quick,
             "contact_m": CONTACT_M, "configs": {c[0]: {"preset": c[1], "knobs": c[2]} for c in configs},
             "wall_s": time.perf_counter() - t_start, "rows": rows, "summary": summary(rows, [c[0] for c in configs])}
     (out_dir / "error_split.json").write_text(json.dumps(data, indent=1))

@@ -98,6 +98,18 @@ def presets() -> tuple[dict, str]:
         f"preset files renderer/presets/*.toml, version {PRESET_VERSION}"
 
 
+def presets_digest(folder: Path | None = None) -> str:
+    """A short hash of the preset files' names and bytes (in `folder`; None: beside this module): a
+    stored benchmark run records it, and a test fails when the files change and the run does not
+    (tests/test_stored_runs.py)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for path in sorted(Path(folder or Path(__file__).parent).glob("*.toml")):
+        h.update(path.name.encode() + b"\0" + path.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def balanced(name: str):
     """A setting's default in the Python API (FrameSettings, PEMSettings): the balanced preset's."""
     return _presets()["balanced"][name]

@@ -1,0 +1,38 @@
+"""Stored benchmark runs cannot go stale unnoticed: each records the preset files' digest
+(renderer.presets.presets_digest), and a run whose presets are no longer the files' fails here until
+it is made again (the command that made it is in its report)."""
+
+import json
+import shutil
+from pathlib import Path
+
+from renderer.presets import presets_digest
+
+ROOT = Path(__file__).resolve().parents[1]
+# The runs the README and docs read their current numbers from.
+CURRENT = ("docs/error-split/error_split.json", "docs/one-shot/one_shot.json")
+
+
+def _stamped() -> dict[str, str]:
+    out = {}
+    for path in sorted((ROOT / "docs").rglob("*.json")):
+        data = json.loads(path.read_text())
+        if isinstance(data, dict) and "presets_digest" in data:
+            out[str(path.relative_to(ROOT))] = data["presets_digest"]
+    return out
+
+
+def test_every_stamped_run_was_made_with_the_preset_files_of_today():
+    stamped = _stamped()
+    assert set(CURRENT) <= set(stamped)
+    now = presets_digest()
+    assert {p: d for p, d in stamped.items() if d != now} == {}
+
+
+def test_a_changed_preset_file_changes_the_digest(tmp_path):
+    folder = tmp_path / "presets"
+    shutil.copytree(ROOT / "renderer" / "presets", folder, ignore=shutil.ignore_patterns("*.py", "__pycache__"))
+    assert presets_digest(folder) == presets_digest()
+    balanced = folder / "balanced.toml"
+    balanced.write_text(balanced.read_text().replace("lights = 48", "lights = 96", 1))
+    assert presets_digest(folder) != presets_digest()
