@@ -15,6 +15,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
 
 from renderer.errors import (
     EnvironmentMapError,
@@ -181,6 +182,15 @@ def install_error_handlers(app: FastAPI) -> None:
         count_error(request.app, response, code)
         return response
 
+    async def on_disconnect(request: Request, exc: ClientDisconnect) -> JSONResponse:
+        # Nothing went wrong here: the client left before its request was read (a simulator stopped,
+        # a network dropped). One line, with the request id of the log context; no answer is read.
+        log.info("client disconnected before its request was read: %s %s", request.method, request.url.path)
+        response = error_response(400, "client_disconnected", "the client disconnected before the request was read")
+        count_error(request.app, response, "client_disconnected")
+        return response
+
+    app.add_exception_handler(ClientDisconnect, on_disconnect)
     app.add_exception_handler(ServiceError, on_error)
     app.add_exception_handler(RenderError, on_error)
     app.add_exception_handler(RequestValidationError, on_validation)

@@ -590,3 +590,29 @@ def test_every_service_setting_is_documented_with_its_default():
     assert stored == reference_table(), "docs/service-settings.md is stale: regenerate it with " \
                                         "service.settings.reference_table()"
     assert all(f.description for f in ServiceSettings.model_fields.values())
+
+
+def test_a_client_that_leaves_mid_upload_is_one_info_line_with_its_request_id(tmp_path, mesh):
+    import socket
+    import time
+
+    srv = ServiceProcess(tmp_path, log_level="info")
+    try:
+        with httpx.Client(base_url=srv.url, timeout=60) as http:
+            env, _, _ = upload_environment(http, tmp_path)
+            sid = http.post("/scenes", json=scene_body(env["id"], mesh)).json()["id"]
+            body = np.asarray(mesh.positions, np.float32).tobytes()
+            with socket.create_connection(("127.0.0.1", srv.port)) as s:
+                s.sendall(f"POST /scenes/{sid}/frames HTTP/1.1\r\nHost: x\r\nContent-Type: application/octet-stream\r\n"
+                          f"Content-Length: {len(body)}\r\nX-Request-ID: leaves-early\r\n\r\n".encode()
+                          + body[: len(body) // 2])
+                time.sleep(0.3)
+            deadline = time.monotonic() + 10
+            while "leaves-early" not in srv.log() and time.monotonic() < deadline:
+                time.sleep(0.1)
+            lines = [line for line in srv.log().splitlines() if "leaves-early" in line]
+            assert len(lines) == 1 and " INFO " in lines[0] and "client disconnected" in lines[0], lines
+            assert "Traceback" not in srv.log() and " ERROR " not in srv.log()
+            assert http.post(f"/scenes/{sid}/frames", content=body, headers=OCTET).status_code == 200   # still serving
+    finally:
+        srv.stop()
