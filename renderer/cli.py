@@ -825,7 +825,8 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     sv.add_argument("--log-level", default="info")
     sv.add_argument("--ray", action="store_true",
                     help="serve as Ray Serve replicas of one deployment (pip install .[ray]; service/ray_serve.py): "
-                         "scenes stay on the replica that holds them; needs GARMENT_RENDER_STATE_DIR")
+                         "scenes stay on the replica that holds them, sharing GARMENT_RENDER_STATE_DIR (a local "
+                         "instance without it: a default the log names)")
     sv.add_argument("--replicas", type=int, default=2, help="with --ray: replicas, each a process with a GL context")
     sv.add_argument("--address", help="with --ray: a running Ray cluster (default: start a local Ray instance)")
     sv.add_argument("--gpus-per-replica", type=float, default=0.0,

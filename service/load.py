@@ -75,14 +75,21 @@ def run_load(url: str, scenes: int = 4, frames: int = 16, clients: int = 4, size
             "scenes": scenes, "clients": clients, "size": size}
 
 
-def serve_ray(replicas: int, tmp: Path, timeout_s: float = 300.0) -> tuple[subprocess.Popen, str, dict]:
+def serve_ray(replicas: int, tmp: Path, timeout_s: float = 300.0,
+              state_dir: bool = True) -> tuple[subprocess.Popen, str, dict]:
     """`garment-render serve --ray --replicas N` on a free port of 127.0.0.1, its state, PEM cache,
     Ray session and log under `tmp`, once it answers ready: (the process, its URL, its environment,
-    with which another process reaches the same Ray instance by `ray.init(address="auto")`)."""
+    with which another process reaches the same Ray instance by `ray.init(address="auto")`).
+    `state_dir` False: no GARMENT_RENDER_STATE_DIR, the local default (XDG_STATE_HOME under `tmp`)."""
     port = _free_port()
-    env = {k: v for k, v in os.environ.items() if not k.startswith("GARMENT_RENDER_")}
-    env.update(GARMENT_RENDER_STATE_DIR=str(tmp / "state"), GARMENT_RENDER_PEM_CACHE_DIR=str(tmp / "pem"),
-               RAY_USAGE_STATS_ENABLED="0", RAY_TMPDIR=str(tmp / "ray"))
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith("GARMENT_RENDER_") or k == "GARMENT_RENDER_CACHE_DIR"}
+    env.update(GARMENT_RENDER_PEM_CACHE_DIR=str(tmp / "pem"), RAY_USAGE_STATS_ENABLED="0", RAY_TMPDIR=str(tmp / "ray"))
+    env.pop("RAY_ADDRESS", None)
+    if state_dir:
+        env["GARMENT_RENDER_STATE_DIR"] = str(tmp / "state")
+    else:
+        env["XDG_STATE_HOME"] = str(tmp / "xdg")
     (tmp / "ray").mkdir(parents=True, exist_ok=True)
     log_path = tmp / f"serve-{replicas}.log"
     with open(log_path, "wb") as log:

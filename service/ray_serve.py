@@ -34,6 +34,7 @@ import os
 import re
 import time
 from contextlib import AsyncExitStack
+from pathlib import Path
 
 import httpx
 from prometheus_client import CollectorRegistry, generate_latest
@@ -241,6 +242,13 @@ def app_builder(args: dict):
     return application(int(args.get("replicas", 2)), args.get("settings"), float(args.get("gpus_per_replica", 0)))
 
 
+def local_state_dir() -> Path:
+    """Where a local `serve --ray` keeps its scenes without GARMENT_RENDER_STATE_DIR:
+    $XDG_STATE_HOME/garment-render/state, else ~/.local/state/garment-render/state."""
+    root = os.environ.get("XDG_STATE_HOME") or Path.home() / ".local" / "state"
+    return Path(root) / "garment-render" / "state"
+
+
 def run(host: str | None, port: int | None, replicas: int, address: str | None = None,
         gpus_per_replica: float = 0.0) -> None:
     """`garment-render serve --ray`: a local Ray instance (or the cluster at `address`), the
@@ -253,8 +261,15 @@ def run(host: str | None, port: int | None, replicas: int, address: str | None =
 
     checked = ServiceSettings()   # refused here, not by every replica in turn
     if checked.state_dir is None:
-        raise ValueError("serve --ray needs GARMENT_RENDER_STATE_DIR, a directory every replica shares: it is how a "
-                         "replica restores a scene another one registered")
+        if address is not None or os.environ.get("RAY_ADDRESS"):
+            raise ValueError("serve --ray on a cluster needs GARMENT_RENDER_STATE_DIR, a directory every replica "
+                             "shares: it is how a replica restores a scene another one registered")
+        # One machine: its replicas share a directory of this user's (they inherit the environment).
+        state = local_state_dir()
+        state.mkdir(parents=True, exist_ok=True)
+        os.environ["GARMENT_RENDER_STATE_DIR"] = str(state)
+        print(f"garment-render: GARMENT_RENDER_STATE_DIR is not set: the replicas on this machine share {state}",
+              flush=True)
     host, port = host or checked.host, checked.port if port is None else port
 
     ray.init(address=address, include_dashboard=False, ignore_reinit_error=True)

@@ -28,7 +28,8 @@ def cluster(tmp_path_factory):
     from service.load import serve_ray
 
     tmp = tmp_path_factory.mktemp("ray")
-    proc, url, env = serve_ray(2, tmp, timeout_s=240)
+    # Without GARMENT_RENDER_STATE_DIR: a local instance's replicas share the user's default directory.
+    proc, url, env = serve_ray(2, tmp, timeout_s=240, state_dir=False)
     try:
         yield {"url": url, "tmp": tmp, "env": env}
     finally:
@@ -54,6 +55,13 @@ def _kill(env, name: str) -> None:
             f"ray.kill(ray.get_actor({name!r}, namespace='serve'), no_restart=False)")
     r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
+
+
+def test_a_local_instance_without_a_state_dir_shares_the_default_one(cluster):
+    state = cluster["tmp"] / "xdg" / "garment-render" / "state"
+    log = next(cluster["tmp"].glob("serve-*.log")).read_text()
+    assert f"GARMENT_RENDER_STATE_DIR is not set: the replicas on this machine share {state}" in log
+    assert state.is_dir()
 
 
 def test_scenes_stay_on_their_replica_and_survive_one_dying(cluster, tmp_path):
@@ -200,3 +208,15 @@ def test_the_cluster_config_builds_the_deployment_it_names():
     assert deployment.num_replicas == app["args"]["replicas"]
     assert deployment.ray_actor_options["num_gpus"] == app["args"]["gpus_per_replica"] == 1
     assert set(app["args"]["settings"]) == {"state_dir", "pem_cache_dir"}
+
+
+def test_a_cluster_without_a_shared_state_dir_is_refused_before_ray_starts(monkeypatch):
+    from service import ray_serve
+
+    monkeypatch.delenv("GARMENT_RENDER_STATE_DIR", raising=False)
+    monkeypatch.setattr(ray_serve.ray, "init", lambda *a, **k: pytest.fail("Ray was started"))
+    with pytest.raises(ValueError, match="on a cluster needs GARMENT_RENDER_STATE_DIR"):
+        ray_serve.run("127.0.0.1", 0, 2, address="ray://head.example:10001")
+    monkeypatch.setenv("RAY_ADDRESS", "ray://head.example:10001")
+    with pytest.raises(ValueError, match="on a cluster needs GARMENT_RENDER_STATE_DIR"):
+        ray_serve.run("127.0.0.1", 0, 2)
