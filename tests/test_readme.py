@@ -25,26 +25,38 @@ def _block(marker: str) -> str:
 
 @pytest.fixture
 def files(tmp_path, monkeypatch):
-    """studio.exr and shirt.obj (a sphere in centimetres) where the examples look for them, and two
-    frames of positions."""
+    """studio.exr, shirt.obj (a sphere in centimetres) and drape.npz (two frames of it in metres, Z up,
+    in the layout of the shared simulation: positions and triangles) where the examples look for
+    them, and the `simulation` the library example iterates."""
     monkeypatch.chdir(tmp_path)
     write_exr(tmp_path / "studio.exr", studio_environment(128))
     shirt = trimesh.creation.icosphere(subdivisions=3, radius=30.0)
     shirt.export(tmp_path / "shirt.obj")
     positions = np.asarray(shirt.vertices, np.float32)
-    return {"rest_positions": positions, "faces": np.asarray(shirt.faces, np.int32),
-            "simulation": [positions, positions * np.float32(1.02)]}
+    np.savez(tmp_path / "drape.npz", positions=np.stack([positions, positions * np.float32(1.02)]) * np.float32(0.01),
+             triangles=np.asarray(shirt.faces, np.int32))
+    return {"simulation": [positions, positions * np.float32(1.02)]}
 
 
 def test_the_readme_client_example_drives_a_real_service(files, tmp_path):
     server = ServiceProcess(tmp_path)
     try:
         code = _block("RenderClient").replace("http://127.0.0.1:8000", server.url)
-        exec(compile(code, "README.md (client)", "exec"), dict(files))
+        exec(compile(code, "README.md (client)", "exec"), {})   # as written: it names its own files
     finally:
         server.stop()
     frames = sorted(tmp_path.glob("frame_*.png"))
     assert [f.name for f in frames] == ["frame_0000.png", "frame_0001.png"] and all(f.stat().st_size > 1000 for f in frames)
+
+
+def test_the_readme_client_example_reads_the_shared_simulation_as_it_is():
+    """The client example's data names are the shared cloth simulation's own."""
+    from conftest import asset
+
+    with np.load(asset("sim", "newton_shirt_drape_60f.npz")) as sim:
+        assert sim["positions"].ndim == 3 and sim["positions"].shape[2] == 3 and sim["triangles"].shape[1] == 3
+    code = _block("RenderClient")
+    assert 'sim["positions"]' in code and 'sim["triangles"]' in code and 'up="z"' in code
 
 
 def test_the_readme_library_example_renders_every_frame(files):

@@ -376,6 +376,7 @@ def summary(rows: list[BroadRow]) -> dict:
             **{f"{m}_max": float(np.max([getattr(r, m) for r in sel])) for m in ("rel_rmse", "flip", "artefact_share", "frame_ms")},
             "mean_ratio_min": float(np.min([r.mean_ratio for r in sel])),
             "worst_scene": worst.scene, "equal_error_min": float(min(speed)) if speed else None,
+            "equal_error_median": float(np.median(speed)) if speed else None,
             "unresolved": len(sel) - len(speed)}
     return out
 
@@ -405,6 +406,50 @@ def write(out_dir: Path, rows: list[BroadRow], machine: dict, cfg: BroadConfig, 
             "rows": [asdict(r) for r in rows]}
     (out_dir / "broad.json").write_text(json.dumps(data, indent=1, default=float))
     (out_dir / "broad.md").write_text(markdown(data))
+
+
+# The README's quality table: generated from the stored held-out run at 256 x 256 (tests/test_readme.py
+# checks that the README holds what this makes of docs/broad/broad-256.json).
+README_RUN = "docs/broad/broad-256.json"
+README_BEGIN = "<!-- quality table: generated from docs/broad/broad-256.json (renderer.bench.broad.readme_table) -->"
+README_END = "<!-- end of the generated table -->"
+
+
+def readme_table(data: dict) -> str:
+    """The presets on the held-out scenes at 256 x 256: light count, frame budget and measured frame,
+    error, artefact share and the tracer's time at the same error, as markdown between the markers."""
+    from ..presets import presets
+    from .catalogue import TARGETS
+
+    in_use, _ = presets()
+    lines = [README_BEGIN, "",
+             "| preset | lights | frame: budget, held-out median | rel. RMSE, median / worst | pixels > 2x off | "
+             "tracer's time at equal error |", "|---|---|---|---|---|---|"]
+    scenes = 0
+    for preset in PRESETS:
+        s = data["summary"].get(f"held-out/256/{preset}")
+        if s is None:
+            continue
+        scenes = max(scenes, s["scenes"])
+        budget = TARGETS.get(preset, {}).get("frame_ms")
+        ee = s.get("equal_error_median")
+        lines.append(f"| {preset} | {in_use[preset]['lights']} | {f'{budget:.0f} ms, ' if budget else ''}"
+                     f"{s['frame_ms_median']:.0f} ms | {s['rel_rmse_median']:.3f} / {s['rel_rmse_max']:.3f} | "
+                     f"{100 * s['artefact_share_median']:.2f} % | {'-' if ee is None else f'{ee:.1f}x'} |")
+    m = data["machine"]
+    lines += ["", f"Measured by `garment-render bench --broad --size 256` on {m['gl_renderer']}, {m['cores']} cores "
+              f"({m['date']}): {scenes} held-out scenes, medians over them.", "", README_END]
+    return "\n".join(lines)
+
+
+def rewrite(path: Path) -> dict:
+    """A stored run's summary, misses and report made again from its rows (under today's targets)."""
+    data = json.loads(Path(path).read_text())
+    rows = [BroadRow(**r) for r in data["rows"]]
+    data["summary"], data["misses"] = summary(rows), target_misses(rows)
+    Path(path).write_text(json.dumps(data, indent=1, default=float))
+    Path(path).with_suffix(".md").write_text(markdown(data))
+    return data
 
 
 def knob_table(rows: list[dict]) -> list[dict]:
