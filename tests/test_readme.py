@@ -76,3 +76,18 @@ def test_the_readme_is_a_newcomers_page_whose_links_lead_somewhere():
     links = [link for link in re.findall(r"\]\(([^)#\s]+)\)", text) if "://" not in link]
     assert len(links) > 10
     assert [link for link in links if not (ROOT / link).exists()] == []
+
+
+def test_the_readme_quality_table_is_the_one_the_stored_held_out_run_makes():
+    """The README's measured numbers come from the stored run (renderer.bench.broad.readme_table), made
+    with today's preset files (tests/test_stored_runs.py): a number there cannot outlive its run."""
+    import json
+
+    from renderer.bench import broad
+    from renderer.presets import presets_digest
+
+    text = (ROOT / "README.md").read_text()
+    start, end = text.index(broad.README_BEGIN), text.index(broad.README_END) + len(broad.README_END)
+    data = json.loads((ROOT / broad.README_RUN).read_text())
+    assert text[start:end] == broad.readme_table(data)
+    assert data["presets_digest"] == presets_digest()

@@ -422,7 +422,7 @@ def readme_table(data: dict) -> str:
     from .catalogue import TARGETS
 
     in_use, _ = presets()
-    lines = [README_BEGIN, "",
+    lines = [README_BEGIN,
              "| preset | lights | frame: budget, held-out median | rel. RMSE, median / worst | pixels > 2x off | "
              "tracer's time at equal error |", "|---|---|---|---|---|---|"]
     scenes = 0
@@ -438,7 +438,7 @@ def readme_table(data: dict) -> str:
                      f"{100 * s['artefact_share_median']:.2f} % | {'-' if ee is None else f'{ee:.1f}x'} |")
     m = data["machine"]
     lines += ["", f"Measured by `garment-render bench --broad --size 256` on {m['gl_renderer']}, {m['cores']} cores "
-              f"({m['date']}): {scenes} held-out scenes, medians over them.", "", README_END]
+              f"({m['date']}): {scenes} held-out scenes, medians over them.", README_END]
     return "\n".join(lines)
 
 
