@@ -357,7 +357,7 @@ def png_image(img: np.ndarray, opaque: bool) -> np.ndarray:
 def pem_set(r, env, settings, args):
     """`env`'s PEM set for `settings`: from the user's cache folder (user_cache.py), else built and
     stored there for the next command (the light decomposition is in it); built and not stored with
-    --no-cache. Returns (the set, where it came from: "memory", "disk" or "built")."""
+    --no-cache. Returns (the set, where it came from: "disk" or "built")."""
     if getattr(args, "no_cache", False):
         return r.build_pems(env.cube, settings), "built"
     from .cache import PEMCache

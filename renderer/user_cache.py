@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -31,13 +32,20 @@ def user_cache_dir(*parts: str) -> Path:
     return Path(root).joinpath(*parts)
 
 
-def code_digest(*modules) -> str:
-    """A short hash of the source files of `modules` (module objects): an entry made by other code
-    has another name."""
+def code_digest(*modules: str) -> str:
+    """A short hash of the source files of `modules` (the names of imported modules): an entry made by
+    other code has another name."""
     h = hashlib.sha256()
     for m in modules:
-        h.update(Path(m.__file__).read_bytes())
+        h.update(Path(sys.modules[m].__file__).read_bytes())
     return h.hexdigest()[:16]
+
+
+def cached_arrays(folder: Path, name: str, code: tuple[str, ...], build: Callable[[], dict[str, np.ndarray]],
+                  max_bytes: int | None = None) -> dict[str, np.ndarray]:
+    """`load_or_build` of the entry `name` in `folder`, made by the modules named in `code` (their
+    source's digest is in the entry's file name)."""
+    return load_or_build(Path(folder) / f"{name}-{code_digest(*code)}.npz", build, max_bytes)
 
 
 def load_or_build(path: Path, build: Callable[[], dict[str, np.ndarray]],

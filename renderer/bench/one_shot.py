@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..presets import presets_digest
 from ..user_cache import ENV_VAR
 from .catalogue import MAPS, split
 from .scenes import shared_assets
@@ -93,8 +94,6 @@ def run_one_shot(out_dir: Path | None, rounds: int = 3, log=print) -> dict:
         machine = machine_info(gl)
     finally:
         gl.release()
-    from ..presets import presets_digest
-
     result = {"machine": machine, "presets_digest": presets_digest(), "rounds": rounds, "size": SIZE, "preset": "balanced", "rows": rows,
               "targets": targets(rows)}
     if out_dir is not None:

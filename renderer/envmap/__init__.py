@@ -83,23 +83,24 @@ CUBE_CACHE_BYTES = 1 << 30
 
 
 def load_environment(path: str | Path, layout: Layout | str = "auto", face_size: int = 128,
-                     repair: bool = False, cube_cache: Path | None = None) -> EnvironmentMap:
+                     repair: bool = False) -> EnvironmentMap:
     """Read an .exr/.hdr environment map and resample it to a cube of face_size (a power of two, 4..2048).
 
     layout "auto" detects it from the aspect ratio. Without repair, NaN, Inf or negative texels raise
-    EnvironmentMapError; with repair they are fixed as `check_texels` describes. `cube_cache`: a
-    folder where the resampled cube is kept for the next process (keyed by the source's content, the
-    face size, the repair and the resampling code; CUBE_CACHE_BYTES of them at most).
+    EnvironmentMapError; with repair they are fixed as `check_texels` describes.
     """
     face_size = _check_face_size(face_size)
     path = Path(path)
     img = read_hdr_image(path)
-    return _build(img, layout, face_size, name=path.stem, source=str(path), repair=repair, cube_cache=cube_cache)
+    return _build(img, layout, face_size, name=path.stem, source=str(path), repair=repair)
 
 
 def environment_from_array(img: np.ndarray, layout: Layout | str, face_size: int, name: str,
                            repair: bool = False, cube_cache: Path | None = None) -> EnvironmentMap:
-    """Like `load_environment` for an image already in memory: float (H, W, 3) linear radiance."""
+    """Like `load_environment` for an image already in memory: float (H, W, 3) linear radiance.
+    `cube_cache`: a folder where the resampled cube is kept for the next process (keyed by the
+    source's content, the face size, the repair and the resampling code; CUBE_CACHE_BYTES of them at
+    most)."""
     face_size = _check_face_size(face_size)
     arr = np.asarray(img)
     if arr.ndim != 3 or arr.shape[2] != 3 or arr.shape[0] < 1 or arr.shape[1] < 1:
@@ -129,14 +130,11 @@ def _build(img: np.ndarray, layout, face_size: int, *, name: str, source: str, r
     if cube_cache is None:
         cube = to_cube(pixels, layout, face_size)
     else:
-        import sys
-
         from .. import user_cache
 
-        digest = user_cache.code_digest(*(sys.modules[f.__module__] for f in (to_cube, check_texels, face_uv_to_dir)))
-        entry = Path(cube_cache) / f"{content_hash[:32]}-{face_size}-{int(repair)}-{digest}.npz"
-        cube = user_cache.load_or_build(entry, lambda: {"cube": to_cube(pixels, layout, face_size)},
-                                        CUBE_CACHE_BYTES)["cube"]
+        code = tuple(f.__module__ for f in (to_cube, check_texels, face_uv_to_dir))
+        cube = user_cache.cached_arrays(cube_cache, f"{content_hash[:32]}-{face_size}-{int(repair)}", code,
+                                        lambda: {"cube": to_cube(pixels, layout, face_size)}, CUBE_CACHE_BYTES)["cube"]
     cube.setflags(write=False)
     return EnvironmentMap(name=name, cube=cube, layout=layout, source=source, source_shape=tuple(img.shape),
                           texel_report=report, content_hash=content_hash)

@@ -165,14 +165,7 @@ def lobe_table(face_size: int, kind: Filter | str = Filter.SQRT_COSINE) -> LobeT
     kind = Filter.parse(kind)
     if face_size < 2 or face_size & (face_size - 1):
         raise InvalidInputError(f"face size must be a power of two >= 2, got {face_size}")
-    import sys
-
     from .. import user_cache
-    from ..envmap import cube as cube_module
-    from . import filters, pem_reference
-
-    digest = user_cache.code_digest(sys.modules[__name__], cube_module, filters, pem_reference)
-    path = user_cache.user_cache_dir("lobe-tables") / f"{face_size}-{kind.value}-{digest}.npz"
 
     def build() -> dict[str, np.ndarray]:
         t = _build_lobe_table(face_size, kind)
@@ -180,7 +173,8 @@ def lobe_table(face_size: int, kind: Filter | str = Filter.SQRT_COSINE) -> LobeT
         arrays.update({f"l2_terms_{i}": np.asarray(a) for i, a in enumerate(t.l2_terms)})
         return arrays
 
-    a = user_cache.load_or_build(path, build)
+    code = (__name__, "renderer.envmap.cube", "renderer.lighting.filters", "renderer.lighting.pem_reference")
+    a = user_cache.cached_arrays(user_cache.user_cache_dir("lobe-tables"), f"{face_size}-{kind.value}", code, build)
     terms = tuple(a[f"l2_terms_{i}"] for i in range(sum(k.startswith("l2_terms_") for k in a)))
     return LobeTable(face_size, kind, *(a[k] for k in _TABLE_FIELDS), terms)
 

@@ -91,17 +91,13 @@ def unweighted_chain(cube: np.ndarray, kind: Filter | str, levels: int | None = 
 def weight_chain(face_size: int, kind: Filter | str, levels: int | None = None) -> tuple[np.ndarray, ...]:
     """B = chain(w) (see the module doc): the normalizer of every level, float64 (6, n_l, n_l, 1).
     Cached per process and in the user's cache folder (user_cache.py)."""
-    import sys
-
     from .. import user_cache
-    from ..envmap import cube as cube_module
-    from . import filters
 
     kind = Filter.parse(kind)
-    digest = user_cache.code_digest(sys.modules[__name__], cube_module, filters)
-    path = user_cache.user_cache_dir("weight-chains") / f"{face_size}-{kind.value}-{levels}-{digest}.npz"
-    stored = user_cache.load_or_build(path, lambda: {f"level_{i}": a for i, a in enumerate(
-        unweighted_chain(texel_weights(face_size), kind, levels))})
+    stored = user_cache.cached_arrays(
+        user_cache.user_cache_dir("weight-chains"), f"{face_size}-{kind.value}-{levels}",
+        (__name__, "renderer.envmap.cube", "renderer.lighting.filters"),
+        lambda: {f"level_{i}": a for i, a in enumerate(unweighted_chain(texel_weights(face_size), kind, levels))})
     chain = [stored[f"level_{i}"] for i in range(len(stored))]
     for level in chain:
         level.setflags(write=False)
