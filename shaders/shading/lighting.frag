@@ -185,6 +185,17 @@ void add_light(int i, vec3 pem_d, vec3 pem_g[N_LOBES], vec3 n, vec3 ws_pos, bool
 // One light of a kind: its PEM lookups (region i in u_pem0, or in u_pem1 when in_pem1), then add_light.
 void shade_light(int i, bool pem_diffuse, bool pem_glossy, bool sharp, bool in_pem1, vec3 n, bool glossy,
                  vec3 ws_position) {
+#if MODE == 0
+    // A light wholly below the surface's own plane and below the shading normal's horizon adds nothing
+    // (add_light: its glossy terms and a small light's diffuse term keep the share above the plane,
+    // zero; its closed-form diffuse term is zero below the horizon): its lookups, shadow map and
+    // contact search are skipped. A diffuse PEM's kernel reaches below the horizon: those lights stay.
+    if (!pem_diffuse) {
+        vec3 l = lights[i].dir_scale.xyz;
+        float sin_a = lights[i].params.w;
+        if (dot(g_geometric_normal, l) <= -sin_a && dot(n, l) <= -sin_a) return;
+    }
+#endif
     vec3 pem_d = vec3(0.0);
     vec3 pem_g[N_LOBES];
     for (int k = 0; k < N_LOBES; ++k) pem_g[k] = vec3(0.0);
