@@ -759,6 +759,8 @@ class Renderer:
             set_uniform(p, "u_diffuse_level", pems.lookup_level(pems.diffuse_level()))
             set_uniform(p, "u_min_sigma_texels", settings.min_sigma_texels)
             set_uniform(p, "u_two_groups", groups == 2)
+            set_uniform(p, "u_group_layers", float(shadow_maps.n_lights))
+            set_uniform(p, "u_group_layers_sharp", float(arrays.get("sharp", shadow_maps).n_lights))
             set_uniform(p, "u_normal_offset_texels", settings.normal_offset_texels)
             set_uniform(p, "u_bleed_reduction", settings.bleed_reduction)
             if vao is None:   # the compute pass: every pixel, uncovered ones left as drawn

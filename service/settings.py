@@ -32,8 +32,8 @@ class ServiceSettings(BaseSettings):
     max_image_side: int = Field(4096, ge=16, le=8192, description="largest rendered width or height, pixels")
     max_shadow_map_bytes: int = Field(4 << 30, ge=1 << 20, description="largest shadow-map memory a quality may "
                                       "ask for: lights x (shadow_size x small_light_scale)^2 x 32 bytes (moments "
-                                      "and blur scratch, two shadow groups' RGBA32F; every light counted at the "
-                                      "small lights' size)")
+                                      "and blur scratch, two shadow groups' RG32F layers; every light counted at "
+                                      "the small lights' size)")
     max_env_pixels: int = Field(16 << 20, ge=64, description="largest uploaded environment map, width x height, "
                                 "read from the file's header before it is decoded (16 Mi: a 4k lat-long map and "
                                 "more; decoding one of 64 Mi took 20 s and 3.4 GB)")

@@ -67,15 +67,13 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: di
     n_sharp = n if frame.small_light_scale == 1 or frame.small_light_min_energy <= 0 else \
         int(min(n, n / frame.small_light_min_energy))   # min first: n / 1e-320 is inf
     side = frame.shadow_size * frame.small_light_scale
-    # Each map twice (its moments and the blur's scratch), and the main maps once more: the still
-    # casters' copy (shadows/vsm.py).
-    worst = ((n_sharp * side * side + (n - n_sharp) * frame.shadow_size ** 2) * 2
-             + n * frame.shadow_size ** 2) * MOMENT_BYTES
+    # Each map twice: its moments and the blur's scratch (shadows/vsm.py).
+    worst = (n_sharp * side * side + (n - n_sharp) * frame.shadow_size ** 2) * 2 * MOMENT_BYTES
     if worst > settings.max_shadow_map_bytes:
         raise InvalidRequestError(
             f"quality asks for up to {worst / 2**30:.1f} GiB of shadow maps ({n_sharp} of {n} lights at "
             f"({frame.shadow_size} x {frame.small_light_scale})^2, the others at {frame.shadow_size}^2, x {2 * MOMENT_BYTES} "
-            f"bytes, and a copy of {n} main maps), over the limit of {settings.max_shadow_map_bytes / 2**30:.1f} GiB "
+            f"bytes), over the limit of {settings.max_shadow_map_bytes / 2**30:.1f} GiB "
             "(GARMENT_RENDER_MAX_SHADOW_MAP_BYTES): use fewer lights, a smaller shadow_size or "
             "small_light_scale, or a larger small_light_min_energy")
     applied = frame.as_dict()   # the knobs as the frame holds them (enums as their values)

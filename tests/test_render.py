@@ -295,7 +295,7 @@ def test_calibration_changes_the_glossy_level_only_through_the_table(renderer):
         pems.release()
 
 
-@pytest.mark.parametrize("n_lights", [24, 96])   # 96: more than one batch of layers, then a copy
+@pytest.mark.parametrize("n_lights", [24, 96])
 def test_shadow_blur_matches_a_numpy_box_cascade_and_leaves_unblurred_lights_alone(renderer, monkeypatch, n_lights):
     # Three clamp-to-edge box passes per axis of radius r(sigma) per light (shaders/shadows/blur.comp);
     # lights whose radius rounds to 0 are skipped and must keep their raw moments.
@@ -333,7 +333,7 @@ def test_shadow_blur_matches_a_numpy_box_cascade_and_leaves_unblurred_lights_alo
         np.testing.assert_allclose(blurred[layer], expect, rtol=1e-5, atol=1e-6, err_msg=f"light {layer}, r {r}")
 
 
-@pytest.mark.parametrize("n_lights", [24, 96])   # 96: more than one batch of layers, then a copy
+@pytest.mark.parametrize("n_lights", [24, 96])
 def test_without_a_blur_the_maps_skip_the_blur_passes_and_their_scratch(renderer, monkeypatch, n_lights):
     # Blur scale 0 (every preset): no light has a blur width, so the blur passes (which would leave
     # every layer as drawn) do not run and their ping-pong array is not made: the maps take half the
@@ -350,11 +350,10 @@ def test_without_a_blur_the_maps_skip_the_blur_passes_and_their_scratch(renderer
         plain = renderer.render(scene, pems, paper(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
         maps = renderer._shadow_maps["main"]
         assert maps.scratch is None
-        # The maps, the batch target where the lights need two draws, the still casters' copy (the plane).
-        assert maps.still is not None
-        assert plain.settings["shadow_bytes"] == size * size * 16 * (2 * maps.n_lights + (
-            0 if maps.target is maps.moments else maps.batch_layers))
-        assert "blur" not in plain.timings["wall_ms"]   # the batches' copy is part of the shadow_maps stage
+        # The maps alone: a run of layers per group (the sphere, the plane), (z, z^2) as float32.
+        assert maps.groups == 2
+        assert plain.settings["shadow_bytes"] == size * size * 8 * 2 * maps.n_lights
+        assert "blur" not in plain.timings["wall_ms"]
         original = ShadowMaps.render
         monkeypatch.setattr(ShadowMaps, "render", lambda self, *a, **k: original(self, *a, **{**k, "blur": True}))
         passes = renderer.render(scene, pems, paper(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
@@ -476,8 +475,8 @@ def test_shadow_groups_put_the_first_caster_apart():
 
 
 def test_a_scene_with_one_caster_keeps_one_pair_of_moments(renderer):
-    # One casting mesh (a floor that casts nothing beside it): RG32F maps, half the memory of two
-    # groups' RGBA32F. A second caster hidden inside the ball (it shadows nothing that is seen, and
+    # One casting mesh (a floor that casts nothing beside it): one run of RG32F maps, half the memory
+    # of two groups'. A second caster hidden inside the ball (it shadows nothing that is seen, and
     # leaves the casters' box as it was) makes two groups and the same image.
     cube = sun_sky_cube(32, (1.0, 1.0, 0.3), sun_radiance=2e3, sun_radius_deg=3)
     ball, ground = sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)
@@ -497,8 +496,8 @@ def test_a_scene_with_one_caster_keeps_one_pair_of_moments(renderer):
         one.release()
         two.release()
         pems.release()
-    # Two pairs of moments, and the still group's copy (the inner sphere: group 1).
-    assert b.settings["shadow_bytes"] == 3 * a.settings["shadow_bytes"]
+    # Two runs of moments (the inner sphere: group 1).
+    assert b.settings["shadow_bytes"] == 2 * a.settings["shadow_bytes"]
     np.testing.assert_allclose(a.image, b.image, rtol=1e-4, atol=1e-6)
 
 

@@ -50,7 +50,7 @@ def test_the_still_group_is_drawn_once_and_the_frames_are_the_same(monkeypatch):
             maps = keeps._shadow_maps["main"]
             hits.append(maps.still_hits - sum(hits))
             np.testing.assert_array_equal(images[0], images[1])
-            assert draws._shadow_maps["main"].still is None
+            assert draws._shadow_maps["main"].still_key is None and draws._shadow_maps["main"].still_hits == 0
             first = images[0] if first is None else first
         assert hits == expected_hits
         # The same positions give the same picture, whatever came between.

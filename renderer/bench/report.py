@@ -129,9 +129,9 @@ def write_markdown(path: Path, rows, machine: dict, cfg) -> None:
                 f"{r.rel_rmse:.4f} | {r.flip:.4f} | {_artefacts(r)} | {eq} |")
         lines.append("")
     lines += target_lines(rows)
-    lines += ["VSM memory: moments are 32-bit floats, a pair per shadow group (RGBA32F: the garment's and the "
-              "body's), four times the paper's RG16F maps at the same size and count; a setting that blurs (blur "
-              "scale > 0) adds a scratch array of the same size (eight times), "
+    lines += ["VSM memory: moments are 32-bit floats (RG32F), a layer per light and shadow group (the garment's "
+              "and the body's), four times the paper's RG16F maps at the same size and count; a setting that blurs "
+              "(blur scale > 0) adds a scratch array of the same size (eight times), "
               "and small lights' maps are small_light_scale times larger per side.", ""]
     path.write_text("\n".join(lines))
 

@@ -1,5 +1,5 @@
-"""The few raw OpenGL calls that moderngl does not wrap: cube-map-array textures, and copies between
-texture layers (glCopyImageSubData: the shadow pass's still casters, shadows/vsm.py).
+"""The few raw OpenGL calls that moderngl does not wrap: cube-map-array textures, and clears of
+some layers of a texture array (glClearTexSubImage: the shadow pass's moving casters, shadows/vsm.py).
 
 moderngl has no cube-map-array type (GL-NOTES). The PEM set is one GL_TEXTURE_CUBE_MAP_ARRAY
 (layer = region) so that the shading pass reads every region with one sampler and hardware
@@ -20,6 +20,7 @@ GL_TEXTURE_2D_ARRAY = 0x8C1A
 GL_RGBA16F = 0x881A
 GL_RGBA32F = 0x8814
 GL_RGBA = 0x1908
+GL_RG = 0x8227
 GL_FLOAT = 0x1406
 GL_HALF_FLOAT = 0x140B
 GL_WRITE_ONLY = 0x88B9
@@ -47,7 +48,7 @@ class RawGL:
         "glGetTextureImage": (_u, _i, _u, _u, _i, ctypes.c_void_p),
         "glGetTextureSubImage": (_u, _i, _i, _i, _i, _i, _i, _i, _u, _u, _i, ctypes.c_void_p),
         "glTextureSubImage3D": (_u, _i, _i, _i, _i, _i, _i, _i, _u, _u, ctypes.c_void_p),
-        "glCopyImageSubData": (_u, _u, _i, _i, _i, _i, _u, _u, _i, _i, _i, _i, _i, _i, _i),
+        "glClearTexSubImage": (_u, _i, _i, _i, _i, _i, _i, _i, _u, _u, ctypes.c_void_p),
     }
 
     def __init__(self):
@@ -64,11 +65,11 @@ class RawGL:
             setattr(self, name, ctypes.CFUNCTYPE(None, *args)(ptr))
 
 
-def copy_layers(gl: RawGL, src_glo: int, src_first: int, dst_glo: int, dst_first: int, size: int,
-                count: int) -> None:
-    """Level 0 of `count` layers of one size^2 2D texture array into another of the same format."""
-    gl.glCopyImageSubData(src_glo, GL_TEXTURE_2D_ARRAY, 0, 0, 0, src_first,
-                          dst_glo, GL_TEXTURE_2D_ARRAY, 0, 0, 0, dst_first, size, size, count)
+def clear_layers(gl: RawGL, glo: int, first: int, count: int, size: int, value: tuple[float, float]) -> None:
+    """Level 0 of `count` layers of a size^2 RG32F 2D texture array set to `value` (glClearTexSubImage:
+    a framebuffer's clear reaches every attached layer)."""
+    data = (ctypes.c_float * 2)(*value)
+    gl.glClearTexSubImage(glo, 0, 0, 0, first, size, size, count, GL_RG, GL_FLOAT, ctypes.cast(data, ctypes.c_void_p))
 
 
 class CubeMapArray:

@@ -14,20 +14,25 @@ float chebyshev(vec2 m, float t, float least_variance) {
 // The pixel's shadow group (gbuffer.frag, renderer/scene.py): 0 or 1, SHADOW_GROUPS if it casts nothing.
 const int SHADOW_GROUPS = 2;
 int g_shadow_group = 0;
-uniform bool u_two_groups;   // the maps hold both groups' moments (RGBA); else group 0's alone (RG)
+uniform bool u_two_groups;   // the maps hold both groups' moments; else group 0's alone
+// The moments of group g's map of light i are at layer shadow.x + g x the array's lights with a map
+// (renderer/shadows/vsm.py): a layer index per pixel, no branch on the group.
+uniform float u_group_layers;         // u_moments'
+uniform float u_group_layers_sharp;   // u_moments_sharp's
 
-// A light's blurred moments at uv and MIP level; outside the map nothing casts (it is fitted to the
-// casters). Only the main maps carry a MIP chain (PENUMBRA_BLOCKER), read by the penumbrae alone:
-// every other lookup reads level 0.
-vec4 moments(vec2 uv, float layer, bool sharp, float level) {
-    if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return vec4(1.0);
-    return sharp ? textureLod(u_moments_sharp, vec3(uv, layer), level) : textureLod(u_moments, vec3(uv, layer), level);
+// A light's blurred moments (group zw: 1, else 0) at uv and MIP level; outside the map nothing casts
+// (it is fitted to the casters). Only the main maps carry a MIP chain (PENUMBRA_BLOCKER), read by the
+// penumbrae alone: every other lookup reads level 0.
+vec2 moments(vec2 uv, float layer, bool sharp, bool zw, float level) {
+    if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return vec2(1.0);
+    float group = zw ? 1.0 : 0.0;
+    return sharp ? textureLod(u_moments_sharp, vec3(uv, layer + group * u_group_layers_sharp), level).xy
+                 : textureLod(u_moments, vec3(uv, layer + group * u_group_layers), level).xy;
 }
 
 // Chebyshev's visibility of one shadow group's pair (zw: group 1's) at receiver depth t.
 float group_visibility(vec2 uv, float layer, bool sharp, bool zw, float t, float least_variance) {
-    vec4 m = moments(uv, layer, sharp, 0.0);
-    return chebyshev(zw ? m.zw : m.xy, t, least_variance);
+    return chebyshev(moments(uv, layer, sharp, zw, 0.0), t, least_variance);
 }
 
 #ifdef PENUMBRA_BLOCKER
@@ -46,8 +51,7 @@ float group_visibility(vec2 uv, float layer, bool sharp, bool zw, float t, float
 float soft_visibility(vec2 uv, float layer, bool zw, float t, float least_variance, float spread) {
     float top = float(textureQueryLevels(u_moments) - 1);
     float search = clamp(log2(max(t * spread, 1.0)), 0.0, top);
-    vec4 ms = moments(uv, layer, false, search);
-    float mean = zw ? ms.z : ms.x;
+    float mean = moments(uv, layer, false, zw, search).x;
     vec2 share = textureLod(u_casters, vec3(clamp(uv, 0.0, 1.0), layer), search).xy;
     float c = zw ? share.y : share.x;
     // The casters' own mean depth, an empty texel being (1, 1): the blockers' depth where they all lie
@@ -59,11 +63,11 @@ float soft_visibility(vec2 uv, float layer, bool zw, float t, float least_varian
     // receiver), so the region's visibility is its empty share plus its casters' share times
     // Chebyshev's bound on the casters' own moments. On the moments as drawn, empty texels at 1 beside
     // blockers make a variance so large that the bound lets most of the light through an umbra.
-    vec4 mf = moments(uv, layer, false, level);
+    vec2 mf = moments(uv, layer, false, zw, level);
     vec2 shares = textureLod(u_casters, vec3(clamp(uv, 0.0, 1.0), layer), level).xy;
     float cf = zw ? shares.y : shares.x;
     if (cf <= 1e-3) return 1.0;
-    vec2 mcf = ((zw ? mf.zw : mf.xy) - (1.0 - cf)) / cf;
+    vec2 mcf = (mf - (1.0 - cf)) / cf;
     return (1.0 - cf) + cf * chebyshev(mcf, t, least_variance);
 }
 #endif
