@@ -648,8 +648,10 @@ class Renderer:
             # sharp shadow (and drawn from one, the interiors' lamps measured no faster on the held-out
             # maps: docs/broad-benchmark.md).
             arrays["sharp"] = self._shadow_maps_for("sharp", settings.shadow_size * k, len(plan.sharp_lights), groups)
+            still = (scene.still_key(1), lp.lights.tobytes(), plan.sharp_lights.tobytes())
             arrays["sharp"].render([(sm.vao_shadow, sm.group) for sm in casters], lights_buf,
-                                   self._buffer("shadow_lights_sharp", plan.sharp_lights.tobytes()), timer, blur=blur)
+                                   self._buffer("shadow_lights_sharp", plan.sharp_lights.tobytes()), timer, blur=blur,
+                                   still_key=still)
         elif "sharp" in self._shadow_maps:   # no small light now: give its memory back
             self._shadow_maps.pop("sharp").release()
         return arrays

@@ -4,6 +4,8 @@ frame for hours without creating GL objects."""
 
 from __future__ import annotations
 
+import itertools
+
 import moderngl
 import numpy as np
 
@@ -136,6 +138,9 @@ MAX_GROUPS_X = 65535
 SNAP_CELLS = 16
 
 
+_SERIALS = itertools.count()
+
+
 class SceneMesh:
     """One mesh's buffers, vertex arrays and material textures; owned by its `Scene`."""
 
@@ -148,8 +153,10 @@ class SceneMesh:
         self.mesh, self.material, self.caster, self.group = mesh, material, caster, group
         self.n_vertices = mesh.positions.shape[0]
         # Bumped by every set_positions: the shadow pass keeps the maps of casters that hold still
-        # (shadows/vsm.py, the still group's copy) while their versions stay the same.
+        # (shadows/vsm.py, the still group's layers) while their versions stay the same; the serial
+        # tells this mesh from any other the process made (an id() can be reused once one is freed).
         self.version = 0
+        self.serial = next(_SERIALS)
         self._pbr, self._programs = pbr, programs
         # Checked before any GL object exists, so that a refused proxy leaks nothing.
         self._check_maps(material)
@@ -450,7 +457,7 @@ class Scene:
     def still_key(self, group: int) -> tuple:
         """What the shadow maps of one group's casters depend on in the scene: which meshes, and the
         version of their positions."""
-        return tuple((id(sm), sm.version) for sm in self.meshes if sm.caster and sm.group == group)
+        return tuple((sm.serial, sm.version) for sm in self.meshes if sm.caster and sm.group == group)
 
     def bounds(self, casters_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
         los, his = [], []

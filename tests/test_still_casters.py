@@ -3,6 +3,7 @@ shadow-map layers while its positions and the lights' projections stay the same 
 fitted to boxes snapped to a grid: renderer.scene.snap_box)."""
 
 import numpy as np
+import pytest
 from conftest import paper, paper_pems, plane, sphere, sun_sky_cube
 
 from renderer.camera import Camera
@@ -15,10 +16,12 @@ from renderer.shadows.vsm import ShadowMaps
 CAM = Camera((0.0, 3.0, 3.5), (0.0, 0.4, 0.0), fov_y_deg=45.0)
 
 
-def test_the_still_group_is_drawn_once_and_the_frames_are_the_same(monkeypatch):
+@pytest.mark.parametrize("sharp", [False, True])
+def test_the_still_group_is_drawn_once_and_the_frames_are_the_same(monkeypatch, sharp):
     """The same frames through a renderer that keeps the body's layers and one that draws every
     caster every frame: identical images; the layers are kept while the garment moves inside its
-    box, drawn again when the body moves or the garment leaves the box."""
+    box, drawn again when the body moves or the garment leaves the box. `sharp`: the sun's map is in
+    the sharp array (small_light_scale 4), which keeps its body's layers the same way."""
     cube = sun_sky_cube(32, (0.6, 1.0, 0.3), sun_radiance=800.0, sun_radius_deg=6, sky=(0.2, 0.2, 0.25))
     garment, body = sphere(0.3, centre=(0.0, 0.9, 0.0)), sphere(0.35, centre=(0.2, 0.35, 0.1))
     meshes = [garment, body, plane(4.0)]
@@ -40,17 +43,19 @@ def test_the_still_group_is_drawn_once_and_the_frames_are_the_same(monkeypatch):
         ShadowMaps._keeps = False
         scenes = [r.create_scene(meshes, mats) for r in (keeps, draws)]
         pems = keeps.build_pems(cube, paper_pems(24))
-        fs = paper(64, 64, small_light_scale=1, background=Background.BLACK)
+        fs = paper(64, 64, small_light_scale=4 if sharp else 1, background=Background.BLACK)
         hits, first = [], None
         for positions in frames:
             images = []
             for r, scene in zip((keeps, draws), scenes):
                 ShadowMaps._keeps = r is keeps
                 images.append(r.render(scene, pems, fs, CAM, positions=positions).image)
-            maps = keeps._shadow_maps["main"]
+            maps = keeps._shadow_maps["sharp" if sharp else "main"]
+            assert ("sharp" in keeps._shadow_maps) == sharp
             hits.append(maps.still_hits - sum(hits))
             np.testing.assert_array_equal(images[0], images[1])
-            assert draws._shadow_maps["main"].still_key is None and draws._shadow_maps["main"].still_hits == 0
+            for held in draws._shadow_maps.values():
+                assert held.still_key is None and held.still_hits == 0
             first = images[0] if first is None else first
         assert hits == expected_hits
         # The same positions give the same picture, whatever came between.
