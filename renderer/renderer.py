@@ -40,7 +40,7 @@ from .shadows.lights import (
     small_lights,
     texel_sizes,
 )
-from .shadows.vsm import ShadowMaps
+from .shadows.vsm import LAYERS_PER_DRAW, ShadowMaps
 
 
 class ShadingMode(str, Enum):
@@ -340,7 +340,8 @@ class Renderer:
         self._sheen_offsets: dict[str, int] = {}   # per lobe table (`_lobe_table`)
         self._gloss_buf = ctx.buffer(reserve=4 * PEMSet.GLOSS_TABLE_SIZE)
         # The moments program is needed to build vertex arrays before any shadow map exists.
-        self._shadow_prog = program(ctx, "shadows/moments.vert", "shadows/moments.frag")
+        self._shadow_prog = program(ctx, "shadows/moments.vert", "shadows/moments.frag",
+                                    {"LAYERS_PER_DRAW": LAYERS_PER_DRAW})
         self.gbuffer_prog = program(ctx, "shading/surface.vert", "shading/gbuffer.frag")
         self._programs = {"moments": self._shadow_prog, "gbuffer": self.gbuffer_prog}
         if self.normals == "gpu":
@@ -641,7 +642,8 @@ class Renderer:
             # meshes, their proxy's detail and every light's projection stay the same (ShadowMaps.render).
             still = (scene.still_key(1), settings.caster_detail, lp.lights.tobytes(), plan.main_lights.tobytes())
             shadow_maps.render([(sm.shadow_vao(settings.caster_detail), sm.group) for sm in casters], lights_buf,
-                               self._buffer("shadow_lights_main", plan.main_lights.tobytes()), timer, blur=blur,
+                               self._buffer("shadow_lights_main", plan.main_lights.tobytes()),
+                               lp.lights["view_proj"][plan.main_lights], timer, blur=blur,
                                mipmaps=lp.blocker, still_key=still)
         if len(plan.sharp_lights):
             # The sharp maps draw the casters themselves, never a proxy: a proxy's facets show in a
@@ -650,7 +652,8 @@ class Renderer:
             arrays["sharp"] = self._shadow_maps_for("sharp", settings.shadow_size * k, len(plan.sharp_lights), groups)
             still = (scene.still_key(1), lp.lights.tobytes(), plan.sharp_lights.tobytes())
             arrays["sharp"].render([(sm.vao_shadow, sm.group) for sm in casters], lights_buf,
-                                   self._buffer("shadow_lights_sharp", plan.sharp_lights.tobytes()), timer, blur=blur,
+                                   self._buffer("shadow_lights_sharp", plan.sharp_lights.tobytes()),
+                                   lp.lights["view_proj"][plan.sharp_lights], timer, blur=blur,
                                    still_key=still)
         elif "sharp" in self._shadow_maps:   # no small light now: give its memory back
             self._shadow_maps.pop("sharp").release()

@@ -29,6 +29,10 @@ from ..gpu.context import GLContext, StageTimer
 from ..gpu.shaders import compute_shader
 from .lights import MAX_BLUR_RADIUS
 
+# Layers one instanced draw reaches: its projections are a uniform block of this many mat4 (16 KiB,
+# the least GL_MAX_UNIFORM_BLOCK_SIZE a GL 4.5 driver has; shaders/shadows/moments.vert).
+LAYERS_PER_DRAW = 256
+MAT4_BYTES = 64
 # Bytes per texel, layer and shadow group: (z, z^2) as float32 (RG32F).
 GROUP_MOMENT_BYTES = 8
 # ... of a scene with two groups (the most a map holds).
@@ -76,6 +80,11 @@ class ShadowMaps:
         # The key group 1's layers were drawn for (None: they hold no still casters' maps).
         self.still_key = None
         self.still_hits = 0   # frames that kept group 1's layers (tests, the benchmark's report)
+        # Each layer's light projection, in layer order, for the moments' vertex stage: a whole
+        # uniform block (GL leaves a shorter range undefined) per draw of at most LAYERS_PER_DRAW
+        # layers, each at a multiple of 16 KiB (every driver's uniform-buffer offset alignment divides it).
+        draws = -(-max(n_lights, 1) // LAYERS_PER_DRAW)
+        self.projections = ctx.buffer(reserve=draws * LAYERS_PER_DRAW * MAT4_BYTES)
 
     @property
     def nbytes(self) -> int:
@@ -88,10 +97,11 @@ class ShadowMaps:
         return moments + (0 if self.casters is None else (self.size * self.size + chain) * self.n_lights * 4)
 
     def render(self, casters: list[tuple[moderngl.VertexArray, int]], lights_buffer: moderngl.Buffer,
-               shadow_lights_buffer: moderngl.Buffer, timer: StageTimer | None = None, enabled: bool = True,
-               blur: bool = True, mipmaps: bool = False, still_key=None) -> None:
+               shadow_lights_buffer: moderngl.Buffer, view_projs: np.ndarray, timer: StageTimer | None = None,
+               enabled: bool = True, blur: bool = True, mipmaps: bool = False, still_key=None) -> None:
         """Render and blur the moments of every shadowed light (layer k: light shadow_lights[k]).
         `casters`: (vertex array, shadow group) per caster, drawn with `self.prog` into its group's run.
+        `view_projs`: (n_lights, 16) float32, layer k's light projection (its Light.view_proj).
         `blur` False: no light has a blur width (the blur passes would leave every layer as drawn).
         `mipmaps`: then make the moments' MIP chain (each layer's own), for the lighting pass's
         penumbrae; a chain an earlier frame made stays allocated but unread (level 0 is read).
@@ -102,6 +112,10 @@ class ShadowMaps:
         lights_buffer.bind_to_storage_buffer(0)
         shadow_lights_buffer.bind_to_storage_buffer(2)
         n = self.n_lights
+        view_projs = np.ascontiguousarray(view_projs, np.float32)
+        if view_projs.shape != (n, 16):
+            raise ValueError(f"expected {n} layers' projections (n, 16), got {view_projs.shape}")
+        self.projections.write(view_projs.tobytes())
         if not blur and self.scratch is not None:
             # A frame without a blur gives back the array an earlier frame's blur made: the memory a
             # frame reports (nbytes) is what its own settings need.
@@ -125,11 +139,15 @@ class ShadowMaps:
             if enabled:
                 ctx.enable(moderngl.BLEND)
                 ctx.blend_equation = moderngl.MIN
-                for group in drawn:
-                    self.prog["u_first_layer"].value = group * n
-                    for vao, g in casters:
-                        if g == group:
-                            vao.render(moderngl.TRIANGLES, instances=n)
+                for first in range(0, n, LAYERS_PER_DRAW):
+                    count = min(LAYERS_PER_DRAW, n - first)
+                    self.projections.bind_to_uniform_block(3, offset=first * MAT4_BYTES,
+                                                           size=LAYERS_PER_DRAW * MAT4_BYTES)
+                    for group in drawn:
+                        self.prog["u_first_layer"].value = group * n + first
+                        for vao, g in casters:
+                            if g == group:
+                                vao.render(moderngl.TRIANGLES, instances=count)
                 ctx.blend_equation = moderngl.FUNC_ADD
                 ctx.disable(moderngl.BLEND)
         self.still_key = still_key
@@ -182,7 +200,7 @@ class ShadowMaps:
         return np.concatenate(list(runs), axis=-1)
 
     def release(self) -> None:
-        for obj in (self.fbo, self.moments, self.scratch, self.casters):
+        for obj in (self.fbo, self.moments, self.scratch, self.casters, self.projections):
             if obj is not None:
                 obj.release()
         self.blur.release()
