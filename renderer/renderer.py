@@ -20,18 +20,19 @@ import numpy as np
 
 from . import config
 from .camera import Camera, bounds_sphere, default_camera
-from .config import MAX_SHADOW_SIDE
+from .config import MAX_LIGHTS, MAX_SHADOW_SIDE
 from .errors import InvalidInputError
 from .gpu.context import GLContext, StageTimer
 from .gpu.shaders import compute_shader, program, set_uniform
 from .lighting import material_lobes
-from .lighting.pem import REGIONS_PER_TEXTURE, PEMSet, PEMSettings
+from .lighting.pem import REGIONS_PER_TEXTURE, SUB_LIGHT_BYTES, PEMSet, PEMSettings
 from .mesh import Mesh
 from .presets import balanced
 from .scene import Scene, snap_box
 from .shading.background import BackgroundMap
 from .shading.material import Material
 from .shadows.lights import (
+    LIGHT_DTYPE,
     blur_sigma_texels,
     fit_light_view_projs,
     pack_lights,
@@ -328,7 +329,19 @@ class Renderer:
             if self._owns_gl:
                 self.gl.release()
             raise
-        defines = {"GLOSS_TABLE_SIZE": PEMSet.GLOSS_TABLE_SIZE, "REGIONS_PER_TEXTURE": REGIONS_PER_TEXTURE}
+        defines = {"GLOSS_TABLE_SIZE": PEMSet.GLOSS_TABLE_SIZE, "REGIONS_PER_TEXTURE": REGIONS_PER_TEXTURE,
+                   "MAX_LIGHTS": MAX_LIGHTS}
+        # The lighting pass reads its per-light tables from uniform blocks where the driver's blocks
+        # hold them (the light order and the contact search's table always do: 16 KiB, GL's least;
+        # the lights and the glossy discs on llvmpipe and NVIDIA, 64 KiB): llvmpipe loads a uniform
+        # block's entry once for a block of pixels and gathers a storage buffer's per pixel (the shirt
+        # on its form, balanced: shading 135 -> about 70 ms); else from storage buffers.
+        self._block_bytes = int(ctx.info["GL_MAX_UNIFORM_BLOCK_SIZE"])
+        self._lights_block = MAX_LIGHTS * LIGHT_DTYPE.itemsize
+        if self._lights_block <= self._block_bytes:
+            defines["LIGHTS_CAPACITY"] = MAX_LIGHTS
+        else:
+            self._lights_block = 0
         self._defines = defines
         self._shade_progs: dict[tuple, tuple[moderngl.Program, moderngl.VertexArray]] = {}
         self.bg_prog = program(ctx, "shading/background.vert", "shading/background.frag")
@@ -376,6 +389,8 @@ class Renderer:
                 defines["DIFFUSE_LIGHTS"] = 1   # no diffuse PEM lookups
             if sub_lights > 1:
                 defines["SUB_LIGHTS"] = sub_lights
+                if self._sub_lights_block(sub_lights):
+                    defines["SUB_LIGHTS_CAPACITY"] = MAX_LIGHTS * sub_lights
             if lobes is not None:
                 defines.update(PBR=1, LOBES_GGX=lobes[0], LOBES_SHEEN=lobes[1], TABLE_R=len(material_lobes.ROUGHNESS),
                                TABLE_J=len(material_lobes.THETA_V), TABLE_R0=f"{material_lobes.ROUGHNESS[0]:.9g}",
@@ -393,6 +408,12 @@ class Renderer:
                 prog = program(self.gl.ctx, "shading/background.vert", "shading/lighting.frag", defines)
                 self._shade_progs[key] = (prog, self.gl.ctx.vertex_array(prog, []))
         return self._shade_progs[key]
+
+    def _sub_lights_block(self, sub_lights: int) -> int:
+        """The bytes of the glossy discs' uniform block at `sub_lights` discs per light (0: more than
+        the driver's blocks hold; a storage buffer instead)."""
+        size = MAX_LIGHTS * sub_lights * SUB_LIGHT_BYTES
+        return size if size <= self._block_bytes else 0
 
     # -- resources --------------------------------------------------------------------------
     def build_pems(self, cube: np.ndarray, settings: PEMSettings = PEMSettings(),
@@ -449,13 +470,15 @@ class Renderer:
         objs = self._target[1]
         return objs[0], objs[1], list(objs[4:])
 
-    def _buffer(self, name: str, data: bytes) -> moderngl.Buffer:
-        """A per-frame storage buffer, re-created only when its size changes."""
+    def _buffer(self, name: str, data: bytes, size: int | None = None) -> moderngl.Buffer:
+        """A per-frame buffer holding `data` (at its start), re-created only when its size (that of
+        the data, or `size` bytes: a uniform block's whole declared size) changes."""
+        size = len(data) if size is None else size
         buf = self._buffers.get(name)
-        if buf is None or buf.size != len(data):
+        if buf is None or buf.size != size:
             if buf is not None:
                 buf.release()
-            buf = self._buffers[name] = self.gl.ctx.buffer(reserve=len(data))
+            buf = self._buffers[name] = self.gl.ctx.buffer(reserve=size)
         buf.write(data)
         return buf
 
@@ -702,8 +725,16 @@ class Renderer:
             fbo.depth_mask = False   # the depth buffer is the geometry pass's: clear the colour only
             fbo.clear(0.0, 0.0, 0.0, 0.0)
             lights_buf.bind_to_storage_buffer(0)
+            if self._lights_block:
+                self._buffer("lights_block", lp.lights.tobytes(), self._lights_block).bind_to_uniform_block(0)
             if discs > 1:
-                self._buffer("sub_lights", pems.sub_lights_bytes(discs)).bind_to_storage_buffer(6)
+                block = self._sub_lights_block(discs)
+                buf = self._buffer("sub_lights_block" if block else "sub_lights", pems.sub_lights_bytes(discs),
+                                   block or None)
+                if block:
+                    buf.bind_to_uniform_block(6)
+                else:
+                    buf.bind_to_storage_buffer(6)
             self._gloss_buf.write(pems.gloss_table().tobytes())
             self._gloss_buf.bind_to_storage_buffer(1)
             for unit, t in enumerate(gbuf):
@@ -752,11 +783,12 @@ class Renderer:
                 # occluded sectors, half a sector at least in the shader).
                 lc = np.einsum("ij,nj->ni", view_proj[:, :3], regions.directions)
                 screen = np.stack([lc[:, 0], lc[:, 1], lc[:, 3], np.clip(disc_radius, 0.01, np.pi / 2)], axis=1)
-                self._buffer("light_screen", screen.astype(np.float32).tobytes()).bind_to_storage_buffer(5)
+                self._buffer("light_screen", screen.astype(np.float32).tobytes(), MAX_LIGHTS * 16
+                             ).bind_to_uniform_block(5)
                 p["u_image_size"] = (float(w), float(h))
                 p["u_focal_px"] = 0.5 * h / float(np.tan(np.radians(camera.fov_y_deg) / 2.0))
             order, kind_end = light_kinds(lights, plan.sharp, settings, scene.max_glossiness)
-            self._buffer("light_order", order.tobytes()).bind_to_storage_buffer(4)
+            self._buffer("light_order", order.tobytes(), MAX_LIGHTS * 4).bind_to_uniform_block(4)
             if "u_kind_end" in p:   # the compiler keeps the entries up to the last kind this variant loops over
                 p["u_kind_end"].write(kind_end[:p["u_kind_end"].array_length].tobytes())
             set_uniform(p, "u_camera_pos", tuple(float(x) for x in camera.eye))

@@ -189,12 +189,13 @@ def test_the_lighting_pass_visits_every_light_once_grouped_by_kind():
 
 
 def test_a_uniform_no_source_declares_is_an_error_and_one_a_variant_dropped_is_not(gl):
+    from renderer.config import MAX_LIGHTS
     from renderer.errors import ShaderError
     from renderer.gpu.shaders import program, set_uniform
 
     prog = program(gl.ctx, "shading/background.vert", "shading/lighting.frag",
                    {"GLOSS_TABLE_SIZE": 257, "REGIONS_PER_TEXTURE": 192, "MODE": 1,
-                    "TWO_PEM_TEXTURES": 0})
+                    "TWO_PEM_TEXTURES": 0, "MAX_LIGHTS": MAX_LIGHTS})
     try:
         assert "u_contact_radius" not in prog                 # declared under CONTACT_SHADOWS: dropped here
         set_uniform(prog, "u_contact_radius", 1.0)            # ... and setting it is no error

@@ -716,3 +716,34 @@ def test_a_frames_timings_are_the_typed_record_they_say_they_are(renderer, spher
         pems.release()
     assert set(frame.timings) == set(FrameTimings.__annotations__)
     assert frame.timings["normals"] in ("cpu", "gpu") and frame.timings["frame_wall_ms"] > 0
+
+
+@pytest.mark.parametrize("sub_lights", [1, 4])
+def test_the_per_light_tables_read_from_storage_buffers_give_the_same_image(renderer, sub_lights):
+    # The lighting pass reads the lights and the glossy discs from uniform blocks where the driver's
+    # blocks hold MAX_LIGHTS of them (llvmpipe: 64 KiB), else from storage buffers: a renderer told
+    # its driver's blocks are GL's least (16 KiB) takes the storage buffers and renders the same image.
+    cube = sun_sky_cube(32, (1.0, 1.0, 0.3), sun_radiance=400.0, sun_radius_deg=6)
+    meshes = [sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)]
+    mats = [Material((0.7, 0.4, 0.3), 0.3, 0.7), Material((0.8, 0.8, 0.8))]
+    small = Renderer(renderer.gl)
+    small._block_bytes, small._lights_block = 16 << 10, 0
+    small._defines.pop("LIGHTS_CAPACITY")
+    fs = FrameSettings(48, 48, sub_lights=sub_lights, glossy="wide", diffuse="lights", small_light_scale=1)
+    images = []
+    try:
+        for r in (renderer, small):
+            scene = r.create_scene(meshes, mats)
+            pems = r.build_pems(cube, paper_pems(24))
+            try:
+                images.append(r.render(scene, pems, fs, CAM))
+            finally:
+                pems.release()
+                scene.release()
+        # The discs' table is read only with more than one disc a region: from a block on llvmpipe.
+        assert sub_lights == 1 or (renderer._sub_lights_block(sub_lights) and not small._sub_lights_block(sub_lights))
+        assert renderer._lights_block
+    finally:
+        small.release()
+    assert covered(images[0]).mean() > 0.2
+    np.testing.assert_array_equal(images[0].image, images[1].image)

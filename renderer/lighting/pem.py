@@ -48,6 +48,8 @@ SCRATCH_BUDGET_BYTES = 64 << 20  # bound on the two float32 scratch buffers of o
 # GL_MAX_ARRAY_TEXTURE_LAYERS is 2048 on Mesa and NVIDIA: 341 cubes. 192 regions per texture keeps
 # power-of-two light counts in whole textures; 384 lights use two (the shader has two samplers).
 REGIONS_PER_TEXTURE = 192
+# Bytes per disc of sub_lights_bytes: (direction, sine of its radius), (rgb energy, 0) as float32.
+SUB_LIGHT_BYTES = 32
 MAX_TEXTURES = 2
 
 

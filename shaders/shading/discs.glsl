@@ -40,7 +40,12 @@ vec3 diffuse_from_light(int i, vec3 n) {
 // texels cut further by the same median cut (renderer/lighting/median_cut.py, SubLights); its
 // visibility, diffuse term and PEMs stay the region's.
 struct SubLight { vec4 dir_sin; vec4 energy; };   // unit direction, sine of the disc's radius; rgb
+#ifdef SUB_LIGHTS_CAPACITY
+// A uniform block where the driver's hold every light's discs (renderer.py; lighting.frag's lights).
+layout(std140, binding = 6) uniform SubLightsBlock { SubLight sub_lights[SUB_LIGHTS_CAPACITY]; };
+#else
 layout(std430, binding = 6) readonly buffer SubLights { SubLight sub_lights[]; };
+#endif
 #endif
 
 vec3 g_diffuse_exact = vec3(0.0);   // the closed-form diffuse term, added after the PEM terms' normalization

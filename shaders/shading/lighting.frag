@@ -33,9 +33,18 @@ layout(rgba32f, binding = 0) writeonly uniform image2D o_image;
 layout(early_fragment_tests) in;
 #endif
 
+// Per-light tables are uniform blocks where the driver's blocks hold them (renderer.py): llvmpipe
+// loads a block's entry once for a block of pixels, a storage buffer's per pixel.
+#ifdef LIGHTS_CAPACITY
+// std140 lays Light out as std430 does.
+layout(std140, binding = 0) uniform LightsBlock { Light lights[LIGHTS_CAPACITY]; };
+#else
 layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
+#endif
 layout(std430, binding = 1) readonly buffer GlossLevels { float level_of_g[]; };  // GLOSS_TABLE_SIZE
-layout(std430, binding = 4) readonly buffer LightOrder { int light_order[]; };      // the lights by kind
+// The lights by kind, four to an entry (a uniform block's ints are 16 bytes apart).
+layout(std140, binding = 4) uniform LightOrder { ivec4 light_order4[MAX_LIGHTS / 4]; };
+#define light_order(k) light_order4[(k) >> 2][(k) & 3]
 layout(binding = 0) uniform samplerCubeArray u_pem0;         // layer i = region i < 192, scaled by 1/scale_i
 layout(binding = 5) uniform samplerCubeArray u_pem1;         // layer i - 192 = region i >= 192
 layout(binding = 6) uniform samplerCubeArray u_pem_norm;     // layer 0: B = chain(w), the normalizer
@@ -285,7 +294,7 @@ void main() {
     // One loop per kind of light (see the top): the constants fold the choices away. Only the kinds
     // this variant can have are compiled: without diffuse PEMs (DIFFUSE_LIGHTS) none reads one, and
     // the ambient-occlusion modes read both PEMs of every light (renderer.py, light_kinds).
-#define KIND_LOOP(K) for (int k = (K) == 0 ? 0 : u_kind_end[max((K) - 1, 0)]; k < u_kind_end[K]; ++k) shade_light(light_order[k], ((K) & 1) != 0, ((K) & 2) != 0, ((K) & 4) != 0, ((K) & 8) != 0, n, glossy, ws_position);
+#define KIND_LOOP(K) for (int k = (K) == 0 ? 0 : u_kind_end[max((K) - 1, 0)]; k < u_kind_end[K]; ++k) shade_light(light_order(k), ((K) & 1) != 0, ((K) & 2) != 0, ((K) & 4) != 0, ((K) & 8) != 0, n, glossy, ws_position);
 #if defined(DIFFUSE_LIGHTS)
     KIND_LOOP(0) KIND_LOOP(2) KIND_LOOP(4) KIND_LOOP(6)
 #if TWO_PEM_TEXTURES
