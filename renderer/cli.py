@@ -608,6 +608,12 @@ def cmd_bench(args) -> int:
             importlib.import_module(f"renderer.bench.{name}").run(args.out, quick=args.quick, **extra)
             print(f"wrote {args.out}/{name}.json, {name}.md")
             return 0
+    if args.broad and args.retime is not None:
+        from .bench.broad import retime
+
+        retime(args.retime, args.out / "broad.json")
+        print(f"wrote {args.out}/broad.json, broad.md")
+        return 0
     if args.broad:
         from .bench.broad import BroadConfig, run_broad
 
@@ -785,6 +791,9 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     b.add_argument("--reference-cache", type=Path,
                    help="with --broad: the references' folder (default: $GARMENT_RENDER_REFERENCE_CACHE, else "
                         "~/.cache/garment-render/references)")
+    b.add_argument("--retime", type=Path, metavar="BROAD_JSON",
+                   help="with --broad: a stored run's frame times and the tracer's measured again on this machine, "
+                        "its errors kept (renderer.bench.broad.retime; for code that renders the same images)")
     b.add_argument("--store", action="store_true",
                    help="store the measured table in the package: budgets (--frame-budget-ms, --error-budget) choose from it")
     b.set_defaults(func=cmd_bench)

@@ -150,6 +150,22 @@ def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path):
     logged = []
     broad.run_broad(tmp_path / "out", cfg, log=logged.append, only=only)
     assert not any("rendering" in line for line in logged)
+    # Retimed on this machine: every row's time measured again, the tracer's rate beside it, the errors
+    # kept, and the speed-up at equal error the tracer's time on every core over the frame's.
+    again = broad.retime(tmp_path / "out" / "broad.json", tmp_path / "retimed" / "broad.json", frames=1,
+                         log=lambda *_: None)
+    assert (tmp_path / "retimed" / "broad.md").read_text() == broad.markdown(again)
+    before = {(r["scene"], r["preset"]): r for r in data["rows"]}
+    cores = again["retimed"]["cores"]
+    for r in again["rows"]:
+        old = before[(r["scene"], r["preset"])]
+        assert (r["rel_rmse"], r["artefact_share"], r["ref_spp"]) == (old["rel_rmse"], old["artefact_share"], old["ref_spp"])
+        rate = again["retimed"]["tracer"][r["scene"]]
+        assert r["frame_ms"] > 0 and r["ref_ms_per_spp"] == rate["ms_per_spp"] > 0
+        if r["equal_error_speedup"] is not None:
+            spp = max(1.0, r["ref_spp"] * (r["ref_noise_rel_rmse"] / np.sqrt(2.0) / r["rel_rmse"]) ** 2)
+            assert r["equal_error_speedup"] == pytest.approx(
+                (rate["setup_ms"] + spp * rate["ms_per_spp"] / cores) / r["frame_ms"])
 
 
 def test_the_knob_table_sets_each_variant_against_balanced_on_the_same_scenes():

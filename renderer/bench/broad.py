@@ -19,7 +19,10 @@ code that renders them: a rerun renders only what changed.
 Equal error is estimated, not laddered (a ladder per scene would cost more than the whole sweep): the
 reference is unbiased, so its relMSE falls as 1/spp; from the pair's floor (one render against the
 other: sqrt(2) x each one's error) the samples that reach the preset's error and their time at the
-pair's own measured rate follow. A preset within twice the truth's own error is unresolved.
+pair's own measured rate follow, the tracer on every core (its samples split evenly over them, the
+pair's rate being one thread's: the ideal split, which favours the tracer). A preset within twice the
+truth's own error is unresolved. `retime` measures a stored run's times again on another day or
+machine, the tracer's beside the presets'.
 """
 
 from __future__ import annotations
@@ -164,7 +167,7 @@ class BroadRow:
     ref_noise_rel_rmse: float
     ref_noise_flip: float
     ref_spp: int
-    ref_ms_per_spp: float
+    ref_ms_per_spp: float     # the tracer's time per sample on one thread
     equal_error_speedup: float | None   # None: unresolved (within twice the truth's own error)
     extra: dict = field(default_factory=dict)
 
@@ -211,7 +214,8 @@ def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, truth
     speedup = None
     if err > floor:   # twice the truth's own error
         spp_equal = max(1.0, spp * (floor / np.sqrt(2.0) / err) ** 2)
-        speedup = spp_equal * truth.ms_per_spp / frame_ms
+        # The tracer on every core: its samples split evenly (its rate is one thread's, setup included).
+        speedup = tracer_time_ms(spp_equal, 0.0, truth.ms_per_spp, len(os.sched_getaffinity(0))) / frame_ms
     return BroadRow(scene.name, scene.map, sets[scene.map], scene.garment, scene.fabric, scene.view, scene.size, preset,
                     frame_ms, err, mean_flip(image, truth.image, mask), art.share, art.judged, art.too_bright,
                     art.too_dark, _luminance_mean(image, mask) / max(_luminance_mean(truth.image, mask), 1e-30), bg_err,
@@ -436,9 +440,11 @@ def readme_table(data: dict) -> str:
         lines.append(f"| {preset} | {in_use[preset]['lights']} | {f'{budget:.0f} ms, ' if budget else ''}"
                      f"{s['frame_ms_median']:.0f} ms | {s['rel_rmse_median']:.3f} / {s['rel_rmse_max']:.3f} | "
                      f"{100 * s['artefact_share_median']:.2f} % | {'-' if ee is None else f'{ee:.1f}x'} |")
-    m = data["machine"]
+    m, t = data["machine"], data.get("retimed")
     lines += ["", f"Measured by `garment-render bench --broad --size 256` on {m['gl_renderer']}, {m['cores']} cores "
-              f"({m['date']}): {scenes} held-out scenes, medians over them.", README_END]
+              f"({m['date']}): {scenes} held-out scenes, medians over them"
+              + (f"; frame and tracer times by `--retime` ({t['machine']['date']}), the tracer on every core."
+                 if t else "."), README_END]
     return "\n".join(lines)
 
 
@@ -449,6 +455,86 @@ def rewrite(path: Path) -> dict:
     data["summary"], data["misses"] = summary(rows), target_misses(rows)
     Path(path).write_text(json.dumps(data, indent=1, default=float))
     Path(path).with_suffix(".md").write_text(markdown(data))
+    return data
+
+
+# The tracer's rate for retime: two renders of a scene, at RETIME_SPP[0] and [1] samples, in one thread.
+RETIME_SPP = (4, 12)
+
+
+def tracer_time_ms(spp: float, setup_ms: float, ms_per_spp: float, cores: int) -> float:
+    """The tracer's wall time for `spp` samples on `cores` cores: its setup, then the samples split
+    evenly over the cores (each core's share in one thread, as the references are made): the ideal
+    split, which favours the tracer."""
+    return setup_ms + spp * ms_per_spp / cores
+
+
+def _tracer_rate(scene: Scene) -> tuple[float, float]:
+    """(setup ms, ms per sample) of one thread rendering `scene`: the line through RETIME_SPP's times."""
+    (lo, t_lo), (hi, t_hi) = ((spp, _reference_job(scene, spp, 1)[1]) for spp in RETIME_SPP)
+    per = max((t_hi - t_lo) / (hi - lo), 1e-9) * 1e3
+    return max(t_lo * 1e3 - lo * per, 0.0), per
+
+
+def retime(path: Path, out: Path, frames: int = 3, log=print) -> dict:
+    """A stored run's times measured again on this machine: every row's frame time (its setting
+    rendered again, `frames` after a warm-up) and the tracer's rate beside it (`_tracer_rate`), and
+    the equal-error speed-ups from them with the tracer on every core of this machine
+    (`tracer_time_ms`). The errors stay the stored run's: the images of the code that retimes must be
+    the ones the run measured (a change that alters them re-runs the benchmark). Written to `out`
+    (.json and .md) with the retime's machine and date, the preset files' digest and the tracer's rates."""
+    from .. import presets as presets_mod
+    from ..gpu.context import GLContext
+    from ..renderer import Renderer
+
+    data = json.loads(Path(path).read_text())
+    rows = [BroadRow(**r) for r in data["rows"]]
+    cores = len(os.sched_getaffinity(0))
+    in_use, _ = presets_mod.presets()
+    knobs = {p: {**presets_mod.merge_knobs(in_use[p], {}), "filter": "sqrt-cosine"} for p in PRESETS}
+    knobs.update({f"balanced:{name}": {**knobs["balanced"], **v} for name, v in KNOB_VARIANTS.items()})
+    by_name = {r.scene: Scene(r.map, r.garment, r.fabric, r.view, r.size) for r in rows}
+    todo = sorted(by_name, key=lambda n: (by_name[n].map, by_name[n].garment, by_name[n].size))
+    rates: dict[str, dict] = {}
+    gl = GLContext()
+    machine = machine_info(gl)
+    res: MapResources | None = None
+    try:
+        with Renderer(gl) as r:
+            for k, name in enumerate(todo):
+                scene = by_name[name]
+                mine = [x for x in rows if x.scene == name]
+                if res is None or res.name != scene.map:
+                    if res is not None:
+                        res.release()
+                    res = MapResources(r, scene.map)
+                times = render_presets(r, scene, {x.preset: knobs[x.preset] for x in mine}, frames, res)
+                setup, per = _tracer_rate(scene)
+                rates[name] = {"setup_ms": setup, "ms_per_spp": per}
+                for x in mine:
+                    x.frame_ms = times[x.preset][1]
+                    x.ref_ms_per_spp = per
+                    x.equal_error_speedup = None
+                    if x.rel_rmse > x.ref_noise_rel_rmse:   # as `measure`: twice the truth's own error
+                        spp_equal = max(1.0, x.ref_spp * (x.ref_noise_rel_rmse / np.sqrt(2.0) / x.rel_rmse) ** 2)
+                        x.equal_error_speedup = tracer_time_ms(spp_equal, setup, per, cores) / x.frame_ms
+                b = next((x for x in mine if x.preset == "balanced"), mine[0])
+                log(f"[{k + 1}/{len(todo)}] {name}: {b.preset} {b.frame_ms:.0f} ms, tracer {per:.0f} ms a sample "
+                    f"on one thread (+{setup:.0f} ms)")
+            if res is not None:
+                res.release()
+    finally:
+        gl.release()
+    from ..presets import presets_digest
+
+    data["retimed"] = {"machine": machine, "from": str(path), "cores": cores, "frames": frames,
+                       "presets_digest": presets_digest(), "tracer": rates}
+    data["rows"] = [asdict(x) for x in rows]
+    data["summary"], data["misses"] = summary(rows), target_misses(rows)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(data, indent=1, default=float))
+    out.with_suffix(".md").write_text(markdown(data))
     return data
 
 
@@ -508,6 +594,17 @@ def _pct(x: float) -> str:
     return f"{100 * x:.2f} %"
 
 
+def _retimed_lines(data: dict) -> list[str]:
+    """A retimed run's line: where its times come from (its errors are the run's above)."""
+    t = data.get("retimed")
+    if t is None:
+        return []
+    m = t["machine"]
+    return [f"Times retimed by `garment-render bench --broad --retime {t['from']}` on {m['gl_renderer']}, {t['cores']} "
+            f"cores, {m['date']}: every frame time ({t['frames']} frames after a warm-up) and the tracer's rate "
+            "(one thread, its setup and time per sample) measured then; the errors are the run's."]
+
+
 def markdown(data: dict) -> str:
     m, cfg = data["machine"], data["config"]
     rows = data["rows"]
@@ -516,7 +613,7 @@ def markdown(data: dict) -> str:
              f"Machine: {m['gl_renderer']} (GL {m['gl_version']}), {m['cores']} cores, {m['date']}. Presets: {data['presets']}.",
              f"References: two per scene, {cfg['spp_small']} spp at 128 x 128 and {cfg['spp_large']} at 256 x 256 "
              f"(cached; {data['reference_s']:.0f} s rendering this run). Command: `garment-render bench --broad"
-             f"{' --quick' if cfg['quick'] else ''}{_size_flag(cfg)}`.", "",
+             f"{' --quick' if cfg['quick'] else ''}{_size_flag(cfg)}`.", *_retimed_lines(data), "",
              "Tuning maps: " + ", ".join(k for k, v in sets.items() if v == "tuning") + ".",
              "Held-out maps: " + ", ".join(k for k, v in sets.items() if v == "held-out") + ".", "",
              "## Summary (median / worst over the scenes)", "",
