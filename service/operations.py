@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import hashlib
 import time
 from dataclasses import dataclass, field
@@ -211,6 +212,8 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
         meshes=[SceneMeshInfo(role, m.name, m.n_vertices, m.n_faces, m.uvs is not None, m.faces)
                 for role, m in zip(prepared.roles, prepared.meshes)],
         quality=q.info, output=body.output.model_dump(), pem_key=key)
+    if svc.state is not None:   # one frame sequence for every process that renders the scene
+        record.frame_counter = functools.partial(svc.state.count_frames, record.id)
 
     def job(gl: GLResources) -> None:
         pems, source = gl.pem_set(env.content_hash, cube, pem)

@@ -8,6 +8,7 @@ import secrets
 import threading
 import time
 from collections import OrderedDict, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -275,6 +276,8 @@ class SceneRecord:
     gpu: Scene | None = None
     released: bool = False
     frames_rendered: int = 0
+    # The count of every process that renders this scene (StateDir.count_frames), where there is one.
+    frame_counter: Callable[[int], int] | None = field(default=None, repr=False)
     created: float = field(default_factory=time.time)
     last_used: float = field(default_factory=time.monotonic)   # its last frame or lookup (monotonic s)
     latest: LatestFrame | None = None
@@ -288,8 +291,11 @@ class SceneRecord:
             self.gpu = None
 
     def count_frames(self, n: int = 1) -> int:
+        """The scene's frame sequence after `n` more frames: this process's count, or every process's
+        where the scene has a shared counter (replicas behind Ray, uvicorn's workers)."""
         with self._lock:
-            self.frames_rendered += n
+            self.frames_rendered = (self.frames_rendered + n if self.frame_counter is None
+                                    else self.frame_counter(n))
             return self.frames_rendered
 
     def keep_latest(self, frame: LatestFrame) -> None:

@@ -4,13 +4,17 @@ restarted one can restore them on first use, by id. Without a state directory th
 memory of the process that made them.
 
 Layout: environments/<id>.json (how it was uploaded) + environments/<id>.<exr|hdr> (the bytes as
-uploaded); scenes/<id>.json (the SceneCreate body, meshes inline). Files are written to a temporary
-name and renamed, so a reader never sees half a file.
+uploaded); scenes/<id>.json (the SceneCreate body, meshes inline); scenes/<id>.frames (the frames
+rendered of the scene by every process, one counter under a file lock: the service's frame sequence
+is one for all of them). Files are written to a temporary name and renamed, so a reader never sees
+half a file.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
+import os
 from pathlib import Path
 
 from renderer.atomic import atomic_file, remove_orphaned_temporaries
@@ -71,3 +75,18 @@ class StateDir:
 
     def delete_scene(self, scene_id: str) -> None:
         (self.scenes / f"{_safe_id(scene_id)}.json").unlink(missing_ok=True)
+        (self.scenes / f"{_safe_id(scene_id)}.frames").unlink(missing_ok=True)
+
+    def count_frames(self, scene_id: str, n: int = 1) -> int:
+        """Add `n` frames to the scene's count over every process that renders it and return the new
+        count (an exclusive lock on its file: processes on one machine, or on a file system whose
+        locks reach every node)."""
+        fd = os.open(self.scenes / f"{_safe_id(scene_id)}.frames", os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            raw = os.pread(fd, 8, 0)
+            count = (int.from_bytes(raw, "little") if len(raw) == 8 else 0) + n
+            os.pwrite(fd, count.to_bytes(8, "little"), 0)
+            return count
+        finally:
+            os.close(fd)   # and with it the lock

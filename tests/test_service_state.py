@@ -58,7 +58,9 @@ def test_two_processes_share_scenes_through_the_state_dir(tmp_path):
                            timeout=60)
             assert r.status_code == 200, r.text
             assert r.headers["x-render-process"] == str(srv.proc.pid)
-        assert httpx.get(f"{b.url}/scenes/{sid}").json()["frames_rendered"] == 2
+            # One sequence for the scene, whichever process renders it (the state dir's counter).
+            assert r.headers["x-frame-sequence"] == str(k + 1)
+        assert [httpx.get(f"{s.url}/scenes/{sid}").json()["frames_rendered"] for s in (a, b)] == [4, 4]
     finally:
         a.stop()
         b.stop()
@@ -135,3 +137,33 @@ def test_a_restarted_service_lists_its_stored_scenes_and_unknown_ids_leave_nothi
         assert state["temporaries_removed"] == 1
     finally:
         second.stop()
+
+
+def _count(root, scene_id, times, out):
+    from service.state import StateDir
+
+    state = StateDir(root)
+    out.put([state.count_frames(scene_id) for _ in range(times)])
+
+
+def test_the_frame_count_is_one_sequence_over_processes(tmp_path):
+    """StateDir.count_frames under its file lock: two processes counting the same scene at once get
+    every number once; another scene counts apart; deleting the scene ends its count."""
+    import multiprocessing as mp
+
+    from service.state import StateDir
+
+    ctx = mp.get_context("spawn")
+    out = ctx.Queue()
+    procs = [ctx.Process(target=_count, args=(tmp_path, "scn_0a", 200, out)) for _ in range(2)]
+    for p in procs:
+        p.start()
+    got = [out.get(timeout=120) for _ in procs]
+    for p in procs:
+        p.join(timeout=60)
+    assert sorted(got[0] + got[1]) == list(range(1, 401))
+    assert all(a < b for g in got for a, b in zip(g, g[1:]))   # each process's own answers rise
+    state = StateDir(tmp_path)
+    assert (state.count_frames("scn_0a", 0), state.count_frames("scn_0b", 2)) == (400, 2)
+    state.delete_scene("scn_0a")
+    assert state.count_frames("scn_0a", 0) == 0

@@ -39,7 +39,7 @@ def _page() -> str:
 
 def latest_info(rec: SceneRecord) -> dict:
     frame = rec.latest
-    info: dict = {"scene_id": rec.id, "name": rec.name, "frames_rendered": rec.frames_rendered, "frame": None}
+    info: dict = {"scene_id": rec.id, "name": rec.name, "frames_rendered": rec.count_frames(0), "frame": None}
     if frame is not None:
         h, w = frame.image.shape[:2]
         rate = rec.frame_rate_hz()
