@@ -195,7 +195,10 @@ class RenderReplica:
             await self.scene(r.json()["id"])   # the registering replica holds its scene
         elif request.method == "GET" and path == "/metrics" and r.status_code == 200:
             content = await self._all_metrics(content)
-        out = {k: v for k, v in r.headers.items() if k.lower() not in ("content-length", "transfer-encoding")}
+        # Serve's proxy answers with the request's id itself, the one it gave the request (the client's,
+        # else its own), which the service took as the request's id: the service's copy would repeat it.
+        out = {k: v for k, v in r.headers.items()
+               if k.lower() not in ("content-length", "transfer-encoding", "x-request-id")}
         out["X-Replica"] = self.name
         return Response(content, status_code=r.status_code, headers=out)
 

@@ -83,14 +83,19 @@ def test_scenes_stay_on_their_replica_and_survive_one_dying(cluster, tmp_path):
         # Kill the replica holding the first scene half way through its sequence.
         sid = scenes[0]["id"]
         victim = next(n for n in _replicas(cluster["env"]) if n.endswith(owners[sid]))
-        got = {}
+        got, sequence = {}, []
         for k, positions in enumerate(frames):
             if k == 4:
                 _kill(cluster["env"], victim)
             f = c.send_frame(sid, positions, frame_index=k)
             assert f.frame_index == k and k not in got
             got[k] = (f.array(), f.headers["x-replica"])
+            sequence.append(int(f.headers["x-frame-sequence"]))
+            assert "," not in f.headers["x-request-id"]   # one id, not the proxy's and the service's
         assert sorted(got) == list(range(len(frames)))
+        # One count for the scene on every replica (the shared state directory's), rising across the
+        # kill: each frame answered once, a frame the killed replica had counted only skipped.
+        assert all(a < b for a, b in zip(sequence, sequence[1:])) and sequence[0] > 3, sequence
         # Before the kill, its owner answered; after it, another replica did (from the stored registration).
         assert {got[k][1] for k in range(4)} == {owners[sid]}
         assert all(got[k][1] != owners[sid] for k in range(4, len(frames))), [g[1] for g in got.values()]
