@@ -608,6 +608,12 @@ def cmd_bench(args) -> int:
             importlib.import_module(f"renderer.bench.{name}").run(args.out, quick=args.quick, **extra)
             print(f"wrote {args.out}/{name}.json, {name}.md")
             return 0
+    if args.broad and args.curve is not None:
+        from .bench.curve import run as trade_curve
+
+        trade_curve(args.curve, args.out, size=args.size or 256)
+        print(f"wrote {args.out}/trade_curve.json, .md, .png")
+        return 0
     if args.broad and args.retime is not None:
         from .bench.broad import retime
 
@@ -794,6 +800,10 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     b.add_argument("--retime", type=Path, metavar="BROAD_JSON",
                    help="with --broad: a stored run's frame times and the tracer's measured again on this machine, "
                         "its errors kept (renderer.bench.broad.retime; for code that renders the same images)")
+    b.add_argument("--curve", type=Path, metavar="BROAD_JSON",
+                   help="with --broad: the trade curve of a stored run: frame time against held-out error for every "
+                        "preset and knob variant beside the tracer's at 4-1024 samples (renderer/bench/curve.py; "
+                        "--size: 256 by default)")
     b.add_argument("--store", action="store_true",
                    help="store the measured table in the package: budgets (--frame-budget-ms, --error-budget) choose from it")
     b.set_defaults(func=cmd_bench)

@@ -1,0 +1,55 @@
+"""The trade curve of a stored broad run (renderer/bench/curve.py): a point per setting, the tracer's
+points from the run's model, and which settings are on the lower envelope of both methods."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from renderer.bench import curve
+from renderer.bench.broad import BroadRow
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _row(scene, preset, ms, err, floor=0.03, rate=50.0):
+    return BroadRow(scene, "m.hdr", "held-out", "shirt", "sheen", "front", 256, preset, ms, err, 0.1, 0.0, 1.0, 0, 0,
+                    1.0, 0.0, floor, 0.02, 1024, rate, None).__dict__
+
+
+def _run(rows, cores=2, setup=100.0):
+    scenes = sorted({r["scene"] for r in rows})
+    return {"machine": {"gl_renderer": "llvmpipe (x)", "cores": cores, "date": "d1"}, "rows": rows,
+            "retimed": {"cores": cores, "machine": {"gl_renderer": "llvmpipe (x)", "date": "d2"},
+                        "tracer": {s: {"setup_ms": setup, "ms_per_spp": 50.0} for s in scenes}}}
+
+
+def test_the_tracer_points_follow_the_runs_model_and_the_envelope_is_judged_against_both():
+    rows = [_row(s, "fast", 50.0, 0.30) for s in "ab"] + [_row(s, "balanced", 100.0, 0.10) for s in "ab"]
+    rows += [_row(s, "slow", 200.0, 0.12) for s in "ab"]              # slower and worse than balanced
+    rows += [_row(s, "beaten", 5000.0, 0.05) for s in "ab"]           # the tracer is there sooner
+    c = curve.trade_curve(_run(rows))
+    t = {p["spp"]: p for p in c["tracer"]}
+    # One render of N samples: floor / sqrt(2) x sqrt(1024 / N); its time: setup + N x rate / cores.
+    assert t[64]["rel_rmse_median"] == pytest.approx(0.03 / np.sqrt(2) * 4)
+    assert t[64]["time_ms_median"] == pytest.approx(100.0 + 64 * 50.0 / 2)
+    p = {q["setting"]: q for q in c["points"]}
+    assert p["balanced"]["on_envelope"] and p["fast"]["on_envelope"]
+    assert p["slow"]["dominated_by"] == ["balanced"] and p["beaten"]["dominated_by"] == ["tracer"]
+    # The tracer's time at balanced's error, interpolated in log-log between its points.
+    # (about 46 samples: 1024 x (0.03 / sqrt(2) / 0.10)^2)
+    assert 100.0 + 32 * 25.0 < p["balanced"]["tracer_ms_at_its_error"] < 100.0 + 64 * 25.0
+    assert p["balanced"]["x_tracer"] == pytest.approx(p["balanced"]["tracer_ms_at_its_error"] / 100.0)
+    assert p["fast"]["x_tracer"] is None or p["fast"]["x_tracer"] > 0
+    text = curve.markdown(c, "run.json")
+    assert "| balanced | 100 (100) | 0.100 (0.100) |" in text and "no: tracer" in text
+    with pytest.raises(ValueError, match="no tuning rows"):
+        curve.trade_curve(_run(rows), which="tuning")
+
+
+def test_the_stored_curve_is_what_its_run_makes():
+    stored = json.loads((ROOT / "docs" / "broad" / "trade_curve.json").read_text())
+    made = curve.trade_curve(json.loads((ROOT / "docs" / "broad" / "broad-256.json").read_text()))
+    assert stored == json.loads(json.dumps(made))
+    assert (ROOT / "docs" / "broad" / "trade_curve.md").read_text() == curve.markdown(made, "docs/broad/broad-256.json")
