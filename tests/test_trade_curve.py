@@ -53,3 +53,12 @@ def test_the_stored_curve_is_what_its_run_makes():
     made = curve.trade_curve(json.loads((ROOT / "docs" / "broad" / "broad-256.json").read_text()))
     assert stored == json.loads(json.dumps(made))
     assert (ROOT / "docs" / "broad" / "trade_curve.md").read_text() == curve.markdown(made, "docs/broad/broad-256.json")
+
+
+def test_a_retime_of_a_run_with_settings_this_code_lacks_is_refused(tmp_path):
+    from renderer.bench import broad
+
+    run = _run([_row("shirt/sheen/front/m@256", "balanced:gone=1", 100.0, 0.1)])
+    (tmp_path / "run.json").write_text(json.dumps(run))
+    with pytest.raises(ValueError, match=r"balanced:gone=1.*run the benchmark again"):
+        broad.retime(tmp_path / "run.json", tmp_path / "out" / "broad.json")

@@ -493,6 +493,10 @@ def retime(path: Path, out: Path, frames: int = 3, log=print) -> dict:
     in_use, _ = presets_mod.presets()
     knobs = {p: {**presets_mod.merge_knobs(in_use[p], {}), "filter": "sqrt-cosine"} for p in PRESETS}
     knobs.update({f"balanced:{name}": {**knobs["balanced"], **v} for name, v in KNOB_VARIANTS.items()})
+    unknown = sorted({r.preset for r in rows} - set(knobs))
+    if unknown:
+        raise ValueError(f"{path} has rows of settings this code does not define ({', '.join(unknown)}): "
+                         "run the benchmark again instead")
     by_name = {r.scene: Scene(r.map, r.garment, r.fabric, r.view, r.size) for r in rows}
     todo = sorted(by_name, key=lambda n: (by_name[n].map, by_name[n].garment, by_name[n].size))
     rates: dict[str, dict] = {}
