@@ -337,11 +337,9 @@ class Renderer:
         # block's entry once for a block of pixels and gathers a storage buffer's per pixel (the shirt
         # on its form, balanced: shading 135 -> about 70 ms); else from storage buffers.
         self._block_bytes = int(ctx.info["GL_MAX_UNIFORM_BLOCK_SIZE"])
-        self._lights_block = MAX_LIGHTS * LIGHT_DTYPE.itemsize
-        if self._lights_block <= self._block_bytes:
+        self._lights_block = self._uniform_block(MAX_LIGHTS * LIGHT_DTYPE.itemsize)
+        if self._lights_block:
             defines["LIGHTS_CAPACITY"] = MAX_LIGHTS
-        else:
-            self._lights_block = 0
         self._defines = defines
         self._shade_progs: dict[tuple, tuple[moderngl.Program, moderngl.VertexArray]] = {}
         self.bg_prog = program(ctx, "shading/background.vert", "shading/background.frag")
@@ -409,11 +407,15 @@ class Renderer:
                 self._shade_progs[key] = (prog, self.gl.ctx.vertex_array(prog, []))
         return self._shade_progs[key]
 
-    def _sub_lights_block(self, sub_lights: int) -> int:
-        """The bytes of the glossy discs' uniform block at `sub_lights` discs per light (0: more than
-        the driver's blocks hold; a storage buffer instead)."""
-        size = MAX_LIGHTS * sub_lights * SUB_LIGHT_BYTES
+    def _uniform_block(self, size: int) -> int:
+        """`size` when a uniform block of that many bytes fits the driver's, else 0 (a storage buffer
+        instead)."""
         return size if size <= self._block_bytes else 0
+
+    def _sub_lights_block(self, sub_lights: int) -> int:
+        """The bytes of the glossy discs' uniform block at `sub_lights` discs per light (0: a storage
+        buffer)."""
+        return self._uniform_block(MAX_LIGHTS * sub_lights * SUB_LIGHT_BYTES)
 
     # -- resources --------------------------------------------------------------------------
     def build_pems(self, cube: np.ndarray, settings: PEMSettings = PEMSettings(),
@@ -540,7 +542,9 @@ class Renderer:
         seen = [b for b in (scene.visible_bounds(vp) for vp in view_projs) if b is not None]
         receivers = (np.min([b[0] for b in seen], axis=0), np.max([b[1] for b in seen], axis=0)) if seen else None
         lp = self._light_plan(scene, pems, settings, receivers)
-        lights_buf = self._buffer("lights", lp.lights.tobytes())
+        # One buffer for the storage-buffer readers and, where it fits, the lighting pass's uniform block
+        # (then the block's whole declared size).
+        lights_buf = self._buffer("lights", lp.lights.tobytes(), self._lights_block or None)
         arrays = self._shadow_pass(scene, settings, lp, lights_buf, shared)
 
         fbo, gbuf_fbo, gbuf = self._target_for(w, h, scene.has_pbr)
@@ -726,7 +730,7 @@ class Renderer:
             fbo.clear(0.0, 0.0, 0.0, 0.0)
             lights_buf.bind_to_storage_buffer(0)
             if self._lights_block:
-                self._buffer("lights_block", lp.lights.tobytes(), self._lights_block).bind_to_uniform_block(0)
+                lights_buf.bind_to_uniform_block(0)
             if discs > 1:
                 block = self._sub_lights_block(discs)
                 buf = self._buffer("sub_lights_block" if block else "sub_lights", pems.sub_lights_bytes(discs),

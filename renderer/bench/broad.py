@@ -213,9 +213,9 @@ def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, truth
     floor = truth.floor_rel_rmse
     speedup = None
     if err > floor:   # twice the truth's own error
-        spp_equal = max(1.0, spp * (floor / np.sqrt(2.0) / err) ** 2)
         # The tracer on every core: its samples split evenly (its rate is one thread's, setup included).
-        speedup = tracer_time_ms(spp_equal, 0.0, truth.ms_per_spp, len(os.sched_getaffinity(0))) / frame_ms
+        speedup = tracer_time_ms(spp_at_error(err, floor, spp), 0.0, truth.ms_per_spp,
+                                 len(os.sched_getaffinity(0))) / frame_ms
     return BroadRow(scene.name, scene.map, sets[scene.map], scene.garment, scene.fabric, scene.view, scene.size, preset,
                     frame_ms, err, mean_flip(image, truth.image, mask), art.share, art.judged, art.too_bright,
                     art.too_dark, _luminance_mean(image, mask) / max(_luminance_mean(truth.image, mask), 1e-30), bg_err,
@@ -330,7 +330,7 @@ def run_broad(out_dir: Path, cfg: BroadConfig, log=print, only: list[Scene] | No
     ensure_references(todo, cfg.spp_of, cache, workers, log)
     ref_s = time.perf_counter() - t0
     in_use, source = presets_mod.presets()
-    knobs_of = {p: {**presets_mod.merge_knobs(in_use[p], {}), "filter": "sqrt-cosine"} for p in PRESETS}
+    knobs_of = setting_knobs(in_use)
     sets = split()
     rows: list[BroadRow] = []
     gl = GLContext()
@@ -344,9 +344,9 @@ def run_broad(out_dir: Path, cfg: BroadConfig, log=print, only: list[Scene] | No
                 if res is not None:
                     res.release()
                 res = MapResources(r, scene.map)
-            settings = dict(knobs_of)
-            if cfg.knobs and sets[scene.map] == "held-out" and (scene.size > 128 or scene.fabric == KNOB_SMALL_FABRIC):
-                settings.update({f"balanced:{name}": {**knobs_of["balanced"], **v} for name, v in KNOB_VARIANTS.items()})
+            knob_scene = cfg.knobs and sets[scene.map] == "held-out" and (scene.size > 128 or
+                                                                        scene.fabric == KNOB_SMALL_FABRIC)
+            settings = {p: k for p, k in knobs_of.items() if knob_scene or ":" not in p}
             images = render_presets(r, scene, settings, cfg.frames if scene.size > 128 else cfg.frames_small, res)
             truth = Truth.of(ref_a, ref_b, spp,
                              background_truth(res.image, res.layout, scene.camera(), scene.size, scene.size))
@@ -469,9 +469,31 @@ def tracer_time_ms(spp: float, setup_ms: float, ms_per_spp: float, cores: int) -
     return setup_ms + spp * ms_per_spp / cores
 
 
-def _tracer_rate(scene: Scene) -> tuple[float, float]:
-    """(setup ms, ms per sample) of one thread rendering `scene`: the line through RETIME_SPP's times."""
-    (lo, t_lo), (hi, t_hi) = ((spp, _reference_job(scene, spp, 1)[1]) for spp in RETIME_SPP)
+def error_at_spp(spp: float, floor: float, ref_spp: int) -> float:
+    """The tracer's rel. RMSE at `spp` samples: one render of `ref_spp` is off by the pair's floor /
+    sqrt(2), and its relMSE falls as 1/spp (it is unbiased)."""
+    return floor / np.sqrt(2.0) * np.sqrt(ref_spp / spp)
+
+
+def spp_at_error(error: float, floor: float, ref_spp: int) -> float:
+    """The samples at which the tracer reaches `error` (at least one): error_at_spp's inverse."""
+    return max(1.0, ref_spp * (floor / np.sqrt(2.0) / error) ** 2)
+
+
+def setting_knobs(in_use: dict) -> dict[str, dict]:
+    """Every setting the benchmark renders, by its row name: the presets (`in_use`, presets.presets()'s
+    table, as the CLI and service apply them) and balanced with each knob variant ("balanced:NAME")."""
+    from .. import presets as presets_mod
+
+    knobs = {p: {**presets_mod.merge_knobs(in_use[p], {}), "filter": "sqrt-cosine"} for p in PRESETS}
+    knobs.update({f"balanced:{name}": {**knobs["balanced"], **v} for name, v in KNOB_VARIANTS.items()})
+    return knobs
+
+
+def _tracer_rate(scene: Scene, pool) -> tuple[float, float]:
+    """(setup ms, ms per sample) of one thread rendering `scene` in `pool` (one_thread_pool): the line
+    through RETIME_SPP's times."""
+    (lo, t_lo), (hi, t_hi) = ((spp, pool.submit(_reference_job, scene, spp, 1).result()[1]) for spp in RETIME_SPP)
     per = max((t_hi - t_lo) / (hi - lo), 1e-9) * 1e3
     return max(t_lo * 1e3 - lo * per, 0.0), per
 
@@ -490,9 +512,7 @@ def retime(path: Path, out: Path, frames: int = 3, log=print) -> dict:
     data = json.loads(Path(path).read_text())
     rows = [BroadRow(**r) for r in data["rows"]]
     cores = len(os.sched_getaffinity(0))
-    in_use, _ = presets_mod.presets()
-    knobs = {p: {**presets_mod.merge_knobs(in_use[p], {}), "filter": "sqrt-cosine"} for p in PRESETS}
-    knobs.update({f"balanced:{name}": {**knobs["balanced"], **v} for name, v in KNOB_VARIANTS.items()})
+    knobs = setting_knobs(presets_mod.presets()[0])
     unknown = sorted({r.preset for r in rows} - set(knobs))
     if unknown:
         raise ValueError(f"{path} has rows of settings this code does not define ({', '.join(unknown)}): "
@@ -504,7 +524,8 @@ def retime(path: Path, out: Path, frames: int = 3, log=print) -> dict:
     machine = machine_info(gl)
     res: MapResources | None = None
     try:
-        with Renderer(gl) as r:
+        # The tracer timed as its references are made: in a process of one thread.
+        with Renderer(gl) as r, one_thread_pool(1) as pool:
             for k, name in enumerate(todo):
                 scene = by_name[name]
                 mine = [x for x in rows if x.scene == name]
@@ -513,15 +534,15 @@ def retime(path: Path, out: Path, frames: int = 3, log=print) -> dict:
                         res.release()
                     res = MapResources(r, scene.map)
                 times = render_presets(r, scene, {x.preset: knobs[x.preset] for x in mine}, frames, res)
-                setup, per = _tracer_rate(scene)
+                setup, per = _tracer_rate(scene, pool)
                 rates[name] = {"setup_ms": setup, "ms_per_spp": per}
                 for x in mine:
                     x.frame_ms = times[x.preset][1]
                     x.ref_ms_per_spp = per
                     x.equal_error_speedup = None
                     if x.rel_rmse > x.ref_noise_rel_rmse:   # as `measure`: twice the truth's own error
-                        spp_equal = max(1.0, x.ref_spp * (x.ref_noise_rel_rmse / np.sqrt(2.0) / x.rel_rmse) ** 2)
-                        x.equal_error_speedup = tracer_time_ms(spp_equal, setup, per, cores) / x.frame_ms
+                        spp = spp_at_error(x.rel_rmse, x.ref_noise_rel_rmse, x.ref_spp)
+                        x.equal_error_speedup = tracer_time_ms(spp, setup, per, cores) / x.frame_ms
                 b = next((x for x in mine if x.preset == "balanced"), mine[0])
                 log(f"[{k + 1}/{len(todo)}] {name}: {b.preset} {b.frame_ms:.0f} ms, tracer {per:.0f} ms a sample "
                     f"on one thread (+{setup:.0f} ms)")

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .broad import tracer_time_ms
+from .broad import error_at_spp, tracer_time_ms
 
 TRACER_SPP = (4, 8, 16, 32, 64, 128, 256, 512, 1024)
 
@@ -56,7 +56,7 @@ def trade_curve(data: dict, size: int = 256, which: str = "held-out") -> dict:
     scenes = {r["scene"]: r for r in rows}   # one row per scene carries its truth's floor and rate
     tracer = []
     for spp in TRACER_SPP:
-        err = np.array([r["ref_noise_rel_rmse"] / np.sqrt(2.0) * np.sqrt(r["ref_spp"] / spp) for r in scenes.values()])
+        err = np.array([error_at_spp(spp, r["ref_noise_rel_rmse"], r["ref_spp"]) for r in scenes.values()])
         ms = np.array([tracer_time_ms(spp, setup.get(name, 0.0), r["ref_ms_per_spp"], cores)
                        for name, r in scenes.items()])
         tracer.append({"spp": spp, "time_ms_median": float(np.median(ms)), "time_ms_max": float(ms.max()),

@@ -109,8 +109,6 @@ class ShadowMaps:
         draw everything every frame)."""
         gl, ctx = self.gl, self.gl.ctx
         gl.check_thread()
-        lights_buffer.bind_to_storage_buffer(0)
-        shadow_lights_buffer.bind_to_storage_buffer(2)
         n = self.n_lights
         view_projs = np.ascontiguousarray(view_projs, np.float32)
         if view_projs.shape != (n, 16):
@@ -154,6 +152,8 @@ class ShadowMaps:
         self.still_hits += int(hit)
         if blur:
             with gl.stage(timer, "blur"):   # the runs drawn: group 1's kept layers are blurred already
+                lights_buffer.bind_to_storage_buffer(0)          # each layer's light's width
+                shadow_lights_buffer.bind_to_storage_buffer(2)
                 self._blur(len(drawn) * n)
         if mipmaps:
             with gl.stage(timer, "blur"):   # the penumbrae's filtering, as the blur is
