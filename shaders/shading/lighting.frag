@@ -87,6 +87,7 @@ const float PI = 3.14159265358979;
 
 float linstep(float lo, float hi, float x) { return clamp((x - lo) / (hi - lo), 0.0, 1.0); }
 
+vec3 g_geometric_normal = vec3(0.0, 0.0, 1.0);  // the triangle's plane, facing the camera
 #include "shading/vsm.glsl"
 
 #ifdef CONTACT_SHADOWS
@@ -100,7 +101,6 @@ float gloss_level(float g) {
 }
 
 // Accumulators of main(), shared with add_light() (GLSL has no closures).
-vec3 g_geometric_normal = vec3(0.0, 0.0, 1.0);  // the triangle's plane, facing the camera
 ivec2 g_px = ivec2(0);                          // the pixel shaded
 vec3 g_to_eye = vec3(0.0, 0.0, 1.0);            // unit, from the pixel's surface point to the eye
 vec3 g_diffuse = vec3(0.0), g_ao_rgb = vec3(0.0), g_ao_norm = vec3(0.0);

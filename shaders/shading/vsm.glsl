@@ -72,6 +72,17 @@ float soft_visibility(vec2 uv, float layer, bool zw, float t, float least_varian
 }
 #endif
 
+// Whether the receiver's own group judges light i. From a direction below the triangle's plane the
+// map sees the surface itself in front of the point (a convex body's far side), an occlusion that the
+// terms' horizon already removes (the closed forms are clipped there, the glossy terms keep the
+// disc's share above the plane): judged again, a region that straddles the plane would be lit all or
+// nothing by where its centre falls. Its part above the plane is judged by the other group alone, as
+// the oracle (renderer/reference/visibility.py) counts only the rays above the plane. White furnace
+// at 6 lights: 4.4 % dark, its worst pixel 15 %, before; as the lights alone after (tests/test_render.py).
+bool own_counts(int i) {
+    return dot(g_geometric_normal, lights[i].dir_scale.xyz) >= 0.0;
+}
+
 // VIS_i from the light's variance shadow map: the smaller of the receiver's own group's visibility
 // and the other group's. Against its own group a surface needs a bias not to shadow itself (the
 // lookup pushed off it along n, a floor on the depths' deviation); against the other group it does
@@ -99,7 +110,8 @@ float visibility(int i, vec3 ws_pos, vec3 n, bool sharp) {
             return u_two_groups ? min(v, soft_visibility(uv0, layer, true, t0, 1e-7, spread)) : v;
         }
         float floor_sigma = u_min_sigma_texels * lights[i].params.y;
-        float own = soft_visibility(uv, layer, g_shadow_group != 0, t, max(floor_sigma * floor_sigma, 1e-7), spread);
+        float own = own_counts(i) ? soft_visibility(uv, layer, g_shadow_group != 0, t,
+                                                    max(floor_sigma * floor_sigma, 1e-7), spread) : 1.0;
         if (!u_two_groups) return own;
         return min(own, soft_visibility(uv0, layer, g_shadow_group == 0, t0, 1e-7, spread));
     }
@@ -112,7 +124,8 @@ float visibility(int i, vec3 ws_pos, vec3 n, bool sharp) {
     // deviation, in the light's own texels, keeps a surface from shadowing itself.
     float floor_sigma = u_min_sigma_texels * lights[i].params.y;
     // 1e-7: float32's cancellation in m.y - m.x^2 (depths in [0, 1]), the floor when the knob is 0.
-    float own = group_visibility(uv, layer, sharp, g_shadow_group != 0, t, max(floor_sigma * floor_sigma, 1e-7));
+    float own = own_counts(i) ? group_visibility(uv, layer, sharp, g_shadow_group != 0, t,
+                                                 max(floor_sigma * floor_sigma, 1e-7)) : 1.0;
     if (!u_two_groups) return own;
     return min(own, group_visibility(uv0, layer, sharp, g_shadow_group == 0, t0, 1e-7));
 }
