@@ -6,8 +6,10 @@ a single process's."""
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -24,10 +26,12 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def cluster(tmp_path_factory):
+def cluster():
     from service.load import serve_ray
 
-    tmp = tmp_path_factory.mktemp("ray")
+    # Under a short root: Ray's sockets are AF_UNIX paths (at most 107 bytes), and pytest's own folder
+    # under a parallel run's worker is too deep for them.
+    tmp = Path(tempfile.mkdtemp(prefix="ray-", dir="/tmp"))
     # Without GARMENT_RENDER_STATE_DIR: a local instance's replicas share the user's default directory.
     proc, url, env = serve_ray(2, tmp, timeout_s=240, state_dir=False)
     try:
@@ -38,6 +42,7 @@ def cluster(tmp_path_factory):
             proc.wait(timeout=60)
         except subprocess.TimeoutExpired:
             proc.kill()
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _replicas(env) -> list[str]:
