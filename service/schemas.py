@@ -121,6 +121,11 @@ QualitySpec = create_model("QualitySpec", __base__=_QualityBase, __module__=__na
                            **{st.name: _registry_field(st) for st in config.SETTINGS})
 
 
+# A 3-vector: a list of exactly three numbers (minItems = maxItems = 3 in the schema, which every
+# OpenAPI tool reads; a tuple's prefixItems is JSON Schema 2020-12 alone and some read it as an error).
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+
+
 class OutputSpec(_Strict):
     width: int = Field(512, ge=1)
     height: int = Field(512, ge=1)
@@ -130,9 +135,9 @@ class OutputSpec(_Strict):
 
 
 class CameraSpec(_Strict):
-    eye: tuple[float, float, float]
-    target: tuple[float, float, float]
-    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    eye: Vec3
+    target: Vec3
+    up: Vec3 = Field(default_factory=lambda: [0.0, 1.0, 0.0])
     fov_y_deg: float = 35.0
 
 
@@ -244,8 +249,8 @@ class ViewsFormat(str, Enum):
 
 
 class LightInfo(BaseModel):
-    direction: tuple[float, float, float]
-    energy_rgb: tuple[float, float, float]
+    direction: Vec3
+    energy_rgb: Vec3
     energy_share: float
     solid_angle_sr: float
 
@@ -298,7 +303,7 @@ class MeshInfo(BaseModel):
     n_vertices: int
     n_faces: int
     has_uvs: bool
-    bounds: tuple[tuple[float, float, float], tuple[float, float, float]]
+    bounds: Annotated[list[Vec3], Field(min_length=2, max_length=2, description="the least and the greatest corner")]
     n_degenerate: int
     n_unreferenced: int
     material: str | None = Field(None, description="the file's own material (glTF/GLB), used by a scene that "

@@ -352,7 +352,10 @@ def test_a_batch_whose_client_left_is_stopped_between_frames(server, http, env_i
     with socket.create_connection((u.hostname, u.port)) as s:
         s.sendall(f"POST /scenes/{scene_id}/frames/batch HTTP/1.1\r\nHost: x\r\nContent-Type: "
                   f"application/octet-stream\r\nContent-Length: {len(body)}\r\n\r\n".encode() + body)
-        time.sleep(0.5)   # the batch is rendering; its client leaves
+        deadline = time.monotonic() + 60.0   # the batch is rendering (the render thread says so); its client leaves
+        while http.get("/health/ready").json()["current_job"] is None:
+            assert time.monotonic() < deadline, "the batch never started"
+            time.sleep(0.05)
     t0 = time.perf_counter()
     r = post_frame(http, scene_id, mesh.positions)
     waited = time.perf_counter() - t0
