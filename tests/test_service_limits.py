@@ -304,6 +304,75 @@ def test_a_huge_face_is_refused_before_any_table_of_it_is_made(tmp_path, mesh):
         srv.stop()
 
 
+def _extremes(st) -> list:
+    """Each end of a registry setting's range (every value of a choice or a switch)."""
+    from renderer.config import MAX_LIGHTS
+
+    if st.choices is not None:
+        return list(st.choices)
+    if st.type is bool:
+        return [False, True]
+    if st.lights_rule:
+        return [6, MAX_LIGHTS]
+    lo = st.minimum + (1 if st.type is int else 1e-6) * st.above_minimum
+    return [st.type(lo), st.type(st.maximum)]
+
+
+def test_every_registry_extreme_alone_and_together_is_answered_in_bounded_time_and_memory(tmp_path, mesh):
+    """Every end of every quality setting over balanced, then every setting at its least and at its
+    greatest at once: a scene (and one frame of it) or a 422 that names a limit, each in seconds,
+    never a 5xx; the service's peak memory bounded and its memory back after."""
+    import time
+
+    from renderer import config
+
+    srv = ServiceProcess(tmp_path, cache_dir=tmp_path / "cache")
+    cases = [{st.name: v} for st in config.SETTINGS for v in _extremes(st)]
+    cases += [{st.name: _extremes(st)[i] for st in config.SETTINGS if st.choices is None} for i in (0, -1)]
+    slowest = (0.0, None)
+    try:
+        with httpx.Client(base_url=srv.url, timeout=300) as http:
+            data, name = environment_bytes(tmp_path)
+            env = http.post("/environments", content=data, headers=OCTET, params={"name": name, "preset": "fast"})
+            assert env.status_code in (200, 201), env.text
+            rss = _rss_mib(srv.proc.pid)
+            answered = {201: 0, 422: 0}
+            for quality in cases:
+                body = scene_body(env.json()["id"], mesh, output={"width": 32, "height": 32})
+                body["quality"] = {"preset": "balanced", **quality}
+                t0 = time.perf_counter()
+                r = http.post("/scenes", json=body)
+                assert r.status_code in answered, (quality, r.status_code, r.text)
+                if r.status_code == 201:
+                    f = post_frame(http, r.json()["id"], mesh.positions)
+                    assert f.status_code == 200, (quality, f.text)
+                    http.delete(f"/scenes/{r.json()['id']}")
+                else:
+                    # The answer names what is over which limit.
+                    detail = r.json()["detail"]
+                    assert any(w in str(detail) for w in ("limit", "at most", "exceed", "must be", "refused")), detail
+                answered[r.status_code] += 1
+                slowest = max(slowest, (time.perf_counter() - t0, quality), key=lambda x: x[0])
+            # Measured: 41 cases, 35 scenes and 6 refusals, the slowest 2.7 s (a new PEM set); memory 204 MiB
+            # before, 546 MiB at the peak, 295 MiB after.
+            assert slowest[0] < 20.0, slowest
+            assert answered[201] > len(cases) // 2 and answered[422] >= 2, answered
+            # Peak memory of the whole run, and what stays after it (the scenes deleted).
+            peak = _hwm_mib(srv.proc.pid)
+            assert peak < rss + 1536, (peak, rss)
+            assert _rss_mib(srv.proc.pid) < rss + 512
+            assert http.get("/health/ready").status_code == 200
+    finally:
+        srv.stop()
+
+
+def _hwm_mib(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError("no VmHWM")
+
+
 def _rss_mib(pid: int) -> float:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
