@@ -125,7 +125,19 @@ def test_misses_name_the_scene_the_target_and_the_factor():
 
 
 @needs_assets
-def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path):
+def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path, monkeypatch):
+    # The presets made small (their faces, maps and light counts; the knob variants over them as they
+    # are): what is under test is the benchmark's plumbing, not the presets' values.
+    import renderer.presets as presets_mod
+
+    real = presets_mod.presets
+
+    def small_presets():
+        table, source = real()
+        return {name: {**k, "face_size": min(k["face_size"], 32), "shadow_size": min(k["shadow_size"], 64),
+                       "lights": min(k["lights"], 24)} for name, k in table.items()}, source
+
+    monkeypatch.setattr(presets_mod, "presets", small_presets)
     sets = split()
     assert (sets["ennis.hdr"], sets["pisa.hdr"]) == ("tuning", "held-out")
     only = [Scene("ennis.hdr", "shirt", "cotton", "three-quarter", 32), Scene("pisa.hdr", "polo", "satin", "front", 32)]
