@@ -46,6 +46,12 @@ class ImageFormat(str, Enum):
     JSON = "json"
 
 
+class EmbeddedImageFormat(str, Enum):
+    """The image inside a JSON answer (?image=)."""
+    PNG = "png"
+    EXR = "exr"
+
+
 # Colourways a scene carries beside its own garment material.
 MAX_COLOURWAYS = 16
 
@@ -67,20 +73,22 @@ def _registry_field(st: config.Setting):
     numbers, no floats for whole numbers), its range for the schema, and the registry's own check
     (power of two, 6 * 2^k) with the registry's message. None: the preset's value."""
     base = Literal[st.choices] if st.choices is not None else st.type
-    bounds = {} if st.minimum is None else {("gt" if st.above_minimum else "ge"): st.minimum, "le": st.maximum}
+    # The range in JSON Schema's own words (a Field's ge/le beside the validators below would reach the
+    # schema as "ge"/"le", which no checker reads); the registry's check enforces it with its message.
+    bounds = {} if st.minimum is None else {("exclusiveMinimum" if st.above_minimum else "minimum"): st.type(st.minimum),
+                                            "maximum": st.type(st.maximum)}
 
     def checked(value):
         return None if value is None else st.check(value)   # InvalidInputError is a ValueError: a 422
 
     strict = {} if st.choices is not None else {"strict": True}
-    extra = {}
+    schema = dict(bounds)
     if st.type is int and (st.lights_rule or st.power_of_two):   # the registry's rule in the schema too
         lo = max(int(st.minimum), 1)
-        allowed = [6 << k for k in range(12) if lo <= 6 << k <= st.maximum] if st.lights_rule else \
+        schema["enum"] = [6 << k for k in range(12) if lo <= 6 << k <= st.maximum] if st.lights_rule else \
             [1 << k for k in range(16) if lo <= 1 << k <= st.maximum]
-        extra = {"json_schema_extra": {"enum": allowed}}
     validators = [BeforeValidator(_whole)] if st.type is int else []
-    kind = Annotated[base, *validators, Field(**strict, **bounds, **extra), AfterValidator(checked)]
+    kind = Annotated[base, *validators, Field(**strict, json_schema_extra=schema or None), AfterValidator(checked)]
     return (kind | None, Field(None, description=f"{st.doc}; {st.limits()} (null: the preset's)"))
 
 
@@ -124,6 +132,8 @@ QualitySpec = create_model("QualitySpec", __base__=_QualityBase, __module__=__na
 # A 3-vector: a list of exactly three numbers (minItems = maxItems = 3 in the schema, which every
 # OpenAPI tool reads; a tuple's prefixItems is JSON Schema 2020-12 alone and some read it as an error).
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Face = Annotated[list[int], Field(min_length=3, max_length=3)]   # 0-based vertex indices
+UV = Annotated[list[float], Field(min_length=2, max_length=2)]
 
 
 class OutputSpec(_Strict):
@@ -203,9 +213,10 @@ class MeshSpec(_Strict):
 
     mesh_id: str | None = None
     name: str | None = None
-    positions: list[list[float]] | None = Field(None, description="(V, 3) initial positions, in the scene's up axis")
-    faces: list[list[int]] | None = Field(None, description="(F, 3) 0-based vertex indices, counter-clockwise")
-    uvs: list[list[float]] | None = Field(None, description="(V, 2) per-vertex texture coordinates")
+    positions: list[Vec3] | None = Field(None, min_length=1,
+                                                description="(V, 3) initial positions, in the scene's up axis")
+    faces: list[Face] | None = Field(None, min_length=1, description="(F, 3) 0-based vertex indices, counter-clockwise")
+    uvs: list[UV] | None = Field(None, description="(V, 2) per-vertex texture coordinates")
     material: MaterialSpec = Field(default_factory=MaterialSpec)
     cast_shadows: bool = Field(True, description="false: the mesh receives shadows but casts none (a floor): "
                                "the shadow maps then fit the other meshes, so their texels are finer")

@@ -416,9 +416,10 @@ def test_bad_frames_are_4xx_naming_the_problem(http, scene, mesh):
 @pytest.mark.parametrize("case, words", [
     ("negative", ["negative vertex indices"]),
     ("out_of_range", ["index past"]),
-    ("empty", ["empty"]),
-    ("quads", ["quads"]),
-    ("ragged", ["rectangular"]),
+    # Shapes the schema holds (a list of V x 3, F x 3): its own message names the field.
+    ("empty", ["garment.positions", "at least 1 item"]),
+    ("quads", ["garment.faces.0", "at most 3 items"]),
+    ("ragged", ["garment.positions.4", "at least 3 items"]),
     ("nan_albedo", ["albedo"]),
     ("short_specular", ["specular"]),
     ("bad_lights", ["6 * 2^k"]),

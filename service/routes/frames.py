@@ -63,7 +63,7 @@ from ..pipeline import (
     server_timing,
     views_job,
 )
-from ..schemas import BatchFormat, ImageFormat, SceneCreate, ViewsFormat
+from ..schemas import BatchFormat, EmbeddedImageFormat, ImageFormat, SceneCreate, ViewsFormat
 from ..specs import prepare_scene
 from ..worker import GLResources
 
@@ -77,16 +77,14 @@ _IMAGE_RESPONSES = {200: {"content": {"image/png": {}, "image/x-exr": {}, "appli
 
 FormatQuery = Annotated[ImageFormat | None, Query(description="png | exr | json (default: from Accept, else png)")]
 ExposureQuery = Annotated[float | None, Query(ge=-64, le=64, description="EV; overrides the scene's exposure")]
-JsonImageQuery = Annotated[ImageFormat, Query(description="image format inside JSON answers: png | exr")]
+JsonImageQuery = Annotated[EmbeddedImageFormat, Query(description="image format inside JSON answers: png | exr")]
 LayoutHeader = Annotated[str | None, Header(alias="X-Frame-Layout", description="blocks of the body")]
 LayoutQuery = Annotated[str | None, Query(description="same as X-Frame-Layout")]
 FrameIndexHeader = Annotated[int | None, Header(alias="X-Frame-Index", description="echoed back (any integer)")]
 
 
-def _json_image(image: ImageFormat) -> ImageFormat:
-    if image is ImageFormat.JSON:
-        raise InvalidRequestError("?image= chooses the image inside JSON answers: png or exr")
-    return image
+def _json_image(image: EmbeddedImageFormat) -> ImageFormat:
+    return ImageFormat(image.value)
 
 
 @router.post("/scenes/{scene_id}/frames", response_class=Response, openapi_extra=_FRAME_BODY,
@@ -94,7 +92,7 @@ def _json_image(image: ImageFormat) -> ImageFormat:
 async def post_frame(
     scene_id: str, request: Request, svc: ServicesDep, worker: WorkerDep, settings: SettingsDep,
     metrics: MetricsDep, format: FormatQuery = None, exposure: ExposureQuery = None,
-    image: JsonImageQuery = ImageFormat.PNG,
+    image: JsonImageQuery = EmbeddedImageFormat.PNG,
     layout: LayoutQuery = None,
     x_frame_layout: LayoutHeader = None,
     x_frame_index: FrameIndexHeader = None,
@@ -132,7 +130,7 @@ async def post_batch(
     scene_id: str, request: Request, svc: ServicesDep, worker: WorkerDep, settings: SettingsDep,
     metrics: MetricsDep,
     format: Annotated[BatchFormat | None, Query(description="json (default) | zip")] = None,
-    image: JsonImageQuery = ImageFormat.PNG, exposure: ExposureQuery = None,
+    image: JsonImageQuery = EmbeddedImageFormat.PNG, exposure: ExposureQuery = None,
     layout: LayoutQuery = None,
     x_frame_layout: LayoutHeader = None,
 ) -> Response:
@@ -336,7 +334,7 @@ async def post_views(
 async def render_once(
     body: SceneCreate, request: Request, settings: SettingsDep, worker: WorkerDep, svc: ServicesDep,
     metrics: MetricsDep, format: FormatQuery = None,
-    exposure: ExposureQuery = None, image: JsonImageQuery = ImageFormat.PNG,
+    exposure: ExposureQuery = None, image: JsonImageQuery = EmbeddedImageFormat.PNG,
 ) -> Response:
     t_start = time.perf_counter()
     fmt = negotiate(format, request)
