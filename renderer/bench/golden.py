@@ -19,10 +19,10 @@ GOLDEN_SIZE = 48
 GOLDEN_FILE = Path(__file__).resolve().parents[2] / "tests" / "data" / "golden-frames.npz"
 
 
-def golden_frames(renderer=None) -> dict[str, np.ndarray]:
+def golden_frames(renderer=None, presets: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
     """scene/preset -> the frame (GOLDEN_SIZE^2, RGBA float32) of the bundled scene and, when the
-    shared assets are there, the four newton-shirt scenes, at every preset; on `renderer` (None: one
-    of its own)."""
+    shared assets are there, the four newton-shirt scenes, at every preset (or those of `presets`);
+    on `renderer` (None: one of its own)."""
     from contextlib import nullcontext
 
     from ..camera import frame_meshes
@@ -37,7 +37,7 @@ def golden_frames(renderer=None) -> dict[str, np.ndarray]:
             scene = r.create_scene(bs.meshes, bs.materials)
             camera = frame_meshes(bs.meshes, 1.0)
             try:
-                for name in PRESET_NAMES:
+                for name in presets or PRESET_NAMES:
                     pems = r.build_pems(bs.cube(int(preset(name)["face_size"])), preset_pems(name, bs.materials))
                     try:
                         frame = r.render(scene, pems, preset_frame(name, GOLDEN_SIZE, GOLDEN_SIZE), camera)
