@@ -11,9 +11,11 @@ simulation frame's positions (numpy in) and get the image (numpy or PIL out) wit
             frame = c.send_frame(scene["id"], p)
             frame.array(), frame.pil(), frame.timings       # uint8 (H, W, 3|4); PIL image; {stage: ms}
 
-A 503 (queue full, not ready) is retried after its Retry-After delay, up to `max_retries` times; a
+A 503 (queue full, not ready, a scale-out replica lost) is retried after its Retry-After delay, up to
+`max_retries` times (a lost replica's not for a scene's registration); a
 connection that fails before any answer came (a keep-alive connection the server had just closed, a
-reset) is retried up to `max_transport_retries` times for every request but a scene's registration,
+reset), or answered by a proxy in front of the service (a 5xx that is not the service's JSON), is
+retried up to `max_transport_retries` times for every request but a scene's registration,
 which is not idempotent (a retry could register it twice). Other errors raise `ServiceError` with the
 service's message.
 """
@@ -92,6 +94,23 @@ class FrameResult:
         return np.asarray(self.pil())
 
 
+def _from_service(r: httpx.Response) -> bool:
+    """An answer of the service's (its errors are JSON with a code), not of a proxy in front of it."""
+    try:
+        return "code" in r.json()
+    except (json.JSONDecodeError, ValueError, TypeError):
+        return False
+
+
+def _replica_lost(r: httpx.Response) -> bool:
+    """A 503 saying the replica went while it held the request (scale-out): sending it again is safe only
+    where doing it twice does no harm."""
+    try:
+        return r.json().get("code") == "replica_lost"
+    except (json.JSONDecodeError, ValueError, AttributeError):
+        return False
+
+
 def _as_f32(a, what: str) -> bytes:
     arr = np.ascontiguousarray(a, dtype="<f4")
     if arr.ndim != 2 or arr.shape[1] != 3:
@@ -135,7 +154,14 @@ class RenderClient:
                 self.transport_retries += 1
                 time.sleep(0.05 * 2 ** failed)
                 continue
-            if r.status_code == 503 and retries < self.max_retries:
+            if (r.status_code >= 500 and not _from_service(r) and idempotent
+                    and failed < self.max_transport_retries):
+                # A proxy's own answer (a scale-out ingress that went): as if no answer came.
+                failed += 1
+                self.transport_retries += 1
+                time.sleep(0.05 * 2 ** failed)
+                continue
+            if r.status_code == 503 and retries < self.max_retries and (idempotent or not _replica_lost(r)):
                 retries += 1
                 self.retries += 1
                 wait = float(r.headers.get("retry-after", "1"))

@@ -92,6 +92,16 @@ class NotReadyError(ServiceError):
         super().__init__(message, {"Retry-After": "5"})
 
 
+class ReplicaLostError(ServiceError):
+    """Scale-out (service/ray_serve.py): the replica holding the request went before it answered, and
+    the request could not be sent again (a scene's registration, or no replica answered in time)."""
+
+    status, code = 503, "replica_lost"
+
+    def __init__(self, message: str):
+        super().__init__(message, {"Retry-After": "1"})
+
+
 class RenderTimeoutError(ServiceError):
     status, code = 504, "timeout"
 

@@ -8,6 +8,7 @@ import asyncio
 import contextlib
 import functools
 import hashlib
+import re
 import time
 from dataclasses import dataclass, field
 
@@ -20,7 +21,7 @@ from renderer.lighting.pem import PEMSettings
 from renderer.renderer import Background
 
 from .codecs import decode_hdr, sniff_hdr_kind
-from .errors import ConflictError, NotFoundError, PayloadTooLargeError, QueueFullError
+from .errors import ConflictError, InvalidRequestError, NotFoundError, PayloadTooLargeError, QueueFullError
 from .registry import EnvironmentRecord, EnvironmentStore, MeshStore, PemInfo, SceneMeshInfo, SceneRecord, SceneStore
 from .schemas import MeshSpec, QualitySpec, SceneCreate
 from .settings import ServiceSettings
@@ -193,7 +194,27 @@ async def release_scene_here(svc: Services, scene_id: str) -> bool:
     return True
 
 
-async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = None) -> SceneRecord:
+# Scale-out (service/ray_serve.py): the ingress names a new scene's id before it is registered, so that
+# the registration and every frame of the scene are routed by it to one replica. Honoured only by an
+# app that a replica runs (app.state.scene_ids_assigned); the ingress drops the header from a client's.
+ASSIGNED_SCENE_ID = "x-assigned-scene-id"
+SCENE_ID = re.compile(r"^scn_[0-9a-f]{16}$")
+
+
+def assigned_scene_id(request) -> str | None:
+    """The id the ingress chose for the scene this request registers, or None (the registry chooses)."""
+    if not getattr(request.app.state, "scene_ids_assigned", False):
+        return None
+    value = request.headers.get(ASSIGNED_SCENE_ID)
+    if value is not None and not SCENE_ID.match(value):
+        raise InvalidRequestError(f"{ASSIGNED_SCENE_ID} {value!r} is not a scene id (scn_ and 16 hex digits)")
+    return value
+
+
+async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = None,
+                       new_id: str | None = None) -> SceneRecord:
+    """Register `body` under a new id (`new_id`, else the registry's), stored where there is a state
+    directory; or restore the stored scene `scene_id` (not stored again)."""
     if len(svc.scenes) >= svc.scenes.max_scenes:
         await release_idle_scenes(svc)
     svc.scenes.check_room()
@@ -207,7 +228,7 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
         await anyio.to_thread.run_sync(env.cube, env.background_face)
     key = cache_key(env.content_hash, q.face_size, pem)
     record = SceneRecord(
-        id=scene_id or svc.scenes.new_id(), name=body.name, environment=env, face_size=q.face_size,
+        id=scene_id or new_id or svc.scenes.new_id(), name=body.name, environment=env, face_size=q.face_size,
         pem_settings=pem, frame_settings=q.frame, camera=prepared.camera, up=body.up,
         meshes=[SceneMeshInfo(role, m.name, m.n_vertices, m.n_faces, m.uvs is not None, m.faces)
                 for role, m in zip(prepared.roles, prepared.meshes)],

@@ -3,16 +3,21 @@
     garment-render serve --ray [--replicas N] [--address RAY_ADDRESS] [--gpus-per-replica 1]
     serve run deploy/serve.yaml                     (a cluster: `ray start --head`, then this)
 
-Each replica is one process with one GL context: the service's own FastAPI app (service.app), driven
-in-process through its ASGI interface, with its lifespan (the GL thread) started on the replica's first
-request. What Ray adds:
+Each render replica is one process with one GL context: the service's own FastAPI app (service.app),
+driven in-process through its ASGI interface, with its lifespan (the GL thread) started on the
+replica's first request. Serve's HTTP proxy hands every request to a small ingress deployment, which
+sends it on to a render replica through a handle. What Ray adds:
 
-- **Scene affinity** by Ray Serve's model multiplexing, keyed by scene id. A replica that registers a
-  scene or renders one holds it as a "model" (at most SCENES_PER_REPLICA, the least recently used
-  released first: its GPU objects go, its stored registration stays). The client sends the scene id as
-  `serve_multiplexed_model_id` (service.client does, for every /scenes/{id} request), and Serve routes
-  the request to the replica that holds it. A request that reaches another replica (no header, or
-  the owner died or let the scene go) re-creates the scene there from its stored registration.
+- **Scene affinity** by a consistent-hash ring of the replicas, keyed by scene id (`Ingress`): every
+  request of a scene, its registration first, reaches one replica while the replicas stay the same
+  (the client sends the scene id as `serve_multiplexed_model_id` where the path does not hold it). A
+  replica holds at most SCENES_PER_REPLICA scenes' GPU objects, the least recently used released first
+  (Serve's multiplexing cache; the stored registration stays). A request that reaches another replica
+  (the ring changed: a replica died or was added) re-creates the scene there from its stored
+  registration.
+- **A replica lost mid-request costs no answer.** The ingress sends a request whose replica died
+  again, to the replica that restores its scene (a batch whole: none of its frames had been
+  answered), and answers the service's JSON error where it cannot (`Ingress`).
 - **The shared directories.** The state directory (environments, scenes) and the PEM disk cache are
   one folder for every replica (a shared file system on a cluster). A PEM set one replica built is read
   by the others, and any replica can restore any scene.
@@ -43,7 +48,10 @@ from prometheus_client.parser import text_string_to_metric_families
 
 try:
     import ray
+    import ray.serve.exceptions
     from ray import serve
+    from ray.serve.config import RequestRouterConfig
+    from ray.serve.experimental.consistent_hash_router import ConsistentHashRouter
     from starlette.requests import Request
     from starlette.responses import Response
 except ImportError as exc:   # pragma: no cover - the extra is not installed
@@ -51,6 +59,12 @@ except ImportError as exc:   # pragma: no cover - the extra is not installed
 
 # /scenes/{id}... : the scene a request is for.
 SCENE_PATH = re.compile(r"^/scenes/(scn_[0-9a-f]+)(?:/|$)")
+# The client's header naming the scene a request is for (service.client sends it; Serve's routing key).
+MODEL_ID_HEADER = "serve_multiplexed_model_id"
+# How long the ingress keeps sending a request whose replica went, and how many requests the ingress and
+# a replica hold at once (a replica's own bounded queue answers 503 before Serve's limit is reached: the
+# ring's strict affinity never sends a scene's request to another replica for being busy).
+RETRY_FOR_S, INGRESS_MAX_ONGOING, REPLICA_MAX_ONGOING = 60.0, 1000, 256
 # Scenes a replica holds for the router (each keeps its GPU buffers); the least recently used go first.
 SCENES_PER_REPLICA = 16
 # The replicas' metrics: one named actor they report to, how often, and when a silent one has gone.
@@ -112,7 +126,9 @@ class _HeldScene:
             asyncio.run_coroutine_threadsafe(replica.let_go(self.scene_id), self.loop)
 
 
-@serve.deployment(name="garment-render", ray_actor_options={"num_cpus": 0})
+@serve.deployment(name="garment-render", ray_actor_options={"num_cpus": 0}, max_ongoing_requests=REPLICA_MAX_ONGOING,
+                  request_router_config=RequestRouterConfig(request_router_class=ConsistentHashRouter,
+                                                            request_router_kwargs={"num_fallback_replicas": 0}))
 class RenderReplica:
     def __init__(self, settings: dict | None = None):
         gpu_ids = _ray_gpu_ids()
@@ -126,6 +142,7 @@ class RenderReplica:
             raise ValueError("Ray replicas need a shared state directory (GARMENT_RENDER_STATE_DIR): it is how a "
                              "replica restores a scene another one registered")
         self.app = create_app(self.settings)
+        self.app.state.scene_ids_assigned = True   # a new scene's id comes from the ingress (X-Assigned-Scene-Id)
         self.name = _replica_name()
         self._stack: AsyncExitStack | None = None
         self._started = asyncio.Lock()
@@ -170,7 +187,8 @@ class RenderReplica:
 
     @serve.multiplexed(max_num_models_per_replica=SCENES_PER_REPLICA)
     async def scene(self, scene_id: str) -> _HeldScene:
-        """Hold a scene here (Serve's multiplexing): the scene itself is made or restored by the request."""
+        """Hold a scene here (Serve's multiplexing cache, for its LRU release): the scene itself is made or
+        restored by the request."""
         return _HeldScene(self, scene_id)
 
     async def let_go(self, scene_id: str) -> None:
@@ -180,27 +198,26 @@ class RenderReplica:
 
         await release_scene_here(self.app.state.services, scene_id)
 
-    async def __call__(self, request: Request) -> Response:
+    async def forward(self, method: str, url: str, headers: list[tuple[str, str]], body: bytes
+                      ) -> tuple[int, dict[str, str], bytes]:
+        """One HTTP request, sent by the ingress, answered by this replica's app: (status, headers, body)."""
         await self._start()
-        path = request.url.path
+        path = url.split("?", 1)[0]
         match = SCENE_PATH.match(path)
-        if match and request.method != "DELETE":   # the router sent it here by this id (the client's header)
+        if match and method != "DELETE":   # the ring sent it here by this id
             await self.scene(match.group(1))
-        body = await request.body()
-        headers = [(k, v) for k, v in request.headers.items() if k.lower() not in ("host", "content-length")]
-        url = path + (f"?{request.url.query}" if request.url.query else "")
-        r = await self.client.request(request.method, url, content=body, headers=headers)
+        r = await self.client.request(method, url, content=body, headers=headers)
         content = r.content
-        if request.method == "POST" and path.rstrip("/") == "/scenes" and r.status_code == 201:
+        if method == "POST" and path.rstrip("/") == "/scenes" and r.status_code == 201:
             await self.scene(r.json()["id"])   # the registering replica holds its scene
-        elif request.method == "GET" and path == "/metrics" and r.status_code == 200:
+        elif method == "GET" and path == "/metrics" and r.status_code == 200:
             content = await self._all_metrics(content)
         # Serve's proxy answers with the request's id itself, the one it gave the request (the client's,
         # else its own), which the service took as the request's id: the service's copy would repeat it.
         out = {k: v for k, v in r.headers.items()
                if k.lower() not in ("content-length", "transfer-encoding", "x-request-id")}
         out["X-Replica"] = self.name
-        return Response(content, status_code=r.status_code, headers=out)
+        return r.status_code, out, content
 
     def __del__(self):
         """Serve's graceful shutdown of the replica: its GL thread releases the scenes and the context
@@ -218,6 +235,70 @@ class RenderReplica:
         if self.client is not None and not self.app.state.worker.ready:
             raise RuntimeError(f"replica {self.name}: the GL thread is not running")
 
+
+def _replica_lost(exc: BaseException) -> bool:
+    """Ray's word that the replica went while it held the request (ActorDiedError, ActorUnavailableError,
+    a replica Serve knows is gone, or a task error caused by one of them), not an error of the request."""
+    if isinstance(exc, ray.exceptions.RayTaskError):
+        exc = getattr(exc, "cause", None) or exc
+    return isinstance(exc, (ray.exceptions.RayActorError, serve.exceptions.ReplicaUnavailableError))
+
+
+@serve.deployment(name="garment-render-ingress", ray_actor_options={"num_cpus": 0},
+                  max_ongoing_requests=INGRESS_MAX_ONGOING)
+class Ingress:
+    """What Serve's HTTP proxy calls. Each request goes on to a render replica through a handle, routed
+    by its scene's id (the path's, else the client's `serve_multiplexed_model_id` header) on a
+    consistent-hash ring of the replicas: every request of a scene reaches the same replica while the
+    replicas stay the same. A scene's registration is routed by the id the ingress gives it here
+    (X-Assigned-Scene-Id), so its first frame finds it where it was made.
+
+    A replica that dies while it holds a request (killed, out of memory, its node lost) costs the
+    request nothing but time: it is sent again, to the replica the ring names now (which restores the
+    scene from its stored registration), for up to RETRY_FOR_S. A batch is sent again whole: none of
+    its frames had been answered. A scene's registration is not sent again (it may have been stored:
+    a second one would make a second scene); it, and a request still unanswered after RETRY_FOR_S, get
+    the service's own JSON error (503 replica_lost, Retry-After), never the proxy's text."""
+
+    def __init__(self, replicas):
+        self.replicas = replicas
+
+    async def __call__(self, request: Request) -> Response:
+        from .errors import ReplicaLostError, response_for
+        from .operations import ASSIGNED_SCENE_ID
+        from .registry import SceneStore
+
+        path, method = request.url.path, request.method
+        registration = method == "POST" and path.rstrip("/") == "/scenes"
+        headers = [(k, v) for k, v in request.headers.items()
+                   if k.lower() not in ("host", "content-length", ASSIGNED_SCENE_ID)]
+        match = SCENE_PATH.match(path)
+        if registration:
+            scene_id = SceneStore.new_id()
+            headers.append((ASSIGNED_SCENE_ID, scene_id))
+        else:
+            scene_id = match.group(1) if match else request.headers.get(MODEL_ID_HEADER)
+        handle = self.replicas.options(session_id=scene_id) if scene_id else self.replicas
+        body = await request.body()
+        url = path + (f"?{request.url.query}" if request.url.query else "")
+        deadline, lost = time.monotonic() + RETRY_FOR_S, 0
+        while True:
+            try:
+                status, out, content = await handle.forward.remote(method, url, headers, body)
+                break
+            except Exception as exc:
+                if not _replica_lost(exc):   # the replica's own failure, answered as the service's error
+                    return response_for(exc)
+                lost += 1
+                if registration or time.monotonic() > deadline:
+                    what = ("the scene's registration is not sent again (it may have been stored): register it "
+                            "again" if registration else f"no replica answered it within {RETRY_FOR_S:g} s; try again")
+                    return response_for(ReplicaLostError(
+                        f"the replica holding {method} {path} went before it answered ({type(exc).__name__}); {what}"))
+                await asyncio.sleep(min(0.1 * 2 ** lost, 2.0))
+        if lost:
+            out["X-Replicas-Lost"] = str(lost)
+        return Response(content, status_code=status, headers=out)
 
 def _ray_gpu_ids() -> list:
     try:
@@ -237,7 +318,7 @@ def _replica_name() -> str:
 def application(replicas: int = 2, settings: dict | None = None, gpus_per_replica: float = 0.0):
     """The Serve application: `replicas` copies of the service (settings: ServiceSettings fields)."""
     options = {"num_replicas": replicas, "ray_actor_options": {"num_cpus": 0, "num_gpus": gpus_per_replica}}
-    return RenderReplica.options(**options).bind(settings)
+    return Ingress.bind(RenderReplica.options(**options).bind(settings))
 
 
 def app_builder(args: dict):

@@ -1,8 +1,8 @@
 """The service as Ray Serve replicas (service/ray_serve.py), for real: `garment-render serve --ray
 --replicas 2` starts a local Ray instance on 127.0.0.1; scenes registered through the HTTP API stay on
-the replica that registered them (each answer names it), a replica killed in the middle of a sequence
-costs no frame (each is answered once, 200 after the client's retries), and the images are the same as
-a single process's."""
+the replica that registered them (each answer names it), a replica killed between two frames of a
+sequence or in the middle of a batch costs no frame (each is answered once, 200), and the images are
+the same as a single process's."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -46,10 +47,11 @@ def cluster():
 
 
 def _replicas(env) -> list[str]:
-    """The names of the deployment's replica actors, asked of the running Ray instance."""
+    """The names of the render deployment's replica actors (not the ingress's), asked of the running Ray
+    instance."""
     code = ("import ray; ray.init(address='auto', logging_level='ERROR'); "
             "print('\\n'.join(a['name'] for a in ray.util.list_named_actors(all_namespaces=True) "
-            "if 'SERVE_REPLICA' in a['name']))")
+            "if a['name'].startswith('SERVE_REPLICA::garment-render#garment-render#')))")
     r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
     return [n for n in r.stdout.split() if n]
@@ -75,15 +77,18 @@ def test_scenes_stay_on_their_replica_and_survive_one_dying(cluster, tmp_path):
     with httpx.Client(base_url=cluster["url"], timeout=120) as http:
         env, _, _ = upload_environment(http, tmp_path)
     with RenderClient(cluster["url"], max_retries=200, max_retry_wait_s=1.0) as c:
-        scenes = [c.create_scene(env["id"], positions=mesh.positions, faces=mesh.faces,
-                                 **{k: v for k, v in scene_body(env["id"], mesh).items()
-                                    if k in ("quality", "output")}) for _ in range(2)]
-        # Frames of each scene go to one replica, the one answering its registration's first frame.
-        owners = {}
+        # Every frame of a scene, from the first, goes to the replica that registered it.
+        scenes, owners = [], {}
+        for _ in range(2):
+            r = c.http.post("/scenes", json=c.scene_spec(env["id"], positions=mesh.positions, faces=mesh.faces,
+                                                         **{k: v for k, v in scene_body(env["id"], mesh).items()
+                                                            if k in ("quality", "output")}))
+            assert r.status_code == 201, r.text
+            scenes.append(r.json())
+            owners[r.json()["id"]] = r.headers["x-replica"]
         for s in scenes:
             seen = {c.send_frame(s["id"], frames[0], frame_index=0).headers["x-replica"] for _ in range(3)}
-            assert len(seen) == 1, seen
-            owners[s["id"]] = seen.pop()
+            assert seen == {owners[s["id"]]}, (seen, owners)
         assert len(_replicas(cluster["env"])) == 2
         # Kill the replica holding the first scene half way through its sequence.
         sid = scenes[0]["id"]
@@ -104,10 +109,11 @@ def test_scenes_stay_on_their_replica_and_survive_one_dying(cluster, tmp_path):
         # Before the kill, its owner answered; after it, another replica did (from the stored registration).
         assert {got[k][1] for k in range(4)} == {owners[sid]}
         assert all(got[k][1] != owners[sid] for k in range(4, len(frames))), [g[1] for g in got.values()]
-        # The other scene kept its replica, unless that was the one killed.
+        # The other scene is answered too: by its replica, or by the killed one's successor where the
+        # ring gave the new replica its id (a consistent hash moves only the keys of a changed replica).
         other = scenes[1]["id"]
         now = c.send_frame(other, frames[1]).headers["x-replica"]
-        assert (now == owners[other]) if owners[other] != owners[sid] else (now != owners[other])
+        assert now != owners[sid] and (now == owners[other] or now not in owners.values()), (now, owners)
     # The same frames from one process without Ray: the same images.
     single = ServiceProcess(tmp_path)
     try:
@@ -120,6 +126,66 @@ def test_scenes_stay_on_their_replica_and_survive_one_dying(cluster, tmp_path):
                 np.testing.assert_array_equal(c.send_frame(s["id"], positions).array(), got[k][0])
     finally:
         single.stop()
+
+
+class _Killer:
+    """A process attached to the Ray instance, ready to kill one replica the moment it is told to (its
+    start, some seconds of Ray's, is paid before)."""
+
+    def __init__(self, env, name: str):
+        code = (f"import sys, ray; ray.init(address='auto', logging_level='ERROR'); "
+                f"a = ray.get_actor({name!r}, namespace='serve'); print('ready', flush=True); sys.stdin.readline(); "
+                f"ray.kill(a, no_restart=False); print('killed', flush=True)")
+        self.proc = subprocess.Popen([sys.executable, "-c", code], env=env, stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, text=True)
+        assert self.proc.stdout.readline().strip() == "ready"
+
+    def kill(self) -> None:
+        self.proc.stdin.write("now\n")
+        self.proc.stdin.flush()
+        assert self.proc.stdout.readline().strip() == "killed"
+        assert self.proc.wait(timeout=60) == 0
+
+
+def test_a_replica_killed_in_the_middle_of_a_batch_costs_no_frame(cluster, tmp_path):
+    """The batch's replica is killed while it renders: the same request, with no retry of the client's
+    (plain httpx), is answered 200 with every frame once, by the other replica (the ingress sent it
+    again); a scene's frame after it is answered too."""
+    mesh = garment(16)
+    n = 150
+    body = np.stack([np.asarray(mesh.positions, np.float32) + np.float32(0.002 * k) for k in range(n)]).astype("<f4")
+    with httpx.Client(base_url=cluster["url"], timeout=300) as http:
+        env, _, _ = upload_environment(http, tmp_path, known=True)
+        with RenderClient(cluster["url"], max_retries=200, max_retry_wait_s=1.0) as c:
+            s = c.create_scene(env["id"], positions=mesh.positions, faces=mesh.faces,
+                               **{k: v for k, v in scene_body(env["id"], mesh).items() if k in ("quality", "output")})
+            owner = c.send_frame(s["id"], mesh.positions).headers["x-replica"]
+        route = {"serve_multiplexed_model_id": s["id"]}   # requests of the scene's: to its replica
+        killer = _Killer(cluster["env"], next(name for name in _replicas(cluster["env"]) if name.endswith(owner)))
+        answer: dict = {}
+
+        def batch():
+            answer["r"] = http.post(f"/scenes/{s['id']}/frames/batch", content=body.tobytes(),
+                                    headers={"Content-Type": "application/octet-stream", **route})
+
+        thread = threading.Thread(target=batch)
+        thread.start()
+        deadline = time.monotonic() + 120
+        while True:   # the owner's render thread says it runs the batch
+            job = http.get("/health/ready", headers=route).json().get("current_job")
+            if job and f"batch of {n} frames" in job["what"]:
+                break
+            assert thread.is_alive() and time.monotonic() < deadline, answer
+            time.sleep(0.05)
+        killer.kill()
+        thread.join(timeout=240)
+        r = answer["r"]
+        assert r.status_code == 200, r.text[:2000]
+        assert r.headers["x-replica"] != owner and int(r.headers["x-replicas-lost"]) >= 1
+        assert [f["frame_index"] for f in r.json()["frames"]] == list(range(n))
+        after = http.post(f"/scenes/{s['id']}/frames", content=body[0].tobytes(),
+                          headers={"Content-Type": "application/octet-stream", **route})
+        assert after.status_code == 200 and after.headers["content-type"] == "image/png"
 
 
 def _series(text: str, name: str) -> dict[str, float]:
@@ -214,7 +280,10 @@ def test_the_cluster_config_builds_the_deployment_it_names():
     module, name = app["import_path"].split(":")
     built = getattr(importlib.import_module(module), name)(app["args"])
     assert isinstance(built, serve.Application)
-    deployment = built._bound_deployment
+    assert built._bound_deployment.name == "garment-render-ingress"   # Serve's proxy calls the ingress,
+    (replicas,) = built._bound_deployment._replica_config.init_args   # which holds the render replicas' handle
+    deployment = replicas._bound_deployment
+    assert deployment.name == "garment-render"
     assert deployment.num_replicas == app["args"]["replicas"]
     assert deployment.ray_actor_options["num_gpus"] == app["args"]["gpus_per_replica"] == 1
     assert set(app["args"]["settings"]) == {"state_dir", "pem_cache_dir"}

@@ -235,6 +235,50 @@ def test_the_client_sends_again_a_request_whose_connection_failed_before_an_answ
     assert seen == [b"GET /health/live HTTP/1.1"] * 2
 
 
+def _answering(answers: list[tuple[str, str, bytes]]):
+    """A server on 127.0.0.1 giving `answers` (status line, content type, body) in turn, one connection
+    each; returns (port, the request lines it saw, its thread)."""
+    import socket
+    import threading
+
+    listener = socket.create_server(("127.0.0.1", 0))
+    seen: list[bytes] = []
+
+    def serve():
+        with listener:
+            for status, media_type, body in answers:
+                conn, _ = listener.accept()
+                with conn:
+                    seen.append(conn.recv(65536).split(b"\r\n", 1)[0])
+                    conn.sendall(f"HTTP/1.1 {status}\r\nContent-Type: {media_type}\r\nContent-Length: {len(body)}"
+                                 f"\r\nRetry-After: 0\r\nConnection: close\r\n\r\n".encode() + body)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    return listener.getsockname()[1], seen, thread
+
+
+def test_the_client_sends_again_a_proxys_own_error_but_not_a_lost_registration():
+    """A 5xx whose body is not the service's JSON (a proxy in front of it, e.g. Ray Serve's when its
+    ingress went) is as if no answer came: sent again. A scale-out replica lost while it held a scene's
+    registration (503 replica_lost) is not sent again: it may have been stored."""
+    from service.client import RenderClient, ServiceError
+
+    port, seen, thread = _answering([("500 Internal Server Error", "text/plain", b"Internal Server Error"),
+                                     ("200 OK", "application/json", b'{"status": "ok"}')])
+    with RenderClient(f"http://127.0.0.1:{port}") as client:
+        assert client.live() == {"status": "ok"} and client.transport_retries == 1
+    thread.join(5)
+    assert seen == [b"GET /health/live HTTP/1.1"] * 2
+
+    lost = b'{"code": "replica_lost", "detail": "the replica holding POST /scenes went before it answered"}'
+    port, seen, thread = _answering([("503 Service Unavailable", "application/json", lost)])
+    with RenderClient(f"http://127.0.0.1:{port}") as client, pytest.raises(ServiceError, match="replica_lost"):
+        client.create_scene("env_0", positions=[[0, 0, 0]], faces=[[0, 0, 0]])
+    thread.join(5)
+    assert seen == [b"POST /scenes HTTP/1.1"]
+
+
 # -- a PEM set's cost is known from its settings, and refused before it is built ----------------------
 
 @pytest.fixture(scope="module")

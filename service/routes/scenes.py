@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import logging
 
-from fastapi import APIRouter, Depends, Response, status
+from fastapi import APIRouter, Depends, Request, Response, status
 
 from renderer.errors import RenderError
 
@@ -36,10 +36,10 @@ def scene_info(rec: SceneRecord) -> SceneInfo:
 
 @router.post("", response_model=SceneInfo, status_code=status.HTTP_201_CREATED,
              summary="Register a scene (JSON: meshes inline or by mesh_id, materials, camera, quality, size)")
-async def create_scene(body: SceneCreate, svc: ServicesDep) -> SceneInfo:
+async def create_scene(body: SceneCreate, svc: ServicesDep, request: Request) -> SceneInfo:
     """Positions given here (and in every frame) are in the scene's `up` axis; mesh files were rotated
     at upload. Without a camera, one framing the initial meshes from +Z is fixed for the scene's life."""
-    return scene_info(await operations.create_scene(svc, body))
+    return scene_info(await operations.create_scene(svc, body, new_id=operations.assigned_scene_id(request)))
 
 
 @router.get("", response_model=list[SceneInfo],
