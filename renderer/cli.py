@@ -6,6 +6,7 @@ import argparse
 import functools
 import importlib
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -644,12 +645,22 @@ def cmd_bench(args) -> int:
     return 0
 
 
+# Ray's switch (read when Ray is imported) that makes a node's address the loopback, as Ray does on
+# macOS and Windows; `serve --ray` sets it for a local instance.
+LOCAL_RAY_SWITCH = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+
+
 def cmd_serve(args) -> int:
     # The one place the command line reaches the service layer; the renderer's library code never
     # imports it (the dependency arrow is service -> renderer), hence importlib.
     if args.ray:
         if args.workers != 1:
             raise InvalidInputError("--workers is for uvicorn's processes; with --ray give --replicas")
+        if args.address is None and not os.environ.get("RAY_ADDRESS"):
+            # A local instance: Ray takes the node's address from this switch when it is imported, and
+            # with the loopback as that address its GCS, raylet, workers and agents listen on 127.0.0.1
+            # alone (on every interface otherwise). Serve's proxy still binds --host.
+            os.environ.setdefault(LOCAL_RAY_SWITCH, "0")
         try:
             importlib.import_module("service.ray_serve").run(args.host, args.port, args.replicas, args.address,
                                                              args.gpus_per_replica)

@@ -102,7 +102,8 @@ def serve_ray(replicas: int, tmp: Path, timeout_s: float = 300.0,
             raise RuntimeError(f"serve --ray exited: {log_path.read_text()[-3000:]}")
         try:
             if httpx.get(f"{url}/health/ready", timeout=2).status_code == 200:
-                return proc, url, env
+                # Another process attaches as `serve --ray` started it: the node at the loopback.
+                return proc, url, {**env, "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"}
         except httpx.TransportError:
             pass
         if time.monotonic() > deadline:

@@ -27,6 +27,11 @@ sends it on to a render replica through a handle. What Ray adds:
   named Ray actor (MetricsBoard) every REPORT_EVERY_S, and `/metrics`, on whichever replica answers
   it, is every live replica's series, labelled `replica`, plus `garment_render_replicas_reporting`.
   A replica silent for STALE_AFTER_S has gone and drops out.
+- **A local instance keeps to the loopback.** `garment-render serve --ray` without an address starts
+  Ray with the node's address at 127.0.0.1 (RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0, set before Ray is
+  imported), so the GCS, the raylet, the workers and the agents listen there alone. Serve's proxy
+  binds `--host`; each Serve replica's inter-deployment gRPC server binds every interface (Ray Serve
+  names no setting for it) behind Ray's token authentication.
 - **GPUs**: with `--gpus-per-replica 1` each replica gets one GPU from Ray (GARMENT_RENDER_GPU), and
   renders on the EGL device that reports that GPU's CUDA ordinal (renderer/gpu/egl_devices.py), not on
   the first device nor on the EGL device of the GPU's number: EGL's order need not be CUDA's.
@@ -356,6 +361,14 @@ def run(host: str | None, port: int | None, replicas: int, address: str | None =
               flush=True)
     host, port = host or checked.host, checked.port if port is None else port
 
+    if address is None and not os.environ.get("RAY_ADDRESS"):
+        from ray._private import services
+
+        node = services.get_node_ip_address()
+        if node not in ("127.0.0.1", "::1"):   # Ray was imported before `garment-render serve --ray` set it
+            print(f"garment-render: Ray's own ports listen on every interface ({node}): start a local instance with "
+                  "`garment-render serve --ray` (it sets RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0 before Ray starts)",
+                  flush=True)
     ray.init(address=address, include_dashboard=False, ignore_reinit_error=True)
     serve.start(http_options={"host": host, "port": port})
     serve.run(application(replicas, None, gpus_per_replica), name="garment-render", route_prefix="/")

@@ -6,6 +6,7 @@ the same as a single process's."""
 
 from __future__ import annotations
 
+import ipaddress
 import shutil
 import subprocess
 import sys
@@ -36,7 +37,7 @@ def cluster():
     # Without GARMENT_RENDER_STATE_DIR: a local instance's replicas share the user's default directory.
     proc, url, env = serve_ray(2, tmp, timeout_s=240, state_dir=False)
     try:
-        yield {"url": url, "tmp": tmp, "env": env}
+        yield {"url": url, "tmp": tmp, "env": env, "pid": proc.pid}
     finally:
         proc.terminate()
         try:
@@ -62,6 +63,64 @@ def _kill(env, name: str) -> None:
             f"ray.kill(ray.get_actor({name!r}, namespace='serve'), no_restart=False)")
     r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
+
+
+def _listening(pid: int) -> list[tuple[str, int, int]]:
+    """(address, port, pid) of every TCP socket listening in process `pid` and its descendants, from
+    /proc (Linux)."""
+    children: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:   # the process went
+            continue
+        children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+    tree, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        tree.append(p)
+        todo.extend(children.get(p, ()))
+    owner = {}
+    for p in tree:
+        for fd in Path(f"/proc/{p}/fd").glob("*"):
+            try:
+                link = str(fd.readlink())
+            except OSError:
+                continue
+            if link.startswith("socket:["):
+                owner[int(link[8:-1])] = p
+    found = []
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        for line in Path(table).read_text().splitlines()[1:]:
+            cols = line.split()
+            local, state, inode = cols[1], cols[3], int(cols[9])
+            if state != "0A" or inode not in owner:   # 0A: LISTEN
+                continue
+            hexaddr, hexport = local.split(":")
+            raw = bytes.fromhex(hexaddr)
+            # /proc writes the address as 32-bit words in host order (little-endian here)
+            words = b"".join(raw[i:i + 4][::-1] for i in range(0, len(raw), 4))
+            found.append((ipaddress.ip_address(words).compressed, int(hexport, 16), owner[inode]))
+    return found
+
+
+def _loopback(address: str) -> bool:
+    ip = ipaddress.ip_address(address)
+    return ip.is_loopback or (ip.version == 6 and ip.ipv4_mapped is not None and ip.ipv4_mapped.is_loopback)
+
+
+@pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="reads listening sockets from Linux's /proc")
+def test_a_local_instance_listens_on_the_loopback_alone(cluster):
+    # Ray's GCS, raylet, workers and agents, the replicas and Serve's proxy: every process under serve --ray.
+    listening = _listening(cluster["pid"])
+    port = int(cluster["url"].rsplit(":", 1)[1])
+    assert any(p == port for _, p, _ in listening), listening   # the proxy's port is seen: the check reads
+    assert len({pid for _, _, pid in listening}) >= 4, listening   # GCS, raylet, workers, not the driver alone
+    # What listens beyond the loopback is Serve's own: each replica's inter-deployment gRPC server, which
+    # Ray Serve binds to [::] with no setting (serve/_private/replica.py) and guards with Ray's token.
+    wide = [(a, p, Path(f"/proc/{pid}/comm").read_text().strip()) for a, p, pid in listening if not _loopback(a)]
+    assert {name for _, _, name in wide} <= {"ray::ServeRepli"}, wide
+    assert len(wide) <= 3, wide   # one a replica: the ingress and the two render replicas
 
 
 def test_a_local_instance_without_a_state_dir_shares_the_default_one(cluster):
