@@ -603,7 +603,8 @@ def cmd_bench(args) -> int:
 
     # The side benchmarks: flag -> extra keyword arguments of renderer.bench.<flag>.run, which writes
     # <flag>.json and <flag>.md.
-    side = {"area": {}, "shadow_maps": {"preset_name": args.preset}, "sizes": {}, "views": {}, "materials": {}}
+    side = {"area": {}, "shadow_maps": {"preset_name": args.preset}, "sizes": {}, "views": {}, "materials": {},
+            "energy": {}}
     for name, extra in side.items():
         if getattr(args, name):
             importlib.import_module(f"renderer.bench.{name}").run(args.out, quick=args.quick, **extra)
@@ -797,6 +798,10 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     b.add_argument("--materials", action="store_true",
                    help="the physically based fabrics (1 and 2 fitted lobes) against the reference beside the Phong "
                         "fabric, on tuning and held-out maps apart (renderer/bench/materials.py)")
+    b.add_argument("--energy", action="store_true",
+                   help="each physically based material's energy and error against the reference on a sphere: "
+                        "roughness 0.1-1, dielectric and metal, sheen, under a uniform map, one small light in front "
+                        "and behind, and coloured windows (renderer/bench/energy.py; a minute here)")
     b.add_argument("--broad", action="store_true",
                    help="the presets on every shared map x 3 garments x 3 fabrics x 2 views, a tuning and a held-out "
                         "set reported apart, with the artefact share (writes broad.json/md; about an hour here, "

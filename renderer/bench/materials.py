@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..presets import frame_settings, pem_settings, preset
+from ..presets import frame_settings, pem_settings, preset, presets_digest
 from ..reference import artefact_share, relative_rmse, render_reference
 from ..renderer import Renderer
 from ..shading.material import Material
@@ -77,6 +77,12 @@ def _scenes(quick: bool) -> list[tuple[str, Scene]]:
     return out
 
 
+def energy(image: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> float:
+    """sum(image RGB) / sum(truth RGB) - 1 over the mask; NaN when the truth is black there."""
+    ref = float(truth[mask][:, :3].sum())
+    return float(image[mask][:, :3].sum()) / ref - 1.0 if ref > 0 else float("nan")
+
+
 def run(out_dir: Path, quick: bool = False, spp: int = 128, frames: int = 5, log=print) -> dict:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -105,17 +111,19 @@ def run(out_dir: Path, quick: bool = False, spp: int = 128, frames: int = 5, log
                             row = {"set": which, "scene": f"{scene.garment}/{Path(scene.map).stem}", "material": name,
                                    "lobes": lobes if material.is_pbr else None,
                                    "rel_rmse": relative_rmse(image, truth.image, truth.mask),
+                                   "energy": energy(image, truth.image, truth.mask),
                                    "noise_floor": truth.floor, "artefact_share": art.share, "frame_ms": frame_ms,
                                    "reference_s": truth.wall_s}
                             rows.append(row)
                             log(f"{row['scene']:32s} {name:14s} lobes {row['lobes']}  rel. RMSE {row['rel_rmse']:.3f} "
+                                f"energy {100 * row['energy']:+.1f} % "
                                 f"(floor {truth.floor:.3f})  {row['frame_ms']:.0f} ms")
                     finally:
                         gs.release()
             finally:
                 pems.release()
         machine = machine_info(r.gl)
-    data = {"machine": machine, "preset": PRESET, "spp": spp, "frames": frames, "quick": quick,
+    data = {"machine": machine, "presets_digest": presets_digest(), "preset": PRESET, "spp": spp, "frames": frames, "quick": quick,
             "wall_s": time.perf_counter() - t_start, "rows": rows, "summary": summary(rows)}
     (out_dir / "materials.json").write_text(json.dumps(data, indent=1))
     (out_dir / "materials.md").write_text(markdown(data))
@@ -137,6 +145,7 @@ def summary(rows: list[dict]) -> list[dict]:
             time_ratio = [r["frame_ms"] / base[r["scene"]]["frame_ms"] for r in sel]
             out.append({"set": which, "material": material, "lobes": lobes, "scenes": len(sel),
                         "rel_rmse": float(np.median([r["rel_rmse"] for r in sel])),
+                        "energy": float(np.median([r.get("energy", np.nan) for r in sel])),
                         "noise_floor": float(np.median([r["noise_floor"] for r in sel])),
                         "artefact_share": float(np.median([r["artefact_share"] for r in sel])),
                         "frame_ms": float(np.median([r["frame_ms"] for r in sel])),
@@ -160,11 +169,14 @@ def markdown(data: dict) -> str:
              f"{data['spp']} spp per technique (two seeds; the floor is their mean's own rel. RMSE), frame times "
              f"the median of {data['frames']} frames side by side in one run ({data['wall_s'] / 60:.0f} min in all).",
              "Ratios are to the Phong fabric's (the broad benchmark's mid-gloss) on the same scene, then the median.", "",
-             "| set | material | lobes | rel. RMSE | noise floor | artefacts | frame ms | error / Phong | time / Phong |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "Energy: the image's RGB summed over the object against the reference's, minus 1 (the median over the "
+             "scenes; renderer/bench/energy.py sweeps it per material on a sphere).", "",
+             "| set | material | lobes | rel. RMSE | noise floor | energy | artefacts | frame ms | error / Phong | "
+             "time / Phong |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for s in data["summary"]:
         lines.append(f"| {s.get('set', 'held-out')} | {s['material']} | {s['lobes'] or '-'} | {s['rel_rmse']:.3f} | "
-                     f"{s['noise_floor']:.3f} | "
+                     f"{s['noise_floor']:.3f} | {100 * s.get('energy', np.nan):+.1f} % | "
                      f"{100 * s['artefact_share']:.2f} % | {s['frame_ms']:.0f} | {s['error_ratio']:.2f}x | "
                      f"{s['time_ratio']:.2f}x |")
     for which in dict.fromkeys(s.get("set", "held-out") for s in data["summary"]):
@@ -181,10 +193,10 @@ def markdown(data: dict) -> str:
                 f"missed by {s['error_ratio'] / ERROR_RATIO_TARGET:.2f}x"
             t = "met" if s["time_ratio"] <= TIME_RATIO_TARGET else f"missed by {s['time_ratio'] / TIME_RATIO_TARGET:.2f}x"
             lines.append(f"- {s['material']} (held-out): error {e}; time {t}")
-    lines += ["", "Per scene:", "", "| set | scene | material | lobes | rel. RMSE | floor | frame ms |",
-              "|---|---|---|---|---|---|---|"]
+    lines += ["", "Per scene:", "", "| set | scene | material | lobes | rel. RMSE | energy | floor | frame ms |",
+              "|---|---|---|---|---|---|---|---|"]
     for r in data["rows"]:
         lines.append(f"| {r.get('set', 'held-out')} | {r['scene']} | {r['material']} | {r['lobes'] or '-'} | "
-                     f"{r['rel_rmse']:.3f} | "
+                     f"{r['rel_rmse']:.3f} | {100 * r.get('energy', np.nan):+.1f} % | "
                      f"{r['noise_floor']:.3f} | {r['frame_ms']:.0f} |")
     return "\n".join(lines) + "\n"

@@ -82,6 +82,38 @@ float disc_share_above(int i, vec3 normal) {
     return clamp((dot(normal, lights[i].dir_scale.xyz) + sin_r) / (2.0 * sin_r), 0.0, 1.0);
 }
 
+// Where the plane of `normal` crosses light i's disc, in units of its radius along the direction in
+// which the cosine grows (linear in the cosine, as disc_share_above): -1 at the disc's lowest edge
+// (all of it above), 1 at its highest (all below). disc_share_above is (1 - x) / 2, clamped.
+float horizon_crossing(int i, vec3 normal) {
+    return -dot(normal, lights[i].dir_scale.xyz) / max(lights[i].params.w, 1e-6);
+}
+
+// A lobe's share of light i's disc above the plane of `normal`, which crosses it at x_h
+// (horizon_crossing): the disc's energy (uniform in x, as disc_share_above has it) weighted by the
+// lobe (axis, exponent 1 / inv_s, as the PEM lookup reads it) across the disc, the lobe taken as the
+// Gaussian it is near its axis (pow(cos t, s) ~ exp(-s t^2 / 2): its axis at x_axis, its width
+// 1 / sqrt(s) over the disc's radius) and the Gaussian's integral as a logistic (within 0.01). A lobe
+// that is the same across the disc keeps disc_share_above; one that is itself zero below the plane
+// (its axis at the normal) keeps nearly all of its PEM term, which holds no light from below the plane
+// to remove; a narrow lobe keeps the share of its own footprint.
+float lobe_share_above(int i, vec3 normal, float x_h, vec3 axis, float inv_s) {
+    float linear = clamp(0.5 - 0.5 * x_h, 0.0, 1.0);
+    if (x_h <= -1.0 || x_h >= 1.0) return linear;
+    vec3 l = lights[i].dir_scale.xyz;
+    float sin_r = max(lights[i].params.w, 1e-6);
+    vec3 t = normal - dot(normal, l) * l;
+    float len = length(t);
+    if (len < 1e-6) return linear;
+    float x_axis = dot(axis, t) / (len * sin_r);
+    // 1.702 / sigma, sigma = sqrt(inv_s) / sin_r: the logistic's slope that matches the Gaussian's CDF.
+    float k = 1.702 * sin_r / sqrt(clamp(inv_s, 1e-8, 1.0));
+    float top = 1.0 / (1.0 + exp(-k * (1.0 - x_axis)));
+    float den = top - 1.0 / (1.0 + exp(-k * (-1.0 - x_axis)));
+    float num = top - 1.0 / (1.0 + exp(-k * (x_h - x_axis)));
+    return den > 1e-4 ? clamp(num / den, 0.0, 1.0) : linear;
+}
+
 // GLOSSY_WIDE (glossy "wide"): a large light's glossy term in closed form too where the lobe is wider
 // than its disc (variance 1 / s >= a^2 / 4, the two spreads of glossy_from_light): there the PEM's
 // coarse MIP levels (a few texels a face) are the larger error; a narrower lobe reads the fine levels,

@@ -123,20 +123,27 @@ vec3 g_glossy_exact[N_LOBES];
 #endif
 
 // Light i's glossy terms, its visibility `vis`: from its PEM lookups (pem_g, still divided by the
-// region's `scale`) or its disc in closed form, per lobe; a small light's on a physically based pixel
-// from the exact BRDF over its disc (lobes.glsl) instead of the lobes.
-void add_glossy(int i, vec3 pem_g[N_LOBES], bool pem_glossy, float vis, float scale, bool small) {
+// region's `scale`) or its disc in closed form, per lobe. A physically based pixel (g_clip_lobes): the
+// light's part above the plane `p` (the horizon that cuts more of its disc), either from the exact BRDF
+// over its disc (lobes.glsl, pbr_exact_light) or, per lobe, the lobe's own share of the disc above
+// the plane (discs.glsl, lobe_share_above): a lobe's PEM term holds no light from below its own equator.
+void add_glossy(int i, vec3 pem_g[N_LOBES], bool pem_glossy, float vis, float scale, bool small, vec3 p) {
+    float x_h = -2.0;
 #ifdef PBR
-    if (g_clip_lobes && small && !pem_glossy) {
-        g_pbr_exact += vis * pbr_from_light(i);
-        return;
+    if (g_clip_lobes) {
+        if (pbr_exact_light(i, small, pem_glossy)) {
+            g_pbr_exact += vis * pbr_from_light_above(i, p);
+            return;
+        }
+        x_h = horizon_crossing(i, p);
     }
 #endif
     for (int k = 0; k < N_LOBES; ++k) {
+        float share = x_h > -1.0 ? lobe_share_above(i, p, x_h, g_lobe_axis[k], g_lobe_inv_s[k]) : 1.0;
         if (!pem_glossy || wide_lobe(i, g_lobe_inv_s[k])) {
-            if (g_has_glossy) g_glossy_exact[k] += vis * glossy_from_light(i, g_lobe_axis[k], g_lobe_inv_s[k]);
+            if (g_has_glossy) g_glossy_exact[k] += (vis * share) * glossy_from_light(i, g_lobe_axis[k], g_lobe_inv_s[k]);
         } else {
-            g_glossy[k] += vis * scale * pem_g[k];
+            g_glossy[k] += (vis * share * scale) * pem_g[k];
         }
     }
 }
@@ -152,8 +159,7 @@ void add_light(int i, vec3 pem_d, vec3 pem_g[N_LOBES], vec3 n, vec3 ws_pos, bool
 #if MODE == 1
     if (!pem_diffuse) g_diffuse_exact += diffuse_from_light(i, n);
     else g_diffuse += pem_d;
-    add_glossy(i, pem_g, pem_glossy, g_clip_lobes ? disc_share_above(i, n) : 1.0, scale,
-               lights[i].shadow.w > 0.5);
+    add_glossy(i, pem_g, pem_glossy, 1.0, scale, lights[i].shadow.w > 0.5, n);
 #elif MODE == 0
 #ifdef ORACLE_VISIBILITY
     float vis = texelFetch(u_oracle_visibility, ivec3(g_px, i), 0).r;
@@ -172,12 +178,16 @@ void add_light(int i, vec3 pem_d, vec3 pem_g[N_LOBES], vec3 n, vec3 ws_pos, bool
     // and its PEM's diffuse kernel spreads it anyway); large lights: the glossy term (the lobe's part
     // below the surface, which the reference's visibility removes and the PEM lookup along r does not).
     bool small = lights[i].shadow.w > 0.5;   // decided once, in renderer/shadows/lights.py
-    if (small) vis *= above;
-    if (pem_diffuse) g_diffuse += vis * pem_d;
-    else g_diffuse_exact += vis * diffuse_from_light(i, n);
-    if (!small) vis *= above;
-    if (g_clip_lobes) vis *= disc_share_above(i, n);
-    add_glossy(i, pem_g, pem_glossy, vis, scale, small);
+    float vis_d = small ? vis * above : vis;
+    if (pem_diffuse) g_diffuse += vis_d * pem_d;
+    else g_diffuse_exact += vis_d * diffuse_from_light(i, n);
+    // A physically based pixel's glossy terms: the light's part above both planes, the shading
+    // normal's and the surface's, from the one that cuts more of its disc (add_glossy).
+    if (g_clip_lobes)
+        add_glossy(i, pem_g, pem_glossy, vis, scale, small,
+                   horizon_crossing(i, n) >= horizon_crossing(i, g_geometric_normal) ? n : g_geometric_normal);
+    else
+        add_glossy(i, pem_g, pem_glossy, vis * above, scale, small, n);
 #else
     // Ambient-occlusion baselines (paper Fig. 6): unshadowed lighting times an occlusion factor
     // that averages VIS_i with cosine weights, by solid angle (grey) or by energy (colour).
@@ -208,6 +218,10 @@ void shade_light(int i, bool pem_diffuse, bool pem_glossy, bool sharp, bool in_p
     vec3 pem_d = vec3(0.0);
     vec3 pem_g[N_LOBES];
     for (int k = 0; k < N_LOBES; ++k) pem_g[k] = vec3(0.0);
+#ifdef PBR
+    // A light whose glossy terms come from the exact BRDF reads no glossy PEM.
+    if (g_clip_lobes && pbr_exact_light(i, lights[i].shadow.w > 0.5, pem_glossy)) glossy = false;
+#endif
     if (in_pem1) {
         float layer = float(i - REGIONS_PER_TEXTURE);
         if (pem_diffuse) pem_d = textureLod(u_pem1, vec4(n, layer), u_diffuse_level).rgb;
