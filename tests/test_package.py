@@ -1,10 +1,13 @@
 """The package as a user installs it: a wheel built from the checkout, installed into a fresh virtual
-environment, renders a frame from outside the checkout (its shaders and data are in the wheel)."""
+environment, renders a frame from outside the checkout (its shaders and data are in the wheel); with
+the `client` extra's dependencies alone (no GL, no server), the client sends frames to a real service."""
 
 from __future__ import annotations
 
+import importlib.metadata
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -90,3 +93,68 @@ def test_an_installed_wheel_renders_a_frame_outside_the_checkout(wheel, tmp_path
     image = np.asarray(Image.open(work / "frame.png"))
     assert image.shape[:2] == (48, 48) and image.std() > 1.0   # a shaded frame, not a blank one
     assert json.loads((work / "timings.json").read_text())["timings"]["frame_wall_ms"] > 0
+
+
+def _distributions(names: list[str]) -> list[importlib.metadata.Distribution]:
+    """The installed distributions `names` need, with what they require (markers of extras skipped; a
+    requirement that its marker leaves out of this Python is not installed here, and skipped)."""
+    seen: dict[str, importlib.metadata.Distribution] = {}
+    todo = list(names)
+    while todo:
+        name = todo.pop()
+        key = re.sub(r"[-_.]+", "-", name).lower()
+        if key in seen:
+            continue
+        try:
+            seen[key] = dist = importlib.metadata.distribution(name)
+        except importlib.metadata.PackageNotFoundError:
+            continue
+        todo += [re.match(r"[A-Za-z0-9_.-]+", r).group(0) for r in dist.requires or [] if "extra ==" not in r]
+    return list(seen.values())
+
+
+def test_the_client_extra_sends_frames_without_gl_or_the_server(wheel, tmp_path):
+    """A simulator's machine: a fresh environment that holds the wheel and the client extra's
+    dependencies (httpx, numpy, Pillow for `Frame.pil`) and nothing else, so that an import of GL,
+    of the renderer or of the server's libraries fails there; the README's client example runs in it,
+    as written, against a real service."""
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]["client"]
+    wanted = [re.match(r"[A-Za-z0-9_.-]+", r).group(0) for r in extras]
+    env_dir = tmp_path / "client-env"
+    venv.EnvBuilder(with_pip=True).create(env_dir)
+    python = env_dir / "bin" / "python"
+    purelib = Path(subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                                  check=True, capture_output=True, text=True).stdout.strip())
+    deps = tmp_path / "client-deps"
+    deps.mkdir()
+    for dist in _distributions(wanted):
+        for top in {f.parts[0] for f in dist.files or [] if f.parts[0] not in ("..", "__pycache__")}:
+            source = Path(dist.locate_file(top))
+            if source.exists() and not (deps / top).exists():
+                (deps / top).symlink_to(source)
+    (purelib / "client-deps.pth").write_text(str(deps) + "\n")
+    subprocess.run([str(python), "-m", "pip", "install", "-q", "--no-deps", "--no-index", str(wheel)], check=True,
+                   timeout=300)
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    absent = subprocess.run([str(python), "-c", "import importlib.util as u; print([m for m in ('moderngl', "
+                             "'fastapi', 'trimesh', 'OpenEXR') if u.find_spec(m)])"], check=True, capture_output=True,
+                            text=True, cwd=tmp_path, env=env).stdout.strip()
+    assert absent == "[]", absent
+
+    from service_server import ServiceProcess
+    from test_readme import _block, write_example_files
+
+    work = tmp_path / "simulator"
+    work.mkdir()
+    write_example_files(work)
+    server = ServiceProcess(tmp_path)
+    try:
+        code = _block("RenderClient").replace("http://127.0.0.1:8000", server.url)
+        done = subprocess.run([str(python), "-c", code], capture_output=True, text=True, cwd=work, env=env,
+                              timeout=300)
+    finally:
+        server.stop()
+    assert done.returncode == 0, done.stderr[-2000:]
+    frames = sorted(work.glob("frame_*.png"))
+    assert [f.name for f in frames] == ["frame_0000.png", "frame_0001.png"]
+    assert np.asarray(Image.open(frames[0])).std() > 1.0

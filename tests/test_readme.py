@@ -23,19 +23,24 @@ def _block(marker: str) -> str:
     return block
 
 
+def write_example_files(folder: Path) -> list[np.ndarray]:
+    """studio.exr, shirt.obj (a sphere in centimetres) and drape.npz (two frames of it in metres, Z up,
+    in the layout of the shared simulation: positions and triangles) in `folder`; returns the
+    `simulation` the library example iterates."""
+    write_exr(folder / "studio.exr", studio_environment(128))
+    shirt = trimesh.creation.icosphere(subdivisions=3, radius=30.0)
+    shirt.export(folder / "shirt.obj")
+    positions = np.asarray(shirt.vertices, np.float32)
+    np.savez(folder / "drape.npz", positions=np.stack([positions, positions * np.float32(1.02)]) * np.float32(0.01),
+             triangles=np.asarray(shirt.faces, np.int32))
+    return [positions, positions * np.float32(1.02)]
+
+
 @pytest.fixture
 def files(tmp_path, monkeypatch):
-    """studio.exr, shirt.obj (a sphere in centimetres) and drape.npz (two frames of it in metres, Z up,
-    in the layout of the shared simulation: positions and triangles) where the examples look for
-    them, and the `simulation` the library example iterates."""
+    """The examples' files where they look for them (write_example_files)."""
     monkeypatch.chdir(tmp_path)
-    write_exr(tmp_path / "studio.exr", studio_environment(128))
-    shirt = trimesh.creation.icosphere(subdivisions=3, radius=30.0)
-    shirt.export(tmp_path / "shirt.obj")
-    positions = np.asarray(shirt.vertices, np.float32)
-    np.savez(tmp_path / "drape.npz", positions=np.stack([positions, positions * np.float32(1.02)]) * np.float32(0.01),
-             triangles=np.asarray(shirt.faces, np.int32))
-    return {"simulation": [positions, positions * np.float32(1.02)]}
+    return {"simulation": write_example_files(tmp_path)}
 
 
 def test_the_readme_client_example_drives_a_real_service(files, tmp_path):
