@@ -23,6 +23,16 @@ from .camera import Camera, bounds_sphere, default_camera
 from .config import MAX_LIGHTS, MAX_SHADOW_SIDE
 from .errors import InvalidInputError
 from .gpu.context import GLContext, StageTimer
+from .gpu.contract import (
+    G_BUFFER_UNITS,
+    N_LIGHT_KINDS,
+    WIDE_LOBE_DISC_VARIANCE,
+    Image,
+    LightingBuffer,
+    LightingTexture,
+    LightKind,
+    Mode,
+)
 from .gpu.shaders import compute_shader, program, set_uniform
 from .lighting import material_lobes
 from .lighting.pem import REGIONS_PER_TEXTURE, SUB_LIGHT_BYTES, PEMSet, PEMSettings
@@ -55,8 +65,8 @@ class ShadingMode(str, Enum):
     MANY_LIGHTS = "many-lights"  # baseline: the N lights shade too (no PEMs), paper's introduction
 
 
-_MODE_INDEX = {ShadingMode.FULL: 0, ShadingMode.NO_OCCLUSION: 1, ShadingMode.AO_GREY: 2, ShadingMode.AO_COLOUR: 3,
-               ShadingMode.MANY_LIGHTS: 4}
+_MODE_INDEX = {ShadingMode.FULL: Mode.FULL, ShadingMode.NO_OCCLUSION: Mode.NO_OCCLUSION, ShadingMode.AO_GREY: Mode.AO_GREY,
+               ShadingMode.AO_COLOUR: Mode.AO_COLOUR, ShadingMode.MANY_LIGHTS: Mode.MANY_LIGHTS}
 
 
 
@@ -74,7 +84,7 @@ class Background(str, Enum):
 CONTACT_SLICES, CONTACT_STEPS = 4, 8
 # How far behind what the camera sees the contact search takes it to be solid, in units of its radius:
 # a garment's near layer at a silhouette does not shadow the far layer from a light behind both
-# (docs/benchmarks.md).
+# (docs/sweep.md).
 CONTACT_THICKNESS = 0.5
 
 
@@ -94,7 +104,7 @@ class FrameSettings:
     bleed_reduction: float = 0.2
     # Shadow-map bias, in each map's own texels (main and sharp maps alike): the lookup pushed off the
     # surface along the normal, and the least deviation of the depths under a texel (Chebyshev's
-    # variance floor). Chosen on the benchmark scenes (docs/benchmarks.md, the bias rows). Only
+    # variance floor). Chosen on the benchmark scenes (docs/sweep.md, the bias rows). Only
     # against the receiver's own shadow group (renderer/scene.py): the other group's casters are
     # compared without it.
     normal_offset_texels: float = balanced("normal_offset_texels")
@@ -102,7 +112,7 @@ class FrameSettings:
     # Contact shadows (full mode; lighting.frag): occluders within this many main-map texels of a
     # surface, found in the geometry pass's positions along screen lines: those the maps' bias skips
     # (the collar over the neck) and the near ones a 256^2 map drawn from a proxy blurs (a fold's
-    # lips). 0: off (the paper). Chosen on the benchmark scenes (docs/benchmarks.md).
+    # lips). 0: off (the paper). Chosen on the benchmark scenes (docs/sweep.md).
     contact_shadow_texels: float = balanced("contact_shadow_texels")
     # Share of the casters' triangles the shadow pass draws (shadows/proxy.py; 1: the meshes
     # themselves): the pass costs per triangle on a CPU rasterizer.
@@ -113,7 +123,7 @@ class FrameSettings:
     small_light_scale: int = balanced("small_light_scale")
     # Of the small lights, only those carrying at least this many times the mean light's energy get
     # the sharp maps; the others are shadowed like the large lights (their edges, dim, cost more than
-    # they show: docs/benchmarks.md). Relative to the mean, so that a sun split into more regions at
+    # they show: docs/sweep.md). Relative to the mean, so that a sun split into more regions at
     # more lights keeps its sharp maps. 0: every small light.
     small_light_min_energy: float = balanced("small_light_min_energy")
     # Large lights with at least small_light_min_energy x the mean energy get the sharp maps too (the
@@ -130,7 +140,7 @@ class FrameSettings:
     # its texels cut further by the same median cut (lighting/median_cut.py, SubLights), its
     # visibility, diffuse term and PEMs still the region's.
     # 1: one disc per region (the paper's one light per region). A power of two, at most
-    # MAX_SUB_LIGHTS. Chosen on the benchmark scenes (docs/benchmarks.md, the sub_lights rows).
+    # MAX_SUB_LIGHTS. Chosen on the benchmark scenes (docs/sweep.md, the sub_lights rows).
     sub_lights: int = balanced("sub_lights")
     # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level)
     # or "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups).
@@ -196,7 +206,6 @@ class Frame:
     settings: dict = field(default_factory=dict)
 
 
-N_LIGHT_KINDS = 16   # lighting.frag's kinds: 4 bits
 # The modes whose lighting pass has closed-form terms (the others read every PEM).
 _CLOSED_FORM_MODES = (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
 # light_kinds: a large light counts as wide at every pixel only by this margin in 1 - g (a pixel's g is
@@ -219,9 +228,9 @@ def _no_diffuse_pems(mode: ShadingMode, diffuse: str) -> bool:
 def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
                 max_glossiness: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """The lighting pass's order of the lights and the end of each kind in it (int32 arrays: the
-    light_order buffer and u_kind_end of lighting.frag). A light's kind: bit 0 it reads its diffuse
-    PEM, bit 1 its glossy PEM, bit 2 its map is in the sharp array, bit 3 its region is in the second
-    PEM texture. Whether a term comes from the PEM follows the shader's modes: in the full and
+    light_order buffer and u_kind_end of lighting.frag). A light's kind, the bits of LightKind
+    (renderer/gpu/contract.py): it reads its diffuse PEM, its glossy PEM, its map is in the sharp
+    array, its region is in the second PEM texture. Whether a term comes from the PEM follows the shader's modes: in the full and
     no-occlusion modes every light's diffuse term is in closed form with diffuse "lights", and small
     lights' (angular radius <= ~6 degrees) glossy term with glossy "wide"; there a large light whose disc is narrower than the lobe at every pixel (at the scene's
     `max_glossiness`, the widest lobe being the least glossy) has its glossy term in closed form
@@ -235,10 +244,10 @@ def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
     if exact_modes and settings.glossy == "wide":
         # wide_lobe in lighting.frag at the glossiest pixel, with a margin for the interpolated g.
         sin_a = lights["params"][:, 3].astype(np.float64)
-        pem_glossy &= ~(max(1.0 - max_glossiness, 0.0) - WIDE_LOBE_MARGIN >= 0.25 * sin_a * sin_a)
+        pem_glossy &= ~(max(1.0 - max_glossiness, 0.0) - WIDE_LOBE_MARGIN >= WIDE_LOBE_DISC_VARIANCE * sin_a * sin_a)
     second = np.arange(n) >= REGIONS_PER_TEXTURE
-    kind = (pem_diffuse.astype(np.int32) | pem_glossy.astype(np.int32) << 1 | np.asarray(sharp, np.int32) << 2
-            | second.astype(np.int32) << 3)
+    kind = (pem_diffuse.astype(np.int32) * LightKind.PEM_DIFFUSE | pem_glossy.astype(np.int32) * LightKind.PEM_GLOSSY
+            | np.asarray(sharp, np.int32) * LightKind.SHARP | second.astype(np.int32) * LightKind.SECOND_PEM)
     order = np.argsort(kind, kind="stable").astype(np.int32)
     kind_end = np.searchsorted(kind[order], np.arange(1, N_LIGHT_KINDS + 1)).astype(np.int32)
     return order, kind_end
@@ -280,7 +289,7 @@ def default_lighting_pass(gl_renderer: str) -> str:
     """The lighting pass a GL renderer runs fastest: $GARMENT_RENDER_LIGHTING_PASS when set, else
     the fragment pass on llvmpipe (its early depth test skips uncovered blocks) and the compute pass
     on a GPU (an H100 runs fragment shaders on the few multiprocessors that can rasterize: 8.8 ms of
-    GPU time against 1.0 ms; docs/benchmarks.md). `garment-render speed` times both. They give the
+    GPU time against 1.0 ms; docs/gpu/README.md). `garment-render speed` times both. They give the
     same image (tests/test_render.py)."""
     return _by_renderer("GARMENT_RENDER_LIGHTING_PASS", LIGHTING_PASSES, gl_renderer)
 
@@ -305,7 +314,7 @@ def default_normals(gl_renderer: str) -> str:
     """Where a frame's new positions get their vertex normals: $GARMENT_RENDER_NORMALS when set,
     else numpy on llvmpipe (a compute pass there runs on the same CPU cores, through a shader
     compiler's code instead of numpy's loops) and the compute pass on a GPU (on an H100 the upload
-    stage of `speed --large` went from 32 ms to 1.1 ms; docs/benchmarks.md). `garment-render speed
+    stage of `speed --large` went from 32 ms to 1.1 ms; docs/gpu/README.md). `garment-render speed
     --large` times both. They give the same normals up to float32 rounding (tests/test_render.py)."""
     return _by_renderer("GARMENT_RENDER_NORMALS", NORMALS, gl_renderer)
 
@@ -380,7 +389,7 @@ class Renderer:
         key = (mode, diffuse if closed else "pem", two_textures, wide, contact, compute, sub_lights, lobes, blocker,
                oracle)
         if key not in self._shade_progs:
-            defines = {**self._defines, "MODE": _MODE_INDEX[mode], "TWO_PEM_TEXTURES": int(two_textures)}
+            defines = {**self._defines, "MODE": int(_MODE_INDEX[mode]), "TWO_PEM_TEXTURES": int(two_textures)}
             if wide:
                 defines["GLOSSY_WIDE"] = 1   # large lights' glossy term in closed form where the lobe is wide
             if closed:
@@ -728,29 +737,30 @@ class Renderer:
             ctx.viewport = (0, 0, w, h)
             fbo.depth_mask = False   # the depth buffer is the geometry pass's: clear the colour only
             fbo.clear(0.0, 0.0, 0.0, 0.0)
-            lights_buf.bind_to_storage_buffer(0)
+            lights_buf.bind_to_storage_buffer(LightingBuffer.LIGHTS)
             if self._lights_block:
-                lights_buf.bind_to_uniform_block(0)
+                lights_buf.bind_to_uniform_block(LightingBuffer.LIGHTS)
             if discs > 1:
                 block = self._sub_lights_block(discs)
                 buf = self._buffer("sub_lights_block" if block else "sub_lights", pems.sub_lights_bytes(discs),
                                    block or None)
                 if block:
-                    buf.bind_to_uniform_block(6)
+                    buf.bind_to_uniform_block(LightingBuffer.SUB_LIGHTS)
                 else:
-                    buf.bind_to_storage_buffer(6)
+                    buf.bind_to_storage_buffer(LightingBuffer.SUB_LIGHTS)
             self._gloss_buf.write(pems.gloss_table().tobytes())
-            self._gloss_buf.bind_to_storage_buffer(1)
-            for unit, t in enumerate(gbuf):
-                t.use(location=8 + unit)
-            pems.bind(0, 5, 6)
-            shadow_maps.moments.use(location=1)
-            arrays.get("sharp", shadow_maps).moments.use(location=12)
+            self._gloss_buf.bind_to_storage_buffer(LightingBuffer.GLOSS_LEVELS)
+            for unit, t in zip(G_BUFFER_UNITS, gbuf):   # four targets, five with a physically based material
+                t.use(location=unit)
+            pems.bind(LightingTexture.PEM0, LightingTexture.PEM1, LightingTexture.PEM_NORM)
+            shadow_maps.moments.use(location=LightingTexture.MOMENTS)
+            arrays.get("sharp", shadow_maps).moments.use(location=LightingTexture.MOMENTS_SHARP)
             if lp.blocker:
-                shadow_maps.casters.use(location=14)   # the penumbrae's blocker search (PENUMBRA_BLOCKER)
+                shadow_maps.casters.use(location=LightingTexture.CASTERS)   # the penumbrae's blocker search (PENUMBRA_BLOCKER)
             if settings.background is Background.ENVIRONMENT:
                 ctx.disable(moderngl.DEPTH_TEST)
-                (background.texture if background is not None else pems.env_texture).use(location=2)
+                (background.texture if background is not None else pems.env_texture).use(
+                    location=LightingTexture.ENVIRONMENT)
                 self.bg_prog["u_inv_view_proj"].write(np.linalg.inv(view_proj).T.astype(np.float32).tobytes())
                 self.bg_vao.render(moderngl.TRIANGLES, vertices=3)
             # Lighting pass: a full-screen triangle at the far plane, drawn where the geometry pass's
@@ -762,11 +772,10 @@ class Renderer:
             p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE, settings.glossy,
                                          contact, discs, lobes, lp.blocker, oracle is not None)
             if oracle is not None:
-                oracle.use(location=15)
+                oracle.use(location=LightingTexture.ORACLE)
             if lobes is not None:
                 table, sheen_offset = self._lobe_table(*lobes)
-                table.bind_to_storage_buffer(7)
-                gbuf[4].use(location=13)
+                table.bind_to_storage_buffer(LightingBuffer.MATERIAL_LOBES)
                 set_uniform(p, "u_sheen_offset", sheen_offset)
             contact_radius = 0.0
             if "u_contact_radius" in p:
@@ -788,11 +797,11 @@ class Renderer:
                 lc = np.einsum("ij,nj->ni", view_proj[:, :3], regions.directions)
                 screen = np.stack([lc[:, 0], lc[:, 1], lc[:, 3], np.clip(disc_radius, 0.01, np.pi / 2)], axis=1)
                 self._buffer("light_screen", screen.astype(np.float32).tobytes(), MAX_LIGHTS * 16
-                             ).bind_to_uniform_block(5)
+                             ).bind_to_uniform_block(LightingBuffer.LIGHT_SCREEN)
                 p["u_image_size"] = (float(w), float(h))
                 p["u_focal_px"] = 0.5 * h / float(np.tan(np.radians(camera.fov_y_deg) / 2.0))
             order, kind_end = light_kinds(lights, plan.sharp, settings, scene.max_glossiness)
-            self._buffer("light_order", order.tobytes(), MAX_LIGHTS * 4).bind_to_uniform_block(4)
+            self._buffer("light_order", order.tobytes(), MAX_LIGHTS * 4).bind_to_uniform_block(LightingBuffer.LIGHT_ORDER)
             if "u_kind_end" in p:   # the compiler keeps the entries up to the last kind this variant loops over
                 p["u_kind_end"].write(kind_end[:p["u_kind_end"].array_length].tobytes())
             set_uniform(p, "u_camera_pos", tuple(float(x) for x in camera.eye))
@@ -806,7 +815,7 @@ class Renderer:
             set_uniform(p, "u_bleed_reduction", settings.bleed_reduction)
             if vao is None:   # the compute pass: every pixel, uncovered ones left as drawn
                 ctx.memory_barrier()
-                fbo.color_attachments[0].bind_to_image(0, read=False, write=True)
+                fbo.color_attachments[0].bind_to_image(Image.LIGHTING_OUT, read=False, write=True)
                 p.run((w + 7) // 8, (h + 7) // 8)
                 ctx.memory_barrier()
             else:

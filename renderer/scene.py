@@ -11,6 +11,7 @@ import numpy as np
 
 from .errors import MeshError
 from .gpu.context import GLContext
+from .gpu.contract import GeometryTexture, NormalsBuffer
 from .gpu.shaders import set_uniform
 from .mesh import FALLBACK_NORMAL, Mesh, box, box_corners, vertex_normals
 from .shading.material import Material, TextureSet
@@ -254,7 +255,9 @@ class SceneMesh:
         p = self._normals_prog
         p["u_n_vertices"].value = self.n_vertices
         p["u_fallback"].value = FALLBACK_NORMAL
-        for unit, buf in enumerate((self.vbo_pos, self.ibo, *self._adjacency, self.vbo_nrm)):
+        units = (NormalsBuffer.POSITIONS, NormalsBuffer.FACES, NormalsBuffer.ADJACENCY_START, NormalsBuffer.ADJACENCY,
+                 NormalsBuffer.NORMALS)
+        for unit, buf in zip(units, (self.vbo_pos, self.ibo, *self._adjacency, self.vbo_nrm), strict=True):
             buf.bind_to_storage_buffer(unit)
         groups = (self.n_vertices + 63) // 64
         p.run(min(groups, MAX_GROUPS_X), (groups + MAX_GROUPS_X - 1) // MAX_GROUPS_X)
@@ -307,11 +310,11 @@ class TexturePart:
         return tex
 
     def bind(self, program) -> None:
-        """The part's textures on units 3-6 and its uniforms (gbuffer.frag)."""
-        self.albedo_tex.use(location=3)
-        self.gloss_tex.use(location=4)
-        self.normal_tex.use(location=5)
-        self.sheen_tex.use(location=6)
+        """The part's textures on their units (GeometryTexture) and its uniforms (gbuffer.frag)."""
+        self.albedo_tex.use(location=GeometryTexture.ALBEDO_MAP)
+        self.gloss_tex.use(location=GeometryTexture.GLOSS_MAP)
+        self.normal_tex.use(location=GeometryTexture.NORMAL_MAP)
+        self.sheen_tex.use(location=GeometryTexture.SHEEN_MAP)
         set_uniform(program, "u_normal_scale", self.normal_scale)
         set_uniform(program, "u_use_albedo_map", self.use_maps[0])
         set_uniform(program, "u_use_gloss_map", self.use_maps[1])

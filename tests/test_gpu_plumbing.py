@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from renderer.errors import ShaderError
+from renderer.gpu.contract import Mode, ProbeBuffer
 from renderer.gpu.shaders import _rewrite_log, compose, compute_shader
 from renderer.shadows.lights import (
     FOOTPRINT_STEPS_PER_OCTAVE,
@@ -25,8 +26,8 @@ def test_light_struct_mirror_matches_glsl_std430(gl):
     ctx = gl.ctx
     src = ctx.buffer(arr.tobytes())
     out = ctx.buffer(reserve=n * 8 * 16)
-    src.bind_to_storage_buffer(0)
-    out.bind_to_storage_buffer(1)
+    src.bind_to_storage_buffer(ProbeBuffer.LIGHTS)
+    out.bind_to_storage_buffer(ProbeBuffer.OUT)
     cs = compute_shader(ctx, "common/light_layout_probe.comp")
     cs.run(n)
     got = np.frombuffer(out.read(), np.float32).reshape(n, 8, 4)
@@ -107,7 +108,8 @@ def test_a_thin_box_keeps_a_depth_range_of_several_texels():
 
 def test_composed_shader_carries_line_directives_per_file():
     src, files = compose("pem/filter.comp", {"X": 1})
-    assert src.startswith("#version 450 core\n#define X 1\n#line 1 0")
+    assert src.startswith("#version 450 core\n#define ")
+    assert src.split("\n#line 1 0", 1)[0].endswith("\n#define X 1")   # the caller's defines after the contract's
     assert files == ["pem/filter.comp", "common/cube.glsl"]
     assert "#line 100001 1" in src
 
@@ -194,7 +196,7 @@ def test_a_uniform_no_source_declares_is_an_error_and_one_a_variant_dropped_is_n
     from renderer.gpu.shaders import program, set_uniform
 
     prog = program(gl.ctx, "shading/background.vert", "shading/lighting.frag",
-                   {"GLOSS_TABLE_SIZE": 257, "REGIONS_PER_TEXTURE": 192, "MODE": 1,
+                   {"GLOSS_TABLE_SIZE": 257, "REGIONS_PER_TEXTURE": 192, "MODE": int(Mode.NO_OCCLUSION),
                     "TWO_PEM_TEXTURES": 0, "MAX_LIGHTS": MAX_LIGHTS})
     try:
         assert "u_contact_radius" not in prog                 # declared under CONTACT_SHADOWS: dropped here

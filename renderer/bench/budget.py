@@ -47,7 +47,8 @@ def summarize(bench: dict) -> dict:
                         "worst_rel_rmse": max(r["rel_rmse"] for r in rows),
                         "median_frame_ms": times[len(times) // 2],
                         "scenes": sorted(r["scene"] for r in rows)})
-    return {"machine": bench["machine"], "size": bench["config"]["size"], "entries": entries}
+    return {"machine": bench["machine"], "presets_digest": bench.get("presets_digest"), "size": bench["config"]["size"],
+            "entries": entries}
 
 
 def write_table(bench_json: Path, out: Path = MEASURED) -> dict:

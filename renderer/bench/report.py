@@ -101,6 +101,9 @@ def _artefacts(r) -> str:
 
 def write_markdown(path: Path, rows, machine: dict, cfg) -> None:
     lines = [f"# Benchmark ({'quick' if cfg.quick else 'full'})", "",
+             f"Made by `garment-render bench{' --quick' if cfg.quick else ''}` (renderer/bench/run.py): every knob "
+             "varied alone from the balanced preset of the preset files of the day (bench.json records their digest).",
+             "",
              f"Machine: {machine['cpu']}, OpenGL: {machine['gl_renderer']} ({machine['gl_version']}), "
              f"date {machine['date']}. Image {cfg.size}x{cfg.size}; frame time = median of {cfg.frames} frames "
              f"after a warm-up frame; reference: the mean of two independent renders of {cfg.ref_spp} spp.", "",

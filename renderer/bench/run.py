@@ -207,9 +207,11 @@ def run_bench(out_dir: Path, cfg: BenchConfig, log=print) -> list[Row]:
 
 
 def _write(out_dir: Path, rows: list[Row], machine: dict, cfg: BenchConfig) -> None:
+    from ..presets import presets_digest
     from .report import write_markdown, write_pareto
 
     (out_dir / "bench.json").write_text(json.dumps(
-        {"machine": machine, "config": asdict(cfg), "rows": [asdict(r) for r in rows]}, indent=1, default=float))
+        {"machine": machine, "presets_digest": presets_digest(), "config": asdict(cfg),
+         "rows": [asdict(r) for r in rows]}, indent=1, default=float))
     write_markdown(out_dir / "bench.md", rows, machine, cfg)
     write_pareto(out_dir / "pareto.png", rows)

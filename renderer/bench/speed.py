@@ -1,6 +1,6 @@
 """`garment-render speed`: frame times of the presets measured side by side.
 
-On a shared, noisy machine a setting timed alone can be 1.3x off (docs/benchmarks.md). Here the
+On a shared, noisy machine a setting timed alone can be 1.3x off (rows of the same work timed one after another). Here the
 settings take turns, frame by frame, for N rounds on each scene, so that a slow spell of the machine
 falls on all of them alike: the medians and the ratios to `balanced` are comparable.
 

@@ -1,5 +1,6 @@
 """GLSL source loading: files under the top-level `shaders/` (installed as `renderer/shaders`),
-composed by `#include` and `#define`.
+composed by `#include` and `#define`, with the names of the Python/GLSL contract (contract.py) defined
+in every program.
 
 Every included file is given its own GLSL source-string number through `#line <line> <file-id>`
 so that a compile error can be mapped back to a file and line; `ShaderError` carries that mapping.
@@ -15,6 +16,7 @@ from pathlib import Path
 import moderngl
 
 from ..errors import ShaderError
+from .contract import glsl_defines
 
 # An installed package carries them as renderer/shaders (pyproject.toml); a checkout has them beside it.
 _PACKAGED = Path(__file__).resolve().parents[1] / "shaders"
@@ -57,7 +59,7 @@ def compose(name: str, defines: dict[str, object] | None = None, first_id: int =
     emit(name, ())
     body = "\n".join(lines_out)
     head = ["#version 450 core"]
-    for key, value in (defines or {}).items():
+    for key, value in {**glsl_defines(), **(defines or {})}.items():
         head.append(f"#define {key} {value}")
     if not body.lstrip().startswith("#line"):
         raise ShaderError("internal: composed shader does not start with #line")

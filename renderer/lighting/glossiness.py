@@ -20,7 +20,7 @@ A second calibration, "l2" (the renderer's default): the level whose kernel, nor
 to 1 as the lookup applies it, is closest in L2 over the sphere to the normalized Phong lobe
 (s + 1) / (2 pi) max(0, cos)^s that the reference integrates. Volume matching of peak-1 lobes ignores
 the kernel's peak height and tails, which are what a small bright region sees; against the Monte Carlo
-reference (docs/benchmarks.md) the l2 levels are deeper for mid glossiness (g = 0.8 at 128^2: 4.4
+reference (docs/sweep.md) the l2 levels are deeper for mid glossiness (g = 0.8 at 128^2: 4.4
 instead of 3.9) and every target scene's error drops. Where the lobe gets too narrow for the
 evaluation grid (s above ~2 / (4 texels)^2), the l2 level joins the volume level smoothly, and the
 mirror stays level 0.

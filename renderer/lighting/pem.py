@@ -19,6 +19,7 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from ..gpu.context import GLContext, StageTimer
+from ..gpu.contract import Image, PEMBuffer
 from ..gpu.rawgl import GL_RGBA16F, GL_RGBA32F, CubeMapArray
 from ..gpu.shaders import compute_shader
 from ..presets import balanced
@@ -239,12 +240,13 @@ class PEMSet:
                    ctx.buffer(np.ascontiguousarray(self.regions.labels, np.int32).tobytes()),
                    ctx.buffer((1.0 / self.scale).astype(np.float32).tobytes())]
         batch, per_region_bytes = _scratch_batch(n)
-        buffers.append(ctx.buffer(reserve=batch * per_region_bytes))  # binding 3: filtered level
-        buffers.append(ctx.buffer(reserve=batch * per_region_bytes))  # binding 4: reduced level
+        buffers.append(ctx.buffer(reserve=batch * per_region_bytes))  # the filtered level
+        buffers.append(ctx.buffer(reserve=batch * per_region_bytes))  # the reduced level
         progs = {}
         try:
-            for i, b in enumerate(buffers):
-                b.bind_to_storage_buffer(i)
+            units = (PEMBuffer.ENV, PEMBuffer.LABELS, PEMBuffer.INV_SCALE, PEMBuffer.FILTERED, PEMBuffer.REDUCED)
+            for unit, b in zip(units, buffers, strict=True):
+                b.bind_to_storage_buffer(unit)
             for name, file, defines in (("level0", "pem/level0.comp", None),
                                         ("down_env", "pem/downsample.comp", {"FROM_ENV": 1}),
                                         ("down", "pem/downsample.comp", None), ("filter", "pem/filter.comp", None)):
@@ -258,7 +260,7 @@ class PEMSet:
                 texture_first = first - first % REGIONS_PER_TEXTURE
                 for name in ("level0", "filter"):
                     progs[name]["u_texture_first_region"].value = texture_first
-                texture.bind_image(0, 0)
+                texture.bind_image(Image.PEM_OUT, 0)
                 if self.base_level == 0:
                     p = progs["level0"]
                     p["u_n"].value, p["u_first_region"].value = n, first
@@ -274,7 +276,7 @@ class PEMSet:
                     ctx.memory_barrier()
                     # Levels above the base are computed (the next reduction reads them) but not stored.
                     store = level >= self.base_level
-                    texture.bind_image(0, level - self.base_level if store else 0)
+                    texture.bind_image(Image.PEM_OUT, level - self.base_level if store else 0)
                     p = progs["filter"]
                     p["u_n"].value, p["u_first_region"].value = size, first
                     p["u_store"].value = store

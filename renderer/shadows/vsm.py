@@ -26,6 +26,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from ..gpu import rawgl
 from ..gpu.context import GLContext, StageTimer
+from ..gpu.contract import Image, LightingBuffer
 from ..gpu.shaders import compute_shader
 from .lights import MAX_BLUR_RADIUS
 
@@ -139,7 +140,7 @@ class ShadowMaps:
                 ctx.blend_equation = moderngl.MIN
                 for first in range(0, n, LAYERS_PER_DRAW):
                     count = min(LAYERS_PER_DRAW, n - first)
-                    self.projections.bind_to_uniform_block(3, offset=first * MAT4_BYTES,
+                    self.projections.bind_to_uniform_block(LightingBuffer.LAYER_PROJECTIONS, offset=first * MAT4_BYTES,
                                                            size=LAYERS_PER_DRAW * MAT4_BYTES)
                     for group in drawn:
                         self.prog["u_first_layer"].value = group * n + first
@@ -152,8 +153,8 @@ class ShadowMaps:
         self.still_hits += int(hit)
         if blur:
             with gl.stage(timer, "blur"):   # the runs drawn: group 1's kept layers are blurred already
-                lights_buffer.bind_to_storage_buffer(0)          # each layer's light's width
-                shadow_lights_buffer.bind_to_storage_buffer(2)
+                lights_buffer.bind_to_storage_buffer(LightingBuffer.LIGHTS)   # each layer's light's width
+                shadow_lights_buffer.bind_to_storage_buffer(LightingBuffer.SHADOW_LIGHTS)
                 self._blur(len(drawn) * n)
         if mipmaps:
             with gl.stage(timer, "blur"):   # the penumbrae's filtering, as the blur is
@@ -162,8 +163,8 @@ class ShadowMaps:
                     self.casters.repeat_x = self.casters.repeat_y = False
                     self.coverage = compute_shader(ctx, "shadows/coverage.comp")
                 ctx.memory_barrier()
-                self.moments.bind_to_image(1, read=True, write=False)
-                self.casters.bind_to_image(2, read=False, write=True)
+                self.moments.bind_to_image(Image.SHADOW_SRC, read=True, write=False)
+                self.casters.bind_to_image(Image.SHADOW_DST, read=False, write=True)
                 self.coverage["u_groups"].value = self.groups
                 self.coverage["u_group_layers"].value = n
                 self.coverage.run((self.size + 7) // 8, (self.size + 7) // 8, n)
@@ -186,8 +187,8 @@ class ShadowMaps:
             self.blur["u_axis"].value = axis
             for _ in range(3):
                 ctx.memory_barrier()
-                src.bind_to_image(1, read=True, write=False)
-                dst.bind_to_image(2, read=False, write=True)
+                src.bind_to_image(Image.SHADOW_SRC, read=True, write=False)
+                dst.bind_to_image(Image.SHADOW_DST, read=False, write=True)
                 self.blur.run((self.size + 63) // 64, 1, layers)
                 src, dst = dst, src
         ctx.memory_barrier()

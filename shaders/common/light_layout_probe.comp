@@ -2,8 +2,8 @@
 // renderer/shadows/lights.py (LIGHT_DTYPE) lays the struct out as std430 does.
 layout(local_size_x = 1) in;
 #include "common/lights.glsl"
-layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
-layout(std430, binding = 1) writeonly buffer Out { vec4 o[]; };   // 8 vec4 per light
+layout(std430, binding = BUF_PROBE_LIGHTS) readonly buffer Lights { Light lights[]; };
+layout(std430, binding = BUF_PROBE_OUT) writeonly buffer Out { vec4 o[]; };   // 8 vec4 per light
 
 void main() {
     int i = int(gl_GlobalInvocationID.x);

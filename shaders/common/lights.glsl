@@ -15,4 +15,4 @@ struct Light {
 };
 
 // Lights that have a shadow map, in layer order (layer k belongs to light shadow_lights[k]).
-layout(std430, binding = 2) readonly buffer ShadowLights { int shadow_lights[]; };
+layout(std430, binding = BUF_SHADOW_LIGHTS) readonly buffer ShadowLights { int shadow_lights[]; };

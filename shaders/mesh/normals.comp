@@ -4,11 +4,11 @@
 // faces around it from a list made once per topology (scene.py), so no float atomics are needed.
 layout(local_size_x = 64) in;
 
-layout(std430, binding = 0) readonly buffer Positions { float pos[]; };     // (V, 3), the vertex buffer
-layout(std430, binding = 1) readonly buffer Faces { int faces[]; };         // (F, 3), the index buffer
-layout(std430, binding = 2) readonly buffer AdjacencyStart { int adj_start[]; };  // V + 1 offsets
-layout(std430, binding = 3) readonly buffer Adjacency { int adj_face[]; };  // faces per vertex, once per corner
-layout(std430, binding = 4) writeonly buffer Normals { float nrm[]; };      // (V, 3), the normal buffer
+layout(std430, binding = BUF_NORMALS_POSITIONS) readonly buffer Positions { float pos[]; };     // (V, 3), the vertex buffer
+layout(std430, binding = BUF_NORMALS_FACES) readonly buffer Faces { int faces[]; };         // (F, 3), the index buffer
+layout(std430, binding = BUF_NORMALS_ADJACENCY_START) readonly buffer AdjacencyStart { int adj_start[]; };  // V + 1 offsets
+layout(std430, binding = BUF_NORMALS_ADJACENCY) readonly buffer Adjacency { int adj_face[]; };  // faces per vertex, once per corner
+layout(std430, binding = BUF_NORMALS_NORMALS) writeonly buffer Normals { float nrm[]; };      // (V, 3), the normal buffer
 
 uniform int u_n_vertices;
 uniform vec3 u_fallback;

@@ -4,12 +4,12 @@
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 
 #ifdef FROM_ENV
-layout(std430, binding = 0) readonly buffer Env { vec4 env[]; };
-layout(std430, binding = 1) readonly buffer Labels { int labels[]; };
+layout(std430, binding = BUF_PEM_ENV) readonly buffer Env { vec4 env[]; };
+layout(std430, binding = BUF_PEM_LABELS) readonly buffer Labels { int labels[]; };
 #else
-layout(std430, binding = 3) readonly buffer Src { vec4 src[]; };        // (batch, 6, 2n, 2n)
+layout(std430, binding = BUF_PEM_FILTERED) readonly buffer Src { vec4 src[]; };        // (batch, 6, 2n, 2n)
 #endif
-layout(std430, binding = 4) writeonly buffer Dst { vec4 dst[]; };       // (batch, 6, n, n)
+layout(std430, binding = BUF_PEM_REDUCED) writeonly buffer Dst { vec4 dst[]; };       // (batch, 6, n, n)
 
 uniform int u_n;             // size of the destination level
 uniform int u_first_region;

@@ -6,10 +6,10 @@ layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 
 #include "common/cube.glsl"
 
-layout(std430, binding = 2) readonly buffer InvScale { float inv_scale[]; };
-layout(std430, binding = 4) readonly buffer Src { vec4 src[]; };        // (batch, 6, n, n), reduced
-layout(std430, binding = 3) writeonly buffer Dst { vec4 dst[]; };       // (batch, 6, n, n), filtered
-layout(binding = 0, rgba16f) writeonly uniform imageCubeArray o_pem;
+layout(std430, binding = BUF_PEM_INV_SCALE) readonly buffer InvScale { float inv_scale[]; };
+layout(std430, binding = BUF_PEM_REDUCED) readonly buffer Src { vec4 src[]; };        // (batch, 6, n, n), reduced
+layout(std430, binding = BUF_PEM_FILTERED) writeonly buffer Dst { vec4 dst[]; };       // (batch, 6, n, n), filtered
+layout(binding = IMG_PEM_OUT, rgba16f) writeonly uniform imageCubeArray o_pem;
 
 uniform int u_n;
 uniform int u_first_region;

@@ -3,10 +3,10 @@
 // 1/scale so that half floats never overflow (the shading pass multiplies the scale back).
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 
-layout(std430, binding = 0) readonly buffer Env { vec4 env[]; };          // (6, n, n)
-layout(std430, binding = 1) readonly buffer Labels { int labels[]; };     // (6, n, n)
-layout(std430, binding = 2) readonly buffer InvScale { float inv_scale[]; }; // (regions,)
-layout(binding = 0, rgba16f) writeonly uniform imageCubeArray o_pem;
+layout(std430, binding = BUF_PEM_ENV) readonly buffer Env { vec4 env[]; };          // (6, n, n)
+layout(std430, binding = BUF_PEM_LABELS) readonly buffer Labels { int labels[]; };     // (6, n, n)
+layout(std430, binding = BUF_PEM_INV_SCALE) readonly buffer InvScale { float inv_scale[]; }; // (regions,)
+layout(binding = IMG_PEM_OUT, rgba16f) writeonly uniform imageCubeArray o_pem;
 
 uniform int u_n;
 uniform int u_first_region;

@@ -1,7 +1,7 @@
 // The environment map itself seen along each view ray, behind the scene: a cube with its MIP chain
 // (renderer/shading/background.py). Four rays spread over the pixel, each read with trilinear
 // filtering over its quarter of the footprint (bias -1): closer to the pixel's box than one lookup.
-layout(binding = 2) uniform samplerCube u_env;
+layout(binding = TEX_ENVIRONMENT) uniform samplerCube u_env;
 
 uniform mat4 u_inv_view_proj;
 in vec2 v_ndc;

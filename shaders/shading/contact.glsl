@@ -30,7 +30,7 @@ const int CONTACT_DIRS = 2 * CONTACT_SLICES;   // screen direction k at angle k 
 uint g_sectors[CONTACT_DIRS];
 // Per light: xyz = x, y, w of the camera's view_proj times (direction, 0); w: its angular radius,
 // at least 0.01 radians.
-layout(std140, binding = 5) uniform LightScreen { vec4 light_screen[MAX_LIGHTS]; };   // a uniform block, as the lights'
+layout(std140, binding = BUF_LIGHT_SCREEN) uniform LightScreen { vec4 light_screen[MAX_LIGHTS]; };   // a uniform block, as the lights'
 vec4 g_clip;                     // the pixel's clip-space position
 
 // Bits [a, b) of a 32-bit mask (a, b in 0..32).

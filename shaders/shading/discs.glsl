@@ -42,9 +42,9 @@ vec3 diffuse_from_light(int i, vec3 n) {
 struct SubLight { vec4 dir_sin; vec4 energy; };   // unit direction, sine of the disc's radius; rgb
 #ifdef SUB_LIGHTS_CAPACITY
 // A uniform block where the driver's hold every light's discs (renderer.py; lighting.frag's lights).
-layout(std140, binding = 6) uniform SubLightsBlock { SubLight sub_lights[SUB_LIGHTS_CAPACITY]; };
+layout(std140, binding = BUF_SUB_LIGHTS) uniform SubLightsBlock { SubLight sub_lights[SUB_LIGHTS_CAPACITY]; };
 #else
-layout(std430, binding = 6) readonly buffer SubLights { SubLight sub_lights[]; };
+layout(std430, binding = BUF_SUB_LIGHTS) readonly buffer SubLights { SubLight sub_lights[]; };
 #endif
 #endif
 
@@ -121,7 +121,7 @@ float lobe_share_above(int i, vec3 normal, float x_h, vec3 axis, float inv_s) {
 bool wide_lobe(int i, float inv_s) {
 #ifdef GLOSSY_WIDE
     float sin_a = lights[i].params.w;
-    return max(inv_s, 0.0) >= 0.25 * sin_a * sin_a;
+    return max(inv_s, 0.0) >= WIDE_LOBE_DISC_VARIANCE * sin_a * sin_a;
 #else
     return false;
 #endif

@@ -13,13 +13,13 @@ in vec2 v_uv;
 in vec4 v_pbr;
 in vec3 v_sheen;
 layout(location = 4) out vec4 o_pbr;        // metallic, roughness, sheen roughness, 1 (0: Phong)
-layout(binding = 6) uniform sampler2D u_sheen_map;    // rgb multiplies the sheen colour, a its roughness
+layout(binding = TEX_SHEEN_MAP) uniform sampler2D u_sheen_map;    // rgb multiplies the sheen colour, a its roughness
 uniform bool u_use_sheen_map;
 #endif
 
-layout(binding = 3) uniform sampler2D u_albedo_map;   // multiplies the vertex albedo
-layout(binding = 4) uniform sampler2D u_gloss_map;    // (specular, glossiness), replaces the vertex values
-layout(binding = 5) uniform sampler2D u_normal_map;   // tangent-space normals (Material.normal_map)
+layout(binding = TEX_ALBEDO_MAP) uniform sampler2D u_albedo_map;   // multiplies the vertex albedo
+layout(binding = TEX_GLOSS_MAP) uniform sampler2D u_gloss_map;    // (specular, glossiness), replaces the vertex values
+layout(binding = TEX_NORMAL_MAP) uniform sampler2D u_normal_map;   // tangent-space normals (Material.normal_map)
 uniform float u_normal_scale;                          // its x and y scale; 0: no normal map
 uniform bool u_use_albedo_map;
 uniform bool u_use_gloss_map;

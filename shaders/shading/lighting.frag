@@ -11,8 +11,8 @@
 // and McCool's fitted tables (lobes.glsl); a Phong pixel's one lobe is the one above.
 //
 // MODE (a #define, one program per mode: llvmpipe runs both sides of uniform branches under a mask,
-// so unused modes would cost time): 0 full method, 1 no occlusion, 2 grey AO, 3 colour AO,
-// 4 the many-light baseline.
+// so unused modes would cost time): MODE_FULL the full method, MODE_NO_OCCLUSION, MODE_AO_GREY,
+// MODE_AO_COLOUR and MODE_MANY_LIGHTS the baseline (renderer/gpu/contract.py names them all).
 //
 // Lights come in kinds, for the same reason: which of its PEMs a light reads (diffuse, glossy: a small
 // light's terms may be in closed form instead), which shadow-map array holds its map, and which PEM
@@ -26,7 +26,7 @@
 // GPUs built for compute (an H100 rasterizes on a few of its multiprocessors) run it on all of them.
 // Uncovered pixels (the geometry pass's position.w = -1) keep the background drawn before.
 layout(local_size_x = 8, local_size_y = 8) in;
-layout(rgba32f, binding = 0) writeonly uniform image2D o_image;
+layout(rgba32f, binding = IMG_LIGHTING_OUT) writeonly uniform image2D o_image;
 #else
 // The full-screen triangle lies at the far plane and the depth test is GREATER against the geometry
 // pass's depth: only covered pixels pass, and blocks with none are skipped before shading.
@@ -37,33 +37,33 @@ layout(early_fragment_tests) in;
 // loads a block's entry once for a block of pixels, a storage buffer's per pixel.
 #ifdef LIGHTS_CAPACITY
 // std140 lays Light out as std430 does.
-layout(std140, binding = 0) uniform LightsBlock { Light lights[LIGHTS_CAPACITY]; };
+layout(std140, binding = BUF_LIGHTS) uniform LightsBlock { Light lights[LIGHTS_CAPACITY]; };
 #else
-layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
+layout(std430, binding = BUF_LIGHTS) readonly buffer Lights { Light lights[]; };
 #endif
-layout(std430, binding = 1) readonly buffer GlossLevels { float level_of_g[]; };  // GLOSS_TABLE_SIZE
+layout(std430, binding = BUF_GLOSS_LEVELS) readonly buffer GlossLevels { float level_of_g[]; };  // GLOSS_TABLE_SIZE
 // The lights by kind, four to an entry (a uniform block's ints are 16 bytes apart).
-layout(std140, binding = 4) uniform LightOrder { ivec4 light_order4[MAX_LIGHTS / 4]; };
+layout(std140, binding = BUF_LIGHT_ORDER) uniform LightOrder { ivec4 light_order4[MAX_LIGHTS / 4]; };
 #define light_order(k) light_order4[(k) >> 2][(k) & 3]
-layout(binding = 0) uniform samplerCubeArray u_pem0;         // layer i = region i < 192, scaled by 1/scale_i
-layout(binding = 5) uniform samplerCubeArray u_pem1;         // layer i - 192 = region i >= 192
-layout(binding = 6) uniform samplerCubeArray u_pem_norm;     // layer 0: B = chain(w), the normalizer
-layout(binding = 1) uniform sampler2DArray u_moments;        // blurred moments, layer shadow.x of light i
-layout(binding = 12) uniform sampler2DArray u_moments_sharp; // the small lights' (shadow.y = 1), larger maps
+layout(binding = TEX_PEM0) uniform samplerCubeArray u_pem0;         // layer i = region i < 192, scaled by 1/scale_i
+layout(binding = TEX_PEM1) uniform samplerCubeArray u_pem1;         // layer i - 192 = region i >= 192
+layout(binding = TEX_PEM_NORM) uniform samplerCubeArray u_pem_norm;     // layer 0: B = chain(w), the normalizer
+layout(binding = TEX_MOMENTS) uniform sampler2DArray u_moments;        // blurred moments, layer shadow.x of light i
+layout(binding = TEX_MOMENTS_SHARP) uniform sampler2DArray u_moments_sharp; // the small lights' (shadow.y = 1), larger maps
 #ifdef PENUMBRA_BLOCKER
-layout(binding = 14) uniform sampler2DArray u_casters;        // the main maps' caster share per group, with MIPs
+layout(binding = TEX_CASTERS) uniform sampler2DArray u_casters;        // the main maps' caster share per group, with MIPs
 #endif
 #ifdef ORACLE_VISIBILITY
 // The error split's oracle (renderer/reference/visibility.py): VIS_i of every covered pixel from rays
 // cast on the CPU, layer i = light i, instead of the shadow maps (and no contact search).
-layout(binding = 15) uniform sampler2DArray u_oracle_visibility;
+layout(binding = TEX_ORACLE) uniform sampler2DArray u_oracle_visibility;
 #endif
-layout(binding = 8) uniform sampler2D u_g_position;         // the geometry pass's targets (gbuffer.frag)
-layout(binding = 9) uniform sampler2D u_g_normal;
-layout(binding = 10) uniform sampler2D u_g_geometric;
-layout(binding = 11) uniform sampler2D u_g_albedo;
+layout(binding = TEX_G_POSITION) uniform sampler2D u_g_position;         // the geometry pass's targets (gbuffer.frag)
+layout(binding = TEX_G_NORMAL) uniform sampler2D u_g_normal;
+layout(binding = TEX_G_GEOMETRIC) uniform sampler2D u_g_geometric;
+layout(binding = TEX_G_ALBEDO) uniform sampler2D u_g_albedo;
 #ifdef PBR
-layout(binding = 13) uniform sampler2D u_g_pbr;             // metallic, roughness, sheen roughness, 1 (0: Phong)
+layout(binding = TEX_G_PBR) uniform sampler2D u_g_pbr;             // metallic, roughness, sheen roughness, 1 (0: Phong)
 #define N_LOBES (LOBES_GGX + LOBES_SHEEN)
 #else
 #define N_LOBES 1
@@ -156,11 +156,11 @@ void add_light(int i, vec3 pem_d, vec3 pem_g[N_LOBES], vec3 n, vec3 ws_pos, bool
                bool sharp) {
     float scale = lights[i].dir_scale.w;
     pem_d *= scale;
-#if MODE == 1
+#if MODE == MODE_NO_OCCLUSION
     if (!pem_diffuse) g_diffuse_exact += diffuse_from_light(i, n);
     else g_diffuse += pem_d;
     add_glossy(i, pem_g, pem_glossy, 1.0, scale, lights[i].shadow.w > 0.5, n);
-#elif MODE == 0
+#elif MODE == MODE_FULL
 #ifdef ORACLE_VISIBILITY
     float vis = texelFetch(u_oracle_visibility, ivec3(g_px, i), 0).r;
 #else
@@ -193,7 +193,7 @@ void add_light(int i, vec3 pem_d, vec3 pem_g[N_LOBES], vec3 n, vec3 ws_pos, bool
     // that averages VIS_i with cosine weights, by solid angle (grey) or by energy (colour).
     float vis = visibility(i, ws_pos, n, sharp);
     float cosine = max(dot(n, lights[i].dir_scale.xyz), 0.0);
-    vec3 w = MODE == 2 ? vec3(lights[i].params.z) : lights[i].energy.rgb;
+    vec3 w = MODE == MODE_AO_GREY ? vec3(lights[i].params.z) : lights[i].energy.rgb;
     g_ao_rgb += vis * cosine * w;
     g_ao_norm += cosine * w;
     g_diffuse += pem_d;
@@ -204,7 +204,7 @@ void add_light(int i, vec3 pem_d, vec3 pem_g[N_LOBES], vec3 n, vec3 ws_pos, bool
 // One light of a kind: its PEM lookups (region i in u_pem0, or in u_pem1 when in_pem1), then add_light.
 void shade_light(int i, bool pem_diffuse, bool pem_glossy, bool sharp, bool in_pem1, vec3 n, bool glossy,
                  vec3 ws_position) {
-#if MODE == 0
+#if MODE == MODE_FULL
     // A light wholly below the surface's own plane and below the shading normal's horizon adds nothing
     // (add_light: its glossy terms and a small light's diffuse term keep the share above the plane,
     // zero; its closed-form diffuse term is zero below the horizon): its lookups, shadow map and
@@ -288,7 +288,7 @@ void main() {
     }
 #endif
 
-#if MODE == 4
+#if MODE == MODE_MANY_LIGHTS
     {
         // Baseline of the paper's introduction: the N lights used for shading as well as for
         // shadows, each a directional light carrying its region's energy (no PEMs).
@@ -308,13 +308,13 @@ void main() {
     // One loop per kind of light (see the top): the constants fold the choices away. Only the kinds
     // this variant can have are compiled: without diffuse PEMs (DIFFUSE_LIGHTS) none reads one, and
     // the ambient-occlusion modes read both PEMs of every light (renderer.py, light_kinds).
-#define KIND_LOOP(K) for (int k = (K) == 0 ? 0 : u_kind_end[max((K) - 1, 0)]; k < u_kind_end[K]; ++k) shade_light(light_order(k), ((K) & 1) != 0, ((K) & 2) != 0, ((K) & 4) != 0, ((K) & 8) != 0, n, glossy, ws_position);
+#define KIND_LOOP(K) for (int k = (K) == 0 ? 0 : u_kind_end[max((K) - 1, 0)]; k < u_kind_end[K]; ++k) shade_light(light_order(k), ((K) & KIND_PEM_DIFFUSE) != 0, ((K) & KIND_PEM_GLOSSY) != 0, ((K) & KIND_SHARP) != 0, ((K) & KIND_SECOND_PEM) != 0, n, glossy, ws_position);
 #if defined(DIFFUSE_LIGHTS)
     KIND_LOOP(0) KIND_LOOP(2) KIND_LOOP(4) KIND_LOOP(6)
 #if TWO_PEM_TEXTURES
     KIND_LOOP(8) KIND_LOOP(10) KIND_LOOP(12) KIND_LOOP(14)
 #endif
-#elif MODE >= 2
+#elif MODE == MODE_AO_GREY || MODE == MODE_AO_COLOUR
     KIND_LOOP(3) KIND_LOOP(7)
 #if TWO_PEM_TEXTURES
     KIND_LOOP(11) KIND_LOOP(15)
@@ -336,7 +336,7 @@ void main() {
 #endif
     vec3 glossy_sum = vec3(0.0);
     for (int k = 0; k < N_LOBES; ++k) glossy_sum += g_lobe_weight[k] * g_glossy[k];
-    if (MODE == 2 || MODE == 3) {
+    if (MODE == MODE_AO_GREY || MODE == MODE_AO_COLOUR) {
         vec3 ao = g_ao_rgb / max(g_ao_norm, vec3(1e-30));
         g_diffuse *= ao;
         glossy_sum *= ao;

@@ -5,7 +5,7 @@
 // The table (binding 7): the GGX table from 0, the sheen table from u_sheen_offset, each
 // TABLE_R x TABLE_J cells, roughness-major, of 3 scalars then (weight, 1 / s, psi) per lobe, the weight
 // relative to the energy (the lobes are clipped at the horizon, where their parts above it sum to 1).
-layout(std430, binding = 7) readonly buffer MaterialLobes { float lobe_table[]; };
+layout(std430, binding = BUF_MATERIAL_LOBES) readonly buffer MaterialLobes { float lobe_table[]; };
 uniform int u_sheen_offset;
 
 const float TABLE_DTHETA = TABLE_THETA_MAX / float(TABLE_J - 1);

@@ -11,9 +11,9 @@
 layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 
 #include "common/lights.glsl"
-layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
-layout(binding = 1, rg32f) readonly uniform image2DArray u_src;
-layout(binding = 2, rg32f) writeonly uniform image2DArray o_dst;
+layout(std430, binding = BUF_LIGHTS) readonly buffer Lights { Light lights[]; };
+layout(binding = IMG_SHADOW_SRC, rg32f) readonly uniform image2DArray u_src;
+layout(binding = IMG_SHADOW_DST, rg32f) writeonly uniform image2DArray o_dst;
 
 uniform ivec2 u_axis;          // (1, 0): filter along rows; (0, 1): along columns
 uniform int u_group_layers;   // the lights with a map

@@ -5,8 +5,8 @@
 // blocker search leaves the empty texels out of the region's moments (shading/vsm.glsl).
 // Layer k of the moments holds group 0's map of light k, layer u_group_layers + k group 1's.
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
-layout(binding = 1, rg32f) readonly uniform image2DArray u_moments;
-layout(binding = 2, rg16f) writeonly uniform image2DArray o_casters;
+layout(binding = IMG_SHADOW_SRC, rg32f) readonly uniform image2DArray u_moments;
+layout(binding = IMG_SHADOW_DST, rg16f) writeonly uniform image2DArray o_casters;
 uniform int u_groups;         // 1 or 2
 uniform int u_group_layers;   // the lights with a map
 

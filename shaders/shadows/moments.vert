@@ -9,7 +9,7 @@
 
 // LAYERS_PER_DRAW mat4 (16 KiB: the least GL_MAX_UNIFORM_BLOCK_SIZE GL allows); more layers take
 // several draws, the block bound at each one's first.
-layout(std140, binding = 3) uniform LayerProjections { mat4 u_layer_view_proj[LAYERS_PER_DRAW]; };
+layout(std140, binding = BUF_LAYER_PROJECTIONS) uniform LayerProjections { mat4 u_layer_view_proj[LAYERS_PER_DRAW]; };
 
 in vec3 in_position;
 uniform int u_first_layer;   // this draw's first layer (group x the lights with a map, + the draw's first light)
