@@ -10,7 +10,8 @@ from renderer.presets import presets_digest
 
 ROOT = Path(__file__).resolve().parents[1]
 # The runs the README and docs read their current numbers from.
-CURRENT = ("docs/error-split/error_split.json", "docs/one-shot/one_shot.json", "docs/broad/broad-256.json")
+CURRENT = ("docs/error-split/error_split.json", "docs/one-shot/one_shot.json", "docs/broad/broad-256.json",
+           "docs/energy/energy.json", "docs/materials-bench.json")
 
 
 def _stamped() -> dict[str, str]:
@@ -34,6 +35,8 @@ def test_a_changed_preset_file_changes_the_digest(tmp_path):
     shutil.copytree(ROOT / "renderer" / "presets", folder, ignore=shutil.ignore_patterns("*.py", "__pycache__"))
     assert presets_digest(folder) == presets_digest()
     balanced = folder / "balanced.toml"
+    balanced.write_text("# a comment changes no setting\n" + balanced.read_text())
+    assert presets_digest(folder) == presets_digest()
     balanced.write_text(balanced.read_text().replace("lights = 48", "lights = 96", 1))
     assert presets_digest(folder) != presets_digest()
 

@@ -99,14 +99,16 @@ def presets() -> tuple[dict, str]:
 
 
 def presets_digest(folder: Path | None = None) -> str:
-    """A short hash of the preset files' names and bytes (in `folder`; None: beside this module): a
-    stored benchmark run records it, and a test fails when the files change and the run does not
-    (tests/test_stored_runs.py)."""
+    """A short hash of the preset files' names and contents (in `folder`; None: beside this module),
+    their comments left out: a stored benchmark run records it, and a test fails when a preset's
+    settings change and the run does not (tests/test_stored_runs.py)."""
     import hashlib
+    import json
 
     h = hashlib.sha256()
     for path in sorted(Path(folder or Path(__file__).parent).glob("*.toml")):
-        h.update(path.name.encode() + b"\0" + path.read_bytes())
+        data = tomllib.loads(path.read_text())
+        h.update(path.name.encode() + b"\0" + json.dumps(data, sort_keys=True).encode() + b"\0")
     return h.hexdigest()[:16]
 
 

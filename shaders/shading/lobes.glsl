@@ -48,14 +48,14 @@ void table_lobes(int base, int count, TableAt t, vec3 n, vec3 tangent, vec3 ener
     }
 }
 
-// The pixel's material, for the small lights' exact terms (pbr_from_light).
+// The pixel's material, for the exact terms of the lights no wider than its lobe (pbr_from_light_above).
 vec3 g_pbr_n = vec3(0.0, 0.0, 1.0);
 vec3 g_pbr_f0 = vec3(0.04);
 float g_pbr_alpha = 0.25;
 vec3 g_pbr_sheen = vec3(0.0);
 float g_pbr_sheen_alpha = 0.25;
 float g_pbr_below = 1.0;            // the sheen layer's albedo scaling of the layer below
-vec3 g_pbr_exact = vec3(0.0);       // the small lights' specular and sheen terms, summed
+vec3 g_pbr_exact = vec3(0.0);       // those lights' specular and sheen terms, summed
 
 // A small light's specular and sheen terms from the exact BRDF (renderer/shading/brdf.py: GGX with
 // the height-correlated Smith visibility and Schlick's Fresnel, Charlie with Neubelt's visibility) at
@@ -82,17 +82,6 @@ vec3 pbr_disc(vec3 l, float sin_a, vec3 energy) {
     f += g_pbr_sheen * (charlie / (4.0 * (nl + nv - nl * nv)));
 #endif
     return energy * f * nl;
-}
-
-vec3 pbr_from_light(int i) {
-#ifdef SUB_LIGHTS
-    vec3 sum = vec3(0.0);
-    for (int k = i * SUB_LIGHTS; k < (i + 1) * SUB_LIGHTS; ++k)
-        sum += pbr_disc(sub_lights[k].dir_sin.xyz, sub_lights[k].dir_sin.w, sub_lights[k].energy.rgb);
-    return sum;
-#else
-    return pbr_disc(lights[i].dir_scale.xyz, lights[i].params.w, lights[i].energy.rgb);
-#endif
 }
 
 // A disc's exact terms above the plane of `p` (the horizon that cuts more of it, lighting.frag): the
