@@ -49,10 +49,22 @@ def test_the_tracer_points_follow_the_runs_model_and_the_envelope_is_judged_agai
         curve.trade_curve(_run(rows), which="tuning")
 
 
+def _rounded(value):
+    """`value` with every float to 12 significant digits, in nested lists and dicts."""
+    if isinstance(value, float):
+        return float(f"{value:.12g}")
+    if isinstance(value, dict):
+        return {k: _rounded(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_rounded(v) for v in value]
+    return value
+
+
 def test_the_stored_curve_is_what_its_run_makes():
     stored = json.loads((ROOT / "docs" / "broad" / "trade_curve.json").read_text())
     made = curve.trade_curve(json.loads((ROOT / "docs" / "broad" / "broad-256.json").read_text()))
-    assert stored == json.loads(json.dumps(made))
+    # Equal to the last bits another numpy or BLAS build sums in its own order (measured: 2e-16 relative).
+    assert _rounded(stored) == _rounded(json.loads(json.dumps(made)))
     assert (ROOT / "docs" / "broad" / "trade_curve.md").read_text() == curve.markdown(made, "docs/broad/broad-256.json")
 
 
