@@ -146,7 +146,7 @@ def resolve_quality(args) -> dict:
     and which PEM filter: --filter, else the budget's measured one, else sqrt-cosine. A budget's
     result names the GL renderer its table was measured on ("measured_on"): `check_budget_device`
     holds it against the renderer the frames run on, once there is one."""
-    from .bench.budget import load_table
+    from .presets.budget import load_table
 
     table = load_table() if args.frame_budget_ms is not None or args.error_budget is not None else None
     base, measured_filter, where = base_knobs(args.preset, *presets(), args.frame_budget_ms, args.error_budget,
@@ -160,7 +160,7 @@ def resolve_quality(args) -> dict:
 
 def check_budget_device(q: dict, renderer) -> None:
     """A budget's settings only on the device they were measured on (before any work on it)."""
-    from .bench.budget import check_device
+    from .presets.budget import check_device
 
     if "measured_on" in q:
         check_device(q["measured_on"], renderer.gl.renderer_name)
@@ -639,7 +639,7 @@ def cmd_bench(args) -> int:
     run_bench(args.out, cfg)
     print(f"wrote {args.out}/bench.json, bench.md, pareto.png")
     if args.store:
-        from .bench.budget import MEASURED, write_table
+        from .presets.budget import MEASURED, write_table
 
         write_table(args.out / "bench.json")
         print(f"stored the measured table in {MEASURED}")

@@ -82,8 +82,6 @@ class Setting:
         if not isinstance(value, numbers.Integral if self.type is int else numbers.Real) or not math.isfinite(value):
             raise bad
         if self.lights_rule:   # the median cut's own rule (6 * 2^k), within the registry's range
-            from .lighting.median_cut import regions_per_face
-
             try:
                 regions_per_face(int(value))
             except InvalidInputError:
@@ -93,6 +91,18 @@ class Setting:
         if self.power_of_two and int(value) & (int(value) - 1):
             raise bad
         return int(value) if self.type is int else float(value)
+
+
+def regions_per_face(n_lights: int) -> int:
+    """Validate N = 6 * 2^k and return 2^k: the median cut's rule (renderer/lighting/median_cut.py), which
+    the `lights` setting checks."""
+    per_face = n_lights // 6
+    if n_lights < 6 or n_lights % 6 or per_face & (per_face - 1):
+        raise InvalidInputError(
+            f"--lights must be 6 * 2^k (6, 12, 24, 48, 96, 192, 384, ...), got {n_lights}: "
+            "median cut is applied per cube face and halves every region at each step"
+        )
+    return per_face
 
 
 SETTINGS: tuple[Setting, ...] = (
@@ -197,25 +207,6 @@ def retired(name: str) -> str | None:
 
 def check(name: str, value) -> object:
     return BY_NAME[name].check(value)
-
-
-def reference_table() -> str:
-    """docs/settings.md: every setting with its group, limits, the paper's value, what a change makes
-    anew and its doc (tests/test_config.py checks the stored file against it)."""
-    from .presets import PRESET_NAMES, preset
-
-    presets = {name: preset(name) for name in PRESET_NAMES}
-    head = ["# Quality settings", "",
-            "Generated from `renderer/config.py` (`reference_table`); each is a `--flag` of `render`, `sequence` and "
-            "`reference` (dashes for underscores) and a field of the service's `quality`. `FrameSettings()` holds "
-            "balanced's values; the paper's column is the method as the paper states it (the bias, which it does not "
-            "state, is the presets'); the presets' values are their files' (`renderer/presets/*.toml`).", "",
-            "| setting | group | values | paper | " + " | ".join(PRESET_NAMES) + " | a change makes anew | what it does |",
-            "|---|---|---|---|" + "---|" * len(PRESET_NAMES) + "---|---|"]
-    rows = [f"| `{s.name}` | {s.group} | {s.limits()} | {_show(s.default)} | "
-            + " | ".join(_show(presets[p][s.name]) for p in PRESET_NAMES) + f" | {s.invalidates} | {s.doc} |"
-            for s in SETTINGS]
-    return "\n".join(head + rows) + "\n"
 
 
 def _show(value) -> str:

@@ -37,7 +37,7 @@ from .gpu.shaders import compute_shader, program, set_uniform
 from .lighting import material_lobes
 from .lighting.pem import REGIONS_PER_TEXTURE, SUB_LIGHT_BYTES, PEMSet, PEMSettings
 from .mesh import Mesh
-from .presets import balanced
+from .preset_files import balanced
 from .scene import Scene, snap_box
 from .shading.background import BackgroundMap
 from .shading.material import Material

@@ -18,8 +18,8 @@ from contextlib import asynccontextmanager
 import anyio
 from fastapi import FastAPI
 
-from renderer.bench.budget import load_table
 from renderer.presets import presets as renderer_presets
+from renderer.presets.budget import load_table
 
 from .errors import install_error_handlers
 from .limits import RequestGate

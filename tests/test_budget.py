@@ -1,7 +1,7 @@
 import pytest
 
-from renderer.bench.budget import budget_knobs, choose, summarize
 from renderer.errors import InvalidInputError
+from renderer.presets.budget import budget_knobs, choose, summarize
 
 
 def _row(scene, lights, ms, err, mode="full"):
@@ -36,7 +36,7 @@ def test_budgets_choose_from_the_measured_table():
 
 
 def test_the_presets_are_their_files_whatever_the_measured_table_holds(monkeypatch):
-    import renderer.bench.budget as budget
+    import renderer.presets.budget as budget
     from renderer.cli import build_parser, resolve_quality
     from renderer.presets import PRESET_DIR, presets
 
@@ -51,7 +51,7 @@ def test_the_presets_are_their_files_whatever_the_measured_table_holds(monkeypat
 
 
 def test_a_preset_file_that_misses_a_setting_or_names_an_unknown_one_is_refused(tmp_path, monkeypatch):
-    import renderer.presets as presets_mod
+    import renderer.preset_files as presets_mod
 
     good = (presets_mod.PRESET_DIR / "fast.toml").read_text()
     monkeypatch.setattr(presets_mod, "PRESET_DIR", tmp_path)
@@ -67,7 +67,7 @@ def test_a_preset_file_that_misses_a_setting_or_names_an_unknown_one_is_refused(
 
 
 def test_a_budget_sets_every_measured_knob_unless_a_flag_says_otherwise(monkeypatch):
-    import renderer.bench.budget as budget
+    import renderer.presets.budget as budget
     from renderer.cli import build_parser, resolve_quality
 
 
@@ -102,7 +102,7 @@ def test_a_presets_small_light_scale_yields_to_a_large_shadow_map():
 
 
 def test_a_budget_brings_its_measured_filter_unless_one_is_named(monkeypatch):
-    import renderer.bench.budget as budget
+    import renderer.presets.budget as budget
     from renderer.cli import build_parser, pem_settings, resolve_quality
     from renderer.shading.material import Material
 
@@ -137,7 +137,7 @@ def test_the_service_chooses_budgets_from_the_table_it_read_at_start_up():
 
 
 def test_a_budget_for_a_frame_size_the_table_was_not_measured_at_is_refused(monkeypatch):
-    import renderer.bench.budget as budget
+    import renderer.presets.budget as budget
     from renderer.cli import build_parser, resolve_quality
 
 
@@ -151,8 +151,8 @@ def test_a_budget_for_a_frame_size_the_table_was_not_measured_at_is_refused(monk
 
 
 def test_a_budget_measured_on_another_device_is_refused(renderer):
-    from renderer.bench.budget import check_device
     from renderer.cli import build_parser, check_budget_device, resolve_quality
+    from renderer.presets.budget import check_device
 
     table = summarize(BENCH)   # measured on "test"
     with pytest.raises(InvalidInputError, match="measured on test; this renderer runs on"):

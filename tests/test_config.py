@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from renderer import config
+from renderer import config, presets
 from renderer.cli import build_parser
 from renderer.errors import InvalidInputError
 from renderer.lighting.pem import PEMSettings
@@ -20,8 +20,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_the_stored_settings_reference_is_what_the_registry_generates():
-    assert (ROOT / "docs" / "settings.md").read_text() == config.reference_table(), \
-        "docs/settings.md is stale: regenerate it with renderer.config.reference_table()"
+    assert (ROOT / "docs" / "settings.md").read_text() == presets.reference_table(), \
+        "docs/settings.md is stale: regenerate it with renderer.presets.reference_table()"
 
 
 def test_every_setting_reaches_the_frame_or_the_pem_set_the_command_line_and_the_service():

@@ -57,7 +57,7 @@ def test_the_wheel_carries_every_shader_and_data_file(wheel):
     shaders = {"renderer/shaders/" + p.relative_to(ROOT / "shaders").as_posix()
                for p in (ROOT / "shaders").rglob("*") if p.suffix in SHADER_SUFFIXES}
     assert shaders and shaders <= names, sorted(shaders - names)
-    assert {"renderer/bench/measured.json", "service/viewer.html"} <= names
+    assert {"renderer/presets/measured.json", "service/viewer.html"} <= names
     presets = {p.relative_to(ROOT).as_posix() for p in (ROOT / "renderer" / "presets").glob("*.toml")}
     assert len(presets) == 4 and presets <= names
     assert "renderer/data/default_scene.npz" in names   # the bundled default scene

@@ -742,7 +742,7 @@ def test_accuracy_knobs_reach_the_renderer_and_are_reported(http, env_upload, me
 
 
 def test_a_per_request_budget_chooses_a_measured_setting_and_says_so(http, env_upload, mesh):
-    from renderer.bench.budget import choose, load_table
+    from renderer.presets.budget import choose, load_table
 
     table = load_table()
     assert table is not None   # the package keeps the table measured by `garment-render bench --store`

@@ -22,9 +22,9 @@ from ..camera import frame_meshes
 from ..gpu.context import GLContext
 from ..lighting.filters import Filter
 from ..presets import PRESET_NAMES, knob_defaults, preset
+from ..presets.budget import OLD_SHADOW_BIAS
 from ..reference import artefact_share, mean_flip, relative_rmse, render_reference
 from ..renderer import FrameSettings, Renderer, ShadingMode
-from .budget import OLD_SHADOW_BIAS
 from .report import machine_info
 from .scenes import BenchScene, bundled_scene, shared_scenes
 

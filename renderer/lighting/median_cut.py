@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..config import regions_per_face
 from ..envmap.cube import cube_solid_angles, texel_directions
 from ..errors import InvalidInputError
 
@@ -87,17 +88,6 @@ class RegionSet:
     def light_radius_rad(self) -> np.ndarray:
         """Angular radius that sets the shadow softness: the energy spread, at most the region's cone."""
         return np.minimum(self.spread_rad, self.angular_radius_rad())
-
-
-def regions_per_face(n_lights: int) -> int:
-    """Validate N = 6 * 2^k and return 2^k."""
-    per_face = n_lights // 6
-    if n_lights < 6 or n_lights % 6 or per_face & (per_face - 1):
-        raise InvalidInputError(
-            f"--lights must be 6 * 2^k (6, 12, 24, 48, 96, 192, 384, ...), got {n_lights}: "
-            "median cut is applied per cube face and halves every region at each step"
-        )
-    return per_face
 
 
 def _split(energy: np.ndarray, rect: tuple[int, int, int, int], whole_sources: bool = False):

@@ -22,7 +22,7 @@ from ..gpu.context import GLContext, StageTimer
 from ..gpu.contract import Image, PEMBuffer
 from ..gpu.rawgl import GL_RGBA16F, GL_RGBA32F, CubeMapArray
 from ..gpu.shaders import compute_shader
-from ..presets import balanced
+from ..preset_files import balanced
 from ..shadows.lights import disc_sine
 from .area_lights import light_regions
 from .filters import Filter, taps_1d

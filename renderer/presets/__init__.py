@@ -1,16 +1,22 @@
 """Quality presets: versioned files beside this module (fast.toml, balanced.toml, accurate.toml, paper.toml),
-each naming every quality setting with the measurement behind it. Used by the command line, the
-service and the benchmark alike; the measured table (renderer/bench/measured.json) serves budgets
-only, never the presets."""
+each naming every quality setting with the measurement behind it (read by renderer/preset_files.py),
+and the one rule that resolves a preset or a budget with a caller's overrides into the settings of a
+frame and of a PEM set. Used by the command line, the service and the benchmark alike; the measured
+table (measured.json beside this module, budget.py) serves budgets only, never the presets."""
 
 from __future__ import annotations
 
-import functools
-import tomllib
-from pathlib import Path
-
 from .. import config
-from ..errors import InvalidInputError
+from ..preset_files import (  # noqa: F401 (the presets' public names)
+    PRESET_DIR,
+    PRESET_NAMES,
+    PRESET_VERSION,
+    balanced,
+    preset,
+    presets,
+    presets_digest,
+)
+from .budget import STORED
 
 
 def knob_defaults() -> dict:
@@ -57,73 +63,6 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
     return pem
 
 
-# `table=STORED`: read the package's measured table now (renderer/bench/measured.json); a long-running
-# caller passes the table it read at start-up (None: none was stored), so that every budget chooses from one.
-STORED = "stored"
-
-
-PRESET_DIR = Path(__file__).parent
-# fast, balanced and accurate trade time for error; paper is the method as published (every setting
-# the registry's default), the reference point the others are measured against.
-PRESET_NAMES = ("fast", "balanced", "accurate", "paper")
-# The version of the preset files' format (their `version`): a file of another version is refused.
-PRESET_VERSION = 1
-
-
-def _read_preset(name: str) -> dict:
-    path = PRESET_DIR / f"{name}.toml"
-    data = tomllib.loads(path.read_text())
-    if data.get("version") != PRESET_VERSION:
-        raise ValueError(f"{path}: preset format version {data.get('version')!r}, this code reads {PRESET_VERSION}")
-    settings = data.get("settings", {})
-    want = set(config.NAMES)
-    if set(settings) != want:
-        raise ValueError(f"{path}: a preset names every quality setting; missing {sorted(want - set(settings))}, "
-                         f"unknown {sorted(set(settings) - want)}")
-    try:
-        return {name: config.check(name, settings[name]) for name in config.NAMES}
-    except InvalidInputError as exc:
-        raise ValueError(f"{path}: {exc}") from None
-
-
-@functools.cache
-def _presets() -> dict[str, dict]:
-    return {name: _read_preset(name) for name in PRESET_NAMES}
-
-
-def presets() -> tuple[dict, str]:
-    """The presets (name -> every quality setting) and where they come from: the versioned files
-    beside this module (renderer/presets/*.toml), read once, never re-chosen at run time."""
-    return {name: dict(knobs) for name, knobs in _presets().items()}, \
-        f"preset files renderer/presets/*.toml, version {PRESET_VERSION}"
-
-
-def presets_digest(folder: Path | None = None) -> str:
-    """A short hash of the preset files' names and contents (in `folder`; None: beside this module),
-    their comments left out: a stored benchmark run records it, and a test fails when a preset's
-    settings change and the run does not (tests/test_stored_runs.py)."""
-    import hashlib
-    import json
-
-    h = hashlib.sha256()
-    for path in sorted(Path(folder or Path(__file__).parent).glob("*.toml")):
-        data = tomllib.loads(path.read_text())
-        h.update(path.name.encode() + b"\0" + json.dumps(data, sort_keys=True).encode() + b"\0")
-    return h.hexdigest()[:16]
-
-
-def balanced(name: str):
-    """A setting's default in the Python API (FrameSettings, PEMSettings): the balanced preset's."""
-    return _presets()["balanced"][name]
-
-
-def preset(name: str) -> dict:
-    """One preset's settings (a copy)."""
-    if name not in PRESET_NAMES:
-        raise ValueError(f"unknown preset {name!r}; the presets are {', '.join(PRESET_NAMES)}")
-    return dict(_presets()[name])
-
-
 def base_knobs(preset: str, preset_knobs: dict, preset_source: str | None, frame_budget_ms: float | None,
                error_budget: float | None, table: dict | None | str = STORED,
                size: tuple[int, int] | None = None, device: str | None = None) -> tuple[dict, str | None, str]:
@@ -133,7 +72,7 @@ def base_knobs(preset: str, preset_knobs: dict, preset_source: str | None, frame
     must have been measured at, on `device` (the GL renderer's name; None: not checked). Returns (knobs, the measured PEM filter, or None when the
     preset chose them, and where they came from): the one rule the command line and the service share."""
     if frame_budget_ms is not None or error_budget is not None:
-        from ..bench.budget import budget_knobs
+        from .budget import budget_knobs
 
         return budget_knobs(frame_budget_ms, error_budget, table, size, device)
     return preset_knobs[preset], None, f"preset {preset}" + (f", {preset_source}" if preset_source else "")
@@ -150,3 +89,20 @@ def preset_pems(name: str = "balanced", materials=None, filter: str = "sqrt-cosi
     """A preset's PEMSettings (balanced unless named): with the scene's materials, only the levels
     they read."""
     return pem_settings(merge_knobs(preset(name), {}), filter, levels, materials)
+
+
+def reference_table() -> str:
+    """docs/settings.md: every setting with its group, limits, the paper's value, what a change makes
+    anew and its doc (tests/test_config.py checks the stored file against it)."""
+    values = {name: preset(name) for name in PRESET_NAMES}
+    head = ["# Quality settings", "",
+            "Generated from the registry (`renderer/config.py`) by `renderer.presets.reference_table`; each is a `--flag` of `render`, `sequence` and "
+            "`reference` (dashes for underscores) and a field of the service's `quality`. `FrameSettings()` holds "
+            "balanced's values; the paper's column is the method as the paper states it (the bias, which it does not "
+            "state, is the presets'); the presets' values are their files' (`renderer/presets/*.toml`).", "",
+            "| setting | group | values | paper | " + " | ".join(PRESET_NAMES) + " | a change makes anew | what it does |",
+            "|---|---|---|---|" + "---|" * len(PRESET_NAMES) + "---|---|"]
+    rows = [f"| `{s.name}` | {s.group} | {s.limits()} | {config._show(s.default)} | "
+            + " | ".join(config._show(values[p][s.name]) for p in PRESET_NAMES) + f" | {s.invalidates} | {s.doc} |"
+            for s in config.SETTINGS]
+    return "\n".join(head + rows) + "\n"

@@ -14,9 +14,11 @@ from pathlib import Path
 from .. import config
 from ..atomic import atomic_file
 from ..errors import InvalidInputError
-from ..presets import STORED
 
 MEASURED = Path(__file__).with_name("measured.json")
+# `table=STORED`: read the package's measured table now (MEASURED); a long-running caller passes the
+# table it read at start-up (None: none was stored), so that every budget chooses from one.
+STORED = "stored"
 
 # Every knob a table entry records: the presets' four, the PEM filter and the others.
 KNOBS = (*config.NAMES, "filter")
@@ -100,7 +102,7 @@ def budget_knobs(frame_budget_ms: float | None, error_budget: float | None,
     `device` (the GL renderer's name; None: not checked)."""
     table = load_table() if table == STORED else table
     if table is None:
-        raise InvalidInputError("budgets choose from the measured table (renderer/bench/measured.json), and none "
+        raise InvalidInputError("budgets choose from the measured table (renderer/presets/measured.json), and none "
                                 "is stored: run `garment-render bench --store` first, or name a preset")
     check_device(table["machine"].get("gl_renderer"), device)
     measured = table.get("size")
