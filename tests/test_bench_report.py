@@ -140,7 +140,10 @@ def test_bench_end_to_end_writes_its_three_outputs(tmp_path):
     cfg = BenchConfig(quick=True, size=24, frames=1, ref_spp=8, ladder=(1, 4), shared=False)
     rows = run_bench(tmp_path, cfg, log=lambda *a: None)
     data = json.loads((tmp_path / "bench.json").read_text())
-    assert set(data) == {"machine", "config", "rows"} and data["machine"]["gl_renderer"]
+    assert set(data) == {"machine", "presets_digest", "config", "rows"} and data["machine"]["gl_renderer"]
+    from renderer.presets import presets_digest
+
+    assert data["presets_digest"] == presets_digest()
     assert len(data["rows"]) == len(rows) == len(_settings_list(QUICK_SWEEPS)) + len(BASELINE_MODES)
     knobs = {r["knob"] for r in data["rows"]}
     assert {"lights", "face_size", "shadow_size", "blur_scale", "filter", "baseline", "balanced"} <= knobs

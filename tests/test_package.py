@@ -11,7 +11,7 @@ import re
 import shutil
 import subprocess
 import sys
-import sysconfig
+import time
 import tomllib
 import venv
 import zipfile
@@ -66,35 +66,6 @@ def test_the_wheel_carries_every_shader_and_data_file(wheel):
     assert modules <= names, sorted(modules - names)
 
 
-@pytest.mark.gpu
-def test_an_installed_wheel_renders_a_frame_outside_the_checkout(wheel, tmp_path):
-    env_dir = tmp_path / "fresh"
-    venv.EnvBuilder(with_pip=True).create(env_dir)
-    python = env_dir / "bin" / "python"
-    purelib = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-                             check=True, capture_output=True, text=True).stdout.strip()
-    # The dependencies come from this environment (no network); the project only from the wheel: a
-    # path named in a .pth file is searched after the fresh site-packages, and its own .pth files (the
-    # checkout's editable install) are not read.
-    Path(purelib, "deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
-    subprocess.run([str(python), "-m", "pip", "install", "-q", "--no-deps", "--no-index", str(wheel)], check=True,
-                   timeout=300)
-    work = tmp_path / "elsewhere"
-    work.mkdir()
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
-    where = subprocess.run([str(python), "-c", "import renderer, renderer.gpu.shaders as s; print(renderer.__file__); "
-                            "print(s.SHADER_DIR)"], check=True, capture_output=True, text=True, cwd=work,
-                           env=env).stdout.split()
-    assert all(Path(p).is_relative_to(env_dir) for p in where), where
-    done = subprocess.run([str(env_dir / "bin" / "garment-render"), "render", "--size", "48x48", "--out", "frame.png",
-                           "--timings", "timings.json"], capture_output=True, text=True, cwd=work, env=env,
-                          timeout=600)
-    assert done.returncode == 0, done.stderr[-2000:]
-    image = np.asarray(Image.open(work / "frame.png"))
-    assert image.shape[:2] == (48, 48) and image.std() > 1.0   # a shaded frame, not a blank one
-    assert json.loads((work / "timings.json").read_text())["timings"]["frame_wall_ms"] > 0
-
-
 def _distributions(names: list[str]) -> list[importlib.metadata.Distribution]:
     """The installed distributions `names` need, with what they require (markers of extras skipped; a
     requirement that its marker leaves out of this Python is not installed here, and skipped)."""
@@ -113,33 +84,94 @@ def _distributions(names: list[str]) -> list[importlib.metadata.Distribution]:
     return list(seen.values())
 
 
+def _requirement_names(requirements: list[str]) -> list[str]:
+    return [re.match(r"[A-Za-z0-9_.-]+", r).group(0) for r in requirements]
+
+
+def _project() -> dict:
+    return tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+
+
+def _fresh_env(wheel: Path, folder: Path, requirements: list[str]) -> tuple[Path, dict]:
+    """A new virtual environment in `folder` that holds the wheel and the installed distributions
+    `requirements` need (linked from this environment: no network), nothing else; returns its
+    python and an environment for its processes."""
+    env_dir = folder / "env"
+    venv.EnvBuilder(with_pip=True).create(env_dir)
+    python = env_dir / "bin" / "python"
+    purelib = Path(subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                                  check=True, capture_output=True, text=True).stdout.strip())
+    deps = folder / "deps"
+    deps.mkdir()
+    for dist in _distributions(_requirement_names(requirements)):
+        for top in {f.parts[0] for f in dist.files or [] if f.parts[0] not in ("..", "__pycache__")}:
+            source = Path(dist.locate_file(top))
+            if source.exists() and not (deps / top).exists():
+                (deps / top).symlink_to(source)
+    # Searched after the fresh site-packages; the checkout's own .pth files (its editable install) are
+    # not among them.
+    (purelib / "deps.pth").write_text(str(deps) + "\n")
+    subprocess.run([str(python), "-m", "pip", "install", "-q", "--no-deps", "--no-index", str(wheel)], check=True,
+                   timeout=300)
+    return python, {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+
+
+def _absent(python: Path, env: dict, cwd: Path, modules: tuple[str, ...]) -> list[str]:
+    """Which of `modules` the environment of `python` can import."""
+    out = subprocess.run([str(python), "-c", f"import importlib.util as u; print([m for m in {modules!r} "
+                          "if u.find_spec(m)])"], check=True, capture_output=True, text=True, cwd=cwd, env=env)
+    return json.loads(out.stdout.replace("'", '"'))
+
+
+@pytest.mark.gpu
+def test_the_wheel_without_extras_renders_and_serves_outside_the_checkout(wheel, tmp_path):
+    """A fresh environment with the wheel and its dependencies alone (no extra: no plotting, no FLIP,
+    no Ray): a frame renders from outside the checkout, and the service starts and answers."""
+    python, env = _fresh_env(wheel, tmp_path, _project()["dependencies"])
+    work = tmp_path / "elsewhere"
+    work.mkdir()
+    assert _absent(python, env, work, ("matplotlib", "flip_evaluator", "ray", "httpx", "pytest")) == []
+    where = subprocess.run([str(python), "-c", "import renderer, renderer.gpu.shaders as s; print(renderer.__file__); "
+                            "print(s.SHADER_DIR)"], check=True, capture_output=True, text=True, cwd=work,
+                           env=env).stdout.split()
+    assert all(Path(p).is_relative_to(tmp_path / "env") for p in where), where
+    cli = tmp_path / "env" / "bin" / "garment-render"
+    done = subprocess.run([str(cli), "render", "--size", "48x48", "--out", "frame.png", "--timings", "timings.json"],
+                          capture_output=True, text=True, cwd=work, env=env, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    image = np.asarray(Image.open(work / "frame.png"))
+    assert image.shape[:2] == (48, 48) and image.std() > 1.0   # a shaded frame, not a blank one
+    assert json.loads((work / "timings.json").read_text())["timings"]["frame_wall_ms"] > 0
+
+    import httpx
+    from service_server import free_port
+
+    port = free_port()
+    server = subprocess.Popen([str(cli), "serve", "--port", str(port), "--log-level", "warning"], cwd=work,
+                              env={**env, "GARMENT_RENDER_CACHE_DIR": str(tmp_path / "cache")},
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while True:
+            try:
+                if httpx.get(f"http://127.0.0.1:{port}/health/ready", timeout=2).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            assert server.poll() is None and time.monotonic() < deadline, server.stderr.read()[-2000:]
+            time.sleep(0.3)
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
+
+
 def test_the_client_extra_sends_frames_without_gl_or_the_server(wheel, tmp_path):
     """A simulator's machine: a fresh environment that holds the wheel and the client extra's
     dependencies (httpx, numpy, Pillow for `Frame.pil`) and nothing else, so that an import of GL,
     of the renderer or of the server's libraries fails there; the README's client example runs in it,
     as written, against a real service."""
-    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]["client"]
-    wanted = [re.match(r"[A-Za-z0-9_.-]+", r).group(0) for r in extras]
-    env_dir = tmp_path / "client-env"
-    venv.EnvBuilder(with_pip=True).create(env_dir)
-    python = env_dir / "bin" / "python"
-    purelib = Path(subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-                                  check=True, capture_output=True, text=True).stdout.strip())
-    deps = tmp_path / "client-deps"
-    deps.mkdir()
-    for dist in _distributions(wanted):
-        for top in {f.parts[0] for f in dist.files or [] if f.parts[0] not in ("..", "__pycache__")}:
-            source = Path(dist.locate_file(top))
-            if source.exists() and not (deps / top).exists():
-                (deps / top).symlink_to(source)
-    (purelib / "client-deps.pth").write_text(str(deps) + "\n")
-    subprocess.run([str(python), "-m", "pip", "install", "-q", "--no-deps", "--no-index", str(wheel)], check=True,
-                   timeout=300)
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
-    absent = subprocess.run([str(python), "-c", "import importlib.util as u; print([m for m in ('moderngl', "
-                             "'fastapi', 'trimesh', 'OpenEXR') if u.find_spec(m)])"], check=True, capture_output=True,
-                            text=True, cwd=tmp_path, env=env).stdout.strip()
-    assert absent == "[]", absent
+    python, env = _fresh_env(wheel, tmp_path / "client", _project()["optional-dependencies"]["client"])
+    assert _absent(python, env, tmp_path, ("moderngl", "fastapi", "trimesh", "OpenEXR")) == []
 
     from service_server import ServiceProcess
     from test_readme import _block, write_example_files
