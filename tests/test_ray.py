@@ -192,9 +192,13 @@ class _Killer:
     start, some seconds of Ray's, is paid before)."""
 
     def __init__(self, env, name: str):
-        code = (f"import sys, ray; ray.init(address='auto', logging_level='ERROR'); "
-                f"a = ray.get_actor({name!r}, namespace='serve'); print('ready', flush=True); sys.stdin.readline(); "
-                f"ray.kill(a, no_restart=False); print('killed', flush=True)")
+        code = (f"import sys, ray\n"
+                f"ray.init(address='auto', logging_level='ERROR')\n"
+                f"a = ray.get_actor({name!r}, namespace='serve')\n"
+                f"print('ready', flush=True)\n"
+                f"if sys.stdin.readline().strip() == 'now':\n"
+                f"    ray.kill(a, no_restart=False)\n"
+                f"    print('killed', flush=True)\n")
         self.proc = subprocess.Popen([sys.executable, "-c", code], env=env, stdin=subprocess.PIPE,
                                      stdout=subprocess.PIPE, text=True)
         assert self.proc.stdout.readline().strip() == "ready"
@@ -205,11 +209,21 @@ class _Killer:
         assert self.proc.stdout.readline().strip() == "killed"
         assert self.proc.wait(timeout=60) == 0
 
+    def close(self) -> None:
+        """Let a killer that was not told to kill go: told nothing but its input's end, it kills nothing."""
+        if self.proc.poll() is None:
+            self.proc.stdin.close()
+            self.proc.wait(timeout=60)
+
 
 def test_a_replica_killed_in_the_middle_of_a_batch_costs_no_frame(cluster, tmp_path):
     """The batch's replica is killed while it renders: the same request, with no retry of the client's
     (plain httpx), is answered 200 with every frame once, by the other replica (the ingress sent it
-    again); a scene's frame after it is answered too."""
+    again); a scene's frame after it is answered too.
+
+    The victim is the replica that says it runs the batch, not the one that answered an earlier frame: a
+    replica killed by an earlier test may have come back since, and the ring that sent the earlier frame
+    need not be the ring that sends the batch."""
     mesh = garment(16)
     n = 150
     body = np.stack([np.asarray(mesh.positions, np.float32) + np.float32(0.002 * k) for k in range(n)]).astype("<f4")
@@ -218,9 +232,13 @@ def test_a_replica_killed_in_the_middle_of_a_batch_costs_no_frame(cluster, tmp_p
         with RenderClient(cluster["url"], max_retries=200, max_retry_wait_s=1.0) as c:
             s = c.create_scene(env["id"], positions=mesh.positions, faces=mesh.faces,
                                **{k: v for k, v in scene_body(env["id"], mesh).items() if k in ("quality", "output")})
-            owner = c.send_frame(s["id"], mesh.positions).headers["x-replica"]
+            c.send_frame(s["id"], mesh.positions)
         route = {"serve_multiplexed_model_id": s["id"]}   # requests of the scene's: to its replica
-        killer = _Killer(cluster["env"], next(name for name in _replicas(cluster["env"]) if name.endswith(owner)))
+        deadline = time.monotonic() + 120
+        while len(names := _replicas(cluster["env"])) != 2:   # an earlier test's victim is back
+            assert time.monotonic() < deadline, names
+            time.sleep(1.0)
+        killers = {name: _Killer(cluster["env"], name) for name in names}   # each ready before the batch
         answer: dict = {}
 
         def batch():
@@ -229,18 +247,23 @@ def test_a_replica_killed_in_the_middle_of_a_batch_costs_no_frame(cluster, tmp_p
 
         thread = threading.Thread(target=batch)
         thread.start()
-        deadline = time.monotonic() + 120
-        while True:   # the owner's render thread says it runs the batch
-            job = http.get("/health/ready", headers=route).json().get("current_job")
-            if job and f"batch of {n} frames" in job["what"]:
-                break
-            assert thread.is_alive() and time.monotonic() < deadline, answer
-            time.sleep(0.05)
-        killer.kill()
+        try:
+            while True:   # a replica's render thread says it runs the batch
+                ready = http.get("/health/ready", headers=route)
+                job = ready.json().get("current_job")
+                if job and f"batch of {n} frames" in job["what"]:
+                    victim = ready.headers["x-replica"]
+                    break
+                assert thread.is_alive() and time.monotonic() < deadline, answer
+                time.sleep(0.05)
+            next(k for name, k in killers.items() if name.endswith(victim)).kill()
+        finally:
+            for k in killers.values():
+                k.close()
         thread.join(timeout=240)
         r = answer["r"]
         assert r.status_code == 200, r.text[:2000]
-        assert r.headers["x-replica"] != owner and int(r.headers["x-replicas-lost"]) >= 1
+        assert r.headers["x-replica"] != victim and int(r.headers["x-replicas-lost"]) >= 1, (victim, r.headers)
         assert [f["frame_index"] for f in r.json()["frames"]] == list(range(n))
         after = http.post(f"/scenes/{s['id']}/frames", content=body[0].tobytes(),
                           headers={"Content-Type": "application/octet-stream", **route})
@@ -275,6 +298,8 @@ def test_one_scrape_holds_every_replicas_metrics(cluster, tmp_path):
                 assert time.monotonic() < deadline, text[-2000:]
                 time.sleep(0.5)
 
+        # Every replica has reported since its last frame (an earlier test's frame counted in its next report).
+        time.sleep(2.5)
         before = _series(scrape(2), "garment_render_frames_total")
         answered: dict[str, int] = {}
         with RenderClient(cluster["url"], max_retries=200, max_retry_wait_s=1.0) as c:
