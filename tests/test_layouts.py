@@ -347,8 +347,13 @@ def test_1k_map_to_128_cube_costs_a_few_dozen_bilinear_lookups_per_texel():
         job()
         return time.perf_counter() - t0
 
-    ratio = timed(lambda: to_cube(img, "latlong", 128)) / min(
-        timed(lambda: [map_coordinates(img[..., c], points, order=1) for c in range(3)]) for _ in range(2))
+    # Each the least of three turns, taken in alternation: a turn that a busy neighbour (the suite's
+    # other processes) slowed does not count, for either side.
+    ours, scipys = [], []
+    for _ in range(3):
+        ours.append(timed(lambda: to_cube(img, "latlong", 128)))
+        scipys.append(timed(lambda: [map_coordinates(img[..., c], points, order=1) for c in range(3)]))
+    ratio = min(ours) / min(scipys)
     assert ratio < 60.0, f"1024x512 -> 6 x 128^2 took {ratio:.0f}x the bilinear lookups"
 
 
