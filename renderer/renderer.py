@@ -714,6 +714,7 @@ class Renderer:
             set_uniform(g, "u_camera_pos", tuple(float(x) for x in camera.eye))
             for sm in scene.meshes:
                 set_uniform(g, "u_shadow_group", float(sm.group))
+                set_uniform(g, "u_convex_surface", sm.convex)
                 for part in sm.variants[variant].parts:   # one draw per texture set
                     part.bind(g)
                     part.vao.render(moderngl.TRIANGLES)

@@ -110,6 +110,18 @@ def _clip_box(lo, hi, planes: np.ndarray, frustum: np.ndarray) -> tuple[np.ndarr
     return points.min(axis=0), points.max(axis=0)
 
 
+def convex_surface(positions: np.ndarray, faces: np.ndarray) -> bool:
+    """Whether the mesh bounds a convex volume: watertight once its vertices are merged by position (an
+    OBJ's UV seams split them) and convex, as trimesh judges them. A ball is; a body (its legs side by
+    side) is not, nor a garment (a sheet)."""
+    import trimesh
+
+    if len(faces) == 0:
+        return False
+    mesh = trimesh.Trimesh(np.asarray(positions, np.float64), np.asarray(faces), process=True)
+    return bool(mesh.is_watertight and mesh.is_convex)
+
+
 def longest_edge(positions: np.ndarray, faces: np.ndarray) -> float:
     """The longest edge of a triangle mesh (0 without faces)."""
     if len(faces) == 0:
@@ -173,6 +185,10 @@ class SceneMesh:
         # Twice the longest edge as registered (cloth stretches by far less): how far outside the
         # camera's frustum a vertex of a triangle that crosses it can lie (Scene.visible_bounds).
         self.reach = 2.0 * longest_edge(mesh.positions, mesh.faces)
+        # A convex surface (a ball) sees only its own far side in its map from a light below its plane; a
+        # body or a garment sees other parts of itself there too (shading/vsm.glsl, own_counts). Judged
+        # at registration.
+        self.convex = convex_surface(mesh.positions, mesh.faces)
         normals = vertex_normals(mesh.positions, mesh.faces)
         self.vbo_pos = ctx.buffer(np.ascontiguousarray(mesh.positions, np.float32).tobytes(), dynamic=True)
         self.vbo_nrm = ctx.buffer(normals.astype(np.float32).tobytes(), dynamic=True)

@@ -497,6 +497,37 @@ def test_shadow_groups_put_the_first_caster_apart():
     assert shadow_groups([True, False]) == [0, RECEIVER_ONLY]
 
 
+def test_only_a_convex_closed_surface_is_marked_convex(renderer):
+    """The own group judges a light below a receiver's plane unless the receiver is convex and closed
+    (shading/vsm.glsl, own_counts; the furnace test above is such a ball): two balls in one mesh see
+    each other from there, a sheet (a garment) sees its own other folds. Each mesh is judged at
+    registration, UV seams merged."""
+    from renderer.scene import convex_surface
+
+    one = sphere(0.3, centre=(0.0, 0.5, 0.0))
+    twin = sphere(0.3, centre=(0.62, 0.5, 0.0))
+    pair = Mesh.from_arrays(np.concatenate([one.positions, twin.positions]),
+                            np.concatenate([one.faces, twin.faces + len(one.positions)]), name="pair")
+    # The ball with a seam: every vertex of one meridian written twice (as an OBJ with UVs stores it).
+    seam = np.unique(one.faces[:, 0])[:8]
+    duplicate = np.arange(len(one.positions))
+    duplicate[seam] = len(one.positions) + np.arange(len(seam))
+    faces = one.faces.copy()
+    faces[::2] = duplicate[faces[::2]]   # every other face takes the copies
+    split = Mesh.from_arrays(np.concatenate([one.positions, one.positions[seam]]), faces, name="seam")
+    import trimesh
+
+    assert not trimesh.Trimesh(split.positions, split.faces, process=False).is_watertight
+    floor = plane(4.0)
+    assert convex_surface(one.positions, one.faces) and convex_surface(split.positions, split.faces)
+    assert not convex_surface(pair.positions, pair.faces) and not convex_surface(floor.positions, floor.faces)
+    scene = renderer.create_scene([floor, one, pair], [Material()] * 3)
+    try:
+        assert [sm.convex for sm in scene.meshes] == [False, True, False]
+    finally:
+        scene.release()
+
+
 def test_a_scene_with_one_caster_keeps_one_pair_of_moments(renderer):
     # One casting mesh (a floor that casts nothing beside it): one run of RG32F maps, half the memory
     # of two groups'. A second caster hidden inside the ball (it shadows nothing that is seen, and

@@ -118,6 +118,9 @@ class LightKind(IntEnum):
 
 
 N_LIGHT_KINDS = 16
+# The geometry pass's geometric target holds the mesh's shadow group in w, plus this where the mesh is a
+# convex surface (renderer/scene.py, SceneMesh.convex; shading/gbuffer.frag, lighting.frag).
+CONVEX_SURFACE = 4
 
 # The wide-lobe rule (shading/discs.glsl, wide_lobe; renderer.light_kinds): a lobe of variance 1 / s is
 # wider than a disc of angular radius a where 1 / s >= WIDE_LOBE_DISC_VARIANCE * a^2 (the disc's own
@@ -136,5 +139,6 @@ def glsl_defines() -> dict[str, str]:
         for member in enum:
             out[f"{prefix}_{member.name}"] = str(int(member))
     out["N_LIGHT_KINDS"] = str(N_LIGHT_KINDS)
+    out["CONVEX_SURFACE"] = str(CONVEX_SURFACE)
     out["WIDE_LOBE_DISC_VARIANCE"] = repr(float(WIDE_LOBE_DISC_VARIANCE))
     return out

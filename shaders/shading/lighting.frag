@@ -251,7 +251,9 @@ void main() {
     vec3 n = g_nrm.xyz;
     vec4 g_geo = texelFetch(u_g_geometric, px, 0);
     g_geometric_normal = g_geo.xyz;
-    g_shadow_group = int(g_geo.w + 0.5);
+    int geometric_w = int(g_geo.w + 0.5);
+    g_convex_surface = geometric_w >= CONVEX_SURFACE;
+    g_shadow_group = g_convex_surface ? geometric_w - CONVEX_SURFACE : geometric_w;
     vec4 g_alb = texelFetch(u_g_albedo, px, 0);
     vec3 albedo = g_alb.rgb;
     vec2 material = vec2(g_pos.w, g_nrm.w);

@@ -14,6 +14,7 @@ float chebyshev(vec2 m, float t, float least_variance) {
 // The pixel's shadow group (gbuffer.frag, renderer/scene.py): 0 or 1, SHADOW_GROUPS if it casts nothing.
 const int SHADOW_GROUPS = 2;
 int g_shadow_group = 0;
+bool g_convex_surface = false;   // the receiver's mesh bounds a convex volume (gbuffer.frag)
 uniform bool u_two_groups;   // the maps hold both groups' moments; else group 0's alone
 // The moments of group g's map of light i are at layer shadow.x + g x the array's lights with a map
 // (renderer/shadows/vsm.py): a layer index per pixel, no branch on the group.
@@ -72,15 +73,19 @@ float soft_visibility(vec2 uv, float layer, bool zw, float t, float least_varian
 }
 #endif
 
-// Whether the receiver's own group judges light i. From a direction below the triangle's plane the
-// map sees the surface itself in front of the point (a convex body's far side), an occlusion that the
-// terms' horizon already removes (the closed forms are clipped there, the glossy terms keep the
-// disc's share above the plane): judged again, a region that straddles the plane would be lit all or
-// nothing by where its centre falls. Its part above the plane is judged by the other group alone, as
-// the oracle (renderer/reference/visibility.py) counts only the rays above the plane. White furnace
-// at 6 lights: 4.4 % dark, its worst pixel 15 %, before; as the lights alone after (tests/test_render.py).
+// Whether the receiver's own group judges light i. On a convex surface (a ball), from a direction
+// below the triangle's plane the map sees only the surface's own far side in front of the point, an
+// occlusion that the terms' horizon already removes (the closed forms are clipped there, the glossy
+// terms keep the disc's share above the plane): judged again, a region that straddles the plane would
+// be lit all or nothing by where its centre falls, so its part above the plane is judged by the other
+// group alone, as the oracle (renderer/reference/visibility.py) counts only the rays above the plane
+// (white furnace at 6 lights: 4.4 % dark, its worst pixel 15 %, judged by the own group; as the lights
+// alone without: tests/test_render.py). Any other surface sees other parts of itself there too (a leg
+// beside a leg, the inside of a skirt), which do block the region's part above the plane: its own group
+// judges every light (judged by the other group alone, the broad benchmark's error rose on 23 of its 24
+// tuning scenes, the dresses' most, and on 25 of 27 held out: docs/broad-benchmark.md).
 bool own_counts(int i) {
-    return dot(g_geometric_normal, lights[i].dir_scale.xyz) >= 0.0;
+    return !g_convex_surface || dot(g_geometric_normal, lights[i].dir_scale.xyz) >= 0.0;
 }
 
 // VIS_i from the light's variance shadow map: the smaller of the receiver's own group's visibility
