@@ -804,8 +804,9 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
                         "and behind, and coloured windows (renderer/bench/energy.py; a minute here)")
     b.add_argument("--broad", action="store_true",
                    help="the presets on every shared map x 3 garments x 3 fabrics x 2 views, a tuning and a held-out "
-                        "set reported apart, with the artefact share (writes broad.json/md; about an hour here, "
-                        "minutes with --quick once the references are cached)")
+                        "set reported apart, with the artefact share (writes broad.json/md, which give each set's "
+                        "wall time; --size 256: the held-out set first, in about twenty minutes from a cold cache on "
+                        "two cores)")
     b.add_argument("--workers", type=int, help="with --broad: reference processes (default: one per core)")
     b.add_argument("--size", type=int, choices=[128, 256],
                    help="with --broad: only the scenes of this size (default both: the 128x128 sweep and the 256x256 "

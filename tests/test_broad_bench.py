@@ -124,6 +124,14 @@ def test_misses_name_the_scene_the_target_and_the_factor():
                       ("g", "frame_ms"): pytest.approx(2.0), ("h", "equal_error_speedup"): pytest.approx(2.0)}
 
 
+def test_the_excess_takes_the_truths_own_noise_out_in_quadrature():
+    # The truth (the mean of the pair) is off by half the floor: an error e beyond it is measured as
+    # sqrt(e^2 + (floor / 2)^2).
+    for e, floor in ((0.08, 0.06), (0.2, 0.03), (0.01, 0.12)):
+        assert broad.excess_rel_rmse(float(np.hypot(e, floor / 2)), floor) == pytest.approx(e)
+    assert broad.excess_rel_rmse(0.02, 0.06) == 0.0   # within the truth's own noise
+
+
 @needs_assets
 def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path, monkeypatch):
     # The presets made small (their faces, maps and light counts; the knob variants over them as they
@@ -153,10 +161,22 @@ def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path, monkeypatch):
     for r in rows:
         assert np.isfinite([r.rel_rmse, r.flip, r.artefact_share, r.background_rel_rmse, r.ref_noise_rel_rmse]).all()
         assert 0.5 < r.mean_ratio < 2.0 and r.frame_ms > 0
+    # Each row's error is its excess over the truth's own noise (half the pair's floor), the error
+    # against the pair's mean kept beside it.
+    for r in rows:
+        measured = r.extra["rel_rmse_measured"]
+        assert r.rel_rmse == pytest.approx(np.sqrt(max(measured ** 2 - 0.25 * r.ref_noise_rel_rmse ** 2, 0.0)))
+        assert r.rel_rmse <= measured
     data = json.loads((tmp_path / "out" / "broad.json").read_text())
     assert {s["set"] for s in data["summary"].values()} == {"tuning", "held-out"}
+    # The held-out set ran first, whole, from the cold cache: its wall time is the run's own.
+    assert data["rows"][0]["set"] == "held-out"
+    timed = data["sets_timed"]
+    assert list(timed["wall_s"]) == ["held-out", "tuning"] and all(t > 0 for t in timed["wall_s"].values())
+    assert timed["references"] == {"held-out": {"rendered": 2, "in_all": 2}, "tuning": {"rendered": 2, "in_all": 2}}
     text = (tmp_path / "out" / "broad.md").read_text()
     assert "Held-out maps:" in text and "No held-out scene at 256 x 256" in text
+    assert "Wall time of each set, its references included: held-out " in text and "rendering 2 of its 2" in text
     # A second run renders no reference: every one is in the cache.
     assert len(list((tmp_path / "refs").glob("*.npz"))) == 4
     logged = []
