@@ -8,6 +8,7 @@ import itertools
 
 import moderngl
 import numpy as np
+import trimesh
 
 from .errors import MeshError
 from .gpu.context import GLContext
@@ -110,16 +111,22 @@ def _clip_box(lo, hi, planes: np.ndarray, frustum: np.ndarray) -> tuple[np.ndarr
     return points.min(axis=0), points.max(axis=0)
 
 
-def convex_surface(positions: np.ndarray, faces: np.ndarray) -> bool:
-    """Whether the mesh bounds a convex volume: watertight once its vertices are merged by position (an
-    OBJ's UV seams split them) and convex, as trimesh judges them. A ball is; a body (its legs side by
-    side) is not, nor a garment (a sheet)."""
-    import trimesh
+# A closed mesh whose volume is within this share of its convex hull's is convex (a triangulated ball
+# is, to rounding; a body, its legs side by side, is far from it).
+CONVEX_VOLUME_TOLERANCE = 1e-3
 
+
+def convex_surface(positions: np.ndarray, faces: np.ndarray) -> bool:
+    """Whether the mesh bounds a convex volume, whichever way its triangles wind (cloth is two-sided):
+    watertight once its vertices are merged by position (an OBJ's UV seams split them), as trimesh
+    judges it, and as large as its convex hull. A ball is; a body is not, nor a garment (a sheet)."""
     if len(faces) == 0:
         return False
     mesh = trimesh.Trimesh(np.asarray(positions, np.float64), np.asarray(faces), process=True)
-    return bool(mesh.is_watertight and mesh.is_convex)
+    if not mesh.is_watertight:
+        return False
+    hull = float(mesh.convex_hull.volume)
+    return hull > 0.0 and abs(float(mesh.volume)) >= (1.0 - CONVEX_VOLUME_TOLERANCE) * hull
 
 
 def longest_edge(positions: np.ndarray, faces: np.ndarray) -> float:

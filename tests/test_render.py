@@ -520,6 +520,7 @@ def test_only_a_convex_closed_surface_is_marked_convex(renderer):
     assert not trimesh.Trimesh(split.positions, split.faces, process=False).is_watertight
     floor = plane(4.0)
     assert convex_surface(one.positions, one.faces) and convex_surface(split.positions, split.faces)
+    assert convex_surface(one.positions, one.faces[:, ::-1])   # whichever way it winds
     assert not convex_surface(pair.positions, pair.faces) and not convex_surface(floor.positions, floor.faces)
     scene = renderer.create_scene([floor, one, pair], [Material()] * 3)
     try:
