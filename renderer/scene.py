@@ -111,22 +111,19 @@ def _clip_box(lo, hi, planes: np.ndarray, frustum: np.ndarray) -> tuple[np.ndarr
     return points.min(axis=0), points.max(axis=0)
 
 
-# A closed mesh whose volume is within this share of its convex hull's is convex (a triangulated ball
-# is, to rounding; a body, its legs side by side, is far from it).
-CONVEX_VOLUME_TOLERANCE = 1e-3
-
-
 def convex_surface(positions: np.ndarray, faces: np.ndarray) -> bool:
     """Whether the mesh bounds a convex volume, whichever way its triangles wind (cloth is two-sided):
-    watertight once its vertices are merged by position (an OBJ's UV seams split them), as trimesh
-    judges it, and as large as its convex hull. A ball is; a body is not, nor a garment (a sheet)."""
+    watertight once its vertices are merged by position (an OBJ's UV seams split them), one body, and
+    convex at every edge, as trimesh judges them (its test reads the winding: an inward-wound mesh is
+    turned first). A ball is; a body is not, nor a garment (a sheet)."""
     if len(faces) == 0:
         return False
     mesh = trimesh.Trimesh(np.asarray(positions, np.float64), np.asarray(faces), process=True)
-    if not mesh.is_watertight:
+    if not mesh.is_watertight:   # a sheet: no volume to be convex
         return False
-    hull = float(mesh.convex_hull.volume)
-    return hull > 0.0 and abs(float(mesh.volume)) >= (1.0 - CONVEX_VOLUME_TOLERANCE) * hull
+    if mesh.volume < 0.0:
+        mesh.invert()
+    return bool(mesh.is_convex)
 
 
 def longest_edge(positions: np.ndarray, faces: np.ndarray) -> float:
@@ -195,7 +192,8 @@ class SceneMesh:
         # A convex surface (a ball) sees only its own far side in its map from a light below its plane; a
         # body or a garment sees other parts of itself there too (shading/vsm.glsl, own_counts). Judged
         # at registration.
-        self.convex = convex_surface(mesh.positions, mesh.faces)
+        # (A receiver that casts nothing is judged by no group of its own.)
+        self.convex = caster and convex_surface(mesh.positions, mesh.faces)
         normals = vertex_normals(mesh.positions, mesh.faces)
         self.vbo_pos = ctx.buffer(np.ascontiguousarray(mesh.positions, np.float32).tobytes(), dynamic=True)
         self.vbo_nrm = ctx.buffer(normals.astype(np.float32).tobytes(), dynamic=True)

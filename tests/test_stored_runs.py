@@ -47,6 +47,6 @@ def test_the_stored_reports_are_what_their_runs_make():
 
     for run, make in (("docs/error-split/error_split.json", split.markdown),
                       ("docs/one-shot/one_shot.json", one_shot.markdown),
-                      (broad.README_RUN, broad.markdown)):
+                      (broad.README_RUN, broad.markdown), ("docs/broad/own-group-skip-256.json", broad.markdown)):
         data = json.loads((ROOT / run).read_text())
         assert (ROOT / run).with_suffix(".md").read_text() == make(data), run

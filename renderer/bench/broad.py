@@ -134,11 +134,12 @@ def _reference_job(scene: Scene, spp: int, seed: int) -> tuple[np.ndarray, float
 SEEDS = (1, 2)
 
 
-def ensure_references(todo: list[Scene], spp_of, cache: ReferenceCache, workers: int, log=print) -> None:
-    """Render the missing references of `todo` (both seeds), `workers` processes of one thread each."""
+def ensure_references(todo: list[Scene], spp_of, cache: ReferenceCache, workers: int, log=print) -> int:
+    """Render the missing references of `todo` (both seeds), `workers` processes of one thread each;
+    how many it rendered."""
     missing = [(s, spp_of(s), seed) for s in todo for seed in SEEDS if cache.get(s, spp_of(s), seed) is None]
     if not missing:
-        return
+        return 0
     log(f"rendering {len(missing)} references ({len(todo) * len(SEEDS) - len(missing)} cached) in {workers} processes")
     t0 = time.perf_counter()
     with one_thread_pool(workers) as pool:
@@ -149,6 +150,7 @@ def ensure_references(todo: list[Scene], spp_of, cache: ReferenceCache, workers:
             cache.put(s, spp, seed, image, wall)
             if k % 10 == 0 or k == len(jobs):
                 log(f"  {k}/{len(jobs)} references, {time.perf_counter() - t0:.0f} s")
+    return len(missing)
 
 
 # --- the fast method ------------------------------------------------------------------------------
@@ -218,15 +220,14 @@ def excess_rel_rmse(error: float, floor: float) -> float:
 def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, truth: Truth, spp: int,
             sets: dict) -> BroadRow:
     """One setting's row against the scene's truth."""
-    mask = truth.mask
+    mask, floor = truth.mask, truth.floor_rel_rmse
     measured = relative_rmse(image, truth.image, mask)
-    err = excess_rel_rmse(measured, truth.floor_rel_rmse)
+    err = excess_rel_rmse(measured, floor)
     art = artefact_share(image, truth.a, truth.b, mask)
     background = ~mask
     bg_err = relative_rmse(image[..., :3], truth.background, background) if background.any() else float("nan")
     # Equal error (module doc): one render of spp samples is off by floor / sqrt(2); the truth, the
     # mean of two, by half the floor.
-    floor = truth.floor_rel_rmse
     speedup = None
     if measured > floor:   # twice the truth's own error
         # The tracer on every core: its samples split evenly (its rate is one thread's, setup included).
@@ -351,43 +352,39 @@ def run_broad(out_dir: Path, cfg: BroadConfig, log=print, only: list[Scene] | No
     res: MapResources | None = None
     # The held-out set first, whole (its references, then its scenes), then the tuning set: each set's
     # wall time from a cold cache is the run's own measurement (`sets_timed`).
-    order = sorted(todo, key=lambda s: (sets[s.map] != "held-out", s.map, s.garment, s.size))
-    ref_s, set_wall_s, set_refs, started = 0.0, {}, {}, {}
+    ref_s, set_wall_s, set_refs, k = 0.0, {}, {}, 0
     with Renderer(gl) as r:
-        for k, scene in enumerate(order):
-            part = sets[scene.map]
-            if part not in started:   # a set's first scene: its references, all of them, first
-                for name, t in started.items():
-                    set_wall_s.setdefault(name, time.perf_counter() - t)
-                started[part] = t0 = time.perf_counter()
-                mine = [s for s in order if sets[s.map] == part]
-                set_refs[part] = {"rendered": sum(cache.get(s, cfg.spp_of(s), seed) is None for s in mine for seed in SEEDS),
-                                  "in_all": len(mine) * len(SEEDS)}
-                ensure_references(mine, cfg.spp_of, cache, workers, log)
-                ref_s += time.perf_counter() - t0
-            spp = cfg.spp_of(scene)
-            ref_a, ref_b = (cache.get(scene, spp, seed) for seed in SEEDS)
-            if res is None or res.name != scene.map:
-                if res is not None:
-                    res.release()
-                res = MapResources(r, scene.map)
-            knob_scene = cfg.knobs and sets[scene.map] == "held-out" and (scene.size > 128 or
-                                                                        scene.fabric == KNOB_SMALL_FABRIC)
-            settings = {p: k for p, k in knobs_of.items() if knob_scene or ":" not in p}
-            images = render_presets(r, scene, settings, cfg.frames if scene.size > 128 else cfg.frames_small, res)
-            truth = Truth.of(ref_a, ref_b, spp,
-                             background_truth(res.image, res.layout, scene.camera(), scene.size, scene.size))
-            for preset, (image, ms) in images.items():
-                rows.append(measure(scene, preset, image, ms, truth, spp, sets))
-            b = next(x for x in rows[-len(images):] if x.preset == "balanced")
-            log(f"[{k + 1}/{len(todo)}] {scene.name} ({b.set}): balanced rel. RMSE {b.rel_rmse:.3f}, FLIP {b.flip:.3f}, "
-                f"artefacts {100 * b.artefact_share:.2f} %, {b.frame_ms:.0f} ms; floor {b.ref_noise_rel_rmse:.3f}")
-            if (k + 1) % 20 == 0:
-                write(out_dir, rows, machine, cfg, source, ref_s)
+        for part in ("held-out", "tuning"):
+            mine = sorted((s for s in todo if sets[s.map] == part), key=lambda s: (s.map, s.garment, s.size))
+            if not mine:
+                continue
+            t0 = time.perf_counter()
+            set_refs[part] = {"rendered": ensure_references(mine, cfg.spp_of, cache, workers, log),
+                              "in_all": len(mine) * len(SEEDS)}
+            ref_s += time.perf_counter() - t0
+            for scene in mine:
+                k += 1
+                spp = cfg.spp_of(scene)
+                ref_a, ref_b = (cache.get(scene, spp, seed) for seed in SEEDS)
+                if res is None or res.name != scene.map:
+                    if res is not None:
+                        res.release()
+                    res = MapResources(r, scene.map)
+                knob_scene = cfg.knobs and part == "held-out" and (scene.size > 128 or scene.fabric == KNOB_SMALL_FABRIC)
+                settings = {p: kn for p, kn in knobs_of.items() if knob_scene or ":" not in p}
+                images = render_presets(r, scene, settings, cfg.frames if scene.size > 128 else cfg.frames_small, res)
+                truth = Truth.of(ref_a, ref_b, spp,
+                                 background_truth(res.image, res.layout, scene.camera(), scene.size, scene.size))
+                for preset, (image, ms) in images.items():
+                    rows.append(measure(scene, preset, image, ms, truth, spp, sets))
+                b = next(x for x in rows[-len(images):] if x.preset == "balanced")
+                log(f"[{k}/{len(todo)}] {scene.name} ({part}): balanced rel. RMSE {b.rel_rmse:.3f}, FLIP {b.flip:.3f}, "
+                    f"artefacts {100 * b.artefact_share:.2f} %, {b.frame_ms:.0f} ms; floor {b.ref_noise_rel_rmse:.3f}")
+                if k % 20 == 0:
+                    write(out_dir, rows, machine, cfg, source, ref_s)
+            set_wall_s[part] = time.perf_counter() - t0
         if res is not None:
             res.release()
-    for name, t in started.items():
-        set_wall_s.setdefault(name, time.perf_counter() - t)
     gl.release()
     write(out_dir, rows, machine, cfg, source, ref_s, {"wall_s": set_wall_s, "references": set_refs})
     return rows

@@ -82,8 +82,8 @@ float soft_visibility(vec2 uv, float layer, bool zw, float t, float least_varian
 // (white furnace at 6 lights: 4.4 % dark, its worst pixel 15 %, judged by the own group; as the lights
 // alone without: tests/test_render.py). Any other surface sees other parts of itself there too (a leg
 // beside a leg, the inside of a skirt), which do block the region's part above the plane: its own group
-// judges every light (judged by the other group alone, the broad benchmark's error rose on 23 of its 24
-// tuning scenes, the dresses' most, and on 25 of 27 held out: docs/broad-benchmark.md).
+// judges every light (judged by the other group alone, the broad benchmark's error rose on nearly every
+// scene, the dresses' most: docs/broad/own-group-skip-256.md against docs/broad/broad-256.md).
 bool own_counts(int i) {
     return !g_convex_surface || dot(g_geometric_normal, lights[i].dir_scale.xyz) >= 0.0;
 }
