@@ -97,3 +97,51 @@ def test_a_snapped_box_holds_the_box_and_depends_on_it_alone():
     small = snap_box(lo, hi, unit=3.7)
     np.testing.assert_allclose(big[0], small[0] * 1e6)
     np.testing.assert_allclose(big[1], small[1] * 1e6)
+
+
+def test_the_still_meshes_geometry_is_drawn_once_per_camera_and_the_frames_are_the_same():
+    """The geometry pass draws the body and the floor (every mesh outside shadow group 0) into targets
+    of their own, kept while they, their material and the camera stay the same: the frames equal
+    those of a renderer that draws them anew every frame, and a body that moves, another camera or a
+    colourway draws them again."""
+    cube = sun_sky_cube(32, (0.6, 1.0, 0.3), sun_radiance=800.0, sun_radius_deg=6, sky=(0.2, 0.2, 0.25))
+    garment, body = sphere(0.3, centre=(0.0, 0.9, 0.0)), sphere(0.35, centre=(0.2, 0.35, 0.1))
+    meshes = [garment, body, plane(4.0)]
+    mats = [Material((0.7, 0.3, 0.3), 0.2, 0.6), Material((0.6, 0.5, 0.45)), Material((0.8, 0.8, 0.8))]
+    up = np.array([0.0, 0.01, 0.0], np.float32)
+    other = Camera((2.0, 2.0, 3.0), (0.0, 0.5, 0.0), fov_y_deg=40.0)
+    # (positions, camera, colourway): what each frame changes, and whether its still meshes are copied.
+    frames = [(None, CAM, 0, False),                                        # the first draws them
+              ([garment.positions + 5 * up, None, None], CAM, 0, True),     # the garment moves: copied
+              ([garment.positions, body.positions + up, None], CAM, 0, False),   # the body moves
+              ([garment.positions + 5 * up, None, None], CAM, 0, True),
+              (None, other, 0, False),                                      # another camera
+              (None, other, 1, False),                                      # a colourway
+              (None, other, 1, True)]
+    gl = GLContext()
+    keeps, draws = Renderer(gl), Renderer(gl)
+    try:
+        scenes = [r.create_scene(meshes, mats) for r in (keeps, draws)]
+        for s in scenes:
+            assert s.add_variant([None, Material((0.2, 0.3, 0.7)), None]) == 1
+        pems = keeps.build_pems(cube, paper_pems(24))
+        fs = paper(64, 64, background=Background.BLACK)
+        for positions, camera, variant, copied in frames:
+            hits = keeps.geometry_still_hits
+            images = []
+            for r, scene in zip((keeps, draws), scenes):
+                if r is draws and r._still_target is not None:
+                    r._still_target.key = None   # nothing kept: drawn anew
+                images.append(r.render_views(scene, pems, fs, [camera], positions=positions,
+                                             variants=[variant])[0].image)
+            np.testing.assert_array_equal(images[0], images[1])
+            assert keeps.geometry_still_hits - hits == int(copied)
+            assert (images[0][..., 3] > 0.5).mean() > 0.3
+        assert draws.geometry_still_hits == 0
+    finally:
+        pems.release()
+        for s in scenes:
+            s.release()
+        keeps.release()
+        draws.release()
+        gl.release()

@@ -1,5 +1,6 @@
-"""The few raw OpenGL calls that moderngl does not wrap: cube-map-array textures, and clears of
-some layers of a texture array (glClearTexSubImage: the shadow pass's moving casters, shadows/vsm.py).
+"""The few raw OpenGL calls that moderngl does not wrap: cube-map-array textures, clears of some
+layers of a texture array (glClearTexSubImage: the shadow pass's moving casters, shadows/vsm.py), and
+copies of whole images (glCopyImageSubData: the geometry pass's still meshes, renderer.py).
 
 moderngl has no cube-map-array type (GL-NOTES). The PEM set is one GL_TEXTURE_CUBE_MAP_ARRAY
 (layer = region) so that the shading pass reads every region with one sampler and hardware
@@ -30,6 +31,8 @@ GL_TEXTURE_MAG_FILTER = 0x2800
 GL_LINEAR = 0x2601
 GL_LINEAR_MIPMAP_LINEAR = 0x2703
 GL_TEXTURE_MAX_LEVEL = 0x813D
+GL_TEXTURE_2D = 0x0DE1
+GL_RENDERBUFFER = 0x8D41
 
 _u = ctypes.c_uint
 _i = ctypes.c_int
@@ -49,6 +52,7 @@ class RawGL:
         "glGetTextureSubImage": (_u, _i, _i, _i, _i, _i, _i, _i, _u, _u, _i, ctypes.c_void_p),
         "glTextureSubImage3D": (_u, _i, _i, _i, _i, _i, _i, _i, _u, _u, ctypes.c_void_p),
         "glClearTexSubImage": (_u, _i, _i, _i, _i, _i, _i, _i, _u, _u, ctypes.c_void_p),
+        "glCopyImageSubData": (_u, _u, _i, _i, _i, _i, _u, _u, _i, _i, _i, _i, _i, _i, _i),
     }
 
     def __init__(self):
@@ -70,6 +74,12 @@ def clear_layers(gl: RawGL, glo: int, first: int, count: int, size: int, value: 
     a framebuffer's clear reaches every attached layer)."""
     data = (ctypes.c_float * 2)(*value)
     gl.glClearTexSubImage(glo, 0, 0, 0, first, size, size, count, GL_RG, GL_FLOAT, ctypes.cast(data, ctypes.c_void_p))
+
+
+def copy_image(gl: RawGL, src: int, dst: int, target: int, width: int, height: int) -> None:
+    """Level 0 of image `src` into `dst` (GL names of one target, GL_TEXTURE_2D or GL_RENDERBUFFER, and
+    one format), texel for texel: no framebuffer, no filtering, no conversion."""
+    gl.glCopyImageSubData(src, target, 0, 0, 0, 0, dst, target, 0, 0, 0, 0, width, height, 1)
 
 
 class CubeMapArray:
