@@ -46,7 +46,7 @@ def test_the_frame_and_the_pems_default_to_balanced_and_the_paper_preset_is_the_
         assert getattr(f, name) == balanced[name], name
         config.check(name, config.BY_NAME[name].default)
     assert (pem.n_lights, pem.whole_sources, pem.lights_from) == (balanced["lights"], balanced["whole_sources"],
-                                                       balanced["lights_from"]) == (48, True, "auto")
+                                                       balanced["lights_from"]) == (24, True, "auto")
     paper = {name: config.BY_NAME[name].default for name in config.NAMES}
     assert paper == preset("paper")
     assert (paper["diffuse"], paper["glossy"], paper["sub_lights"], paper["whole_sources"]) == ("pem", "pem", 1, False)

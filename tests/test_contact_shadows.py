@@ -156,4 +156,4 @@ def test_the_command_line_names_the_knob():
     q = resolve_quality(build_parser().parse_args(["render", "--contact-shadow-texels", "3"]))
     assert q["contact_shadow_texels"] == 3.0
     q = resolve_quality(build_parser().parse_args(["render", "--preset", "fast", "--contact-shadow-texels", "0"]))
-    assert q["contact_shadow_texels"] == 0.0 and q["lights"] < 48   # the flag over the preset's value
+    assert q["contact_shadow_texels"] == 0.0 and q["shadow_size"] < 512   # the flag over the preset's value
