@@ -16,7 +16,7 @@ import numpy as np
 from . import config
 from .config import RETIRED
 from .errors import InvalidInputError, RenderError
-from .presets import PRESET_NAMES, base_knobs, merge_knobs, presets
+from .presets import PRESET_NAMES, resolve
 from .presets import frame_settings as presets_frame_settings
 from .presets import pem_settings as presets_pem_settings
 from .views import VIEW_NAMES
@@ -141,21 +141,13 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def resolve_quality(args) -> dict:
-    """Quality knobs: a budget (chosen from the measured table), else the preset, over the
-    defaults; explicit flags override all (`merge_knobs`). The result says where they came from,
+    """Quality knobs (`renderer.presets.resolve`): a budget (chosen from the measured table), else the
+    preset, over the defaults; explicit flags override all. The result says where they came from,
     and which PEM filter: --filter, else the budget's measured one, else sqrt-cosine. A budget's
     result names the GL renderer its table was measured on ("measured_on"): `check_budget_device`
     holds it against the renderer the frames run on, once there is one."""
-    from .presets.budget import load_table
-
-    table = load_table() if args.frame_budget_ms is not None or args.error_budget is not None else None
-    base, measured_filter, where = base_knobs(args.preset, *presets(), args.frame_budget_ms, args.error_budget,
-                                              table, size=tuple(args.size))
-    knobs = merge_knobs(base, {k: getattr(args, k) for k in config.NAMES})
-    q = {**knobs, "filter": args.filter or measured_filter or "sqrt-cosine", "source": where}
-    if table is not None:
-        q["measured_on"] = table["machine"].get("gl_renderer")
-    return q
+    return resolve(args.preset, {k: getattr(args, k) for k in config.NAMES}, frame_budget_ms=args.frame_budget_ms,
+                   error_budget=args.error_budget, filter=args.filter, size=tuple(args.size)).as_dict()
 
 
 def check_budget_device(q: dict, renderer) -> None:

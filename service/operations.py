@@ -25,7 +25,7 @@ from .errors import ConflictError, InvalidRequestError, NotFoundError, PayloadTo
 from .registry import EnvironmentRecord, EnvironmentStore, MeshStore, PemInfo, SceneMeshInfo, SceneRecord, SceneStore
 from .schemas import MeshSpec, QualitySpec, SceneCreate
 from .settings import ServiceSettings
-from .specs import Quality, check_pem_cost, prepare_scene, resolve_quality
+from .specs import RequestQuality, check_pem_cost, prepare_scene, resolve_quality
 from .state import StateDir
 from .worker import GLResources, RenderWorker
 
@@ -44,7 +44,7 @@ class Services:
     state: StateDir | None = None
     _restoring: dict[str, tuple[asyncio.Lock, int]] = field(default_factory=dict)
 
-    def quality(self, spec: QualitySpec) -> Quality:
+    def quality(self, spec: QualitySpec) -> RequestQuality:
         from .schemas import OutputSpec
 
         q = resolve_quality(spec, OutputSpec(width=16, height=16), self.presets, self.measured,

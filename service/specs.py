@@ -14,7 +14,7 @@ from renderer.errors import MeshError
 from renderer.lighting.pem import PEMSettings, pem_cost
 from renderer.lighting.pem_reference import mip_levels
 from renderer.mesh import Mesh, z_up_to_y_up
-from renderer.presets import base_knobs, frame_settings, merge_knobs, pem_settings
+from renderer.presets import pem_settings, resolve
 from renderer.renderer import Background, FrameSettings, ShadingMode
 from renderer.shading.material import Material, TextureSet
 from renderer.shadows.proxy import caster_proxy_isolated
@@ -29,36 +29,34 @@ _KNOBS = config.NAMES
 
 
 @dataclass
-class Quality:
+class RequestQuality:
     face_size: int
     pem: PEMSettings
     frame: FrameSettings
-    knobs: dict   # the resolved knobs (`merge_knobs`)
+    knobs: dict   # every setting as resolved (`renderer.presets.resolve`)
     info: dict    # the resolved settings and where they came from, reported with each frame
 
 
 def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: dict | None,
-                    settings: ServiceSettings, device: str | None = None) -> Quality:
-    """The request's knobs over its preset's (renderer/presets) or its budget's (`merge_knobs`), as
-    frame and PEM settings; the PEM set's full chain (a scene narrows it to its materials' levels in
-    `prepare_scene`). Budgets choose from `measured` (the table read at start-up; None: none stored),
-    measured on `device` (the service's GL renderer; None: not known yet)."""
+                    settings: ServiceSettings, device: str | None = None) -> RequestQuality:
+    """The request's knobs over its preset's (renderer/presets) or its budget's, resolved by the one
+    rule the command line shares (`renderer.presets.resolve`), as frame and PEM settings; the PEM
+    set's full chain (a scene narrows it to its materials' levels in `prepare_scene`). Budgets choose
+    from `measured` (the table read at start-up; None: none stored), measured on `device` (the
+    service's GL renderer; None: not known yet)."""
     name = q.preset.value if q.preset is not None else settings.default_preset
     # A budget chooses the measured setting that meets it, never a guess (InvalidInputError: 422).
-    base, measured_filter, source = base_knobs(name, presets, None, q.frame_budget_ms, q.error_budget, measured,
-                                               size=(out.width, out.height), device=device)
-    if measured_filter is not None:   # a budget chose the knobs: no preset name, and its filter unless named
-        name = None
-        filter_name = q.filter.value if "filter" in q.model_fields_set else measured_filter
-    else:
-        filter_name = q.filter.value
-    knobs = merge_knobs(base, {k: getattr(q, k) for k in q.model_fields_set if k in _KNOBS})
-    pem = pem_settings(knobs, filter_name, q.levels)   # checks the PEM set's settings (renderer/config.py)
+    resolved = resolve(name, {k: getattr(q, k) for k in q.model_fields_set if k in _KNOBS},
+                       frame_budget_ms=q.frame_budget_ms, error_budget=q.error_budget,
+                       filter=q.filter.value if "filter" in q.model_fields_set else None, in_use=(presets, None),
+                       table=measured, size=(out.width, out.height), device=device)
+    knobs = dict(resolved.knobs)
+    pem = resolved.pems(q.levels)   # checks the PEM set's settings (renderer/config.py)
     for side, value in (("width", out.width), ("height", out.height)):
         if value > settings.max_image_side:
             raise InvalidRequestError(f"output.{side} {value} exceeds the limit {settings.max_image_side} "
                                       "(GARMENT_RENDER_MAX_IMAGE_SIDE)")
-    frame = frame_settings(knobs, out.width, out.height, bleed_reduction=q.bleed_reduction,
+    frame = resolved.frame(out.width, out.height, bleed_reduction=q.bleed_reduction,
                            mode=ShadingMode(q.mode.value), background=Background(out.background))
     # The shadow maps' memory before any is made, bounded as if every light that may be small were
     # (at most lights / small_light_min_energy of them carry that multiple of the mean): a request
@@ -77,10 +75,10 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: di
             "(GARMENT_RENDER_MAX_SHADOW_MAP_BYTES): use fewer lights, a smaller shadow_size or "
             "small_light_scale, or a larger small_light_min_energy")
     applied = frame.as_dict()   # the knobs as the frame holds them (enums as their values)
-    info = {"preset": name, "source": source, **{k: applied.get(k, knobs[k]) for k in _KNOBS},
+    info = {"preset": resolved.preset, "source": resolved.source, **{k: applied.get(k, knobs[k]) for k in _KNOBS},
             "filter": pem.filter.value,
             "levels": q.levels, "bleed_reduction": frame.bleed_reduction, "mode": frame.mode.value}
-    return Quality(knobs["face_size"], pem, frame, knobs, info)
+    return RequestQuality(knobs["face_size"], pem, frame, knobs, info)
 
 
 def _pem_over(face_size: int, pem: PEMSettings, settings: ServiceSettings) -> list[str]:
@@ -239,7 +237,7 @@ class PreparedScene:
     roles: list[str]
     materials: list[Material]
     camera: Camera
-    quality: Quality
+    quality: RequestQuality
     casters: list[bool]
     proxies: dict | None = None   # the casters' shadow proxies at the quality's detail, made here (off the GL thread)
     material_specs: list | None = None   # each mesh's MaterialSpec as used (a glTF file's own, where it applied)

@@ -96,3 +96,30 @@ def test_the_bench_sweeps_every_setting_that_declares_values_and_each_value_is_v
 def test_a_removed_setting_is_no_longer_one_and_says_what_replaced_it():
     assert config.RETIRED and not set(config.RETIRED) & set(config.NAMES)
     assert all(reason.startswith("removed") and len(reason) > 20 for reason in config.RETIRED.values())
+
+
+def test_one_rule_resolves_a_request_for_the_command_line_the_service_and_the_python_api():
+    """renderer.presets.resolve is the one rule: the command line's flags, the service's request and a
+    Python caller asking the same get the same settings, and each setting lands in the key of what
+    its change makes anew (the registry's `invalidates`)."""
+    from renderer.cli import build_parser, resolve_quality
+    from renderer.presets import presets, resolve
+    from service.schemas import OutputSpec, QualitySpec
+    from service.settings import ServiceSettings
+    from service.specs import resolve_quality as request_quality
+
+    q = resolve("fast", {"lights": 48, "contact_shadow_texels": None})   # None: not given
+    assert q["lights"] == 48 and q["contact_shadow_texels"] == preset("fast")["contact_shadow_texels"]
+    assert q.preset == "fast" and q.filter == "sqrt-cosine" and "preset fast" in q.source
+    flags = resolve_quality(build_parser().parse_args(["render", "--preset", "fast", "--lights", "48"]))
+    assert flags == q.as_dict()
+    request = request_quality(QualitySpec(preset="fast", lights=48), OutputSpec(width=64, height=64),
+                              presets()[0], None, ServiceSettings())
+    assert request.knobs == dict(q.knobs) and request.pem == q.pems() and request.frame == q.frame(64, 64)
+    keys = {kind: q.key(kind) for kind in config.INVALIDATES}
+    assert sum(map(len, keys.values())) == len(config.NAMES) + 1   # every setting once, and the filter
+    assert resolve("fast", {"lights": 96}).key("pem set") != keys["pem set"]
+    assert resolve("fast", {"lights": 96}).key("shadow maps") == keys["shadow maps"]
+    assert resolve("fast", {"shadow_size": 64}).key("shadow maps") != keys["shadow maps"]
+    with pytest.raises(TypeError):
+        q.knobs["lights"] = 6   # frozen

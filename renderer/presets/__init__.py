@@ -6,6 +6,9 @@ table (measured.json beside this module, budget.py) serves budgets only, never t
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from types import MappingProxyType
+
 from .. import config
 from ..preset_files import (  # noqa: F401 (the presets' public names)
     PRESET_DIR,
@@ -70,7 +73,7 @@ def base_knobs(preset: str, preset_knobs: dict, preset_source: str | None, frame
     when it names one (`budget_knobs`, chosen from `table`), else its preset's knobs (from
     `preset_knobs`, the presets in use); `size`: the frame's (width, height), which a budget's table
     must have been measured at, on `device` (the GL renderer's name; None: not checked). Returns (knobs, the measured PEM filter, or None when the
-    preset chose them, and where they came from): the one rule the command line and the service share."""
+    preset chose them, and where they came from)."""
     if frame_budget_ms is not None or error_budget is not None:
         from .budget import budget_knobs
 
@@ -78,17 +81,81 @@ def base_knobs(preset: str, preset_knobs: dict, preset_source: str | None, frame
     return preset_knobs[preset], None, f"preset {preset}" + (f", {preset_source}" if preset_source else "")
 
 
+DEFAULT_FILTER = "sqrt-cosine"
+
+
+@dataclass(frozen=True)
+class Quality:
+    """A preset or a budget resolved with a caller's overrides (`resolve`): every quality setting of
+    the registry, the PEM filter, and where they came from. What a change of each invalidates is the
+    registry's (`key`)."""
+
+    knobs: MappingProxyType          # every registry setting -> its value
+    filter: str                      # the PEM set's MIP filter
+    preset: str | None               # None: a budget chose the knobs
+    source: str                      # where they came from, as a frame reports it
+    measured_on: str | None = None   # a budget's table: the GL renderer it was measured on
+
+    def __getitem__(self, name: str):
+        return self.knobs[name]
+
+    def key(self, invalidates: str) -> tuple:
+        """The values of the settings whose change makes `invalidates` anew (config.INVALIDATES: the
+        PEM set's key with its filter, the shadow maps', a shader variant's)."""
+        names = [st.name for st in config.SETTINGS if st.invalidates == invalidates]
+        return tuple(self.knobs[n] for n in names) + ((self.filter,) if invalidates == "pem set" else ())
+
+    def frame(self, width: int, height: int, **output):
+        """FrameSettings for a width x height image; `output`: mode, background, bleed_reduction."""
+        return frame_settings(self.knobs, width, height, **output)
+
+    def pems(self, levels: int | None = None, materials=None):
+        """PEMSettings; with the scene's materials, only the levels they read."""
+        return pem_settings(self.knobs, self.filter, levels, materials)
+
+    def as_dict(self) -> dict:
+        """Every setting, the filter and the source (and a budget's device) as one flat dict."""
+        out = {**self.knobs, "filter": self.filter, "source": self.source}
+        if self.measured_on is not None:
+            out["measured_on"] = self.measured_on
+        return out
+
+
+def resolve(preset: str | None = None, overrides: dict | None = None, *, frame_budget_ms: float | None = None,
+            error_budget: float | None = None, filter: str | None = None, in_use: tuple[dict, str] | None = None,
+            table: dict | None | str = STORED, size: tuple[int, int] | None = None,
+            device: str | None = None) -> Quality:
+    """The one rule from what a caller asks to the settings of a frame and a PEM set, shared by the
+    command line, the service, the simulation's preview and the Python API: a budget (the measured
+    setting that meets it, from `table`, measured at `size` on `device`) when one is given, else the
+    preset (balanced unless named; `in_use`: (presets, where they come from), default the files),
+    over the registry's defaults; `overrides` (None values: not given) over both (`merge_knobs`).
+    The PEM filter: `filter`, else a budget's measured one, else DEFAULT_FILTER."""
+    name = preset or "balanced"
+    if in_use is None:
+        in_use = presets()
+    budget = frame_budget_ms is not None or error_budget is not None
+    if budget and table == STORED:
+        from .budget import load_table
+
+        table = load_table()   # read once: the choice and the device it was measured on
+    base, measured_filter, source = base_knobs(name, *in_use, frame_budget_ms, error_budget, table, size, device)
+    knobs = merge_knobs(base, dict(overrides or {}))
+    measured_on = table["machine"].get("gl_renderer") if budget else None
+    return Quality(MappingProxyType(knobs), filter or measured_filter or DEFAULT_FILTER, None if budget else name,
+                   source, measured_on)
+
 
 def preset_frame(name: str = "balanced", width: int = 512, height: int = 512, **output):
     """A preset's FrameSettings for a width x height image (balanced unless named); `output`: mode,
     background, bleed_reduction."""
-    return frame_settings(merge_knobs(preset(name), {}), width, height, **output)
+    return resolve(name).frame(width, height, **output)
 
 
-def preset_pems(name: str = "balanced", materials=None, filter: str = "sqrt-cosine", levels: int | None = None):
+def preset_pems(name: str = "balanced", materials=None, filter: str = DEFAULT_FILTER, levels: int | None = None):
     """A preset's PEMSettings (balanced unless named): with the scene's materials, only the levels
     they read."""
-    return pem_settings(merge_knobs(preset(name), {}), filter, levels, materials)
+    return resolve(name, filter=filter).pems(levels, materials)
 
 
 def reference_table() -> str:
