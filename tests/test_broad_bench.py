@@ -205,7 +205,7 @@ def test_the_knob_table_sets_each_variant_against_balanced_on_the_same_scenes():
         _row("a", "balanced", rel_rmse=0.10, frame_ms=100.0), _row("b", "balanced", rel_rmse=0.20, frame_ms=100.0),
         _row("a", "balanced:lights=48", rel_rmse=0.08, frame_ms=200.0),
         _row("b", "balanced:lights=48", rel_rmse=0.22, frame_ms=180.0),
-        _row("a", "balanced:sub_lights=2", size=128, rel_rmse=0.5))]   # no balanced row at 128: none
+        _row("a", "balanced:sub_lights=1", size=128, rel_rmse=0.5))]   # no balanced row at 128: none
     (t,) = broad.knob_table(rows)
     assert (t["knob"], t["size"], t["set"], t["scenes"], t["better"]) == ("lights=48", 256, "held-out", 2, 1)
     assert t["d_rel_rmse"] == pytest.approx(0.0) and t["time_ratio"] == pytest.approx(1.9)
@@ -215,4 +215,4 @@ def test_the_knob_table_sets_each_variant_against_balanced_on_the_same_scenes():
     # The 128 x 128 satin scenes' variants make rows of their own size.
     small = rows + [dataclasses.asdict(_row("a", "balanced", size=128, rel_rmse=0.3))]
     assert [(t["knob"], t["size"], t["scenes"]) for t in broad.knob_table(small)] == [
-        ("lights=48", 256, 2), ("sub_lights=2", 128, 1)]
+        ("lights=48", 256, 2), ("sub_lights=1", 128, 1)]

@@ -85,7 +85,7 @@ def test_a_budget_sets_every_measured_knob_unless_a_flag_says_otherwise(monkeypa
     assert "budget" in q["source"]
     assert knobs("--error-budget", "0.05", "--sub-lights", "8", "--whole-sources")[1] == (8, True, 0.1)
     q, k = knobs()                                              # no budget: the balanced preset's file
-    assert k == (1, True, 0.5) and q["small_light_scale"] == 4 and "preset balanced" in q["source"]
+    assert k == (2, True, 0.5) and q["small_light_scale"] == 4 and "preset balanced" in q["source"]
 
 
 def test_a_presets_small_light_scale_yields_to_a_large_shadow_map():

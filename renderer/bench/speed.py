@@ -38,7 +38,7 @@ VARIANTS = {
     "balanced, bright large lights' maps at scale 4 too": {"sharp_large_lights": True},
     "balanced, no contact shadows": {"contact_shadow_texels": 0.0},
     "balanced, diffuse terms from the PEMs": {"diffuse": "pem"},
-    "balanced, 2 glossy discs per region": {"sub_lights": 2},
+    "balanced, one glossy disc per region": {"sub_lights": 1},
     "balanced, 4 glossy discs per region": {"sub_lights": 4},
     "balanced, 48 lights": {"lights": 48},
     "fast": "fast",
