@@ -286,14 +286,24 @@ class _LightPlan:
 LIGHTING_PASSES = ("fragment", "compute")
 
 
+def _geometry_targets(ctx: moderngl.Context, w: int, h: int, pbr: bool
+                      ) -> tuple[list[moderngl.Texture], moderngl.Renderbuffer]:
+    """The geometry pass's textures and depth buffer for a w x h image: position + specular, normal +
+    glossiness, geometric normal, albedo (and with `pbr` the physically based materials' parameters),
+    32-bit floats so that g = 1 - 1e-7 and positions far from the origin keep their precision."""
+    gbuf = [ctx.texture((w, h), 4, dtype="f4") for _ in range(5 if pbr else 4)]
+    for t in gbuf:
+        t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+    return gbuf, ctx.depth_renderbuffer((w, h))
+
+
 class _StillTarget:
-    """The geometry pass's targets for the meshes that hold still (Renderer._geometry_pass): textures
-    and a depth buffer of the frame's own formats, and what they were drawn for (`key`; None: nothing)."""
+    """The geometry pass's targets for the meshes that hold still (Renderer._geometry_pass), of the
+    frame's own formats, and what they were drawn for (`key`; None: nothing)."""
 
     def __init__(self, ctx: moderngl.Context, w: int, h: int, pbr: bool):
         self.shape, self.key = (w, h, pbr), None
-        self.textures = [ctx.texture((w, h), 4, dtype="f4") for _ in range(5 if pbr else 4)]
-        self.depth = ctx.depth_renderbuffer((w, h))
+        self.textures, self.depth = _geometry_targets(ctx, w, h, pbr)
         self.fbo = ctx.framebuffer(self.textures, self.depth)
 
     def release(self) -> None:
@@ -487,12 +497,7 @@ class Renderer:
             ctx = self.gl.ctx
             # A texture, so that the compute lighting pass can store into it (Renderer.lighting_pass).
             color = ctx.texture((w, h), 4, dtype="f4")
-            depth = ctx.depth_renderbuffer((w, h))
-            # position + specular, normal + glossiness, geometric normal, albedo: 32-bit floats, so
-            # that g = 1 - 1e-7 and positions far from the origin keep their precision.
-            gbuf = [ctx.texture((w, h), 4, dtype="f4") for _ in range(5 if pbr else 4)]
-            for t in gbuf:
-                t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            gbuf, depth = _geometry_targets(ctx, w, h, pbr)
             image_fbo = ctx.framebuffer([color], depth)
             gbuf_fbo = ctx.framebuffer(gbuf, depth)
             self._target = ((w, h, pbr), (image_fbo, gbuf_fbo, color, depth, *gbuf))
@@ -736,8 +741,8 @@ class Renderer:
             if not (moving and still):
                 self._draw_geometry(g, gbuf_fbo, scene.meshes, w, h, variant)
                 return
-            key = (tuple((sm.serial, sm.version, sm.variants[variant]) for sm in still), vp_bytes, tuple(camera.eye),
-                   g.glo)
+            # The camera is in vp_bytes (its view and its depth range, fitted to the snapped box).
+            key = (tuple((sm.serial, sm.version, sm.variants[variant]) for sm in still), vp_bytes, g.glo)
             targets = self._still_target_for(w, h, scene.has_pbr)
             if targets.key != key:
                 targets.key = None   # a draw that fails half-way leaves nothing to be kept
@@ -749,9 +754,9 @@ class Renderer:
             for src, dst in zip(targets.textures, gbuf):
                 rawgl.copy_image(gl.gl, src.glo, dst.glo, rawgl.GL_TEXTURE_2D, w, h)
             rawgl.copy_image(gl.gl, targets.depth.glo, depth.glo, rawgl.GL_RENDERBUFFER, w, h)
-            # Drawn after the still meshes: where a moving and a still surface lie at exactly the same
-            # depth (a garment through its body) the still one is in front (the garment was, drawn
-            # first: 3 pixels of 65k differ on one of the broad benchmark's 256 x 256 scenes).
+            # Drawn after the still meshes: where a moving and a still surface lie at the same depth
+            # (a garment through its body) the still one is in front, where the garment was when it
+            # was drawn first.
             self._draw_geometry(g, gbuf_fbo, moving, w, h, variant, clear=False)
 
     def _draw_geometry(self, g: moderngl.Program, fbo, meshes: list, w: int, h: int, variant: int,

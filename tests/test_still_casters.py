@@ -16,16 +16,35 @@ from renderer.shadows.vsm import ShadowMaps
 CAM = Camera((0.0, 3.0, 3.5), (0.0, 0.4, 0.0), fov_y_deg=45.0)
 
 
+def _garment_on_body():
+    """A sun and sky, a garment (a ball) over a body (a ball) on a floor, and their materials."""
+    cube = sun_sky_cube(32, (0.6, 1.0, 0.3), sun_radiance=800.0, sun_radius_deg=6, sky=(0.2, 0.2, 0.25))
+    meshes = [sphere(0.3, centre=(0.0, 0.9, 0.0)), sphere(0.35, centre=(0.2, 0.35, 0.1)), plane(4.0)]
+    mats = [Material((0.7, 0.3, 0.3), 0.2, 0.6), Material((0.6, 0.5, 0.45)), Material((0.8, 0.8, 0.8))]
+    return cube, meshes, mats
+
+
+@pytest.fixture
+def two_renderers():
+    """Two renderers on one context: one that keeps what holds still, one made to draw it anew."""
+    gl = GLContext()
+    keeps, draws = Renderer(gl), Renderer(gl)
+    try:
+        yield keeps, draws
+    finally:
+        keeps.release()
+        draws.release()
+        gl.release()
+
+
 @pytest.mark.parametrize("sharp", [False, True])
-def test_the_still_group_is_drawn_once_and_the_frames_are_the_same(monkeypatch, sharp):
+def test_the_still_group_is_drawn_once_and_the_frames_are_the_same(monkeypatch, two_renderers, sharp):
     """The same frames through a renderer that keeps the body's layers and one that draws every
     caster every frame: identical images; the layers are kept while the garment moves inside its
     box, drawn again when the body moves or the garment leaves the box. `sharp`: the sun's map is in
     the sharp array (small_light_scale 4), which keeps its body's layers the same way."""
-    cube = sun_sky_cube(32, (0.6, 1.0, 0.3), sun_radiance=800.0, sun_radius_deg=6, sky=(0.2, 0.2, 0.25))
-    garment, body = sphere(0.3, centre=(0.0, 0.9, 0.0)), sphere(0.35, centre=(0.2, 0.35, 0.1))
-    meshes = [garment, body, plane(4.0)]
-    mats = [Material((0.7, 0.3, 0.3), 0.2, 0.6), Material((0.6, 0.5, 0.45)), Material((0.8, 0.8, 0.8))]
+    cube, meshes, mats = _garment_on_body()
+    garment, body = meshes[:2]
     up = np.array([0.0, 0.01, 0.0], np.float32)
     frames = [None,                                                   # the first: draws everything
               [garment.positions + 0.1 * up, None, None],             # inside the snapped boxes: kept
@@ -34,8 +53,7 @@ def test_the_still_group_is_drawn_once_and_the_frames_are_the_same(monkeypatch, 
               [garment.positions + 40 * up, None, None],              # the garment leaves the box: refit
               [garment.positions, body.positions, None]]              # everything as at first: refit
     expected_hits = [0, 1, 1, 0, 0, 0]
-    gl = GLContext()
-    keeps, draws = Renderer(gl), Renderer(gl)
+    keeps, draws = two_renderers
     original = ShadowMaps.render
     try:
         monkeypatch.setattr(ShadowMaps, "render", lambda self, *a, **k: original(
@@ -66,9 +84,6 @@ def test_the_still_group_is_drawn_once_and_the_frames_are_the_same(monkeypatch, 
         pems.release()
         for s in scenes:
             s.release()
-        keeps.release()
-        draws.release()
-        gl.release()
 
 
 def test_a_snapped_box_holds_the_box_and_depends_on_it_alone():
@@ -99,15 +114,13 @@ def test_a_snapped_box_holds_the_box_and_depends_on_it_alone():
     np.testing.assert_allclose(big[1], small[1] * 1e6)
 
 
-def test_the_still_meshes_geometry_is_drawn_once_per_camera_and_the_frames_are_the_same():
+def test_the_still_meshes_geometry_is_drawn_once_per_camera_and_the_frames_are_the_same(two_renderers):
     """The geometry pass draws the body and the floor (every mesh outside shadow group 0) into targets
     of their own, kept while they, their material and the camera stay the same: the frames equal
     those of a renderer that draws them anew every frame, and a body that moves, another camera or a
     colourway draws them again."""
-    cube = sun_sky_cube(32, (0.6, 1.0, 0.3), sun_radiance=800.0, sun_radius_deg=6, sky=(0.2, 0.2, 0.25))
-    garment, body = sphere(0.3, centre=(0.0, 0.9, 0.0)), sphere(0.35, centre=(0.2, 0.35, 0.1))
-    meshes = [garment, body, plane(4.0)]
-    mats = [Material((0.7, 0.3, 0.3), 0.2, 0.6), Material((0.6, 0.5, 0.45)), Material((0.8, 0.8, 0.8))]
+    cube, meshes, mats = _garment_on_body()
+    garment, body = meshes[:2]
     up = np.array([0.0, 0.01, 0.0], np.float32)
     other = Camera((2.0, 2.0, 3.0), (0.0, 0.5, 0.0), fov_y_deg=40.0)
     # (positions, camera, colourway): what each frame changes, and whether its still meshes are copied.
@@ -118,8 +131,7 @@ def test_the_still_meshes_geometry_is_drawn_once_per_camera_and_the_frames_are_t
               (None, other, 0, False),                                      # another camera
               (None, other, 1, False),                                      # a colourway
               (None, other, 1, True)]
-    gl = GLContext()
-    keeps, draws = Renderer(gl), Renderer(gl)
+    keeps, draws = two_renderers
     try:
         scenes = [r.create_scene(meshes, mats) for r in (keeps, draws)]
         for s in scenes:
@@ -142,6 +154,3 @@ def test_the_still_meshes_geometry_is_drawn_once_per_camera_and_the_frames_are_t
         pems.release()
         for s in scenes:
             s.release()
-        keeps.release()
-        draws.release()
-        gl.release()
