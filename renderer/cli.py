@@ -275,18 +275,15 @@ def load_scene_inputs(args, face_size: int):
     return env, meshes, [garment, body, Material(*FLOOR_MATERIAL)], casters
 
 
-def background_cube(args, env):
-    """The cube the background is drawn from (`shading.background`): the source resampled at twice
-    its own density; None without a background (--background black)."""
+def background_source(args, env):
+    """What the background is drawn from (`shading.background.background_source`); None without a
+    background (--background black)."""
     if args.background != "env":
         return None
-    from .envmap import environment_from_array
-    from .shading.background import background_face_size
+    from .shading.background import background_source as source
 
     img = _source_image(None if args.env is None else str(args.env))
-    face = background_face_size(img.shape, env.layout)
-    return environment_from_array(img, env.layout, face, name=env.name, repair=args.repair,
-                                  cube_cache=cube_cache(args)).cube
+    return source(img, env.layout, repair=args.repair, name=env.name, cube_cache=cube_cache(args))
 
 
 def camera_from_args(args, framed_meshes, aspect: float):
@@ -381,12 +378,12 @@ def cmd_render(args) -> int:
     camera = camera_from_args(args, [m for m, c in zip(meshes, casters) if c], w / h)   # a floor is not framed
     cameras = view_cameras(args, camera)
     colourways = [material_file(path) for path in args.colourway]
-    bg_cube = background_cube(args, env)
+    bg_source = background_source(args, env)
     with Renderer() as r:
         check_budget_device(q, r)
         pems, pem_source = pem_set(r, env, pem_settings(args, q, materials + colourways), args)
         scene = r.create_scene(meshes, materials, casters=casters)
-        background = r.background_map(bg_cube) if bg_cube is not None else None
+        background = r.background_map(bg_source) if bg_source is not None else None
         try:
             variants = [0] + [scene.add_variant([c] + [None] * (len(meshes) - 1)) for c in colourways]
             frames = r.render_views(scene, pems, settings, cameras, background=background, variants=variants)
@@ -458,12 +455,12 @@ def cmd_sequence(args) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     timings, previews = [], []
     exposure = args.exposure
-    bg_cube = background_cube(args, env)
+    bg_source = background_source(args, env)
     with Renderer() as r:
         check_budget_device(q, r)
         pems, pem_source = pem_set(r, env, pem_settings(args, q, materials), args)
         scene = r.create_scene(meshes, materials)
-        background = r.background_map(bg_cube) if bg_cube is not None else None
+        background = r.background_map(bg_source) if bg_source is not None else None
         try:
             for k in range(seq.n_frames):
                 # The file's own other meshes move with it where they have frames (a body in a USD stage).

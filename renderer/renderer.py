@@ -377,8 +377,8 @@ class Renderer:
             defines["LIGHTS_CAPACITY"] = MAX_LIGHTS
         self._defines = defines
         self._shade_progs: dict[tuple, tuple[moderngl.Program, moderngl.VertexArray]] = {}
-        self.bg_prog = program(ctx, "shading/background.vert", "shading/background.frag")
-        self.bg_vao = ctx.vertex_array(self.bg_prog, [])
+        # The background pass's programs, a cube's and a lat-long's (made on first use).
+        self._bg_progs: dict[bool, tuple[moderngl.Program, moderngl.VertexArray]] = {}
         self._shadow_maps: dict[str, ShadowMaps] = {}
         self._target = None
         self._still_target: _StillTarget | None = None   # the still meshes' geometry pass (_geometry_pass)
@@ -394,6 +394,14 @@ class Renderer:
         self._programs = {"moments": self._shadow_prog, "gbuffer": self.gbuffer_prog}
         if self.normals == "gpu":
             self._programs["normals"] = compute_shader(ctx, "mesh/normals.comp")
+
+    def _background_program(self, latlong: bool) -> tuple[moderngl.Program, moderngl.VertexArray]:
+        """The background pass's program for a lat-long texture or a cube (shading/background.frag)."""
+        if latlong not in self._bg_progs:
+            prog = program(self.gl.ctx, "shading/background.vert", "shading/background.frag",
+                           {"BACKGROUND_LATLONG": 1} if latlong else None)
+            self._bg_progs[latlong] = (prog, self.gl.ctx.vertex_array(prog, []))
+        return self._bg_progs[latlong]
 
     def _shade_variant(self, mode: ShadingMode, diffuse: str, two_textures: bool,
                        glossy: str = "pem", contact: bool = False, sub_lights: int = 1,
@@ -517,11 +525,12 @@ class Renderer:
         return buf
 
     # -- a frame ----------------------------------------------------------------------------
-    def background_map(self, cube: np.ndarray) -> BackgroundMap:
-        """The background of a map (`render(..., background=)`): `cube` resampled from the source at
-        its own resolution (`shading.background.background_face_size`), with its MIP chain."""
+    def background_map(self, source: np.ndarray) -> BackgroundMap:
+        """The background of a map (`render(..., background=)`): a lat-long source image (H, W, 3)
+        itself, or a cube (6, F, F, 3) resampled from another layout at twice its density
+        (`shading.background.background_face_size`); with its MIP chain."""
         self.gl.check_thread()
-        return BackgroundMap(self.gl.ctx, cube)
+        return BackgroundMap(self.gl.ctx, source)
 
     def render(self, scene: Scene, pems: PEMSet, settings: FrameSettings = FrameSettings(),
                camera: Camera | None = None, positions: list[np.ndarray | None] | None = None,
@@ -831,8 +840,9 @@ class Renderer:
                 ctx.disable(moderngl.DEPTH_TEST)
                 (background.texture if background is not None else pems.env_texture).use(
                     location=LightingTexture.ENVIRONMENT)
-                self.bg_prog["u_inv_view_proj"].write(np.linalg.inv(view_proj).T.astype(np.float32).tobytes())
-                self.bg_vao.render(moderngl.TRIANGLES, vertices=3)
+                bg_prog, bg_vao = self._background_program(background is not None and background.latlong)
+                bg_prog["u_inv_view_proj"].write(np.linalg.inv(view_proj).T.astype(np.float32).tobytes())
+                bg_vao.render(moderngl.TRIANGLES, vertices=3)
             # Lighting pass: a full-screen triangle at the far plane, drawn where the geometry pass's
             # depth is nearer (covered pixels only; the depth buffer is not written).
             ctx.enable(moderngl.DEPTH_TEST)
@@ -944,8 +954,9 @@ class Renderer:
         for buf in self._buffers.values():
             buf.release()
         self._gloss_buf.release()
-        variants = [obj for pair in self._shade_progs.values() for obj in pair[::-1] if obj is not None]
-        for obj in (self.bg_vao, self.bg_prog, *variants, *self._programs.values()):
+        variants = [obj for progs in (self._shade_progs, self._bg_progs) for pair in progs.values()
+                    for obj in pair[::-1] if obj is not None]
+        for obj in (*variants, *self._programs.values()):
             obj.release()
         if self._owns_gl:
             self.gl.release()

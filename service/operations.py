@@ -225,7 +225,7 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
     pem = q.pem
     cube = await anyio.to_thread.run_sync(env.cube, q.face_size)
     if q.frame.background is Background.ENVIRONMENT:   # resampled here, off the GL thread, once per map
-        await anyio.to_thread.run_sync(env.cube, env.background_face)
+        await anyio.to_thread.run_sync(env.background_source)
     key = cache_key(env.content_hash, q.face_size, pem)
     record = SceneRecord(
         id=scene_id or new_id or svc.scenes.new_id(), name=body.name, environment=env, face_size=q.face_size,

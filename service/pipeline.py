@@ -70,7 +70,7 @@ def views_job(scene: SceneRecord, arrays: FrameArrays | None, cameras: list, var
         pems, source = gl.pem_set(env.content_hash, env.cubes[scene.face_size], scene.pem_settings)
         background = None
         if scene.frame_settings.background is Background.ENVIRONMENT:
-            background = gl.background(env.content_hash, env.cubes[env.background_face])
+            background = gl.background(env.content_hash, env.background_source())
         frames = gl.renderer.render_views(scene.gpu, pems, scene.frame_settings, cameras,
                                           positions=arrays.positions if arrays else None,
                                           normals=arrays.normals if arrays else None, background=background,

@@ -15,7 +15,7 @@ import numpy as np
 
 from renderer.camera import Camera
 from renderer.envmap import EnvironmentMap, Layout, environment_from_array
-from renderer.envmap.io import TexelReport
+from renderer.envmap.io import TexelReport, check_texels
 from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
 from renderer.renderer import FrameSettings
@@ -59,14 +59,17 @@ class EnvironmentRecord:
     cubes: dict[int, np.ndarray] = field(default_factory=dict)
     pem_sets: dict[str, PemInfo] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    _repaired: np.ndarray | None = field(default=None, repr=False)   # a lat-long's pixels repaired (background_source)
 
     # The store whose memory budget this record's cubes count against (set by EnvironmentStore.add).
     store: EnvironmentStore | None = field(default=None, repr=False)
 
     @property
     def nbytes(self) -> int:
-        """The memory this map keeps: its decoded source and every cube made of it."""
-        return int(self.pixels.nbytes + sum(c.nbytes for c in list(self.cubes.values())))
+        """The memory this map keeps: its decoded source, its repaired copy and every cube made of it."""
+        repaired = self._repaired
+        extra = repaired.nbytes if repaired is not None and repaired is not self.pixels else 0
+        return int(self.pixels.nbytes + extra + sum(c.nbytes for c in list(self.cubes.values())))
 
     def cube(self, face_size: int) -> np.ndarray:
         """The cube map at `face_size` (resampled once, then kept, within the store's memory budget:
@@ -82,8 +85,23 @@ class EnvironmentRecord:
 
     @property
     def background_face(self) -> int:
-        """The face size of the cube the background is drawn from (twice the source's density)."""
+        """The face size of the cube another layout's background is drawn from (twice the source's density)."""
         return background_face_size(self.source_shape, self.layout)
+
+    def background_source(self) -> np.ndarray:
+        """What the background is drawn from (renderer.shading.background): a lat-long's pixels
+        themselves (repaired as its cubes are), another layout's cube at background_face; made once,
+        then kept. Call off the GL thread the first time."""
+        if self.layout is not Layout.LATLONG:
+            return self.cube(self.background_face)
+        with self._lock:
+            if self._repaired is None:
+                repaired = check_texels(self.pixels, repair=self.repair, name=self.name)[0]
+                if repaired is not self.pixels and self.store is not None:
+                    self.store.check_room(repaired.nbytes, f"the repaired background of {self.id}")
+                repaired.setflags(write=False)
+                self._repaired = repaired
+            return self._repaired
 
     def note_pem_set(self, key: str, face_size: int, settings: PEMSettings, pems, source: str) -> None:
         """Remember what the service shows of a PEM set (on the GL thread, where `pems` may be read)."""

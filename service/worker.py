@@ -56,12 +56,12 @@ class GLResources:
     # estimates.
     pem_build_ns_per_texel_light: float | None = None
 
-    def background(self, content_hash: str, cube) -> BackgroundMap:
+    def background(self, content_hash: str, source) -> BackgroundMap:
         """The background map of an environment (`renderer.shading.background`), made on first use
-        from `cube` (the source at twice its density) and kept for the next frames."""
+        from `source` (a lat-long image, or a cube of another layout) and kept for the next frames."""
         bg = self.backgrounds.pop(content_hash, None)
         if bg is None:
-            bg = self.renderer.background_map(cube)
+            bg = self.renderer.background_map(source)
             while len(self.backgrounds) >= BACKGROUND_MAPS_KEPT:
                 self.backgrounds.popitem(last=False)[1].release()
         self.backgrounds[content_hash] = bg

@@ -261,18 +261,16 @@ class MapResources:
     setting, its background map, and its source image (for the background's truth)."""
 
     def __init__(self, r, name: str):
-        from ..envmap import environment_from_array, read_hdr_image
+        from ..envmap import read_hdr_image
         from ..envmap.layouts import detect_layout
-        from ..shading.background import background_face_size
+        from ..shading.background import background_source
 
         self.r, self.name = r, name
         self.raw = read_hdr_image(shared_assets() / "hdri" / name)   # cubes from it, repaired as the reference's
         self.image = np.maximum(np.nan_to_num(self.raw), 0.0)          # the background's truth
         self.layout = detect_layout(*self.image.shape[:2])
         self.pems: dict = {}
-        fine = environment_from_array(self.raw, self.layout, background_face_size(self.image.shape, self.layout),
-                                      name=name, repair=True)
-        self.background = r.background_map(fine.cube)
+        self.background = r.background_map(background_source(self.raw, self.layout, repair=True, name=name))
 
     def pem_set(self, knobs: dict, materials):
         from .. import presets as presets_mod

@@ -2,14 +2,21 @@
 
 The PEM set's cube is as coarse as the lighting allows (64-128 texels a face at the presets: a
 texel is 0.7-1.4 degrees, several pixels of a 35-degree view at 256 x 256, so window frames and a
-sun's disc show as blocks). The background instead comes from a cube resampled from the source at
-twice the source's own density (a lat-long W pixels wide has W / 4 texels a quarter turn; a cube
-face of W / 2), with its full MIP chain, read with trilinear filtering over the pixel's own
-footprint (the fragment shader's derivatives). Twice, because a cube at the source's density is a
-second resampling that blurs it again: against the source itself, supersampled over each pixel
-(`background_truth`), a 1k lat-long's background at 256 x 256 measured rel. RMSE 0.76 from 256^2
-faces, 0.17 from 512^2 and 0.12 from 1024^2 (5.96 from balanced's 128^2 PEM cube; the warehouse map,
-tests/test_background.py prints them).
+sun's disc show as blocks). The background is read from the source instead, with its full MIP chain
+and filtered over the pixel's own footprint:
+
+* a lat-long source directly (its rows wrap; one lookup a pixel over the footprint from the view
+  ray's analytic derivative, continuous where the longitude wraps, several across a row towards the
+  poles): no resampling on the CPU, and one reconstruction between the file and the screen. Sources wider than BACKGROUND_LATLONG_WIDTH_MAX are box-filtered to it first;
+* any other layout (an angular probe, a cross) through a cube resampled from the source at twice the
+  source's own density (a layout W texels a quarter turn, a face of W / 2): a cube at the source's
+  density is a second resampling that blurs it again.
+
+Against the source itself, supersampled over each pixel (`background_truth`), a 1k lat-long's
+background at 128 x 128 (the warehouse map; `pytest tests/test_background.py -s` prints them) measured
+rel. RMSE 0.041 read directly, 0.126 through a cube of 512^2 and 5.85 from balanced's PEM cube; at the
+poles 0.007 directly and 0.015-0.020 through the cube. Read directly, one filtered lookup a pixel
+costs no more than the cube's four.
 """
 
 from __future__ import annotations
@@ -19,9 +26,12 @@ import numpy as np
 from ..envmap.layouts import Layout
 from ..errors import InvalidInputError
 
-# The largest background face: 1024 (a 2048-wide lat-long at twice its density), 37.7 MB of half
-# floats and 50 MB with the chain; larger maps are shown at 2k detail.
+# The largest background face: 1024 (a 2048-wide source at twice its density), 37.7 MB of half
+# floats and 50 MB with the chain; larger cubes are shown at 2k detail.
 BACKGROUND_FACE_MAX = 1024
+# The widest lat-long kept for the background: 4096 x 2048, 50 MB of half floats and 67 MB with the
+# chain; a wider source is box-filtered to it (halved until it fits).
+BACKGROUND_LATLONG_WIDTH_MAX = 4096
 BACKGROUND_FACE_MIN = 16
 # Half floats hold up to 65504; a sun's texels beyond it are shown as this (white after any tone map).
 HALF_MAX = 65504.0
@@ -41,29 +51,71 @@ def background_face_size(source_shape: tuple, layout: Layout | str) -> int:
     return int(np.clip(size, BACKGROUND_FACE_MIN, BACKGROUND_FACE_MAX))
 
 
-class BackgroundMap:
-    """A cube texture of the environment with its MIP chain, for the background pass. Owns its
-    texture; `release()` frees it. Make it once per map (`Renderer.background_map`)."""
+def background_source(image: np.ndarray, layout: Layout | str, *, repair: bool, name: str,
+                      cube_cache=None) -> np.ndarray:
+    """What a map's `BackgroundMap` is made of: a lat-long source (H, W, 3) itself, repaired as its
+    cubes are (`envmap.check_texels`); another layout resampled to a cube at `background_face_size`
+    (kept in `cube_cache`, a folder, where given)."""
+    from ..envmap import environment_from_array
+    from ..envmap.io import check_texels
 
-    def __init__(self, ctx, cube: np.ndarray):
-        cube = np.asarray(cube, np.float32)
-        if cube.ndim != 4 or cube.shape[0] != 6 or cube.shape[1] != cube.shape[2] or cube.shape[3] < 3:
-            raise InvalidInputError(f"background cube must have shape (6, F, F, 3), got {cube.shape}")
-        if not np.all(np.isfinite(cube[..., :3])) or np.any(cube[..., :3] < 0):
-            raise InvalidInputError("background cube has NaN, Inf or negative texels; load the map with repair=True")
-        n = int(cube.shape[1])
-        self.face_size = n
-        self.texture = ctx.texture_cube((n, n), 3, dtype="f2")
-        half = np.minimum(cube[..., :3], HALF_MAX).astype(np.float16)
-        for face in range(6):
-            self.texture.write(face, np.ascontiguousarray(half[face]).tobytes())
-        self.texture.build_mipmaps()
+    layout = Layout(layout)
+    if layout is Layout.LATLONG:
+        return check_texels(image, repair=repair, name=name)[0]
+    return environment_from_array(image, layout, background_face_size(image.shape, layout), name=name,
+                                  repair=repair, cube_cache=cube_cache).cube
+
+
+class BackgroundMap:
+    """A texture of the environment with its MIP chain, for the background pass: a lat-long source
+    (H, W, 3) itself, or a cube (6, F, F, 3) resampled from another layout. Texels must be finite
+    and non-negative (a map loaded with repair=True is); half floats hold them, a sun beyond their
+    range shown as HALF_MAX. Owns its texture; `release()` frees it. Make it once per map
+    (`Renderer.background_map`)."""
+
+    def __init__(self, ctx, source: np.ndarray):
         import moderngl
 
+        source = np.asarray(source, np.float32)
+        if source.ndim == 3 and source.shape[2] >= 3 and source.shape[0] >= 1 and source.shape[1] >= 2:
+            self.latlong = True
+        elif source.ndim == 4 and source.shape[0] == 6 and source.shape[1] == source.shape[2] and source.shape[3] >= 3:
+            self.latlong = False
+        else:
+            raise InvalidInputError(f"background must be a lat-long image of shape (H, W, 3) or a cube of shape "
+                                    f"(6, F, F, 3), got {source.shape}")
+        rgb = source[..., :3]
+        if not np.all(np.isfinite(rgb)) or np.any(rgb < 0):
+            raise InvalidInputError("background has NaN, Inf or negative texels; load the map with repair=True")
+        if self.latlong:
+            while rgb.shape[1] > BACKGROUND_LATLONG_WIDTH_MAX:
+                rgb = _halve(rgb)
+            half = np.minimum(rgb, HALF_MAX).astype(np.float16)
+            h, w = half.shape[:2]
+            self.size = (w, h)
+            self.texture = ctx.texture((w, h), 3, np.ascontiguousarray(half).tobytes(), dtype="f2")
+            self.texture.repeat_x, self.texture.repeat_y = True, False   # longitude wraps, latitude stops
+        else:
+            n = int(source.shape[1])
+            self.size = (n, n)
+            self.texture = ctx.texture_cube((n, n), 3, dtype="f2")
+            half = np.minimum(rgb, HALF_MAX).astype(np.float16)
+            for face in range(6):
+                self.texture.write(face, np.ascontiguousarray(half[face]).tobytes())
+        self.texture.build_mipmaps()
         self.texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
 
     def release(self) -> None:
         self.texture.release()
+
+
+def _halve(img: np.ndarray) -> np.ndarray:
+    """2 x 2 box filter of an (H, W, C) image (an odd last row or column repeated)."""
+    if img.shape[0] % 2:
+        img = np.concatenate([img, img[-1:]], axis=0)
+    if img.shape[1] % 2:
+        img = np.concatenate([img, img[:, -1:]], axis=1)
+    return 0.25 * (img[0::2, 0::2] + img[1::2, 0::2] + img[0::2, 1::2] + img[1::2, 1::2])
 
 
 def background_truth(image: np.ndarray, layout: Layout | str, camera, width: int, height: int,
@@ -71,7 +123,7 @@ def background_truth(image: np.ndarray, layout: Layout | str, camera, width: int
     """What a pixel of the background should show: the mean of samples x samples bilinear lookups of
     the source image (H, W, 3) itself along rays spread evenly over the pixel. float32 (height,
     width, 3), row 0 at the top, the renderer's layout. A measure for the background pass, which
-    reads a resampled cube instead."""
+    reads a filtered texture instead."""
     from ..envmap.layouts import dir_to_image
 
     layout = Layout(layout)
