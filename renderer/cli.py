@@ -133,7 +133,8 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--timings", type=Path, help="per-stage timings JSON")
     o.add_argument("--no-cache", action="store_true",
                    help="build the PEM set anew, and keep it out of the cache folder ($GARMENT_RENDER_CACHE_DIR, "
-                        "else ~/.cache/garment-render: the PEM sets of the maps rendered before)")
+                        "else ~/.cache/garment-render: the PEM sets and cubes of the maps rendered before, the "
+                        "mesh files read before)")
     o.add_argument("--exposure", type=float, help="exposure in EV (default: automatic)")
     o.add_argument("--tone", default="filmic", choices=["filmic", "reinhard", "linear"])
     o.add_argument("--background", default="env", choices=["env", "black"],
@@ -242,13 +243,14 @@ def _source_image(path: str | None) -> np.ndarray:
     return img
 
 
-def cube_cache(args):
-    """The folder where resampled cubes are kept (user_cache.py), None with --no-cache."""
+def cache_folder(args, kind: str):
+    """The folder of the user's cache (user_cache.py) where `kind` is kept ("cubes": resampled maps,
+    "meshes": mesh files' parses), None with --no-cache."""
     if getattr(args, "no_cache", False):
         return None
     from .user_cache import user_cache_dir
 
-    return user_cache_dir("cubes")
+    return user_cache_dir(kind)
 
 
 def load_scene_inputs(args, face_size: int):
@@ -262,14 +264,14 @@ def load_scene_inputs(args, face_size: int):
 
     if args.env is not None:
         env = environment_from_array(_source_image(str(args.env)), args.layout, face_size, name=Path(args.env).stem,
-                                     repair=args.repair, cube_cache=cube_cache(args))
+                                     repair=args.repair, cube_cache=cache_folder(args, "cubes"))
     else:
         env = environment_from_array(_source_image(None), "latlong", face_size, name="studio (bundled)",
-                                     cube_cache=cube_cache(args))
+                                     cube_cache=cache_folder(args, "cubes"))
     garment = garment_material(args)
     body = Material(args.body_albedo, 0.1, 0.3)
     if args.mesh:
-        meshes = [load_mesh(p, up=args.up, scale=args.mesh_scale) for p in args.mesh]
+        meshes = [load_mesh(p, up=args.up, scale=args.mesh_scale, cache=cache_folder(args, "meshes")) for p in args.mesh]
         return env, meshes, [garment] + [body] * (len(meshes) - 1), [True] * len(meshes)
     meshes, casters = default_scene()
     return env, meshes, [garment, body, Material(*FLOOR_MATERIAL)], casters
@@ -283,7 +285,7 @@ def background_source(args, env):
     from .shading.background import background_source as source
 
     img = _source_image(None if args.env is None else str(args.env))
-    return source(img, env.layout, repair=args.repair, name=env.name, cube_cache=cube_cache(args))
+    return source(img, env.layout, repair=args.repair, name=env.name, cube_cache=cache_folder(args, "cubes"))
 
 
 def camera_from_args(args, framed_meshes, aspect: float):

@@ -530,7 +530,7 @@ class Renderer:
         itself, or a cube (6, F, F, 3) resampled from another layout at twice its density
         (`shading.background.background_face_size`); with its MIP chain."""
         self.gl.check_thread()
-        return BackgroundMap(self.gl.ctx, source)
+        return BackgroundMap(self.gl, source)
 
     def render(self, scene: Scene, pems: PEMSet, settings: FrameSettings = FrameSettings(),
                camera: Camera | None = None, positions: list[np.ndarray | None] | None = None,
@@ -838,8 +838,7 @@ class Renderer:
                 shadow_maps.casters.use(location=LightingTexture.CASTERS)   # the penumbrae's blocker search (PENUMBRA_BLOCKER)
             if settings.background is Background.ENVIRONMENT:
                 ctx.disable(moderngl.DEPTH_TEST)
-                (background.texture if background is not None else pems.env_texture).use(
-                    location=LightingTexture.ENVIRONMENT)
+                (background if background is not None else pems.env_texture).use(location=LightingTexture.ENVIRONMENT)
                 bg_prog, bg_vao = self._background_program(background is not None and background.latlong)
                 bg_prog["u_inv_view_proj"].write(np.linalg.inv(view_proj).T.astype(np.float32).tobytes())
                 bg_vao.render(moderngl.TRIANGLES, vertices=3)

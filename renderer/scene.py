@@ -4,11 +4,11 @@ frame for hours without creating GL objects."""
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 
 import moderngl
 import numpy as np
-import trimesh
 
 from .errors import MeshError
 from .gpu.context import GLContext
@@ -111,19 +111,40 @@ def _clip_box(lo, hi, planes: np.ndarray, frustum: np.ndarray) -> tuple[np.ndarr
     return points.min(axis=0), points.max(axis=0)
 
 
+# Verdicts of convex_surface kept in the user's cache folder (user_cache.py), a few hundred bytes each.
+CONVEXITY_CACHE_BYTES = 1 << 20
+
+
 def convex_surface(positions: np.ndarray, faces: np.ndarray) -> bool:
     """Whether the mesh bounds a convex volume, whichever way its triangles wind (cloth is two-sided):
     watertight once its vertices are merged by position (an OBJ's UV seams split them), one body, and
     convex at every edge, as trimesh judges them (its test reads the winding: an inward-wound mesh is
-    turned first). A ball is; a body is not, nor a garment (a sheet)."""
+    turned first). A ball is; a body is not, nor a garment (a sheet). The verdict is kept in the
+    user's cache folder, keyed by the arrays' bytes: a command that renders the same meshes again
+    neither imports trimesh (half a second) nor merges their vertices."""
     if len(faces) == 0:
         return False
-    mesh = trimesh.Trimesh(np.asarray(positions, np.float64), np.asarray(faces), process=True)
-    if not mesh.is_watertight:   # a sheet: no volume to be convex
-        return False
-    if mesh.volume < 0.0:
-        mesh.invert()
-    return bool(mesh.is_convex)
+    from . import user_cache
+
+    positions = np.ascontiguousarray(positions, np.float64)
+    faces = np.ascontiguousarray(faces, np.int64)
+    digest = hashlib.sha256(f"{positions.shape}{faces.shape}".encode())
+    digest.update(positions.data)
+    digest.update(faces.data)
+
+    def judge() -> dict[str, np.ndarray]:
+        import trimesh
+
+        mesh = trimesh.Trimesh(positions, faces, process=True)
+        if not mesh.is_watertight:   # a sheet: no volume to be convex
+            return {"convex": np.array(False)}
+        if mesh.volume < 0.0:
+            mesh.invert()
+        return {"convex": np.array(bool(mesh.is_convex))}
+
+    verdict = user_cache.cached_arrays(user_cache.user_cache_dir("convexity"), digest.hexdigest()[:32],
+                                       ("renderer.scene",), judge, CONVEXITY_CACHE_BYTES)
+    return bool(verdict["convex"])
 
 
 def longest_edge(positions: np.ndarray, faces: np.ndarray) -> float:

@@ -107,4 +107,4 @@ def test_a_sun_beyond_half_float_range_stays_finite(renderer):
     (np.zeros((6, 8, 4, 3), np.float32), "shape"), (np.zeros((8, 1, 3), np.float32), "shape")])
 def test_a_bad_background_cube_is_refused(renderer, bad, message):
     with pytest.raises(InvalidInputError, match=message):
-        BackgroundMap(renderer.gl.ctx, bad)
+        BackgroundMap(renderer.gl, bad)

@@ -77,3 +77,46 @@ def test_a_cache_folder_keeps_within_its_bytes_least_recently_used_first(tmp_pat
         raise AssertionError("built, not read back")
 
     assert user_cache.load_or_build(tmp_path / "b.npz", never)["a"][0] == ord("b")
+
+
+def test_a_mesh_file_read_again_comes_from_its_parse_and_a_changed_file_is_parsed_anew(tmp_path):
+    from renderer.mesh import load_mesh
+
+    cache = tmp_path / "meshes"
+    path = tmp_path / "quad.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")
+    first = load_mesh(path, up="z", scale=2.0, cache=cache)
+    (entry,) = cache.glob("*.npz")
+    again = load_mesh(path, up="z", scale=2.0, cache=cache)     # read back: the same mesh
+    plain = load_mesh(path, up="z", scale=2.0)                   # and trimesh's own parse
+    for m in (again, plain):
+        np.testing.assert_array_equal(m.positions, first.positions)
+        np.testing.assert_array_equal(m.faces, first.faces)
+        np.testing.assert_array_equal(m.uvs, first.uvs)
+    assert np.abs(first.positions).max() == 2.0                  # scaled after the cache
+    path.write_text("v 0 0 0\nv 3 0 0\nv 0 3 0\nf 1 2 3\n")      # another file at the same path
+    changed = load_mesh(path, cache=cache)
+    assert changed.n_faces == 1 and changed.positions.max() == 3.0 and changed.uvs is None
+    assert len(list(cache.glob("*.npz"))) == 2
+    entry.write_bytes(b"not an npz")                              # a bad entry is parsed anew
+    path.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")
+    np.testing.assert_array_equal(load_mesh(path, up="z", scale=2.0, cache=cache).positions, first.positions)
+
+
+def test_a_meshs_convexity_is_judged_once_and_read_back(tmp_path, monkeypatch):
+    from conftest import sphere
+
+    from renderer.mesh import Mesh
+    from renderer.scene import convex_surface
+
+    monkeypatch.setenv(user_cache.ENV_VAR, str(tmp_path))
+    ball = sphere(1.0, subdivisions=2)
+    sheet = Mesh.from_arrays(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32), np.array([[0, 1, 2]]))
+    assert convex_surface(ball.positions, ball.faces) and not convex_surface(sheet.positions, sheet.faces)
+    entries = sorted((tmp_path / "convexity").glob("*.npz"))
+    assert len(entries) == 2
+    for e in entries:   # the verdicts turned round: read back, not judged again
+        with np.load(e) as data:
+            verdict = bool(data["convex"])
+        np.savez(e, convex=np.array(not verdict))
+    assert not convex_surface(ball.positions, ball.faces) and convex_surface(sheet.positions, sheet.faces)

@@ -1,4 +1,5 @@
-"""The few raw OpenGL calls that moderngl does not wrap: cube-map-array textures, clears of some
+"""The few raw OpenGL calls that moderngl does not wrap: cube-map-array textures, 2D textures whose
+MIP levels are given (moderngl only generates them), clears of some
 layers of a texture array (glClearTexSubImage: the shadow pass's moving casters, shadows/vsm.py), and
 copies of whole images (glCopyImageSubData: the geometry pass's still meshes, renderer.py).
 
@@ -20,6 +21,8 @@ GL_TEXTURE_CUBE_MAP_ARRAY = 0x9009
 GL_TEXTURE_2D_ARRAY = 0x8C1A
 GL_RGBA16F = 0x881A
 GL_RGBA32F = 0x8814
+GL_RGB16F = 0x881B
+GL_RGB = 0x1907
 GL_RGBA = 0x1908
 GL_RG = 0x8227
 GL_FLOAT = 0x1406
@@ -32,6 +35,10 @@ GL_LINEAR = 0x2601
 GL_LINEAR_MIPMAP_LINEAR = 0x2703
 GL_TEXTURE_MAX_LEVEL = 0x813D
 GL_TEXTURE_2D = 0x0DE1
+GL_TEXTURE_WRAP_S = 0x2802
+GL_TEXTURE_WRAP_T = 0x2803
+GL_REPEAT = 0x2901
+GL_CLAMP_TO_EDGE = 0x812F
 GL_RENDERBUFFER = 0x8D41
 
 _u = ctypes.c_uint
@@ -43,7 +50,9 @@ class RawGL:
 
     _SIGNATURES = {
         "glCreateTextures": (_u, _i, ctypes.POINTER(_u)),
+        "glTextureStorage2D": (_u, _i, _u, _i, _i),
         "glTextureStorage3D": (_u, _i, _u, _i, _i, _i),
+        "glTextureSubImage2D": (_u, _i, _i, _i, _i, _i, _u, _u, ctypes.c_void_p),
         "glTextureParameteri": (_u, _u, _i),
         "glBindImageTexture": (_u, _u, _i, ctypes.c_ubyte, _i, _u, _u),
         "glBindTextureUnit": (_u, _u),
@@ -80,6 +89,43 @@ def copy_image(gl: RawGL, src: int, dst: int, target: int, width: int, height: i
     """Level 0 of image `src` into `dst` (GL names of one target, GL_TEXTURE_2D or GL_RENDERBUFFER, and
     one format), texel for texel: no framebuffer, no filtering, no conversion."""
     gl.glCopyImageSubData(src, target, 0, 0, 0, 0, dst, target, 0, 0, 0, 0, width, height, 1)
+
+
+class Texture2DLevels:
+    """A GL_TEXTURE_2D with immutable storage whose MIP levels are uploaded, not generated: RGB16F,
+    trilinear, repeated along s (or clamped) and clamped along t. llvmpipe compiles a blit program
+    the first time a process generates a format's MIP chain (about 90 ms, not in Mesa's disk cache).
+    Owned by whoever created it; `release()` frees it."""
+
+    def __init__(self, gl: RawGL, levels: list[np.ndarray], repeat_s: bool):
+        shapes = [lvl.shape for lvl in levels]
+        h, w = shapes[0][:2]
+        if any(sh != (max(1, h >> k), max(1, w >> k), 3) for k, sh in enumerate(shapes)):
+            raise ValueError(f"MIP levels must halve (rounding down, to 1) from {(h, w, 3)}, got {shapes}")
+        self.gl, self.size, self.levels = gl, (w, h), len(levels)
+        name = _u(0)
+        gl.glCreateTextures(GL_TEXTURE_2D, 1, ctypes.byref(name))
+        self.glo = name.value
+        gl.glTextureStorage2D(self.glo, len(levels), GL_RGB16F, w, h)
+        for k, lvl in enumerate(levels):
+            data = np.ascontiguousarray(lvl, np.float16)
+            gl.glTextureSubImage2D(self.glo, k, 0, 0, data.shape[1], data.shape[0], GL_RGB, GL_HALF_FLOAT,
+                                   data.ctypes.data)
+        gl.glTextureParameteri(self.glo, GL_TEXTURE_MIN_FILTER, GL_LINEAR_MIPMAP_LINEAR)
+        gl.glTextureParameteri(self.glo, GL_TEXTURE_MAG_FILTER, GL_LINEAR)
+        gl.glTextureParameteri(self.glo, GL_TEXTURE_WRAP_S, GL_REPEAT if repeat_s else GL_CLAMP_TO_EDGE)
+        gl.glTextureParameteri(self.glo, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE)
+
+    def use(self, location: int) -> None:
+        if self.glo == 0:
+            raise GLContextError("texture used after release()")
+        self.gl.glBindTextureUnit(location, self.glo)
+
+    def release(self) -> None:
+        if self.glo:
+            name = _u(self.glo)
+            self.gl.glDeleteTextures(1, ctypes.byref(name))
+            self.glo = 0
 
 
 class CubeMapArray:

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..envmap.cube import cube_solid_angles, texel_directions
+from ..threads import map_threads
 from .median_cut import LUMINANCE_RGB
 
 INNER_RATIO = 0.75
@@ -115,9 +116,11 @@ class _Search:
         width = 2 * SIZES + 1
         inner = np.zeros((len(rows), SIZES))
         outer = np.zeros((len(rows), SIZES))
-        for start in range(0, len(rows), 256):
+        dirs = self._dirs32[texels]
+
+        def chunk_of(start: int) -> None:
             chunk = rows[start:start + 256]
-            c = self._dirs32[self.candidates[chunk]] @ self._dirs32[texels].T   # (R, T) cosines
+            c = self._dirs32[self.candidates[chunk]] @ dirs.T   # (R, T) cosines
             r, t = np.nonzero(c > cos_max)
             # Bin b: the texel lies within edge b (angle below radius b) but outside edge b - 1.
             b = np.searchsorted(-self.cos_edges, -c[r, t], side="left")
@@ -125,6 +128,8 @@ class _Search:
             cum = np.cumsum(sums, axis=1)                                        # within edge b: cum[:, b]
             inner[start:start + len(chunk)] = cum[:, self.inner_bin]
             outer[start:start + len(chunk)] = cum[:, self.outer_bin]
+
+        map_threads(chunk_of, range(0, len(rows), 256))   # the chunks on every core
         return inner, outer
 
     def _respond(self, rows: np.ndarray) -> None:

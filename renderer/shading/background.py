@@ -73,8 +73,11 @@ class BackgroundMap:
     range shown as HALF_MAX. Owns its texture; `release()` frees it. Make it once per map
     (`Renderer.background_map`)."""
 
-    def __init__(self, ctx, source: np.ndarray):
+    def __init__(self, gl, source: np.ndarray):
+        """gl: the renderer's GLContext."""
         import moderngl
+
+        from ..gpu.rawgl import Texture2DLevels
 
         source = np.asarray(source, np.float32)
         if source.ndim == 3 and source.shape[2] >= 3 and source.shape[0] >= 1 and source.shape[1] >= 2:
@@ -90,32 +93,40 @@ class BackgroundMap:
         if self.latlong:
             while rgb.shape[1] > BACKGROUND_LATLONG_WIDTH_MAX:
                 rgb = _halve(rgb)
-            half = np.minimum(rgb, HALF_MAX).astype(np.float16)
-            h, w = half.shape[:2]
-            self.size = (w, h)
-            self.texture = ctx.texture((w, h), 3, np.ascontiguousarray(half).tobytes(), dtype="f2")
-            self.texture.repeat_x, self.texture.repeat_y = True, False   # longitude wraps, latitude stops
+            # The MIP chain made here, 2 x 2 boxes as GL's, and uploaded (rawgl.Texture2DLevels: GL's
+            # would cost a blit program's first compile); the longitude wraps, the latitude stops.
+            levels = [rgb]
+            while levels[-1].shape[:2] != (1, 1):
+                levels.append(_halve(levels[-1]))
+            self.size = (rgb.shape[1], rgb.shape[0])
+            self.texture = Texture2DLevels(gl.gl, [np.minimum(lvl, HALF_MAX) for lvl in levels], repeat_s=True)
         else:
             n = int(source.shape[1])
             self.size = (n, n)
-            self.texture = ctx.texture_cube((n, n), 3, dtype="f2")
+            self.texture = gl.ctx.texture_cube((n, n), 3, dtype="f2")
             half = np.minimum(rgb, HALF_MAX).astype(np.float16)
             for face in range(6):
                 self.texture.write(face, np.ascontiguousarray(half[face]).tobytes())
-        self.texture.build_mipmaps()
-        self.texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+            self.texture.build_mipmaps()
+            self.texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+
+    def use(self, location: int) -> None:
+        """Bind the texture to sampler unit `location`."""
+        self.texture.use(location=location)
 
     def release(self) -> None:
         self.texture.release()
 
 
 def _halve(img: np.ndarray) -> np.ndarray:
-    """2 x 2 box filter of an (H, W, C) image (an odd last row or column repeated)."""
-    if img.shape[0] % 2:
-        img = np.concatenate([img, img[-1:]], axis=0)
-    if img.shape[1] % 2:
-        img = np.concatenate([img, img[:, -1:]], axis=1)
-    return 0.25 * (img[0::2, 0::2] + img[1::2, 0::2] + img[0::2, 1::2] + img[1::2, 1::2])
+    """The next MIP level of an (H, W, C) image, GL's size (each side halved, rounded down, at least
+    1): 2 x 2 boxes, a side of one texel kept, the last row or column of an odd side left out."""
+    h, w = img.shape[:2]
+    if h > 1:
+        img = 0.5 * (img[0:h - 1:2] + img[1:h:2])
+    if w > 1:
+        img = 0.5 * (img[:, 0:w - 1:2] + img[:, 1:w:2])
+    return img
 
 
 def background_truth(image: np.ndarray, layout: Layout | str, camera, width: int, height: int,
