@@ -258,7 +258,7 @@ def load_scene_inputs(args, face_size: int):
     the bundled defaults: the studio, and the draped dress on the mannequin over a floor that only
     receives shadows, `procedural.default_scene`)."""
     from .envmap import environment_from_array
-    from .mesh import load_mesh
+    from .mesh_cache import load_mesh_cached
     from .procedural import default_scene
     from .shading.material import Material
 
@@ -271,7 +271,8 @@ def load_scene_inputs(args, face_size: int):
     garment = garment_material(args)
     body = Material(args.body_albedo, 0.1, 0.3)
     if args.mesh:
-        meshes = [load_mesh(p, up=args.up, scale=args.mesh_scale, cache=cache_folder(args, "meshes")) for p in args.mesh]
+        meshes = [load_mesh_cached(p, up=args.up, scale=args.mesh_scale, cache=cache_folder(args, "meshes"))
+                  for p in args.mesh]
         return env, meshes, [garment] + [body] * (len(meshes) - 1), [True] * len(meshes)
     meshes, casters = default_scene()
     return env, meshes, [garment, body, Material(*FLOOR_MATERIAL)], casters

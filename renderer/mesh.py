@@ -11,7 +11,6 @@ Conventions, pinned here for every pass that consumes a `Mesh`:
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import operator
 import os
 import warnings
@@ -417,22 +416,15 @@ def bounding_sphere(meshes: Mesh | Iterable[Mesh]) -> tuple[np.ndarray, float]:
 # --- files ------------------------------------------------------------------------------------
 
 _FORMATS = (".obj", ".ply", ".glb", ".gltf", ".stl")
-# Formats whose geometry is all in the one file (a .gltf's buffers may lie beside it): their parse can
-# be kept in a cache folder, keyed by the file's bytes (load_mesh's `cache`).
-_SELF_CONTAINED = (".obj", ".ply", ".stl")
-MESH_CACHE_BYTES = 1 << 30
 
 
-def load_mesh(path: str | os.PathLike, up: UpAxis | str = "y", scale: float = 1.0, cache: Path | None = None) -> Mesh:
+def load_mesh(path: str | os.PathLike, up: UpAxis | str = "y", scale: float = 1.0) -> Mesh:
     """Read OBJ, PLY, GLB/glTF or STL into one Y-up Mesh, keeping the file's vertex order.
 
     up: the file's up axis; "z" is rotated into Y-up with `z_up_to_y_up`. scale: multiplies positions
     (0.01 for centimetres). Several geometries are concatenated (scene transforms applied). UVs are
     kept when every part has per-vertex UVs; an OBJ with UV seams gets one UV per position (trimesh
     picks the most common one), because splitting vertices would break the vertex order.
-    cache: a folder where an OBJ, PLY or STL file's parse is kept for the next process, keyed by the
-    file's bytes and trimesh's version (MESH_CACHE_BYTES of them at most): the same file read again
-    costs a hash and a read of its arrays, not trimesh's import and parse.
     """
     path = Path(path)
     axis = _up_axis(up)
@@ -443,7 +435,7 @@ def load_mesh(path: str | os.PathLike, up: UpAxis | str = "y", scale: float = 1.
         raise MeshError(f"cannot read mesh file '{path}': unsupported extension; use one of {', '.join(_FORMATS)}")
     if not path.is_file():
         raise MeshError(f"cannot read mesh file '{path}': no such file")
-    positions, faces, uvs = _read(path, cache)
+    positions, faces, uvs = _read_with_trimesh(path)
     positions = positions * float(scale)
     if axis is UpAxis.Z:
         positions = z_up_to_y_up(positions)
@@ -470,27 +462,6 @@ def triangle_parts(scene):
         geom = scene.geometry[geom_name]
         if isinstance(geom, trimesh.Trimesh) and len(geom.faces) > 0:
             yield geom, transform
-
-
-def _read(path: Path, cache: Path | None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """`_read_with_trimesh`, through the cache folder where there is one and the format allows."""
-    if cache is None or path.suffix.lower() not in _SELF_CONTAINED:
-        return _read_with_trimesh(path)
-    from importlib.metadata import version
-
-    from . import user_cache
-
-    data = path.read_bytes()
-    key = f"{hashlib.sha256(data).hexdigest()[:32]}{path.suffix.lower()}-trimesh{version('trimesh')}"
-
-    def parse() -> dict[str, np.ndarray]:
-        positions, faces, uvs = _read_with_trimesh(path)
-        if path.read_bytes() != data:   # written to while read: keyed by bytes it was not parsed from
-            raise MeshError(f"mesh file '{path}' changed while it was read; read it again")
-        return {"positions": positions, "faces": faces} | ({} if uvs is None else {"uvs": uvs})
-
-    arrays = user_cache.cached_arrays(cache, key, ("renderer.mesh",), parse, MESH_CACHE_BYTES)
-    return arrays["positions"], arrays["faces"], arrays.get("uvs")
 
 
 def _read_with_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:

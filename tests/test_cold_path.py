@@ -81,26 +81,30 @@ def test_a_cache_folder_keeps_within_its_bytes_least_recently_used_first(tmp_pat
 
 def test_a_mesh_file_read_again_comes_from_its_parse_and_a_changed_file_is_parsed_anew(tmp_path):
     from renderer.mesh import load_mesh
+    from renderer.mesh_cache import load_mesh_cached
 
     cache = tmp_path / "meshes"
     path = tmp_path / "quad.obj"
     path.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")
-    first = load_mesh(path, up="z", scale=2.0, cache=cache)
+    first = load_mesh_cached(path, up="z", scale=2.0, cache=cache)
     (entry,) = cache.glob("*.npz")
-    again = load_mesh(path, up="z", scale=2.0, cache=cache)     # read back: the same mesh
-    plain = load_mesh(path, up="z", scale=2.0)                   # and trimesh's own parse
+    again = load_mesh_cached(path, up="z", scale=2.0, cache=cache)     # read back: the same mesh
+    plain = load_mesh(path, up="z", scale=2.0)                          # and trimesh's own parse
     for m in (again, plain):
         np.testing.assert_array_equal(m.positions, first.positions)
         np.testing.assert_array_equal(m.faces, first.faces)
         np.testing.assert_array_equal(m.uvs, first.uvs)
-    assert np.abs(first.positions).max() == 2.0                  # scaled after the cache
-    path.write_text("v 0 0 0\nv 3 0 0\nv 0 3 0\nf 1 2 3\n")      # another file at the same path
-    changed = load_mesh(path, cache=cache)
-    assert changed.n_faces == 1 and changed.positions.max() == 3.0 and changed.uvs is None
+    assert np.abs(first.positions).max() == 2.0
+    assert len(list(cache.glob("*.npz"))) == 1
+    load_mesh_cached(path, up="y", scale=2.0, cache=cache)       # another up axis: another entry
     assert len(list(cache.glob("*.npz"))) == 2
+    path.write_text("v 0 0 0\nv 3 0 0\nv 0 3 0\nf 1 2 3\n")      # another file at the same path
+    changed = load_mesh_cached(path, cache=cache)
+    assert changed.n_faces == 1 and changed.positions.max() == 3.0 and changed.uvs is None
+    assert len(list(cache.glob("*.npz"))) == 3
     entry.write_bytes(b"not an npz")                              # a bad entry is parsed anew
     path.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")
-    np.testing.assert_array_equal(load_mesh(path, up="z", scale=2.0, cache=cache).positions, first.positions)
+    np.testing.assert_array_equal(load_mesh_cached(path, up="z", scale=2.0, cache=cache).positions, first.positions)
 
 
 def test_a_meshs_convexity_is_judged_once_and_read_back(tmp_path, monkeypatch):

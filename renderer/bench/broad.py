@@ -430,7 +430,8 @@ def write(out_dir: Path, rows: list[BroadRow], machine: dict, cfg: BroadConfig, 
           sets_timed: dict | None = None) -> None:
     from ..presets import presets_digest
 
-    data = {"machine": machine, "config": asdict(cfg), "presets": source, "presets_digest": presets_digest(), "split": split(),
+    data = {"machine": machine, "config": asdict(cfg), "presets": source, "presets_digest": presets_digest(),
+            "reference_code": reference_code_digest(), "split": split(),
             "reference_s": ref_s, "sets_timed": sets_timed or {}, "summary": summary(rows),
             "misses": target_misses(rows),
             "rows": [asdict(r) for r in rows]}

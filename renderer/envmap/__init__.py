@@ -78,7 +78,7 @@ class EnvironmentMap:
         return int(self.cube.shape[1])
 
 
-# Bytes of resampled cubes kept in a cache folder (`cube_cache`): a 1k angular probe's background cube is 19 MB.
+# Bytes of resampled cubes kept in a cache folder (`cube_cache`): a 1k map's background cube is 19 MB.
 CUBE_CACHE_BYTES = 1 << 30
 
 
