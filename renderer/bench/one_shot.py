@@ -3,10 +3,10 @@ runs it (a new process: imports, the GL context, the map, the meshes, the PEM se
 files), in the three states of the user's cache folder (renderer/user_cache.py):
 
 * **first run**: the folder empty, as on a machine that never rendered (the glossiness calibration's
-  tables are built too, once per face size);
-* **new map**: the tables kept, nothing of this map (its cubes resampled, the light decomposition and
-  the PEMs built);
-* **cached**: the map rendered before (its PEM set, with its decomposition, read back).
+  tables are built too, once per face size, and the mesh files parsed by trimesh);
+* **new map**: the tables and the garment kept (its files' parses and convexity, mesh_cache.py), nothing
+  of this map (its cube resampled, the light decomposition and the PEMs built);
+* **cached**: the map and the garment rendered before (the PEM set, with its decomposition, read back).
 
 The states take turns within each round, so that a slow spell of the machine falls on all of them.
 Mesa keeps its compiled shaders in a cache of its own (~/.cache/mesa_shader_cache), warm in every
