@@ -169,6 +169,15 @@ def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path, monkeypatch):
         assert r.rel_rmse <= measured
     data = json.loads((tmp_path / "out" / "broad.json").read_text())
     assert {s["set"] for s in data["summary"].values()} == {"tuning", "held-out"}
+    # The tracer's rate is measured beside the presets' frames, scene by scene: not the references'
+    # own times (rendered before, perhaps on another day).
+    cache = broad.ReferenceCache(tmp_path / "refs")
+    for r in rows:
+        rate = data["tracer"][r.scene]
+        assert r.ref_ms_per_spp == rate["ms_per_spp"] > 0 and rate["setup_ms"] >= 0
+        own = 1e3 * np.mean([cache.get(s, 8, seed)["wall_s"] for s in only if s.name == r.scene
+                             for seed in broad.SEEDS]) / 8
+        assert r.ref_ms_per_spp != pytest.approx(own, rel=1e-9)
     # The held-out set ran first, whole, from the cold cache: its wall time is the run's own.
     assert data["rows"][0]["set"] == "held-out"
     timed = data["sets_timed"]

@@ -26,11 +26,12 @@ code that renders them: a rerun renders only what changed.
 
 Equal error is estimated, not laddered (a ladder per scene would cost more than the whole sweep): the
 reference is unbiased, so its relMSE falls as 1/spp; from the pair's floor (one render against the
-other: sqrt(2) x each one's error) the samples that reach the preset's error and their time at the
-pair's own measured rate follow, the tracer on every core (its samples split evenly over them, the
-pair's rate being one thread's: the ideal split, which favours the tracer). A preset within twice the
-truth's own error is unresolved. `retime` measures a stored run's times again on another day or
-machine, the tracer's beside the presets'.
+other: sqrt(2) x each one's error) the samples that reach the preset's error follow, and their time
+at the tracer's rate measured beside the presets' frames, scene by scene in the same run (two short
+renders in a process of one thread, `_tracer_rate`: the cached references' own times were taken on
+another day), the tracer on every core (its samples split evenly over them: the ideal split, which
+favours the tracer). A preset within twice the truth's own error is unresolved. `retime` measures a
+stored run's times again on another day or machine, the tracer's beside the presets'.
 """
 
 from __future__ import annotations
@@ -201,13 +202,18 @@ class Truth:
     floor_flip: float
     ms_per_spp: float
     background: np.ndarray
+    setup_ms: float = 0.0   # the tracer's time before its first sample
 
     @classmethod
-    def of(cls, ref_a: dict, ref_b: dict, spp: int, background: np.ndarray) -> Truth:
+    def of(cls, ref_a: dict, ref_b: dict, spp: int, background: np.ndarray,
+           rate: tuple[float, float] | None = None) -> Truth:
+        """rate: the tracer's (setup ms, ms a sample) measured in this run (`_tracer_rate`); else the
+        references' own times (their spp samples in their wall time)."""
         a, b = ref_a["image"], ref_b["image"]
         mask = a[..., 3] > 0.5
-        return cls(a, b, 0.5 * (a + b), mask, relative_rmse(b, a, mask), mean_flip(b, a, mask),
-                   1e3 * 0.5 * (ref_a["wall_s"] + ref_b["wall_s"]) / spp, background)
+        setup, per = rate if rate is not None else (0.0, 1e3 * 0.5 * (ref_a["wall_s"] + ref_b["wall_s"]) / spp)
+        return cls(a, b, 0.5 * (a + b), mask, relative_rmse(b, a, mask), mean_flip(b, a, mask), per, background,
+                   setup)
 
 
 def excess_rel_rmse(error: float, floor: float) -> float:
@@ -231,7 +237,7 @@ def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, truth
     speedup = None
     if measured > floor:   # twice the truth's own error
         # The tracer on every core: its samples split evenly (its rate is one thread's, setup included).
-        speedup = tracer_time_ms(spp_at_error(err, floor, spp), 0.0, truth.ms_per_spp,
+        speedup = tracer_time_ms(spp_at_error(err, floor, spp), truth.setup_ms, truth.ms_per_spp,
                                  len(os.sched_getaffinity(0))) / frame_ms
     return BroadRow(scene.name, scene.map, sets[scene.map], scene.garment, scene.fabric, scene.view, scene.size, preset,
                     frame_ms, err, mean_flip(image, truth.image, mask), art.share, art.judged, art.too_bright,
@@ -351,7 +357,8 @@ def run_broad(out_dir: Path, cfg: BroadConfig, log=print, only: list[Scene] | No
     # The held-out set first, whole (its references, then its scenes), then the tuning set: each set's
     # wall time from a cold cache is the run's own measurement (`sets_timed`).
     ref_s, set_wall_s, set_refs, k = 0.0, {}, {}, 0
-    with Renderer(gl) as r:
+    rates: dict[str, tuple[float, float]] = {}   # the tracer's (setup ms, ms a sample) per scene
+    with Renderer(gl) as r, one_thread_pool(1) as tracer:
         for part in ("held-out", "tuning"):
             mine = sorted((s for s in todo if sets[s.map] == part), key=lambda s: (s.map, s.garment, s.size))
             if not mine:
@@ -371,20 +378,23 @@ def run_broad(out_dir: Path, cfg: BroadConfig, log=print, only: list[Scene] | No
                 knob_scene = cfg.knobs and (scene.size > 128 or (part == "held-out" and scene.fabric == KNOB_SMALL_FABRIC))
                 settings = {p: kn for p, kn in knobs_of.items() if knob_scene or ":" not in p}
                 images = render_presets(r, scene, settings, cfg.frames if scene.size > 128 else cfg.frames_small, res)
+                setup, per = rates[scene.name] = _tracer_rate(scene, tracer)   # beside the presets' frames
                 truth = Truth.of(ref_a, ref_b, spp,
-                                 background_truth(res.image, res.layout, scene.camera(), scene.size, scene.size))
+                                 background_truth(res.image, res.layout, scene.camera(), scene.size, scene.size),
+                                 (setup, per))
                 for preset, (image, ms) in images.items():
                     rows.append(measure(scene, preset, image, ms, truth, spp, sets))
                 b = next(x for x in rows[-len(images):] if x.preset == "balanced")
                 log(f"[{k}/{len(todo)}] {scene.name} ({part}): balanced rel. RMSE {b.rel_rmse:.3f}, FLIP {b.flip:.3f}, "
                     f"artefacts {100 * b.artefact_share:.2f} %, {b.frame_ms:.0f} ms; floor {b.ref_noise_rel_rmse:.3f}")
                 if k % 20 == 0:
-                    write(out_dir, rows, machine, cfg, source, ref_s)
+                    write(out_dir, rows, machine, cfg, source, ref_s, tracer=_rates_json(rates))
             set_wall_s[part] = time.perf_counter() - t0
         if res is not None:
             res.release()
     gl.release()
-    write(out_dir, rows, machine, cfg, source, ref_s, {"wall_s": set_wall_s, "references": set_refs})
+    write(out_dir, rows, machine, cfg, source, ref_s, {"wall_s": set_wall_s, "references": set_refs},
+          _rates_json(rates))
     return rows
 
 
@@ -426,12 +436,16 @@ def target_misses(rows: list[BroadRow], size: int = 256) -> list[dict]:
     return misses
 
 
+def _rates_json(rates: dict[str, tuple[float, float]]) -> dict:
+    return {name: {"setup_ms": setup, "ms_per_spp": per} for name, (setup, per) in rates.items()}
+
+
 def write(out_dir: Path, rows: list[BroadRow], machine: dict, cfg: BroadConfig, source: str, ref_s: float,
-          sets_timed: dict | None = None) -> None:
+          sets_timed: dict | None = None, tracer: dict | None = None) -> None:
     from ..presets import presets_digest
 
     data = {"machine": machine, "config": asdict(cfg), "presets": source, "presets_digest": presets_digest(),
-            "reference_code": reference_code_digest(), "split": split(),
+            "reference_code": reference_code_digest(), "split": split(), "tracer": tracer or {},
             "reference_s": ref_s, "sets_timed": sets_timed or {}, "summary": summary(rows),
             "misses": target_misses(rows),
             "rows": [asdict(r) for r in rows]}
