@@ -1,6 +1,6 @@
-"""Threads for the CPU stages of a new map (its cube's resampling, the area lights' search): their
-numpy work (gathers, searches, reductions over large arrays) releases the GIL, so chunks of it run on
-every core. Results are the same as in one thread: each chunk writes its own part of the output."""
+"""Threads for the CPU stages of a new map (the area lights' search): their numpy work (products,
+searches, reductions over large arrays) releases the GIL, so chunks of it run on every core. Results
+are the same as in one thread: each chunk writes its own part of the output."""
 
 from __future__ import annotations
 

@@ -202,16 +202,14 @@ class Truth:
     floor_flip: float
     ms_per_spp: float
     background: np.ndarray
-    setup_ms: float = 0.0   # the tracer's time before its first sample
+    setup_ms: float   # the tracer's time before its first sample
 
     @classmethod
-    def of(cls, ref_a: dict, ref_b: dict, spp: int, background: np.ndarray,
-           rate: tuple[float, float] | None = None) -> Truth:
-        """rate: the tracer's (setup ms, ms a sample) measured in this run (`_tracer_rate`); else the
-        references' own times (their spp samples in their wall time)."""
+    def of(cls, ref_a: dict, ref_b: dict, background: np.ndarray, rate: tuple[float, float]) -> Truth:
+        """rate: the tracer's (setup ms, ms a sample) measured in this run (`_tracer_rate`)."""
         a, b = ref_a["image"], ref_b["image"]
         mask = a[..., 3] > 0.5
-        setup, per = rate if rate is not None else (0.0, 1e3 * 0.5 * (ref_a["wall_s"] + ref_b["wall_s"]) / spp)
+        setup, per = rate
         return cls(a, b, 0.5 * (a + b), mask, relative_rmse(b, a, mask), mean_flip(b, a, mask), per, background,
                    setup)
 
@@ -379,7 +377,7 @@ def run_broad(out_dir: Path, cfg: BroadConfig, log=print, only: list[Scene] | No
                 settings = {p: kn for p, kn in knobs_of.items() if knob_scene or ":" not in p}
                 images = render_presets(r, scene, settings, cfg.frames if scene.size > 128 else cfg.frames_small, res)
                 setup, per = rates[scene.name] = _tracer_rate(scene, tracer)   # beside the presets' frames
-                truth = Truth.of(ref_a, ref_b, spp,
+                truth = Truth.of(ref_a, ref_b,
                                  background_truth(res.image, res.layout, scene.camera(), scene.size, scene.size),
                                  (setup, per))
                 for preset, (image, ms) in images.items():

@@ -102,7 +102,7 @@ class Texture2DLevels:
         h, w = shapes[0][:2]
         if any(sh != (max(1, h >> k), max(1, w >> k), 3) for k, sh in enumerate(shapes)):
             raise ValueError(f"MIP levels must halve (rounding down, to 1) from {(h, w, 3)}, got {shapes}")
-        self.gl, self.size, self.levels = gl, (w, h), len(levels)
+        self.gl = gl
         name = _u(0)
         gl.glCreateTextures(GL_TEXTURE_2D, 1, ctypes.byref(name))
         self.glo = name.value

@@ -7,7 +7,8 @@ and filtered over the pixel's own footprint:
 
 * a lat-long source directly (its rows wrap; one lookup a pixel over the footprint from the view
   ray's analytic derivative, continuous where the longitude wraps, several across a row towards the
-  poles): no resampling on the CPU, and one reconstruction between the file and the screen. Sources wider than BACKGROUND_LATLONG_WIDTH_MAX are box-filtered to it first;
+  poles): no resampling on the CPU, and one reconstruction between the file and the screen. Sources
+  wider than BACKGROUND_LATLONG_WIDTH_MAX are box-filtered to it first;
 * any other layout (an angular probe, a cross) through a cube resampled from the source at twice the
   source's own density (a layout W texels a quarter turn, a face of W / 2): a cube at the source's
   density is a second resampling that blurs it again.
@@ -98,11 +99,9 @@ class BackgroundMap:
             levels = [rgb]
             while levels[-1].shape[:2] != (1, 1):
                 levels.append(_halve(levels[-1]))
-            self.size = (rgb.shape[1], rgb.shape[0])
             self.texture = Texture2DLevels(gl.gl, [np.minimum(lvl, HALF_MAX) for lvl in levels], repeat_s=True)
         else:
             n = int(source.shape[1])
-            self.size = (n, n)
             self.texture = gl.ctx.texture_cube((n, n), 3, dtype="f2")
             half = np.minimum(rgb, HALF_MAX).astype(np.float16)
             for face in range(6):

@@ -13,8 +13,6 @@ uniform mat4 u_inv_view_proj;
 in vec2 v_ndc;
 out vec4 o_color;
 
-const float PI = 3.14159265358979;
-
 vec3 view_ray(vec2 ndc) {
     vec4 a = u_inv_view_proj * vec4(ndc, -1.0, 1.0);
     vec4 b = u_inv_view_proj * vec4(ndc, 1.0, 1.0);
@@ -22,6 +20,8 @@ vec3 view_ray(vec2 ndc) {
 }
 
 #ifdef BACKGROUND_LATLONG
+const float PI = 3.14159265358979;
+
 // Normalized lat-long coordinates (x right from -Z through +X, y down from the zenith +Y) of a unit
 // direction: renderer/envmap/layouts.py's convention; row 0 of the image is t = 0 of the texture.
 vec2 latlong_uv(vec3 d) {
