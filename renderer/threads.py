@@ -1,6 +1,7 @@
-"""Threads for the CPU stages of a new map (the area lights' search): their numpy work (products,
-searches, reductions over large arrays) releases the GIL, so chunks of it run on every core. Results
-are the same as in one thread: each chunk writes its own part of the output."""
+"""Threads for the CPU stages of a new map (the source resampled to a cube, face by face; the area
+lights' search): their numpy work (lookups, products, searches, reductions over large arrays) releases
+the GIL, so chunks of it run on every core. Results are the same as in one thread: each chunk writes its
+own part of the output."""
 
 from __future__ import annotations
 

@@ -74,8 +74,7 @@ def test_the_shared_bodies_sit_inside_their_garments():
 
 
 def test_references_are_cached_by_scene_samples_seed_and_code(tmp_path, monkeypatch):
-    monkeypatch.setattr(catalogue, "map_digest", lambda name: f"digest of {name}")
-    monkeypatch.setattr(broad, "map_digest", lambda name: f"digest of {name}")
+    monkeypatch.setattr(broad, "reference_inputs_digest", lambda scene: f"inputs of {scene}")
     cache = broad.ReferenceCache(tmp_path)
     a, b = Scene("pisa.hdr", "shirt", "satin", "front", 128), Scene("pisa.hdr", "shirt", "satin", "front", 256)
     keys = {cache.key(a, 64, 1), cache.key(a, 64, 2), cache.key(a, 128, 1), cache.key(b, 64, 1)}
@@ -102,6 +101,39 @@ def test_the_reference_code_digest_follows_the_files_that_make_a_reference():
                                                                else [root / name])}
     assert root / "reference" / "montecarlo.py" in covered and root / "bench" / "catalogue.py" in covered
     assert root / "bench" / "broad.py" not in covered     # the report may change without rendering anew
+    assert root / "shading" / "brdf.py" in covered and root / "envmap" / "cube.py" in covered
+    # What the environment and mesh code make enters as data (below): they may get faster.
+    assert root / "envmap" / "layouts.py" not in covered and root / "mesh.py" not in covered
+
+
+def test_a_references_inputs_are_keyed_by_what_the_tracer_reads(monkeypatch):
+    from renderer.mesh import Mesh
+
+    cube = np.ones((6, 4, 4, 3), np.float32)
+    tri = Mesh.from_arrays(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32), np.array([[0, 1, 2]]))
+    meshes = {"shirt": (tri, tri)}
+    monkeypatch.setattr(broad, "environment_cube", lambda name, face: cube)
+    monkeypatch.setattr(broad, "garment_meshes", lambda garment: meshes[garment])
+    monkeypatch.setattr(catalogue, "garment_meshes", lambda garment: meshes[garment])
+
+    def digest(scene):
+        broad._cube_digest.cache_clear()
+        broad._garment_digest.cache_clear()
+        return broad.reference_inputs_digest(scene)
+
+    scene = Scene("pisa.hdr", "shirt", "satin", "front", 128)
+    first = digest(scene)
+    assert digest(scene) == first
+    assert digest(Scene("pisa.hdr", "shirt", "cotton", "front", 128)) != first      # the material
+    assert digest(Scene("pisa.hdr", "shirt", "satin", "front", 256)) != first       # the size
+    cube = cube.copy()
+    cube[2, 1, 1] = 2.0                                                              # one texel of the cube
+    assert digest(scene) != first
+    cube[2, 1, 1] = 1.0
+    assert digest(scene) == first
+    moved = Mesh.from_arrays(tri.positions * 2, tri.faces)                          # the garment's shape
+    meshes["shirt"] = (moved, tri)
+    assert digest(scene) != first
 
 
 def _row(scene, preset, size=256, **metrics):

@@ -43,11 +43,13 @@ import json
 import os
 import time
 from dataclasses import asdict, dataclass, field
+from functools import cache
 from pathlib import Path
 
 import numpy as np
 
 from ..atomic import atomic_file
+from ..mesh import vertex_normals
 from ..presets import PRESET_NAMES as PRESETS  # every preset, paper's included (targets: TARGETS)
 from ..reference import artefact_share, mean_flip, relative_rmse, render_reference
 from ..shading.background import background_truth
@@ -57,7 +59,7 @@ from .catalogue import (
     TARGETS,
     Scene,
     environment_cube,
-    map_digest,
+    garment_meshes,
     scenes,
     split,
 )
@@ -67,13 +69,17 @@ from .scenes import shared_assets
 
 # --- references, cached -------------------------------------------------------------------------
 
-_REFERENCE_SOURCES = ("reference", "envmap", "mesh.py", "camera.py", "shading/material.py", "bench/catalogue.py",
-                      "bench/scenes.py")
+# The source of what turns a scene's inputs into a reference image. What the environment and mesh code
+# make of the files enters the key as data instead (`reference_inputs_digest`): the cube the tracer
+# reads and the meshes with the normals it shades with, so that code can be made faster without
+# rendering every reference anew, and any change to what it produces still does.
+_REFERENCE_SOURCES = ("reference", "envmap/cube.py", "camera.py", "shading/material.py", "shading/brdf.py",
+                      "bench/catalogue.py", "bench/scenes.py")
 CACHE_VARIABLE = "GARMENT_RENDER_REFERENCE_CACHE"
 
 
 def reference_code_digest() -> str:
-    """SHA-256 of the source of everything that makes a reference image from a scene's files."""
+    """SHA-256 of the source of everything that makes a reference image from a scene's inputs."""
     root = Path(__file__).resolve().parents[1]
     h = hashlib.sha256()
     for name in _REFERENCE_SOURCES:
@@ -81,6 +87,37 @@ def reference_code_digest() -> str:
         for f in sorted(p.rglob("*.py")) if p.is_dir() else [p]:
             h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes())
     return h.hexdigest()
+
+
+def _arrays_digest(*arrays: np.ndarray | None) -> str:
+    h = hashlib.sha256()
+    for a in arrays:
+        if a is None:
+            h.update(b"none")
+            continue
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype.str}{a.shape}".encode() + a.tobytes())
+    return h.hexdigest()
+
+
+@cache
+def _cube_digest(map_name: str) -> str:
+    return _arrays_digest(environment_cube(map_name, REFERENCE_FACE_SIZE))
+
+
+@cache
+def _garment_digest(garment: str) -> str:
+    return _arrays_digest(*(a for m in garment_meshes(garment)
+                            for a in (m.positions, m.faces, m.uvs, vertex_normals(m.positions, m.faces))))
+
+
+def reference_inputs_digest(scene: Scene) -> str:
+    """What a reference of `scene` is made from, as data: the cube the tracer samples, the meshes and
+    their normals, the materials and the camera."""
+    spec = {"cube": _cube_digest(scene.map), "meshes": _garment_digest(scene.garment),
+            "materials": [asdict(m) for m in scene.materials()], "camera": asdict(scene.camera()),
+            "size": scene.size}
+    return hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()
 
 
 def default_cache_dir() -> Path:
@@ -97,9 +134,7 @@ class ReferenceCache:
         self.code = reference_code_digest()
 
     def key(self, scene: Scene, spp: int, seed: int) -> str:
-        spec = {"map": map_digest(scene.map), "garment": scene.garment, "fabric": scene.fabric, "view": scene.view,
-                "size": scene.size, "spp": spp, "seed": seed, "face": REFERENCE_FACE_SIZE, "code": self.code,
-                "materials": [asdict(m) for m in scene.materials()]}
+        spec = {"inputs": reference_inputs_digest(scene), "spp": spp, "seed": seed, "code": self.code}
         return hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()[:32]
 
     def path(self, scene: Scene, spp: int, seed: int) -> Path:

@@ -137,11 +137,6 @@ def environment_cube(name: str, face_size: int) -> np.ndarray:
     return load_environment(shared_assets() / "hdri" / name, face_size=face_size, repair=True).cube
 
 
-@cache
-def map_digest(name: str) -> str:
-    return hashlib.sha256((shared_assets() / "hdri" / name).read_bytes()).hexdigest()
-
-
 @dataclass(frozen=True)
 class Scene:
     map: str

@@ -78,7 +78,8 @@ class EnvironmentMap:
         return int(self.cube.shape[1])
 
 
-# Bytes of resampled cubes kept in a cache folder (`cube_cache`): a 1k map's background cube is 19 MB.
+# Bytes of resampled cubes kept in a cache folder (`cube_cache`): a 512^2 cube (a background of a layout
+# other than lat-long) is 19 MB.
 CUBE_CACHE_BYTES = 1 << 30
 
 
