@@ -106,6 +106,43 @@ def test_exported_set_restores_bit_identical_without_rebuilding(renderer, tmp_pa
         restored.release()
 
 
+@pytest.mark.parametrize("face_size, n_lights", [(64, 24), (32, 384), (16, 6)])
+def test_workgroups_out_of_a_regions_reach_skip_their_arithmetic_and_change_nothing(renderer, monkeypatch,
+                                                                                   face_size, n_lights):
+    # Regions at cube corners and edges (the sun's light at a corner, 384 tiny regions) read across
+    # faces: the tiles judged out of reach must read zeros only, or the set differs from one built with
+    # every workgroup live.
+    from renderer.lighting import pem
+
+    cube = sun_sky_cube(face_size, (1, 1, 1), sun_radiance=1e4, sun_radius_deg=3) * np.float32(1.0)
+    cube = cube + np.random.default_rng(5).random(cube.shape, np.float32) ** 8
+    skipped = renderer.build_pems(cube, paper_pems(n_lights))
+    live = pem._live_tiles(skipped.regions.labels, n_lights, skipped.levels)
+    if face_size >= 64:
+        assert 0.0 < np.mean(live[1][1]) < 0.3       # most of a region's finest filter is skipped
+    real = pem._live_tiles
+    monkeypatch.setattr(pem, "_live_tiles", lambda labels, regions, levels: {
+        level: (np.ones_like(r), np.ones_like(f)) for level, (r, f) in real(labels, regions, levels).items()})
+    every = renderer.build_pems(cube, paper_pems(n_lights))
+    try:
+        for level in range(every.levels):
+            assert np.array_equal(skipped.read_level_raw(level), every.read_level_raw(level)), level
+    finally:
+        skipped.release()
+        every.release()
+
+
+def test_the_reach_of_a_tile_holds_its_own_face_and_the_far_side_of_its_edges_only():
+    from renderer.lighting.pem import _tile_reach
+
+    reach = _tile_reach(64).reshape(6, 8, 8, 6, 8, 8)
+    assert reach[0, 3, 3, 0, 3, 3] and reach[0, 3, 3, 0, 3, 4]     # itself, its neighbour
+    assert not reach[0, 3, 3, 0, 0, 0]                                # far on its face
+    assert not reach[0, 3, 3].reshape(6, -1)[1:].any()                # a tile inside its face: no other face
+    assert reach[0, 0, 0].reshape(6, -1)[1:].any(axis=1).sum() == 2   # a corner tile: two other faces
+    assert np.array_equal(reach, reach.transpose(3, 4, 5, 0, 1, 2))   # symmetric
+
+
 @pytest.mark.parametrize("where", ["face centre", "edge", "corner"])
 def test_solid_angle_weighting_keeps_a_small_light_energy_wherever_it_sits(where):
     # A one-texel light's energy after filtering, relative to its own, at every level. The unweighted

@@ -79,6 +79,7 @@ class PEMBuffer(IntEnum):
     INV_SCALE = 2           # each region's 1 / scale
     FILTERED = 3            # a batch of regions' filtered level
     REDUCED = 4             # a batch of regions' level reduced from the one above
+    TILES = 5               # per workgroup of a reduction or filter: 0 where it reads zeros only
 
 
 class NormalsBuffer(IntEnum):

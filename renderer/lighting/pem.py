@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
+from functools import cache
 
 import numpy as np
 
+from ..envmap.cube import face_uv_to_dir
 from ..errors import InvalidInputError
 from ..gpu.context import GLContext, StageTimer
 from ..gpu.contract import Image, PEMBuffer
@@ -62,6 +64,71 @@ def _scratch_batch(n: int) -> tuple[int, int]:
     while REGIONS_PER_TEXTURE % batch:
         batch -= 1
     return batch, per_region_bytes
+
+
+# The build's workgroups: 8 x 8 texels of one face of one region (shaders/pem/*.comp).
+TILE = 8
+
+
+@cache
+def _tile_reach(m: int) -> np.ndarray:
+    """bool (6 t^2, 6 t^2) for the t x t tiles of each face of a level of m^2 texels: True where a texel
+    of the first tile may read a texel of the second through the 5 x 5 filter, across face edges too.
+
+    Each tile is bounded by a cone about the direction of its centre (the angle to its farthest texel
+    centre: on a face's plane that is a corner). A tap is at most two texels away in each axis on the
+    face's plane, extended past its edge (2 sqrt(2) x 2/m in plane units, and an angle is at most the
+    planar distance since the plane is at distance 1), and the texel that resolve_texel reads contains
+    the tap's direction (sqrt(2)/m from its centre): 7.1/m in all, taken 1.25 times for the float
+    arithmetic of either side. Conservative: a tile judged out of reach reads zeros only."""
+    t = max(1, -(-m // TILE))
+    first = np.arange(t) * TILE
+    last = np.minimum(first + TILE, m) - 1
+    def uv(i):   # texel index -> face coordinate of its centre
+        return (np.asarray(i, np.float64) + 0.5) * (2.0 / m) - 1.0
+    ty, tx = np.meshgrid(np.arange(t), np.arange(t), indexing="ij")
+    centres, radii = [], []
+    for face in range(6):
+        c = face_uv_to_dir(face, uv((first[tx] + last[tx]) / 2), uv((first[ty] + last[ty]) / 2))
+        c /= np.linalg.norm(c, axis=-1, keepdims=True)
+        r = np.zeros((t, t))
+        for rows in (first, last):
+            for cols in (first, last):
+                d = face_uv_to_dir(face, uv(cols[tx]), uv(rows[ty]))
+                d /= np.linalg.norm(d, axis=-1, keepdims=True)
+                r = np.maximum(r, np.arccos(np.clip(np.sum(c * d, axis=-1), -1.0, 1.0)))
+        centres.append(c.reshape(-1, 3))
+        radii.append(r.reshape(-1))
+    c, r = np.concatenate(centres), np.concatenate(radii)
+    angle = np.arccos(np.clip(c @ c.T, -1.0, 1.0))
+    return angle <= r[:, None] + r[None, :] + 1.25 * 5.0 * np.sqrt(2.0) / m
+
+
+def _live_tiles(labels: np.ndarray, n_regions: int, levels: int) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Per level 1.. of the build: (reduced, filtered), bool (regions, 6, t, t) each, the workgroups of
+    the 2 x 2 reduction and of the filter that may see a texel of their region; every other one reads
+    zeros only and writes zeros (the shaders skip its arithmetic, same result bit for bit). A region is
+    one rectangle of one face (the median cut's) or a disc, so at the finer levels most of a region's
+    tiles are empty."""
+    n = labels.shape[1]
+    t0 = max(1, -(-n // TILE))
+    rows = np.arange(n) // TILE
+    tile_of = (np.arange(6)[:, None, None] * t0 + rows[None, :, None]) * t0 + rows[None, None, :]
+    support = np.zeros((n_regions, 6 * t0 * t0), bool)        # level 0: the region's own texels
+    support[labels.reshape(-1), tile_of.reshape(-1)] = True
+    support = support.reshape(n_regions, 6, t0, t0)
+    out = {}
+    for level in range(1, levels):
+        m = max(1, n >> level)
+        t = max(1, -(-m // TILE))
+        if support.shape[2] == 2 * t:                            # a tile reduces 2 x 2 tiles above it
+            reduced = support.reshape(n_regions, 6, t, 2, t, 2).any(axis=(3, 5))
+        else:
+            reduced = support
+        filtered = (reduced.reshape(n_regions, -1).astype(np.float32) @ _tile_reach(m).astype(np.float32)) > 0
+        support = filtered.reshape(n_regions, 6, t, t)
+        out[level] = (reduced, support)
+    return out
 
 
 @dataclass(frozen=True)
@@ -242,6 +309,7 @@ class PEMSet:
         batch, per_region_bytes = _scratch_batch(n)
         buffers.append(ctx.buffer(reserve=batch * per_region_bytes))  # the filtered level
         buffers.append(ctx.buffer(reserve=batch * per_region_bytes))  # the reduced level
+        live = _live_tiles(self.regions.labels, n_regions, self.levels)
         progs = {}
         try:
             units = (PEMBuffer.ENV, PEMBuffer.LABELS, PEMBuffer.INV_SCALE, PEMBuffer.FILTERED, PEMBuffer.REDUCED)
@@ -260,6 +328,13 @@ class PEMSet:
                 texture_first = first - first % REGIONS_PER_TEXTURE
                 for name in ("level0", "filter"):
                     progs[name]["u_texture_first_region"].value = texture_first
+                # This batch's live workgroups, every level's reduction and filter in one buffer.
+                flags = [live[level][k][first:first + count].reshape(-1) for level in range(1, self.levels)
+                         for k in (0, 1)]
+                offsets = np.concatenate([[0], np.cumsum([len(f) for f in flags])])
+                tiles = ctx.buffer(np.concatenate(flags or [np.zeros(1, bool)]).astype(np.int32).tobytes())
+                buffers.append(tiles)
+                tiles.bind_to_storage_buffer(PEMBuffer.TILES)
                 texture.bind_image(Image.PEM_OUT, 0)
                 if self.base_level == 0:
                     p = progs["level0"]
@@ -269,6 +344,7 @@ class PEMSet:
                     size = n >> level
                     p = progs["down_env"] if level == 1 else progs["down"]
                     p["u_n"].value = size
+                    p["u_tiles_first"].value = int(offsets[2 * (level - 1)])
                     if "u_first_region" in p:
                         p["u_first_region"].value = first
                     ctx.memory_barrier()
@@ -279,6 +355,7 @@ class PEMSet:
                     texture.bind_image(Image.PEM_OUT, level - self.base_level if store else 0)
                     p = progs["filter"]
                     p["u_n"].value, p["u_first_region"].value = size, first
+                    p["u_tiles_first"].value = int(offsets[2 * (level - 1) + 1])
                     p["u_store"].value = store
                     p.run(*groups(size))
             ctx.memory_barrier()

@@ -9,6 +9,8 @@ layout(std430, binding = BUF_PEM_LABELS) readonly buffer Labels { int labels[]; 
 #else
 layout(std430, binding = BUF_PEM_FILTERED) readonly buffer Src { vec4 src[]; };        // (batch, 6, 2n, 2n)
 #endif
+#include "pem/tiles.glsl"
+
 layout(std430, binding = BUF_PEM_REDUCED) writeonly buffer Dst { vec4 dst[]; };       // (batch, 6, n, n)
 
 uniform int u_n;             // size of the destination level
@@ -29,6 +31,9 @@ void main() {
     ivec3 id = ivec3(gl_GlobalInvocationID);
     if (id.x >= u_n || id.y >= u_n) return;
     int r = 2 * id.y, c = 2 * id.x;
-    vec4 m = 0.25 * (fetch(id.z, r, c) + fetch(id.z, r, c + 1) + fetch(id.z, r + 1, c) + fetch(id.z, r + 1, c + 1));
+    vec4 m = vec4(0.0);
+    if (tile_is_live()) {
+        m = 0.25 * (fetch(id.z, r, c) + fetch(id.z, r, c + 1) + fetch(id.z, r + 1, c) + fetch(id.z, r + 1, c + 1));
+    }
     dst[(id.z * u_n + id.y) * u_n + id.x] = m;
 }

@@ -5,6 +5,7 @@
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
 
 #include "common/cube.glsl"
+#include "pem/tiles.glsl"
 
 layout(std430, binding = BUF_PEM_INV_SCALE) readonly buffer InvScale { float inv_scale[]; };
 layout(std430, binding = BUF_PEM_REDUCED) readonly buffer Src { vec4 src[]; };        // (batch, 6, n, n), reduced
@@ -23,12 +24,14 @@ void main() {
     int face = id.z % 6;
     int base = id.z - face;            // 6 * (index of the region in the batch)
     vec4 acc = vec4(0.0);
-    for (int dy = -2; dy <= 2; ++dy) {
-        for (int dx = -2; dx <= 2; ++dx) {
-            float w = u_taps[dy + 2] * u_taps[dx + 2];
-            if (w == 0.0) continue;
-            ivec3 t = resolve_texel(face, id.y + dy, id.x + dx, u_n);
-            acc += w * src[((base + t.x) * u_n + t.y) * u_n + t.z];
+    if (tile_is_live()) {
+        for (int dy = -2; dy <= 2; ++dy) {
+            for (int dx = -2; dx <= 2; ++dx) {
+                float w = u_taps[dy + 2] * u_taps[dx + 2];
+                if (w == 0.0) continue;
+                ivec3 t = resolve_texel(face, id.y + dy, id.x + dx, u_n);
+                acc += w * src[((base + t.x) * u_n + t.y) * u_n + t.z];
+            }
         }
     }
     dst[(id.z * u_n + id.y) * u_n + id.x] = acc;
