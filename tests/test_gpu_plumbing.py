@@ -110,7 +110,7 @@ def test_composed_shader_carries_line_directives_per_file():
     src, files = compose("pem/filter.comp", {"X": 1})
     assert src.startswith("#version 450 core\n#define ")
     assert src.split("\n#line 1 0", 1)[0].endswith("\n#define X 1")   # the caller's defines after the contract's
-    assert files == ["pem/filter.comp", "common/cube.glsl"]
+    assert files == ["pem/filter.comp", "common/cube.glsl", "pem/tiles.glsl"]
     assert "#line 100001 1" in src
 
 

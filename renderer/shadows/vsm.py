@@ -76,7 +76,7 @@ class ShadowMaps:
         self.mipmapped = False   # the moments carry a MIP chain (render(mipmaps=True) made one)
         # With it, each texel's caster share per group and its chain (shadows/coverage.comp).
         self.casters: moderngl.TextureArray | None = None
-        self.blur = compute_shader(ctx, "shadows/blur.comp")
+        self.blur: moderngl.ComputeShader | None = None   # compiled by the first frame that blurs
         self.coverage: moderngl.ComputeShader | None = None   # compiled by the first frame that asks for mipmaps
         # The key group 1's layers were drawn for (None: they hold no still casters' maps).
         self.still_key = None
@@ -179,6 +179,8 @@ class ShadowMaps:
         ctx = self.gl.ctx
         if self.scratch is None:
             self.scratch = ctx.texture_array((self.size, self.size, self.groups * self.n_lights), 2, dtype="f4")
+        if self.blur is None:
+            self.blur = compute_shader(ctx, "shadows/blur.comp")
         self.blur["u_group_layers"].value = self.n_lights
         self.blur["u_max_radius"].value = MAX_BLUR_RADIUS
         # Three box passes per axis, ping-ponging moments <-> scratch: ends in moments.
@@ -201,9 +203,6 @@ class ShadowMaps:
         return np.concatenate(list(runs), axis=-1)
 
     def release(self) -> None:
-        for obj in (self.fbo, self.moments, self.scratch, self.casters, self.projections):
+        for obj in (self.fbo, self.moments, self.scratch, self.casters, self.projections, self.blur, self.coverage):
             if obj is not None:
                 obj.release()
-        self.blur.release()
-        if self.coverage is not None:
-            self.coverage.release()
