@@ -39,6 +39,7 @@ def test_every_sweep_value_is_one_setting_that_differs_from_balanced():
         assert len(keys) == len(set(keys))               # no setting measured twice
 
 
+@pytest.mark.system
 def test_speed_times_every_variant_side_by_side(tmp_path):
     import json
 
@@ -53,6 +54,7 @@ def test_speed_times_every_variant_side_by_side(tmp_path):
     assert markdown(result).count("\n") == 2
 
 
+@pytest.mark.system
 def test_speed_times_the_gpu_targets_large_scene(tmp_path):
     from conftest import asset
 
@@ -106,6 +108,7 @@ def test_the_assets_folder_can_be_named(monkeypatch, tmp_path):
     assert scenes.shared_assets() == scenes.SHARED_ASSETS
 
 
+@pytest.mark.system
 def test_speed_large_equal_error_sets_each_setting_against_a_reference_ladder():
     from conftest import asset
 
@@ -129,6 +132,7 @@ def test_speed_large_equal_error_sets_each_setting_against_a_reference_ladder():
             assert row["speedup"] == pytest.approx(rung["ms"] / row["frame_ms"])
 
 
+@pytest.mark.system
 def test_bench_end_to_end_writes_its_three_outputs(tmp_path):
     # `garment-render bench --quick`'s sweep on the bundled scene, made small (24x24, one timed
     # frame, a reference of 2 x 8 spp): every quick setting and the four baselines become rows with

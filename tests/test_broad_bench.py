@@ -164,6 +164,7 @@ def test_the_excess_takes_the_truths_own_noise_out_in_quadrature():
     assert broad.excess_rel_rmse(0.02, 0.06) == 0.0   # within the truth's own noise
 
 
+@pytest.mark.system
 @needs_assets
 def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path, monkeypatch):
     # The presets made small (their faces, maps and light counts; the knob variants over them as they

@@ -161,6 +161,7 @@ def test_body_mesh_is_closed_outward_and_on_the_proxy():
     assert np.all(n[:, 1] > 0) and np.allclose(fp[:, 1], body.floor_y)
 
 
+@pytest.mark.system
 def test_the_bundled_default_scene_is_the_drape_it_says_it_is():
     """renderer/data/default_scene.npz is what `python -m simulation.dress --store` makes now."""
     from renderer.procedural import default_scene

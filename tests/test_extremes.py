@@ -134,6 +134,7 @@ def test_invalid_positions_are_rejected_with_the_reason():
         s.with_positions(s.positions[:-1])
 
 
+@pytest.mark.system
 def test_two_million_triangles(renderer):
     s = uv_sphere(0.5, 1000, 1000, (0, 0.6, 0))
     assert s.n_faces >= 1_990_000
@@ -219,6 +220,7 @@ def _sky_with_sun(h: int) -> np.ndarray:
     return img
 
 
+@pytest.mark.system
 def test_16k_map_gives_the_image_of_its_2k_version(renderer):
     # A 16384 x 8192 lat-long map (1.5 GiB of float32; the conversion adds at most 0.6 GiB) becomes the
     # same 128^2 cube as the same sky at 2048 x 1024: the same power, and at balanced the same image.

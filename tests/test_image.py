@@ -35,6 +35,7 @@ def _build(*flavors: str) -> None:
     assert r.returncode == 0, (r.stdout[-3000:], r.stderr[-3000:])
 
 
+@pytest.mark.system
 def test_the_nvidia_image_builds_from_its_dockerfile():
     _build("nvidia")
     r = subprocess.run(["podman", "image", "inspect", "--format", "{{range .Config.Env}}{{println .}}{{end}}",
@@ -43,6 +44,7 @@ def test_the_nvidia_image_builds_from_its_dockerfile():
     assert env["GARMENT_RENDER_REQUIRE_GPU"] == "1" and "graphics" in env["NVIDIA_DRIVER_CAPABILITIES"]
 
 
+@pytest.mark.system
 def test_the_cpu_image_serves_a_frame_and_writes_its_pem_cache_to_the_volume(tmp_path):
     _build("cpu")
     pem, state = tmp_path / "pem", tmp_path / "state"

@@ -124,6 +124,7 @@ def _absent(python: Path, env: dict, cwd: Path, modules: tuple[str, ...]) -> lis
 
 
 @pytest.mark.gpu
+@pytest.mark.system
 def test_the_wheel_without_extras_renders_and_serves_outside_the_checkout(wheel, tmp_path):
     """A fresh environment with the wheel and its dependencies alone (no extra: no plotting, no FLIP,
     no Ray): a frame renders from outside the checkout, and the service starts and answers."""
@@ -165,6 +166,7 @@ def test_the_wheel_without_extras_renders_and_serves_outside_the_checkout(wheel,
         server.wait(timeout=30)
 
 
+@pytest.mark.system
 def test_the_client_extra_sends_frames_without_gl_or_the_server(wheel, tmp_path):
     """A simulator's machine: a fresh environment that holds the wheel and the client extra's
     dependencies (httpx, numpy, Pillow for `Frame.pil`) and nothing else, so that an import of GL,

@@ -203,6 +203,7 @@ def test_bad_pbr_materials_are_refused_with_the_limit():
         Material(model="pbr", sheen_colour=(1, 1)).pbr_arrays(3)
 
 
+@pytest.mark.system
 def test_the_figure_7_report_says_where_the_fit_misses_its_target(tmp_path):
     from renderer.lighting.material_figures import write_brdf_lobe_report
 

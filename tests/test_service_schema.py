@@ -20,6 +20,7 @@ EXAMPLES = os.environ.get("SCHEMATHESIS_EXAMPLES", "20")
 CLI = shutil.which("schemathesis", path=str(Path(sys.executable).parent)) or shutil.which("schemathesis")
 
 
+@pytest.mark.system
 @pytest.mark.skipif(CLI is None, reason="schemathesis is not installed (pip install .[test])")
 @pytest.mark.parametrize("token", [None, "s3cret"])
 def test_schemathesis_finds_nothing(tmp_path, token):

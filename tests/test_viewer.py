@@ -150,6 +150,7 @@ def test_page_in_headless_chromium_shows_every_scene_with_its_latest_frame(serve
     assert status[0].get("class") != "error" and "3 scene(s)" in " ".join(status[1]), status
 
 
+@pytest.mark.system
 def test_demo_script_serves_the_page_and_stops_on_ctrl_c(tmp_path):
     """`bash scripts/demo.sh` as a user runs it: it sets up, starts the service and the simulation,
     prints the page's address; frames arrive; Ctrl-C (SIGINT to its process group, as a terminal
