@@ -256,13 +256,11 @@ def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
 
 @dataclass
 class _LightPlan:
-    """A frame's lights as the passes need them (Renderer._light_plan): the PEM set's regions, the
-    casters' box, each light's layer, disc, map plan and shadow direction, map size, blur width,
-    projection's texel size, and the packed records the shaders read."""
+    """A frame's lights as the passes need them (Renderer._light_plan, the frame's CPU planning): the
+    PEM set's regions, each light's layer, disc, map plan and shadow direction, map size, blur width,
+    projection's texel size, the packed records the shaders read and the contact search's distance."""
 
     regions: object
-    lo: np.ndarray
-    hi: np.ndarray
     layers: np.ndarray
     disc_radius: np.ndarray
     plan: object
@@ -273,6 +271,9 @@ class _LightPlan:
     texels: np.ndarray
     lights: np.ndarray
     blocker: bool    # some light's penumbra follows the blocker's distance (the main maps carry MIP chains)
+    # The contact search's distance in world units (settings.contact_shadow_texels of the main maps'
+    # median texel over all the casters; 0: no search).
+    contact_radius: float
 
     @property
     def n(self) -> int:
@@ -698,8 +699,18 @@ class Renderer:
         blocker = (settings.penumbra == "blocker") & regions.area_mask & (plan.layer >= 0) & ~plan.sharp
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
                              sigma, plan.layer, disc_radius, plan.sharp, texels, blocker)
-        return _LightPlan(regions, lo, hi, layers, disc_radius, plan, shadow_dirs, sizes, sigma, blur, texels, lights,
-                          bool(blocker.any()))
+        contact_radius = 0.0
+        if settings.contact_shadow_texels > 0 and shadowed and settings.mode is ShadingMode.FULL:
+            # In main-map texels (the maps whose bias hides the contact), else the sharp maps', of maps
+            # over all the casters, not the view: the search's distance in the scene does not follow the
+            # camera (a closer view, finer maps, the same search).
+            main = ~plan.sharp
+            pick = main if main.any() else np.ones(n, bool)
+            scene_texels = texel_sizes(fit_light_view_projs(shadow_dirs[pick], lo, hi, sigma[pick], sizes[pick],
+                                                            scene.footprint_unit), sizes[pick])
+            contact_radius = settings.contact_shadow_texels * float(np.median(scene_texels[:, 0]))
+        return _LightPlan(regions, layers, disc_radius, plan, shadow_dirs, sizes, sigma, blur, texels, lights,
+                          bool(blocker.any()), contact_radius)
 
     def _shadow_pass(self, scene: Scene, settings: FrameSettings, lp: _LightPlan, lights_buf: moderngl.Buffer,
                      timer: StageTimer) -> dict[str, ShadowMaps]:
@@ -805,9 +816,7 @@ class Renderer:
         contact search's distance in world units (0: none)."""
         gl, ctx = self.gl, self.gl.ctx
         w, h = settings.width, settings.height
-        regions, n, lo, hi, layers = lp.regions, lp.n, lp.lo, lp.hi, lp.layers
-        plan, shadow_dirs, sigma, sizes, disc_radius, n_shadowed = (lp.plan, lp.shadow_dirs, lp.sigma, lp.sizes,
-                                                                    lp.disc_radius, lp.n_shadowed)
+        regions, n, plan, disc_radius, n_shadowed = lp.regions, lp.n, lp.plan, lp.disc_radius, lp.n_shadowed
         lights = lp.lights
         shadow_maps = arrays["main"]
         groups = max(scene.shadow_groups, 1)
@@ -858,15 +867,7 @@ class Renderer:
                 set_uniform(p, "u_sheen_offset", sheen_offset)
             contact_radius = 0.0
             if "u_contact_radius" in p:
-                # In main-map texels (the maps whose bias hides the contact), else the sharp maps', of
-                # maps over all the casters, not the view: the search's distance in the scene does not
-                # follow the camera (a closer view, finer maps, the same search).
-                shadowed = layers >= 0
-                main = shadowed & ~plan.sharp
-                pick = main if main.any() else shadowed
-                scene_texels = texel_sizes(fit_light_view_projs(shadow_dirs[pick], lo, hi, sigma[pick], sizes[pick],
-                                                                scene.footprint_unit), sizes[pick])
-                contact_radius = settings.contact_shadow_texels * float(np.median(scene_texels[:, 0]))
+                contact_radius = lp.contact_radius
                 p["u_contact_radius"] = contact_radius
                 p["u_contact_thickness"] = CONTACT_THICKNESS * contact_radius
                 p["u_view_proj"].write(vp_bytes)
