@@ -57,4 +57,41 @@ def test_the_report_names_every_row_outside_the_tolerance():
     text = bench.markdown(data)
     assert "1 of 2 rows within 3 %" in text
     assert "r0.1 m1 under windows (none) +12.4 %" in text
-    assert "| uniform | r0.5 m1 | full | +1.0 % | +2.0 % | 0.050 | 0.030 |" in text
+    assert "| uniform | r0.5 m1 | full | +1.0 % | nan % | +2.0 % | 0.050 | 0.030 |" in text
+    # Off by more than the tolerance, but not beyond the reference's own energy noise: within.
+    rows[1]["energy_noise"] = 0.1
+    assert "2 of 2 rows within 3 %" in bench.markdown(data)
+
+
+@pytest.mark.parametrize("material", ["r0.1 m1", "r0.1 m0"])
+def test_a_sharp_rim_highlight_is_measured_over_each_pixel_not_at_its_centre(renderer, material):
+    """(The dielectric's highlight is found by few of the reference's paths: its two seeds' energies
+    differ by more than the tolerance, which the check allows, as the bench does.)"""
+    # Roughness 0.1 under the light behind: a crescent on the rim narrower than a pixel at 64 x 64, which
+    # pixel centres catch or miss by its place (point sampled: -12.8 % at 64 x 64, +2.1 % at 128 x 128).
+    # Both sides supersampled, as the bench measures, the energy is the material's.
+    size, mat, make = 64, bench.MATERIALS[material], bench.MAPS["light behind"]
+    knobs = preset("balanced")
+    mesh = [bench.sphere()]
+    pems = renderer.build_pems(make(int(knobs["face_size"])), pem_settings(knobs, "sqrt-cosine", None))
+    scene = renderer.create_scene(mesh, [mat])
+    try:
+        s = bench.SUPERSAMPLE
+        fs = frame_settings(knobs, size * s, size * s, mode=ShadingMode.NO_OCCLUSION)
+        image = bench.box_down(renderer.render(scene, pems, fs, bench.CAMERA).image, s)
+    finally:
+        scene.release()
+        pems.release()
+    a, b = (bench._reference(mesh, mat, make(128), size, 64, seed, False) for seed in (1, 2))
+    nv = bench.sphere_n_dot_v(size)
+    mask = (a[..., 3] > 0.5) & np.isfinite(nv)
+    assert abs(bench.energy(image, 0.5 * (a + b), mask)) < bench.ENERGY_TOLERANCE + bench.energy_noise(a, b, mask)
+
+
+def test_the_box_filter_keeps_the_background_out_of_the_rim():
+    image = np.zeros((4, 4, 4), np.float32)
+    image[..., :3] = 100.0                 # a bright background where the samples miss
+    image[:2, :, :3], image[:2, :, 3] = 2.0, 1.0
+    down = bench.box_down(image, 2)
+    assert np.allclose(down[0, :, :3], 2.0) and np.allclose(down[0, :, 3], 1.0)
+    assert np.allclose(down[1], 0.0)
