@@ -72,11 +72,27 @@ def _common_help_only(p: argparse.ArgumentParser) -> None:
         group.description = None
 
 
+def _option_flag(group, name: str, **kw) -> None:
+    """The flag of an option no preset chooses (config.OPTIONS): its choices or range, doc and default."""
+    opt = config.OPTION[name]
+    default = kw.get("default", opt.default)
+    typ = float if opt.type is float else str
+
+    def parse(text: str):
+        try:
+            return opt.check(typ(text))
+        except (ValueError, InvalidInputError) as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    group.add_argument("--" + name.replace("_", "-"), type=parse if opt.choices is None else str, choices=opt.choices,
+                       default=default, help=f"{opt.doc}; {opt.limits()} (default: {opt.default})")
+
+
 def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     """Scene, quality and output flags shared by `render` and the commands built on it."""
     g = p.add_argument_group("scene")
     g.add_argument("--env", type=Path, help="environment map (.exr or .hdr); default: bundled procedural studio")
-    g.add_argument("--layout", default="auto", choices=["auto", "latlong", "angular", "hcross", "vcross"])
+    _option_flag(g, "layout")
     g.add_argument("--repair", action="store_true", help="replace NaN/Inf/negative texels instead of failing")
     g.add_argument("--mesh", type=Path, action="append", default=[],
                    help="mesh file (PLY/OBJ/GLB); the first is the garment, others (e.g. the body) follow; "
@@ -116,13 +132,10 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
             q.add_argument(flag, action=argparse.BooleanOptionalAction, help=text)
         else:
             q.add_argument(flag, type=st.type if st.choices is None else str, choices=st.choices, help=text)
-    q.add_argument("--filter", choices=["none", "box", "gauss", "cosine", "sqrt-cosine"],
-                   help="PEM MIP filter (default: the budget's measured setting, else sqrt-cosine)")
+    _option_flag(q, "filter", default=None)   # None: a budget's measured filter, else the registry's
     q.add_argument("--levels", type=int, help="MIP levels to build (default: the full chain)")
-    q.add_argument("--bleed-reduction", type=float, default=0.2)
-    q.add_argument("--mode", default="full", choices=["full", "none", "ao", "ao-color", "many-lights"],
-                   help="full method, no occlusion, grey AO, AO with colour (paper Fig. 6), or the plain "
-                        "many-light baseline (the N lights shade as well as shadow)")
+    _option_flag(q, "bleed_reduction")
+    _option_flag(q, "mode")
     for name, reason in RETIRED.items():
         flag = name.replace("_", "-")
         q.add_argument(f"--{flag}", f"--no-{flag}", action=_Retired, reason=reason, dest=f"retired_{name}")

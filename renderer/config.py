@@ -44,6 +44,7 @@ class Setting:
     minimum: float | None = None
     maximum: float | None = None
     above_minimum: bool = False      # minimum itself excluded
+    below_maximum: bool = False      # maximum itself excluded
     choices: tuple[str, ...] | None = None
     power_of_two: bool = False
     lights_rule: bool = False        # 6 * 2^k
@@ -63,7 +64,8 @@ class Setting:
         if self.lights_rule:
             return f"6 * 2^k, at most {MAX_LIGHTS}"
         lo = "(" if self.above_minimum else "["
-        span = f"{lo}{self.minimum:g}, {self.maximum:g}]"
+        hi = ")" if self.below_maximum else "]"
+        span = f"{lo}{self.minimum:g}, {self.maximum:g}{hi}"
         if self.type is int:
             return ("a power of two in " if self.power_of_two else "a whole number in ") + span
         return "a number in " + span
@@ -86,7 +88,8 @@ class Setting:
                 regions_per_face(int(value))
             except InvalidInputError:
                 raise bad from None
-        if value < self.minimum or value > self.maximum or (self.above_minimum and value == self.minimum):
+        if (value < self.minimum or value > self.maximum or (self.above_minimum and value == self.minimum)
+                or (self.below_maximum and value == self.maximum)):
             raise bad
         if self.power_of_two and int(value) & (int(value) - 1):
             raise bad
@@ -180,6 +183,55 @@ NAMES = tuple(BY_NAME)
 # The settings of the PEM set, not of the frame (the others are FrameSettings fields).
 PEM_SETTINGS = tuple(s.name for s in SETTINGS if s.invalidates == "pem set")
 FRAME_SETTINGS = tuple(n for n in NAMES if n not in PEM_SETTINGS)
+
+
+# Rules between settings, declared once. The sharp maps' side: shadow_size x small_light_scale stays
+# within MAX_SHADOW_SIDE; a frame refuses a pair over it (FrameSettings), and a preset's or budget's
+# scale yields to a shadow_size the caller names (presets.merge_knobs) where the caller named no scale.
+def shadow_side_error(shadow_size: int, small_light_scale: int) -> str | None:
+    """Why the pair is refused, or None."""
+    if int(shadow_size) * int(small_light_scale) > MAX_SHADOW_SIDE:
+        return (f"shadow_size x small_light_scale must be at most {MAX_SHADOW_SIDE}, got {shadow_size} x "
+                f"{small_light_scale}")
+    return None
+
+
+def fitted_small_light_scale(shadow_size: int, small_light_scale: int) -> int:
+    """The scale, or the largest that keeps the pair within the rule."""
+    if shadow_side_error(shadow_size, small_light_scale) is None:
+        return int(small_light_scale)
+    return max(1, MAX_SHADOW_SIDE // int(shadow_size))
+
+
+def most_sharp_lights(n_lights: int, small_light_scale: int, small_light_min_energy: float) -> int:
+    """How many of n lights may get sharp maps, whatever the map: every one that may be small when
+    every small light does (min energy 0), else the lights carrying at least that multiple of the mean
+    energy, at most n / min energy of them; none with scale 1 (the sharp maps are the main ones)."""
+    if small_light_scale == 1:
+        return 0
+    if small_light_min_energy <= 0:
+        return n_lights
+    return int(min(n_lights, n_lights / small_light_min_energy))   # min first: n / 1e-320 is inf
+
+
+# What a caller sets that no preset chooses: the PEMs' filter, the shading mode, the variance shadow
+# maps' light-bleeding reduction and a map's layout. Declared here once, as the settings are: the
+# command line's flags, the service's fields and enums, and the renderer's own enums (Filter,
+# ShadingMode, Layout: tests/test_config.py checks they hold these values) follow them.
+OPTIONS: tuple[Setting, ...] = (
+    Setting("filter", str, "sqrt-cosine", "the PEMs' MIP filter (Knuth et al., sec. 3.2; a budget's measured "
+            "filter where one is asked for)", "lights", "pem set",
+            choices=("none", "box", "gauss", "cosine", "sqrt-cosine")),
+    Setting("layout", str, "auto", "the environment map's layout (auto: from its aspect ratio)", "lights",
+            "pem set", choices=("auto", "latlong", "angular", "hcross", "vcross")),
+    Setting("bleed_reduction", float, 0.2, "variance shadow maps' light-bleeding reduction: the share of "
+            "Chebyshev's bound below which a point is in full shadow", "shadows", "frame", 0.0, 1.0,
+            below_maximum=True),
+    Setting("mode", str, "full", "the full method, no occlusion, grey AO, AO with colour (the paper's Fig. 6), or "
+            "the plain many-light baseline (the N lights shade as well as shadow)", "shading", "shader variant",
+            choices=("full", "none", "ao", "ao-color", "many-lights")),
+)
+OPTION = {o.name: o for o in OPTIONS}
 
 
 # Settings that went because they did not pay on the broad benchmark's held-out scenes

@@ -20,7 +20,7 @@ import numpy as np
 
 from . import config
 from .camera import Camera, bounds_sphere, default_camera
-from .config import MAX_LIGHTS, MAX_SHADOW_SIDE
+from .config import MAX_LIGHTS
 from .errors import InvalidInputError
 from .gpu import rawgl
 from .gpu.context import GLContext, StageTimer
@@ -102,7 +102,7 @@ class FrameSettings:
     # blocker's distance make it (shading/vsm.glsl, PENUMBRA_BLOCKER); "fixed": the paper's blur
     # (blur_scale) alone, as for every median-cut region.
     penumbra: str = balanced("penumbra")
-    bleed_reduction: float = 0.2
+    bleed_reduction: float = config.OPTION["bleed_reduction"].default
     # Shadow-map bias, in each map's own texels (main and sharp maps alike): the lookup pushed off the
     # surface along the normal, and the least deviation of the depths under a texel (Chebyshev's
     # variance floor). Chosen on the benchmark scenes (docs/sweep.md, the bias rows). Only
@@ -163,13 +163,11 @@ class FrameSettings:
     def __post_init__(self):
         if not (1 <= self.width <= 8192 and 1 <= self.height <= 8192):
             raise InvalidInputError(f"image size must be within 1..8192 per side, got {self.width}x{self.height}")
-        if not (0.0 <= self.bleed_reduction < 1.0):
-            raise InvalidInputError(f"bleed reduction must be in [0, 1), got {self.bleed_reduction}")
+        object.__setattr__(self, "bleed_reduction", config.OPTION["bleed_reduction"].check(self.bleed_reduction))
         for name in config.FRAME_SETTINGS:   # each setting against its declared limits (renderer/config.py)
             object.__setattr__(self, name, config.check(name, getattr(self, name)))
-        if self.shadow_size * self.small_light_scale > MAX_SHADOW_SIDE:
-            raise InvalidInputError(f"shadow_size x small_light_scale must be at most {MAX_SHADOW_SIDE}, got "
-                                    f"{self.shadow_size} x {self.small_light_scale}")
+        if (why := config.shadow_side_error(self.shadow_size, self.small_light_scale)) is not None:
+            raise InvalidInputError(why)
 
     def as_dict(self) -> dict:
         d = asdict(self)

@@ -16,28 +16,15 @@ Preset = Enum("Preset", {name.upper(): name for name in PRESET_NAMES}, type=str)
 Preset.__doc__ = "A quality preset (renderer/presets/*.toml)."
 
 
-class FilterName(str, Enum):
-    NONE = "none"
-    BOX = "box"
-    GAUSS = "gauss"
-    COSINE = "cosine"
-    SQRT_COSINE = "sqrt-cosine"
+def _option_enum(name: str, option: str) -> type[Enum]:
+    """The values of an option no preset chooses (renderer/config.py, OPTIONS), as the schema's enum."""
+    return Enum(name, {v.upper().replace("-", "_"): v for v in config.OPTION[option].choices}, type=str,
+                module=__name__)
 
 
-class LayoutName(str, Enum):
-    AUTO = "auto"
-    LATLONG = "latlong"
-    ANGULAR = "angular"
-    HCROSS = "hcross"
-    VCROSS = "vcross"
-
-
-class ModeName(str, Enum):
-    FULL = "full"
-    NONE = "none"
-    AO = "ao"
-    AO_COLOR = "ao-color"
-    MANY_LIGHTS = "many-lights"
+FilterName = _option_enum("FilterName", "filter")
+LayoutName = _option_enum("LayoutName", "layout")
+ModeName = _option_enum("ModeName", "mode")
 
 
 class ImageFormat(str, Enum):
@@ -109,10 +96,12 @@ class _QualityBase(_Strict):
     error_budget: float | None = Field(None, gt=0.0, description="instead of a preset: the fastest setting measured "
                                        "within this worst-scene rel. RMSE (with frame_budget_ms: the most accurate "
                                        "within both)")
-    filter: FilterName = FilterName.SQRT_COSINE
+    filter: FilterName = Field(FilterName(config.OPTION["filter"].default), description=config.OPTION["filter"].doc)
     levels: int | None = Field(None, ge=1, le=12, description="MIP levels built (default: the full chain)")
-    bleed_reduction: float = Field(0.2, ge=0.0, lt=1.0)
-    mode: ModeName = ModeName.FULL
+    bleed_reduction: float = Field(config.OPTION["bleed_reduction"].default, ge=config.OPTION["bleed_reduction"].minimum,
+                                   lt=config.OPTION["bleed_reduction"].maximum,
+                                   description=config.OPTION["bleed_reduction"].doc)
+    mode: ModeName = Field(ModeName(config.OPTION["mode"].default), description=config.OPTION["mode"].doc)
 
     @model_validator(mode="before")
     @classmethod

@@ -62,8 +62,7 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: di
     # (at most lights / small_light_min_energy of them carry that multiple of the mean): a request
     # that cannot fit is refused here with the numbers, not by the GL driver mid-frame.
     n = int(knobs["lights"])
-    n_sharp = n if frame.small_light_scale == 1 or frame.small_light_min_energy <= 0 else \
-        int(min(n, n / frame.small_light_min_energy))   # min first: n / 1e-320 is inf
+    n_sharp = config.most_sharp_lights(n, frame.small_light_scale, frame.small_light_min_energy)
     side = frame.shadow_size * frame.small_light_scale
     # Each map twice: its moments and the blur's scratch (shadows/vsm.py).
     worst = (n_sharp * side * side + (n - n_sharp) * frame.shadow_size ** 2) * 2 * MOMENT_BYTES

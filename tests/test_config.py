@@ -123,3 +123,50 @@ def test_one_rule_resolves_a_request_for_the_command_line_the_service_and_the_py
     assert resolve("fast", {"shadow_size": 64}).key("shadow maps") != keys["shadow maps"]
     with pytest.raises(TypeError):
         q.knobs["lights"] = 6   # frozen
+
+
+def test_the_options_no_preset_chooses_are_declared_once_and_read_by_every_side():
+    from renderer.envmap.layouts import Layout
+    from renderer.lighting.filters import Filter
+    from renderer.renderer import ShadingMode
+    from service.routes.environments import DEFAULT_FILTER, DEFAULT_LAYOUT
+    from service.schemas import FilterName, LayoutName, ModeName
+
+    opt = config.OPTION
+    # The renderer's own enums hold the registry's values (layout's "auto" is a choice, not a layout).
+    assert tuple(f.value for f in Filter) == opt["filter"].choices
+    assert tuple(m.value for m in ShadingMode) == opt["mode"].choices
+    assert ("auto",) + tuple(lay.value for lay in Layout) == opt["layout"].choices
+    # The service's enums and defaults, and the command line's choices and defaults.
+    for enum, name in ((FilterName, "filter"), (ModeName, "mode"), (LayoutName, "layout")):
+        assert tuple(e.value for e in enum) == opt[name].choices
+    assert (DEFAULT_FILTER.value, DEFAULT_LAYOUT.value) == (opt["filter"].default, opt["layout"].default)
+    fields = QualitySpec.model_fields
+    assert fields["bleed_reduction"].default == opt["bleed_reduction"].default == FrameSettings().bleed_reduction
+    assert fields["mode"].default.value == opt["mode"].default and PEMSettings().filter.value == opt["filter"].default
+    render = build_parser()._subparsers._group_actions[0].choices["render"]
+    actions = {a.dest: a for a in render._actions}
+    for name in ("filter", "mode", "layout"):
+        assert tuple(actions[name].choices) == opt[name].choices
+    assert actions["mode"].default == "full" and actions["layout"].default == "auto" and actions["filter"].default is None
+    # One check, the registry's: [0, 1) for the bleed reduction, in the frame and on the command line.
+    with pytest.raises(InvalidInputError, match=r"bleed_reduction must be a number in \[0, 1\)"):
+        FrameSettings(bleed_reduction=1.0)
+    assert render.parse_args(["--bleed-reduction", "0.5"]).bleed_reduction == 0.5
+    with pytest.raises(SystemExit):
+        render.parse_args(["--bleed-reduction", "1"])
+
+
+def test_the_rules_between_settings_are_declared_once_and_applied_both_ways():
+    side = config.MAX_SHADOW_SIDE
+    assert config.shadow_side_error(side // 4, 4) is None and "at most" in config.shadow_side_error(side // 2, 4)
+    assert config.fitted_small_light_scale(side // 2, 4) == 2 and config.fitted_small_light_scale(side, 8) == 1
+    # A preset's scale yields to the caller's shadow_size; a scale the caller names is refused by the frame.
+    knobs = presets.merge_knobs(preset("balanced"), {"shadow_size": side // 2})
+    assert knobs["small_light_scale"] == 2
+    knobs = presets.merge_knobs(preset("balanced"), {"shadow_size": side // 2, "small_light_scale": 4})
+    with pytest.raises(InvalidInputError, match="shadow_size x small_light_scale"):
+        presets.frame_settings(knobs, 64, 64)
+    # The most lights that may get sharp maps, which the service's memory bound counts.
+    assert config.most_sharp_lights(48, 1, 0.0) == 0 and config.most_sharp_lights(48, 2, 0.0) == 48
+    assert config.most_sharp_lights(48, 2, 2.4) == 20 and config.most_sharp_lights(48, 2, 1e-320) == 48

@@ -18,6 +18,7 @@ from functools import cache
 
 import numpy as np
 
+from .. import config
 from ..envmap.cube import face_uv_to_dir
 from ..errors import InvalidInputError
 from ..gpu.context import GLContext, StageTimer
@@ -137,7 +138,7 @@ class PEMSettings:
     default to the balanced preset's (renderer/presets/balanced.toml), as FrameSettings' do."""
 
     n_lights: int = balanced("lights")
-    filter: Filter = Filter.SQRT_COSINE
+    filter: Filter = Filter(config.OPTION["filter"].default)
     levels: int | None = None  # None: the full chain down to 1x1 faces
     # Finest level stored: the levels above it are computed on the way down but not kept, since no
     # lookup of the scene needs them (`finest_level_needed`). 0: the whole chain, mirror included.

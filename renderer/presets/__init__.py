@@ -30,15 +30,13 @@ def knob_defaults() -> dict:
 def merge_knobs(base: dict, explicit: dict) -> dict:
     """A preset's or budget's knobs (`base`) over the defaults, with the caller's explicit values
     (None: not given) over both: the one rule the command line, the service and the benchmark share."""
-    from ..config import MAX_SHADOW_SIDE
-
     knobs = {**knob_defaults(), **{k: v for k, v in base.items() if k in config.BY_NAME}}
     given = {k: v for k, v in explicit.items() if v is not None}
     knobs.update(given)
-    # A preset's small-light scale yields to an explicit large shadow map (the sharp maps stay within
-    # MAX_SHADOW_SIDE); a scale the caller names is kept, and FrameSettings refuses it if too large.
-    if "small_light_scale" not in given and int(knobs["shadow_size"]) * int(knobs["small_light_scale"]) > MAX_SHADOW_SIDE:
-        knobs["small_light_scale"] = max(1, MAX_SHADOW_SIDE // int(knobs["shadow_size"]))
+    # The registry's rule on the sharp maps' side: a scale the caller did not name yields to it; one
+    # they named is kept, and FrameSettings refuses it if the pair breaks the rule.
+    if "small_light_scale" not in given:
+        knobs["small_light_scale"] = config.fitted_small_light_scale(knobs["shadow_size"], knobs["small_light_scale"])
     return knobs
 
 
@@ -81,7 +79,7 @@ def base_knobs(preset: str, preset_knobs: dict, preset_source: str | None, frame
     return preset_knobs[preset], None, f"preset {preset}" + (f", {preset_source}" if preset_source else "")
 
 
-DEFAULT_FILTER = "sqrt-cosine"
+DEFAULT_FILTER = config.OPTION["filter"].default   # the registry's (renderer/config.py)
 
 
 @dataclass(frozen=True)
@@ -172,4 +170,10 @@ def reference_table() -> str:
     rows = [f"| `{s.name}` | {s.group} | {s.limits()} | {config._show(s.default)} | "
             + " | ".join(config._show(values[p][s.name]) for p in PRESET_NAMES) + f" | {s.invalidates} | {s.doc} |"
             for s in config.SETTINGS]
-    return "\n".join(head + rows) + "\n"
+    options = ["", "## Options no preset chooses", "",
+               "Declared in the same registry (`config.OPTIONS`): a `--flag` and a field of the service's `quality` "
+               "(`layout`: of an environment's upload) alike, the same for every preset.", "",
+               "| option | group | values | default | a change makes anew | what it does |", "|---|---|---|---|---|---|"]
+    options += [f"| `{o.name}` | {o.group} | {o.limits()} | {config._show(o.default)} | {o.invalidates} | {o.doc} |"
+                for o in config.OPTIONS]
+    return "\n".join(head + rows + options) + "\n"

@@ -17,6 +17,8 @@ from fastapi import APIRouter, Depends, Query, Request, Response, status
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
+from renderer import config
+
 from .. import operations
 from ..deps import OCTET_STREAM, EnvironmentsDep, ScenesDep, ServicesDep, raw_body, require_token
 from ..errors import NotFoundError
@@ -24,6 +26,10 @@ from ..operations import add_environment, ensure_pem_set, find_environment
 from ..previews import region_preview_png
 from ..registry import EnvironmentRecord, PemInfo
 from ..schemas import EnvironmentInfo, FilterName, LayoutName, LightInfo, PemSetInfo, Preset, QualitySpec
+
+# The registry's defaults (renderer/config.py, OPTIONS).
+DEFAULT_LAYOUT = LayoutName(config.OPTION["layout"].default)
+DEFAULT_FILTER = FilterName(config.OPTION["filter"].default)
 
 router = APIRouter(prefix="/environments", tags=["environments"], dependencies=[Depends(require_token)])
 
@@ -73,13 +79,13 @@ def environment_info(env: EnvironmentRecord, scene_ids: list[str], with_lights: 
              responses={200: {"description": "the same map was uploaded before: nothing rebuilt"}})
 async def upload_environment(
     request: Request, response: Response, svc: ServicesDep,
-    layout: LayoutName = LayoutName.AUTO,
+    layout: LayoutName = DEFAULT_LAYOUT,
     repair: Annotated[bool, Query(description="replace NaN/Inf/negative texels instead of refusing the map")] = False,
     name: Annotated[str | None, Query(max_length=200)] = None,
     preset: Preset | None = None,
     lights: Annotated[int | None, Query(ge=6, le=384, json_schema_extra=_enum_of("lights"))] = None,
     face_size: Annotated[int | None, Query(ge=4, le=2048, json_schema_extra=_enum_of("face_size"))] = None,
-    filter: FilterName = FilterName.SQRT_COSINE,
+    filter: FilterName = DEFAULT_FILTER,
     levels: Annotated[int | None, Query(ge=1, le=12)] = None,
 ) -> EnvironmentInfo:
     """The body is the file's bytes as they are (Content-Type application/octet-stream, image/x-exr or
