@@ -106,13 +106,23 @@ def test_the_reference_code_digest_follows_the_files_that_make_a_reference():
     assert root / "envmap" / "layouts.py" not in covered and root / "mesh.py" not in covered
 
 
+@needs_assets
+def test_the_cube_the_key_reads_is_the_cube_the_tracer_renders(tmp_path, monkeypatch):
+    monkeypatch.setenv("GARMENT_RENDER_CACHE_DIR", str(tmp_path))
+    name = catalogue.MAPS[0]
+    first = broad._reference_cube(name)       # made, and kept in the cache folder
+    again = broad._reference_cube(name)       # read back
+    assert np.array_equal(first, catalogue.environment_cube(name, catalogue.REFERENCE_FACE_SIZE))
+    assert np.array_equal(again, first)
+
+
 def test_a_references_inputs_are_keyed_by_what_the_tracer_reads(monkeypatch):
     from renderer.mesh import Mesh
 
     cube = np.ones((6, 4, 4, 3), np.float32)
     tri = Mesh.from_arrays(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32), np.array([[0, 1, 2]]))
     meshes = {"shirt": (tri, tri)}
-    monkeypatch.setattr(broad, "environment_cube", lambda name, face: cube)
+    monkeypatch.setattr(broad, "_reference_cube", lambda name: cube)
     monkeypatch.setattr(broad, "garment_meshes", lambda garment: meshes[garment])
     monkeypatch.setattr(catalogue, "garment_meshes", lambda garment: meshes[garment])
 

@@ -58,7 +58,6 @@ from .catalogue import (
     REFERENCE_FACE_SIZE,
     TARGETS,
     Scene,
-    environment_cube,
     garment_meshes,
     scenes,
     split,
@@ -100,9 +99,20 @@ def _arrays_digest(*arrays: np.ndarray | None) -> str:
     return h.hexdigest()
 
 
+def _reference_cube(map_name: str) -> np.ndarray:
+    """`environment_cube`'s cube of a map at the references' face size, kept in the user's cache folder
+    between runs (renderer/user_cache.py: the same array, its entry named by the resampling code)."""
+    from ..envmap import environment_from_array, read_hdr_image
+    from ..user_cache import user_cache_dir
+
+    path = shared_assets() / "hdri" / map_name
+    return environment_from_array(read_hdr_image(path), "auto", REFERENCE_FACE_SIZE, name=path.stem, repair=True,
+                                  cube_cache=user_cache_dir("cubes")).cube
+
+
 @cache
 def _cube_digest(map_name: str) -> str:
-    return _arrays_digest(environment_cube(map_name, REFERENCE_FACE_SIZE))
+    return _arrays_digest(_reference_cube(map_name))
 
 
 @cache
@@ -160,7 +170,7 @@ class ReferenceCache:
 
 def _reference_job(scene: Scene, spp: int, seed: int) -> tuple[np.ndarray, float]:
     """One reference render in a worker process: (image, wall seconds)."""
-    cube = environment_cube(scene.map, REFERENCE_FACE_SIZE)
+    cube = _reference_cube(scene.map)
     t0 = time.perf_counter()
     ref = render_reference(scene.meshes(), scene.materials(), cube, scene.camera(), scene.size, scene.size, spp,
                            seed=seed)
