@@ -282,6 +282,25 @@ class _LightPlan:
         return int((self.layers >= 0).sum())
 
 
+@dataclass
+class _FrameInputs:
+    """What every view of a frame shades with, the lighting pass's inputs beyond its view: the scene, its
+    PEM set and settings, the light plan, the shadow maps the shadow pass made (main and sharp arrays),
+    the lights' buffer, the render targets (output and G-buffer), the glossy discs per region and the
+    background."""
+
+    scene: Scene
+    pems: PEMSet
+    settings: FrameSettings
+    lp: _LightPlan
+    arrays: dict
+    lights_buf: moderngl.Buffer
+    fbo: object
+    gbuf: list
+    discs: int
+    background: BackgroundMap | None
+
+
 LIGHTING_PASSES = ("fragment", "compute")
 
 
@@ -603,6 +622,7 @@ class Renderer:
         shared_ms = (time.perf_counter() - t_frame) * 1e3
         report = self._frame_report(scene, pems, settings, lp, arrays, positions is not None,
                                     len(cameras) * len(variants))
+        inputs = _FrameInputs(scene, pems, settings, lp, arrays, lights_buf, fbo, gbuf, discs, background)
         frames = []
         for camera, view_proj, depth_vp in zip(cameras, view_projs, depth_vps):
             vp_bytes = view_proj.T.astype(np.float32).tobytes()
@@ -611,8 +631,7 @@ class Renderer:
                 t_view = time.perf_counter()
                 self._geometry_pass(scene, camera, depth_vp, gbuf_fbo, w, h, timer, variant)
                 oracle = self._oracle_texture(visibility, gbuf, lp.n, w, h) if visibility is not None else None
-                contact_radius = self._lighting_pass(scene, pems, settings, camera, view_proj, vp_bytes, lp, arrays,
-                                                     lights_buf, fbo, gbuf, discs, background, timer, oracle)
+                contact_radius = self._lighting_pass(inputs, camera, view_proj, vp_bytes, timer, oracle)
                 if oracle is not None:
                     oracle.release()
                 image = self._readback_image(fbo, w, h, timer)
@@ -806,13 +825,15 @@ class Renderer:
             t = self._still_target = _StillTarget(self.gl.ctx, w, h, pbr)
         return t
 
-    def _lighting_pass(self, scene: Scene, pems: PEMSet, settings: FrameSettings, camera: Camera,
-                       view_proj: np.ndarray, vp_bytes: bytes, lp: _LightPlan, arrays: dict[str, ShadowMaps],
-                       lights_buf: moderngl.Buffer, fbo, gbuf, discs: int, background: BackgroundMap | None,
+    def _lighting_pass(self, inputs: _FrameInputs, camera: Camera, view_proj: np.ndarray, vp_bytes: bytes,
                        timer: StageTimer, oracle: moderngl.TextureArray | None = None) -> float:
-        """The background, then per covered pixel c = sum_i VIS_i * PEM_i (lighting.frag). Returns the
-        contact search's distance in world units (0: none)."""
+        """One view's background, then per covered pixel c = sum_i VIS_i * PEM_i (lighting.frag), into
+        inputs.fbo. Binds what the light plan and the shadow pass made and dispatches; plans nothing.
+        Returns the contact search's distance in world units (0: none)."""
         gl, ctx = self.gl, self.gl.ctx
+        scene, pems, settings, lp, arrays = inputs.scene, inputs.pems, inputs.settings, inputs.lp, inputs.arrays
+        lights_buf, fbo, gbuf, discs, background = (inputs.lights_buf, inputs.fbo, inputs.gbuf, inputs.discs,
+                                                    inputs.background)
         w, h = settings.width, settings.height
         regions, n, plan, disc_radius, n_shadowed = lp.regions, lp.n, lp.plan, lp.disc_radius, lp.n_shadowed
         lights = lp.lights
