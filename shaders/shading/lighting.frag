@@ -12,7 +12,8 @@
 //
 // MODE (a #define, one program per mode: llvmpipe runs both sides of uniform branches under a mask,
 // so unused modes would cost time): MODE_FULL the full method, MODE_NO_OCCLUSION, MODE_AO_GREY,
-// MODE_AO_COLOUR and MODE_MANY_LIGHTS the baseline (renderer/gpu/contract.py names them all).
+// MODE_AO_COLOUR and MODE_MANY_LIGHTS the baseline (renderer/gpu/contract.py names them all). The
+// three research modes' code is in shading/research.glsl, compiled into their variants alone.
 //
 // Lights come in kinds, for the same reason: which of its PEMs a light reads (diffuse, glossy: a small
 // light's terms may be in closed form instead), which shadow-map array holds its map, and which PEM
@@ -103,7 +104,7 @@ float gloss_level(float g) {
 // Accumulators of main(), shared with add_light() (GLSL has no closures).
 ivec2 g_px = ivec2(0);                          // the pixel shaded
 vec3 g_to_eye = vec3(0.0, 0.0, 1.0);            // unit, from the pixel's surface point to the eye
-vec3 g_diffuse = vec3(0.0), g_ao_rgb = vec3(0.0), g_ao_norm = vec3(0.0);
+vec3 g_diffuse = vec3(0.0);
 // The pixel's lobes: axis, PEM level, 1 / exponent (the closed forms' width) and weight (rgb), set by
 // main() before the lights; their PEM terms and closed-form terms, summed over the lights.
 vec3 g_lobe_axis[N_LOBES];
@@ -121,6 +122,7 @@ vec3 g_glossy_exact[N_LOBES];
 #ifdef PBR
 #include "shading/lobes.glsl"
 #endif
+#include "shading/research.glsl"
 
 // Light i's glossy terms, its visibility `vis`: from its PEM lookups (pem_g, still divided by the
 // region's `scale`) or its disc in closed form, per lobe. A physically based pixel (g_clip_lobes): the
@@ -188,16 +190,8 @@ void add_light(int i, vec3 pem_d, vec3 pem_g[N_LOBES], vec3 n, vec3 ws_pos, bool
                    horizon_crossing(i, n) >= horizon_crossing(i, g_geometric_normal) ? n : g_geometric_normal);
     else
         add_glossy(i, pem_g, pem_glossy, vis * above, scale, small, n);
-#else
-    // Ambient-occlusion baselines (paper Fig. 6): unshadowed lighting times an occlusion factor
-    // that averages VIS_i with cosine weights, by solid angle (grey) or by energy (colour).
-    float vis = visibility(i, ws_pos, n, sharp);
-    float cosine = max(dot(n, lights[i].dir_scale.xyz), 0.0);
-    vec3 w = MODE == MODE_AO_GREY ? vec3(lights[i].params.z) : lights[i].energy.rgb;
-    g_ao_rgb += vis * cosine * w;
-    g_ao_norm += cosine * w;
-    g_diffuse += pem_d;
-    for (int k = 0; k < N_LOBES; ++k) g_glossy[k] += scale * pem_g[k];
+#elif MODE == MODE_AO_GREY || MODE == MODE_AO_COLOUR
+    add_light_ao(i, pem_d, pem_g, n, ws_pos, sharp, scale);   // research.glsl
 #endif
 }
 
@@ -291,20 +285,7 @@ void main() {
 #endif
 
 #if MODE == MODE_MANY_LIGHTS
-    {
-        // Baseline of the paper's introduction: the N lights used for shading as well as for
-        // shadows, each a directional light carrying its region's energy (no PEMs).
-        for (int i = 0; i < u_n_lights; ++i) {
-            vec3 l = lights[i].dir_scale.xyz;
-            vec3 e = (lights[i].shadow.y > 0.5 ? visibility(i, ws_position, n, true)
-                                               : visibility(i, ws_position, n, false)) * lights[i].energy.rgb;
-            g_diffuse += e * max(dot(n, l), 0.0) / PI;
-            for (int k = 0; k < N_LOBES; ++k) {
-                float s_phong = 1.0 / max(g_lobe_inv_s[k], 1e-4);   // Eq. 3, capped so g = 1 stays finite
-                g_glossy[k] += e * (s_phong + 1.0) / (2.0 * PI) * pow(max(dot(g_lobe_axis[k], l), 0.0), s_phong);
-            }
-        }
-    }
+    shade_many_lights(n, ws_position);   // research.glsl
 #else
     g_has_glossy = glossy;
     // One loop per kind of light (see the top): the constants fold the choices away. Only the kinds
@@ -338,11 +319,11 @@ void main() {
 #endif
     vec3 glossy_sum = vec3(0.0);
     for (int k = 0; k < N_LOBES; ++k) glossy_sum += g_lobe_weight[k] * g_glossy[k];
-    if (MODE == MODE_AO_GREY || MODE == MODE_AO_COLOUR) {
-        vec3 ao = g_ao_rgb / max(g_ao_norm, vec3(1e-30));
-        g_diffuse *= ao;
-        glossy_sum *= ao;
-    }
+#if MODE == MODE_AO_GREY || MODE == MODE_AO_COLOUR
+    vec3 ao = ambient_occlusion();   // research.glsl
+    g_diffuse *= ao;
+    glossy_sum *= ao;
+#endif
 #ifdef PBR
     glossy_sum += g_pbr_exact;
 #endif
