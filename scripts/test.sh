@@ -2,7 +2,8 @@
 # Sets everything up, then checks the code with ruff (pyproject.toml) and runs the test suite (extra
 # arguments go to pytest). With --system first: the system checks instead (tests marked `system`: a
 # Ray cluster's faults, fresh installs from the wheel, the images, the service fuzzed, the benchmarks
-# end to end), which take longer; CI runs both.
+# end to end), which take longer; CI runs both. A system test named on the command line runs with
+# --system only (the suite deselects them).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 selection="not system"

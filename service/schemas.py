@@ -16,6 +16,11 @@ Preset = Enum("Preset", {name.upper(): name for name in PRESET_NAMES}, type=str)
 Preset.__doc__ = "A quality preset (renderer/presets/*.toml)."
 
 
+def _range_bounds(st: config.Setting) -> dict:
+    """A numeric setting's range as pydantic's bounds, its ends excluded where the registry says so."""
+    return {"gt" if st.above_minimum else "ge": st.minimum, "lt" if st.below_maximum else "le": st.maximum}
+
+
 def _option_enum(name: str, option: str) -> type[Enum]:
     """The values of an option no preset chooses (renderer/config.py, OPTIONS), as the schema's enum."""
     return Enum(name, {v.upper().replace("-", "_"): v for v in config.OPTION[option].choices}, type=str,
@@ -98,8 +103,8 @@ class _QualityBase(_Strict):
                                        "within both)")
     filter: FilterName = Field(FilterName(config.OPTION["filter"].default), description=config.OPTION["filter"].doc)
     levels: int | None = Field(None, ge=1, le=12, description="MIP levels built (default: the full chain)")
-    bleed_reduction: float = Field(config.OPTION["bleed_reduction"].default, ge=config.OPTION["bleed_reduction"].minimum,
-                                   lt=config.OPTION["bleed_reduction"].maximum,
+    bleed_reduction: float = Field(config.OPTION["bleed_reduction"].default,
+                                   **_range_bounds(config.OPTION["bleed_reduction"]),
                                    description=config.OPTION["bleed_reduction"].doc)
     mode: ModeName = Field(ModeName(config.OPTION["mode"].default), description=config.OPTION["mode"].doc)
 

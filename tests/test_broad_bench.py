@@ -141,8 +141,11 @@ def test_a_references_inputs_are_keyed_by_what_the_tracer_reads(monkeypatch):
     assert digest(scene) != first
     cube[2, 1, 1] = 1.0
     assert digest(scene) == first
-    moved = Mesh.from_arrays(tri.positions * 2, tri.faces)                          # the garment's shape
-    meshes["shirt"] = (moved, tri)
+    moved = Mesh.from_arrays(tri.positions * 2, tri.faces)      # the body's shape (the camera frames the garment)
+    meshes["shirt"] = (tri, moved)
+    assert digest(scene) != first
+    monkeypatch.setattr(broad, "FALLBACK_NORMAL", (0.0, 0.0, 1.0))   # the tracer's normal for degenerate points
+    meshes["shirt"] = (tri, tri)
     assert digest(scene) != first
 
 

@@ -63,10 +63,10 @@ def test_the_report_names_every_row_outside_the_tolerance():
     assert "2 of 2 rows within 3 %" in bench.markdown(data)
 
 
-@pytest.mark.parametrize("material", ["r0.1 m1", "r0.1 m0"])
+@pytest.mark.parametrize("material", ["r0.1 m1"])
 def test_a_sharp_rim_highlight_is_measured_over_each_pixel_not_at_its_centre(renderer, material):
-    """(The dielectric's highlight is found by few of the reference's paths: its two seeds' energies
-    differ by more than the tolerance, which the check allows, as the bench does.)"""
+    """(The metal: the dielectric's highlight is found by so few of the reference's paths that its two
+    seeds' energies differ by ~15 % at this cost, more than the sampling error the check is about.)"""
     # Roughness 0.1 under the light behind: a crescent on the rim narrower than a pixel at 64 x 64, which
     # pixel centres catch or miss by its place (point sampled: -12.8 % at 64 x 64, +2.1 % at 128 x 128).
     # Both sides supersampled, as the bench measures, the energy is the material's.
@@ -92,6 +92,9 @@ def test_the_box_filter_keeps_the_background_out_of_the_rim():
     image = np.zeros((4, 4, 4), np.float32)
     image[..., :3] = 100.0                 # a bright background where the samples miss
     image[:2, :, :3], image[:2, :, 3] = 2.0, 1.0
+    image[2, 0, :3], image[2, 0, 3] = 4.0, 1.0   # one of a rim pixel's four samples hits the sphere
     down = bench.box_down(image, 2)
     assert np.allclose(down[0, :, :3], 2.0) and np.allclose(down[0, :, 3], 1.0)
-    assert np.allclose(down[1], 0.0)
+    # The rim pixel: its hit's radiance times its coverage (a quarter), none of the background's.
+    assert np.allclose(down[1, 0, :3], 1.0) and np.isclose(down[1, 0, 3], 0.25)
+    assert np.allclose(down[1, 1], 0.0)

@@ -253,3 +253,22 @@ def test_max_glossiness_of_materials():
     gm[1, 1] = (0.0, 0.95)
     assert Material(gloss_map=gm).max_glossiness() == 0.95     # texels are filtered: any g can meet specular
     assert Material(gloss_map=np.zeros((2, 2, 2))).max_glossiness() == 0.0
+
+
+def test_faces_beyond_the_judged_size_build_every_workgroup_the_same(renderer, monkeypatch):
+    # The reach table grows as the face's fourth power: faces over MAX_JUDGED_FACE are not judged (every
+    # workgroup live, through the shader's "-1: all live" entry), and build the same set.
+    from renderer.lighting import pem
+
+    labels = np.zeros((6, 2 * pem.MAX_JUDGED_FACE, 2 * pem.MAX_JUDGED_FACE), np.int32)
+    assert pem._live_tiles(labels, 1, 8) == {}
+    cube = sun_sky_cube(32, (1, 1, 1), sun_radiance=1e4)
+    judged = renderer.build_pems(cube, paper_pems(24))
+    monkeypatch.setattr(pem, "MAX_JUDGED_FACE", 16)
+    every = renderer.build_pems(cube, paper_pems(24))
+    try:
+        for level in range(every.levels):
+            assert np.array_equal(judged.read_level_raw(level), every.read_level_raw(level)), level
+    finally:
+        judged.release()
+        every.release()

@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_file
-from ..mesh import vertex_normals
+from ..mesh import FALLBACK_NORMAL, vertex_normals
 from ..presets import PRESET_NAMES as PRESETS  # every preset, paper's included (targets: TARGETS)
 from ..reference import artefact_share, mean_flip, relative_rmse, render_reference
 from ..shading.background import background_truth
@@ -123,10 +123,10 @@ def _garment_digest(garment: str) -> str:
 
 def reference_inputs_digest(scene: Scene) -> str:
     """What a reference of `scene` is made from, as data: the cube the tracer samples, the meshes and
-    their normals, the materials and the camera."""
+    their normals (and the normal it gives a point whose own is degenerate), the materials and the camera."""
     spec = {"cube": _cube_digest(scene.map), "meshes": _garment_digest(scene.garment),
-            "materials": [asdict(m) for m in scene.materials()], "camera": asdict(scene.camera()),
-            "size": scene.size}
+            "fallback_normal": list(FALLBACK_NORMAL), "materials": [asdict(m) for m in scene.materials()],
+            "camera": asdict(scene.camera()), "size": scene.size}
     return hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()
 
 

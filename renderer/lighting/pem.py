@@ -69,6 +69,10 @@ def _scratch_batch(n: int) -> tuple[int, int]:
 
 # The build's workgroups: 8 x 8 texels of one face of one region (shaders/pem/*.comp).
 TILE = 8
+# The largest face whose workgroups are judged (`_live_tiles`): the reach of a level's tiles is a
+# dense (6 t^2)^2 table, t = 8 tiles a face at a 128^2 level (256^2 faces: 2.4 M entries). Larger faces
+# build every workgroup, as before the judgement (a 1024^2 face's table would take GiBs).
+MAX_JUDGED_FACE = 256
 
 
 @cache
@@ -110,8 +114,10 @@ def _live_tiles(labels: np.ndarray, n_regions: int, levels: int) -> dict[int, tu
     the 2 x 2 reduction and of the filter that may see a texel of their region; every other one reads
     zeros only and writes zeros (the shaders skip its arithmetic, same result bit for bit). A region is
     one rectangle of one face (the median cut's) or a disc, so at the finer levels most of a region's
-    tiles are empty."""
+    tiles are empty. Faces larger than MAX_JUDGED_FACE: {} (every workgroup live)."""
     n = labels.shape[1]
+    if n > MAX_JUDGED_FACE:
+        return {}
     t0 = max(1, -(-n // TILE))
     rows = np.arange(n) // TILE
     tile_of = (np.arange(6)[:, None, None] * t0 + rows[None, :, None]) * t0 + rows[None, None, :]
@@ -329,10 +335,15 @@ class PEMSet:
                 texture_first = first - first % REGIONS_PER_TEXTURE
                 for name in ("level0", "filter"):
                     progs[name]["u_texture_first_region"].value = texture_first
-                # This batch's live workgroups, every level's reduction and filter in one buffer.
-                flags = [live[level][k][first:first + count].reshape(-1) for level in range(1, self.levels)
-                         for k in (0, 1)]
-                offsets = np.concatenate([[0], np.cumsum([len(f) for f in flags])])
+                # This batch's live workgroups, every judged level's reduction and filter in one buffer
+                # (a level not judged: first entry -1, every workgroup live).
+                flags, offsets, at = [], {}, 0
+                for level in range(1, self.levels):
+                    for k in (0, 1):
+                        offsets[level, k] = at if level in live else -1
+                        if level in live:
+                            flags.append(live[level][k][first:first + count].reshape(-1))
+                            at += flags[-1].size
                 tiles = ctx.buffer(np.concatenate(flags or [np.zeros(1, bool)]).astype(np.int32).tobytes())
                 buffers.append(tiles)
                 tiles.bind_to_storage_buffer(PEMBuffer.TILES)
@@ -345,7 +356,7 @@ class PEMSet:
                     size = n >> level
                     p = progs["down_env"] if level == 1 else progs["down"]
                     p["u_n"].value = size
-                    p["u_tiles_first"].value = int(offsets[2 * (level - 1)])
+                    p["u_tiles_first"].value = offsets[level, 0]
                     if "u_first_region" in p:
                         p["u_first_region"].value = first
                     ctx.memory_barrier()
@@ -356,7 +367,7 @@ class PEMSet:
                     texture.bind_image(Image.PEM_OUT, level - self.base_level if store else 0)
                     p = progs["filter"]
                     p["u_n"].value, p["u_first_region"].value = size, first
-                    p["u_tiles_first"].value = int(offsets[2 * (level - 1) + 1])
+                    p["u_tiles_first"].value = offsets[level, 1]
                     p["u_store"].value = store
                     p.run(*groups(size))
             ctx.memory_barrier()

@@ -1,6 +1,6 @@
-// The research modes, compiled only into their own variants (lighting.frag includes this file for
-// MODE_AO_GREY, MODE_AO_COLOUR and MODE_MANY_LIGHTS alone): the paper's Fig. 6 ambient-occlusion
-// baselines and the plain many-light baseline of its introduction. The production variants
+// The research modes: the paper's Fig. 6 ambient-occlusion baselines and the plain many-light
+// baseline of its introduction. lighting.frag includes this file in every variant, and its contents
+// are compiled only under MODE_AO_GREY, MODE_AO_COLOUR and MODE_MANY_LIGHTS: the production variants
 // (MODE_FULL, MODE_NO_OCCLUSION) hold none of it.
 
 #if MODE == MODE_AO_GREY || MODE == MODE_AO_COLOUR
