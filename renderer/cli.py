@@ -72,10 +72,11 @@ def _common_help_only(p: argparse.ArgumentParser) -> None:
         group.description = None
 
 
-def _option_flag(group, name: str, **kw) -> None:
-    """The flag of an option no preset chooses (config.OPTIONS): its choices or range, doc and default."""
+def _option_flag(group, name: str, registry_default: bool = True) -> None:
+    """The flag of an option no preset chooses (config.OPTIONS): its choices or range, doc and default
+    (registry_default False: None, for a caller that resolves it itself)."""
     opt = config.OPTION[name]
-    default = kw.get("default", opt.default)
+    default = opt.default if registry_default else None
     typ = float if opt.type is float else str
 
     def parse(text: str):
@@ -132,7 +133,7 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
             q.add_argument(flag, action=argparse.BooleanOptionalAction, help=text)
         else:
             q.add_argument(flag, type=st.type if st.choices is None else str, choices=st.choices, help=text)
-    _option_flag(q, "filter", default=None)   # None: a budget's measured filter, else the registry's
+    _option_flag(q, "filter", registry_default=False)   # None: a budget's measured filter, else the registry's
     q.add_argument("--levels", type=int, help="MIP levels to build (default: the full chain)")
     _option_flag(q, "bleed_reduction")
     _option_flag(q, "mode")

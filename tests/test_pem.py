@@ -123,13 +123,17 @@ def test_workgroups_out_of_a_regions_reach_skip_their_arithmetic_and_change_noth
     real = pem._live_tiles
     monkeypatch.setattr(pem, "_live_tiles", lambda labels, regions, levels: {
         level: (np.ones_like(r), np.ones_like(f)) for level, (r, f) in real(labels, regions, levels).items()})
-    every = renderer.build_pems(cube, paper_pems(n_lights))
+    _assert_the_same_set(skipped, renderer.build_pems(cube, paper_pems(n_lights)))
+
+
+def _assert_the_same_set(a, b) -> None:
+    """Both sets' every level equal bit for bit; both released."""
     try:
-        for level in range(every.levels):
-            assert np.array_equal(skipped.read_level_raw(level), every.read_level_raw(level)), level
+        for level in range(a.levels):
+            assert np.array_equal(a.read_level_raw(level), b.read_level_raw(level)), level
     finally:
-        skipped.release()
-        every.release()
+        a.release()
+        b.release()
 
 
 def test_the_reach_of_a_tile_holds_its_own_face_and_the_far_side_of_its_edges_only():
@@ -265,10 +269,4 @@ def test_faces_beyond_the_judged_size_build_every_workgroup_the_same(renderer, m
     cube = sun_sky_cube(32, (1, 1, 1), sun_radiance=1e4)
     judged = renderer.build_pems(cube, paper_pems(24))
     monkeypatch.setattr(pem, "MAX_JUDGED_FACE", 16)
-    every = renderer.build_pems(cube, paper_pems(24))
-    try:
-        for level in range(every.levels):
-            assert np.array_equal(judged.read_level_raw(level), every.read_level_raw(level)), level
-    finally:
-        judged.release()
-        every.release()
+    _assert_the_same_set(judged, renderer.build_pems(cube, paper_pems(24)))

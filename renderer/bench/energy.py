@@ -153,10 +153,10 @@ def run(out_dir: Path, quick: bool = False, size: int = 64, spp: int = 64, log=p
                         for mode, occlusion in ((ShadingMode.FULL, True), (ShadingMode.NO_OCCLUSION, False)):
                             t0 = time.perf_counter()
                             a, b = (_reference(mesh, material, ref_cube, size, spp, s, occlusion) for s in (1, 2))
-                            # The method at SUPERSAMPLE^2 samples a pixel, as the references.
                             truth = ReferencePair(a, b, 0.5 * (a + b), (0.5 * (a + b))[..., 3] > 0.5,
                                                   relative_rmse(a, b, (0.5 * (a + b))[..., 3] > 0.5) / 2.0,
                                                   time.perf_counter() - t0)
+                            # The method at SUPERSAMPLE^2 samples a pixel, as the references.
                             fs = frame_settings(knobs, size * SUPERSAMPLE, size * SUPERSAMPLE, mode=mode)
                             image = box_down(r.render(gs, pems, fs, CAMERA).image, SUPERSAMPLE)
                             mask = truth.mask & np.isfinite(nv)
