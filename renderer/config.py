@@ -3,14 +3,17 @@ what a change of it invalidates. The frame's checks (FrameSettings), the presets
 line's flags, the service's request model and the generated reference (docs/settings.md) all read
 this table; adding a setting touches it and the code that uses the setting.
 
-The presets (renderer/presets/*.toml) give every setting here a value, and FrameSettings() holds
-balanced's; `default` is the paper's choice (the PEM lookups for both terms, the plain median cut,
-one map size, full caster detail, no contact shadows; the bias, which the paper does not state, is
-the presets'): what tests of one mechanism hold still, and PEMSettings' own defaults.
+The presets (renderer/presets/*.toml) give every setting here a value; they are data, read where a
+request is resolved (renderer/presets), never a module's defaults. FrameSettings' and PEMSettings'
+quality fields are made from this table (`fields`): their names, types and defaults are these.
+`default` is the paper's choice (the PEM lookups for both terms, the plain median cut, one map size,
+full caster detail, no contact shadows; the bias, which the paper does not state, is the presets'):
+what FrameSettings() and PEMSettings() hold, and what tests of one mechanism hold still.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
 from dataclasses import dataclass
@@ -131,20 +134,36 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("blur_scale", float, 0.1, "scale of the paper's per-light shadow blur (0: hard shadows)", "shadows",
             "shadow maps", 0.0, 100.0,
             sweep=(0.0, 0.1, 0.25, 0.5, 1.0, 2.0)),
+    # blocker: each area light's penumbra (a main map's) as wide as its angular radius and the blocker's
+    # distance make it (shading/vsm.glsl, PENUMBRA_BLOCKER); fixed: the paper's blur alone, as for every
+    # median-cut region.
     Setting("penumbra", str, "fixed", "area lights' penumbrae: fixed (the paper's blur, blur_scale) or blocker (as "
             "wide as the light's angular size and the blocker's distance make them, percentage-closer soft shadows "
             "on the maps' MIP chains: sharp at contact, soft far from it)", "shadows", "shader variant",
             choices=("fixed", "blocker")),   # area lights only, whom the knob sweep's median cut has none of:
                                              # `garment-render bench --area` measures it
+    # The proxy: shadows/proxy.py. The shadow pass costs per triangle on a CPU rasterizer.
     Setting("caster_detail", float, 1.0, "share of the casters' triangles the main maps draw (a proxy over the same "
             "vertices; 1: the meshes themselves)", "shadows", "shadow maps", 0.0, 1.0, above_minimum=True,
             sweep=(1.0, 0.5, 0.25, 0.1)),
+    # The shadow maps' bias, in each map's own texels (main and sharp maps alike): the lookup pushed off
+    # the surface, and Chebyshev's variance floor. Chosen on the benchmark scenes (docs/sweep.md, the
+    # bias rows). Only against the receiver's own shadow group (renderer/scene.py): the other group's
+    # casters are compared without it.
     Setting("normal_offset_texels", float, 1.5, "shadow lookups pushed off the surface along the normal, in each "
             "map's texels", "shadows", "frame", 0.0, MAX_BIAS_TEXELS,
             sweep=(1.0, 3.3)),
     Setting("min_sigma_texels", float, 3.0, "least deviation of the depths under a texel, in that map's texels "
             "(keeps sloped surfaces from shadowing themselves)", "shadows", "frame", 0.0, MAX_BIAS_TEXELS,
             sweep=(0.0, 6.0)),
+    # The sharp maps: small lights' (angular radius <= ~6 degrees) in an array of their own, drawn at full
+    # caster detail; 1: the same maps as every other light. Only the small lights carrying at least
+    # small_light_min_energy x the mean light's energy get them (the others' edges, dim, cost more than
+    # they show: docs/sweep.md; relative to the mean, so that a sun split into more regions keeps its
+    # maps), and with sharp_large_lights the large lights that bright too (the sky beside a sun: their
+    # energy is more concentrated than their region). Sharp lights within sharp_share_deg of a brighter
+    # one whose disc theirs overlaps share its map, drawn along the group's energy-weighted direction;
+    # each keeps its own direction and energy for shading.
     Setting("small_light_scale", int, 1, "small lights (a sun, under ~6 degrees) get maps this many times "
             "shadow_size per side, drawn from the casters themselves", "shadows", "shadow maps", 1, 8,
             sweep=(1, 2, 4, {"small_light_scale": 2, "small_light_min_energy": 0.0})),
@@ -159,11 +178,20 @@ SETTINGS: tuple[Setting, ...] = (
             "shadow maps", 0.0, MAX_SHARP_SHARE_DEG,
             sweep=(0.0, 1.0, 4.0)),
     # Contact shadows.
+    # Full mode (shading/contact.glsl): along screen lines through the geometry pass's positions, those
+    # occluders the maps' bias skips (the collar over the neck) and the near ones a map drawn from a
+    # proxy blurs (a fold's lips). Chosen on the benchmark scenes (docs/sweep.md).
     Setting("contact_shadow_texels", float, 0.0, "occluders within this many main-map texels of a surface, which the "
             "maps' bias skips, found in the camera's view (0: off, the paper)", "contact", "shader variant", 0.0,
             MAX_CONTACT_TEXELS,
             sweep=(0.0, 8.0, 48.0)),
     # Shading.
+    # diffuse pem: PEM_i along the normal at the s = 1 level (the paper); lights: each region's energy
+    # times the clamped cosine over its disc, no diffuse lookups. glossy wide: small lights (angular
+    # radius <= ~6 degrees) from their disc through the Phong lobe in closed form, and the large lights
+    # too wherever the lobe is wider than their disc (1 / s >= a^2 / 4: there the PEM's coarse levels
+    # are the larger error; a narrow lobe reads the PEM's fine levels, which hold the region's detail).
+    # Every closed-form glossy term loses the part of its disc below the triangle's own plane.
     Setting("diffuse", str, "pem", "diffuse term from the PEMs along the normal (pem, the paper) or from each "
             "light's disc in closed form (lights)", "shading", "shader variant", choices=("pem", "lights"),
             sweep=("pem",)),
@@ -171,18 +199,32 @@ SETTINGS: tuple[Setting, ...] = (
             "small lights' from their disc through the Phong lobe, large lights' too where the lobe is wider than "
             "their disc", "shading", "shader variant", choices=("pem", "wide"),
             sweep=("pem",)),
+    # Each region's closed-form glossy term (glossy wide) over this many discs: its texels cut further by
+    # the same median cut (lighting/median_cut.py, SubLights), its visibility, diffuse term and PEMs
+    # still the region's. Chosen on the benchmark scenes (docs/sweep.md, the sub_lights rows).
     Setting("sub_lights", int, 1, "discs per region in the closed-form glossy term (1: the paper's one light)",
             "shading", "shader variant", 1, MAX_SUB_LIGHTS, power_of_two=True,
             sweep=(1, 4, 8)),
+    # Kautz and McCool's fit (lighting/material_lobes.py): GGX's lobes and, where the scene has sheen,
+    # sheen's.
     Setting("lobes", int, 2, "fitted lobes per layer of a physically based material (GGX, sheen): one PEM lookup "
             "per light each (Kautz and McCool's fit; Phong materials have one)", "shading", "shader variant", 1,
             2),   # not in the knob sweep, whose fabrics are Phong: `garment-render bench --materials` measures it
 )
 BY_NAME = {s.name: s for s in SETTINGS}
 NAMES = tuple(BY_NAME)
-# The settings of the PEM set, not of the frame (the others are FrameSettings fields).
+# The settings of the PEM set, not of the frame (the others are FrameSettings fields). PEMSettings
+# holds them but the face size, which is the cube's (the map's resampling chooses it).
 PEM_SETTINGS = tuple(s.name for s in SETTINGS if s.invalidates == "pem set")
+PEM_FIELDS = tuple(n for n in PEM_SETTINGS if n != "face_size")
 FRAME_SETTINGS = tuple(n for n in NAMES if n not in PEM_SETTINGS)
+
+
+def fields(names: tuple[str, ...]) -> list[tuple[str, type, dataclasses.Field]]:
+    """These settings as dataclass fields (dataclasses.make_dataclass): each its name, its declared
+    type and its default here. FrameSettings and PEMSettings are made of them, so a setting is
+    declared once."""
+    return [(n, BY_NAME[n].type, dataclasses.field(default=BY_NAME[n].default)) for n in names]
 
 
 # Rules between settings, declared once. The sharp maps' side: shadow_size x small_light_scale stays

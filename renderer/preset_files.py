@@ -1,6 +1,6 @@
 """The preset files (renderer/presets/*.toml), read and checked against the registry: what the
-presets are, never how a request resolves them (renderer/presets). A leaf below the renderer, whose
-Python API takes balanced's values for its defaults from here."""
+presets are, never how a request resolves them (renderer/presets). Data: no module takes its defaults
+from them (FrameSettings' and PEMSettings' are the registry's)."""
 
 from __future__ import annotations
 
@@ -59,11 +59,6 @@ def presets_digest(folder: Path | None = None) -> str:
         data = tomllib.loads(path.read_text())
         h.update(path.name.encode() + b"\0" + json.dumps(data, sort_keys=True).encode() + b"\0")
     return h.hexdigest()[:16]
-
-
-def balanced(name: str):
-    """A setting's default in the Python API (FrameSettings, PEMSettings): the balanced preset's."""
-    return _presets()["balanced"][name]
 
 
 def preset(name: str) -> dict:

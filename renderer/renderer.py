@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import KW_ONLY, asdict, dataclass, field, make_dataclass
 from enum import Enum
 from typing import TypedDict
 
@@ -36,9 +36,8 @@ from .gpu.contract import (
 )
 from .gpu.shaders import compute_shader, program, set_uniform
 from .lighting import material_lobes
-from .lighting.pem import REGIONS_PER_TEXTURE, SUB_LIGHT_BYTES, PEMSet, PEMSettings
+from .lighting.pem import PAPER_PEMS, REGIONS_PER_TEXTURE, SUB_LIGHT_BYTES, PEMSet, PEMSettings
 from .mesh import Mesh
-from .preset_files import balanced
 from .scene import Scene, snap_box
 from .shading.background import BackgroundMap
 from .shading.material import Material
@@ -89,76 +88,8 @@ CONTACT_SLICES, CONTACT_STEPS = 4, 8
 CONTACT_THICKNESS = 0.5
 
 
-@dataclass(frozen=True)
-class FrameSettings:
-    """Per-frame quality and output settings (the PEM set's own settings are in PEMSettings); the
-    quality settings default to the balanced preset's (renderer/presets/balanced.toml)."""
-
-    width: int = 512
-    height: int = 512
-    shadow_size: int = balanced("shadow_size")
-    blur_scale: float = balanced("blur_scale")  # the paper's per-light blur, its scale (0: hard shadows, every preset)
-    # "blocker": each area light's penumbra (a main map's) as wide as its angular radius and the
-    # blocker's distance make it (shading/vsm.glsl, PENUMBRA_BLOCKER); "fixed": the paper's blur
-    # (blur_scale) alone, as for every median-cut region.
-    penumbra: str = balanced("penumbra")
-    bleed_reduction: float = config.OPTION["bleed_reduction"].default
-    # Shadow-map bias, in each map's own texels (main and sharp maps alike): the lookup pushed off the
-    # surface along the normal, and the least deviation of the depths under a texel (Chebyshev's
-    # variance floor). Chosen on the benchmark scenes (docs/sweep.md, the bias rows). Only
-    # against the receiver's own shadow group (renderer/scene.py): the other group's casters are
-    # compared without it.
-    normal_offset_texels: float = balanced("normal_offset_texels")
-    min_sigma_texels: float = balanced("min_sigma_texels")
-    # Contact shadows (full mode; lighting.frag): occluders within this many main-map texels of a
-    # surface, found in the geometry pass's positions along screen lines: those the maps' bias skips
-    # (the collar over the neck) and the near ones a 256^2 map drawn from a proxy blurs (a fold's
-    # lips). 0: off (the paper). Chosen on the benchmark scenes (docs/sweep.md).
-    contact_shadow_texels: float = balanced("contact_shadow_texels")
-    # Share of the casters' triangles the shadow pass draws (shadows/proxy.py; 1: the meshes
-    # themselves): the pass costs per triangle on a CPU rasterizer.
-    caster_detail: float = balanced("caster_detail")
-    # Small lights (a sun; angular radius <= ~6 degrees) get shadow maps k times shadow_size per side,
-    # in an array of their own, drawn at full caster detail: their shadows are sharp. 1: the same maps
-    # as every other light.
-    small_light_scale: int = balanced("small_light_scale")
-    # Of the small lights, only those carrying at least this many times the mean light's energy get
-    # the sharp maps; the others are shadowed like the large lights (their edges, dim, cost more than
-    # they show: docs/sweep.md). Relative to the mean, so that a sun split into more regions at
-    # more lights keeps its sharp maps. 0: every small light.
-    small_light_min_energy: float = balanced("small_light_min_energy")
-    # Large lights with at least small_light_min_energy x the mean energy get the sharp maps too (the
-    # bright sky beside a sun, an overcast sky's brightest patches: their energy is more concentrated
-    # than their region). Only with small_light_min_energy > 0.
-    sharp_large_lights: bool = balanced("sharp_large_lights")
-    # Sharp lights within this many degrees (at most MAX_SHARP_SHARE_DEG) of a brighter sharp light
-    # whose disc theirs overlaps share its map, drawn along the group's energy-weighted direction (a sun
-    # the median cut split into regions a degree apart; each keeps its own direction and energy for
-    # shading). 0: one map each.
-    sharp_share_deg: float = balanced("sharp_share_deg")
-    # Each region's glossy term in closed form (full and no-occlusion modes; glossy "wide";
-    # with "pem" no glossy term is in closed form and this does nothing) summed over this many discs:
-    # its texels cut further by the same median cut (lighting/median_cut.py, SubLights), its
-    # visibility, diffuse term and PEMs still the region's.
-    # 1: one disc per region (the paper's one light per region). A power of two, at most
-    # MAX_SUB_LIGHTS. Chosen on the benchmark scenes (docs/sweep.md, the sub_lights rows).
-    sub_lights: int = balanced("sub_lights")
-    # Where the diffuse term comes from: "pem" (the paper: PEM_i along the normal at the s = 1 level)
-    # or "lights" (each region's energy times the clamped cosine over its disc; no diffuse lookups).
-    diffuse: str = balanced("diffuse")
-    # Where the glossy term comes from: "pem" (the paper: PEM_i along the reflection vector at the level
-    # of g) or "wide" (small lights, angular radius <= ~6 degrees, from their disc through the Phong
-    # lobe in closed form, and the large lights too wherever the lobe is wider than their disc,
-    # 1 / s >= a^2 / 4: there the PEM's coarse MIP levels are the larger error; a narrow lobe reads the
-    # PEM's fine levels, which hold the region's detail). In every mode with closed-form terms, each
-    # light's glossy term loses the part of its disc below the triangle's own plane (lighting.frag).
-    glossy: str = balanced("glossy")
-    # Lobes per layer of a physically based material (Kautz and McCool's fit, renderer/lighting/
-    # material_lobes.py): GGX's and, where the scene has sheen, sheen's. Each lobe is one more PEM
-    # lookup per light. Phong materials have one lobe whatever this says.
-    lobes: int = balanced("lobes")
-    mode: ShadingMode = ShadingMode.FULL
-    background: Background = Background.ENVIRONMENT
+class _FrameChecks:
+    """FrameSettings' checks and record (its fields are made below)."""
 
     def __post_init__(self):
         if not (1 <= self.width <= 8192 and 1 <= self.height <= 8192):
@@ -173,6 +104,21 @@ class FrameSettings:
         d = asdict(self)
         d["mode"], d["background"] = self.mode.value, self.background.value
         return d
+
+
+# Per-frame quality and output settings (the PEM set's own settings are PEMSettings): the image's size,
+# every frame setting of the registry (renderer/config.py: each one's type, limits, default and what it
+# does), the options no preset chooses, and the shading mode and background. FrameSettings() holds the
+# registry's defaults, the paper's method; a preset's settings come from presets.frame_settings.
+FrameSettings = make_dataclass(
+    "FrameSettings",
+    [("width", int, field(default=512)), ("height", int, field(default=512)), ("_", KW_ONLY),   # the size by position
+     *config.fields(config.FRAME_SETTINGS),
+     ("bleed_reduction", float, field(default=config.OPTION["bleed_reduction"].default)),
+     ("mode", ShadingMode, field(default=ShadingMode.FULL)),
+     ("background", Background, field(default=Background.ENVIRONMENT))],
+    bases=(_FrameChecks,), frozen=True, namespace={"__module__": __name__})
+PAPER_FRAME = FrameSettings()   # render()'s default settings: the paper's method at 512 x 512
 
 
 class FrameTimings(TypedDict):
@@ -481,7 +427,7 @@ class Renderer:
         return self._uniform_block(MAX_LIGHTS * sub_lights * SUB_LIGHT_BYTES)
 
     # -- resources --------------------------------------------------------------------------
-    def build_pems(self, cube: np.ndarray, settings: PEMSettings = PEMSettings(),
+    def build_pems(self, cube: np.ndarray, settings: PEMSettings = PAPER_PEMS,
                    timer: StageTimer | None = None) -> PEMSet:
         """Build the PEM set of a cube map (6, F, F, 3); the caller owns it (cache it per map)."""
         return PEMSet(self.gl, cube, settings, timer)
@@ -550,7 +496,7 @@ class Renderer:
         self.gl.check_thread()
         return BackgroundMap(self.gl, source)
 
-    def render(self, scene: Scene, pems: PEMSet, settings: FrameSettings = FrameSettings(),
+    def render(self, scene: Scene, pems: PEMSet, settings: FrameSettings = PAPER_FRAME,
                camera: Camera | None = None, positions: list[np.ndarray | None] | None = None,
                normals: list[np.ndarray | None] | None = None, background: BackgroundMap | None = None,
                visibility: VisibilityOracle | None = None) -> Frame:
@@ -560,7 +506,7 @@ class Renderer:
         return self.render_views(scene, pems, settings, [camera], positions, normals, background,
                                  visibility=visibility)[0]
 
-    def render_views(self, scene: Scene, pems: PEMSet, settings: FrameSettings = FrameSettings(),
+    def render_views(self, scene: Scene, pems: PEMSet, settings: FrameSettings = PAPER_FRAME,
                      cameras: list[Camera | None] = (None,), positions: list[np.ndarray | None] | None = None,
                      normals: list[np.ndarray | None] | None = None, background: BackgroundMap | None = None,
                      variants: list[int] = (0,), visibility: VisibilityOracle | None = None) -> list[Frame]:

@@ -127,7 +127,7 @@ async def ensure_pem_set(worker: RenderWorker, env: EnvironmentRecord, face_size
         pems, source = gl.pem_set(env.content_hash, cube, pem_settings)
         env.note_pem_set(key, face_size, pem_settings, pems, source)
 
-    await worker.call(job, what=f"the PEM set of {env.id} at {face_size}^2 x {pem_settings.n_lights} lights")
+    await worker.call(job, what=f"the PEM set of {env.id} at {face_size}^2 x {pem_settings.lights} lights")
     return env.pem_sets[key]
 
 

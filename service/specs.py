@@ -105,11 +105,11 @@ def check_pem_cost(face_size: int, pem: PEMSettings, settings: ServiceSettings) 
     if not over:
         return
     faces = [f for f in (face_size >> k for k in range(1, 12)) if f >= 4 and not _pem_over(f, pem, settings)]
-    counts = [n for n in (pem.n_lights >> k for k in range(1, 8)) if n >= 6 and n % 6 == 0
-              and not _pem_over(face_size, replace(pem, n_lights=n), settings)]
+    counts = [n for n in (pem.lights >> k for k in range(1, 8)) if n >= 6 and n % 6 == 0
+              and not _pem_over(face_size, replace(pem, lights=n), settings)]
     fits = [f"face_size {faces[0]}" for f in faces[:1]] + [f"lights {counts[0]}" for f in counts[:1]]
     raise InvalidRequestError(
-        f"the PEM set of face_size {face_size} with {pem.n_lights} lights is refused before it is built: "
+        f"the PEM set of face_size {face_size} with {pem.lights} lights is refused before it is built: "
         + "; ".join(over) + (f". What would fit: {' or '.join(fits)}" if fits else "")
         + " (or raise the limit)")
 

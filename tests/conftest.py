@@ -72,23 +72,23 @@ def sun_sky_cube(face_size: int, sun_dir, sun_radiance: float = 2000.0, sun_radi
 CAM = Camera((0.0, 0.3, 3.0), (0.0, 0.0, 0.0), fov_y_deg=30.0)
 
 
-def paper(*size, **settings):
-    """FrameSettings with the paper's choices (renderer/config.py's defaults: the PEM lookups, full
-    caster detail, one map size, one disc a region) under `settings`: what the tests of one mechanism
-    hold still, where FrameSettings() itself is the balanced preset."""
+def balanced(width=512, height=512, **settings):
+    """The balanced preset's FrameSettings (presets.resolve, as a request resolves it) with `settings`
+    over it (quality settings and output options alike): what tests of the product's path render,
+    where FrameSettings() is the paper's method."""
     from renderer import config
-    from renderer.renderer import FrameSettings
+    from renderer.presets import resolve
 
-    base = {name: config.BY_NAME[name].default for name in config.FRAME_SETTINGS}
-    return FrameSettings(*size, **{**base, **settings})
+    quality = {k: v for k, v in settings.items() if k in config.BY_NAME}
+    output = {k: v for k, v in settings.items() if k not in quality}
+    return resolve("balanced", quality).frame(width, height, **output)
 
 
-def paper_pems(*args, **settings):
-    """PEMSettings with the paper's plain median cut (no source kept whole, no area lights) under
-    `settings`, as `paper()` is for FrameSettings; PEMSettings() itself is the balanced preset's."""
-    from renderer.lighting.pem import PEMSettings
+def balanced_pems(**settings):
+    """The balanced preset's PEMSettings with the quality `settings` over it (the whole chain)."""
+    from renderer.presets import resolve
 
-    return PEMSettings(*args, **{"whole_sources": False, "lights_from": "median-cut", **settings})
+    return resolve("balanced", settings).pems(None)
 
 
 def sphere(radius=0.5, *, centre=(0, 0, 0), subdivisions=4) -> Mesh:

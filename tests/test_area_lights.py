@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import sun_sky_cube
+from conftest import balanced, balanced_pems, sun_sky_cube
 
 from renderer.envmap.cube import cube_solid_angles, texel_directions
 from renderer.lighting.area_lights import INNER_RATIO, decompose, outer_radii
@@ -114,7 +114,7 @@ def test_an_area_pem_set_has_a_region_per_light_and_keeps_the_energy(renderer):
     from renderer.lighting.pem import PEMSet, PEMSettings
 
     cube, energies = _discs(DISCS[:2], n=64, background=0.2)
-    settings = PEMSettings(n_lights=24, lights_from="area")
+    settings = balanced_pems(lights=24, lights_from="area")
     pems = renderer.build_pems(cube.astype(np.float32), settings)
     try:
         regions = pems.regions
@@ -146,9 +146,7 @@ def test_a_frame_lit_by_area_lights_matches_the_reference(renderer):
     (the reference's noise floor 0.07)."""
     from conftest import CAM, sphere
 
-    from renderer.lighting.pem import PEMSettings
     from renderer.reference import relative_rmse, render_reference
-    from renderer.renderer import FrameSettings
     from renderer.shading.material import Material
 
     cube, _ = _discs([((1, 1, 1), 8.0, 40.0), ((-1, 0.6, 0.3), 12.0, 10.0)], n=64, background=0.1)
@@ -158,10 +156,10 @@ def test_a_frame_lit_by_area_lights_matches_the_reference(renderer):
     ref = render_reference([sphere(), floor], [material, Material((0.5, 0.5, 0.5))], cube, CAM, 48, 48, spp=64)
     errors = {}
     for lights_from in ("median-cut", "area"):
-        pems = renderer.build_pems(cube, PEMSettings(n_lights=24, lights_from=lights_from))
+        pems = renderer.build_pems(cube, balanced_pems(lights=24, lights_from=lights_from))
         scene = renderer.create_scene([sphere(), floor], [material, Material((0.5, 0.5, 0.5))])
         try:
-            frame = renderer.render(scene, pems, FrameSettings(48, 48), CAM)
+            frame = renderer.render(scene, pems, balanced(48, 48), CAM)
             assert frame.settings["pems"]["lights_from"] == lights_from
             errors[lights_from] = relative_rmse(frame.image, ref.image)
         finally:

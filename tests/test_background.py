@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import HDRI, paper_pems, sphere
+from conftest import HDRI, sphere
 
 from renderer.camera import Camera
 from renderer.envmap import environment_from_array, read_hdr_image
 from renderer.errors import InvalidInputError
+from renderer.lighting.pem import PEMSettings
 from renderer.reference import relative_rmse
 from renderer.renderer import FrameSettings
 from renderer.shading.background import (
@@ -42,7 +43,7 @@ def _errors(renderer, img, pem_face=64, camera=CAM):
     coarse = environment_from_array(img, "latlong", pem_face, name="coarse")
     fine = environment_from_array(img, "latlong", background_face_size(img.shape, "latlong"), name="fine")
     scene = renderer.create_scene([sphere(0.01, centre=(5.0, 5.0, 5.0), subdivisions=1)])
-    pems = renderer.build_pems(coarse.cube, paper_pems(6))
+    pems = renderer.build_pems(coarse.cube, PEMSettings(6))
     images = [None]
     try:
         fs = FrameSettings(SIZE, SIZE)

@@ -6,10 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-from conftest import paper, paper_pems, plane, sphere, sun_sky_cube
+from conftest import plane, sphere, sun_sky_cube
 
 from renderer.camera import Camera
 from renderer.errors import InvalidInputError
+from renderer.lighting.pem import PEMSettings
 from renderer.renderer import Background, FrameSettings
 from renderer.shading.material import Material
 from renderer.shadows.proxy import caster_proxy
@@ -49,10 +50,10 @@ def test_a_proxy_casts_the_full_meshs_shadow_and_follows_it(renderer):
     ball = sphere(0.4, centre=(0.0, 0.8, 0.0), subdivisions=4)
     scene = renderer.create_scene([ball, plane(6.0)], [Material((0.5, 0.5, 0.5)), Material((0.8, 0.8, 0.8))])
     cam = Camera((0.0, 4.0, 3.0), (0.0, 0.0, 0.0), fov_y_deg=50.0)
-    pems = renderer.build_pems(cube, paper_pems(24))
+    pems = renderer.build_pems(cube, PEMSettings(24))
     try:
         def frame(detail, positions=None):
-            fs = paper(96, 96, caster_detail=detail, background=Background.BLACK)
+            fs = FrameSettings(96, 96, caster_detail=detail, background=Background.BLACK)
             return renderer.render(scene, pems, fs, cam, positions=positions)
 
         full, coarse = frame(1.0), frame(0.25)
@@ -80,12 +81,12 @@ def test_proxies_made_in_advance_are_used_and_checked(renderer):
 
     ball = sphere(0.4, subdivisions=3)
     faces = caster_proxy(ball.positions, ball.faces, 0.5)
-    pems = renderer.build_pems(sun_sky_cube(16, (0, 1, 0)), paper_pems(6))
+    pems = renderer.build_pems(sun_sky_cube(16, (0, 1, 0)), PEMSettings(6))
     with pytest.raises(MeshError, match="caster proxy"):
         renderer.create_scene([ball], [Material()], proxies={0.5: [faces + len(ball.positions)]})
     scene = renderer.create_scene([ball], [Material()], proxies={0.5: [faces]})
     try:
-        f = renderer.render(scene, pems, paper(16, 16, caster_detail=0.5), Camera((0, 0, 3), (0, 0, 0)))
+        f = renderer.render(scene, pems, FrameSettings(16, 16, caster_detail=0.5), Camera((0, 0, 3), (0, 0, 0)))
         assert f.timings["shadow_triangles"] == f.timings["shadow_layers"] * len(faces) > 0
     finally:
         scene.release()

@@ -40,16 +40,29 @@ def test_every_setting_reaches_the_frame_or_the_pem_set_the_command_line_and_the
             assert config.check(k, v) == v
 
 
-def test_the_frame_and_the_pems_default_to_balanced_and_the_paper_preset_is_the_registrys_defaults():
-    f, pem, balanced = FrameSettings(), PEMSettings(), preset("balanced")
-    for name in config.FRAME_SETTINGS:
-        assert getattr(f, name) == balanced[name], name
-        config.check(name, config.BY_NAME[name].default)
-    assert (pem.n_lights, pem.whole_sources, pem.lights_from) == (balanced["lights"], balanced["whole_sources"],
-                                                       balanced["lights_from"]) == (24, True, "auto")
+def test_the_frame_and_the_pems_are_made_of_the_registry_and_hold_its_defaults_the_paper_preset():
+    f, pem = FrameSettings(), PEMSettings()
     paper = {name: config.BY_NAME[name].default for name in config.NAMES}
     assert paper == preset("paper")
+    for name in config.FRAME_SETTINGS:
+        assert getattr(f, name) == paper[name], name
+    for name in config.PEM_FIELDS:
+        assert getattr(pem, name) == paper[name], name
+    # Each setting is a field of one of the two, with its declared type; no quality field is declared apart.
+    frame_fields = {x.name: x.type for x in dataclasses.fields(FrameSettings)}
+    pem_fields = {x.name: x.type for x in dataclasses.fields(PEMSettings)}
+    for name in config.NAMES:
+        if name != "face_size":
+            assert (frame_fields | pem_fields)[name] is config.BY_NAME[name].type, name
+    assert set(frame_fields) - set(config.FRAME_SETTINGS) == {"width", "height", "bleed_reduction", "mode",
+                                                               "background"}
+    assert set(pem_fields) - set(config.PEM_FIELDS) == {"filter", "levels", "base_level"}
     assert (paper["diffuse"], paper["glossy"], paper["sub_lights"], paper["whole_sources"]) == ("pem", "pem", 1, False)
+    # The presets are data no module takes its defaults from: only renderer/presets reads the files.
+    import renderer
+    readers = sorted(str(p.relative_to(Path(renderer.__file__).parent)) for p in Path(renderer.__file__).parent.rglob("*.py")
+                     if "preset_files" in p.read_text() and p.name != "preset_files.py")
+    assert readers == ["presets/__init__.py"], readers
 
 
 @pytest.mark.parametrize("st", config.SETTINGS, ids=lambda s: s.name)

@@ -8,12 +8,13 @@ import dataclasses
 import numpy as np
 import pytest
 from conftest import CAM as FRONT
-from conftest import covered, paper, paper_pems, plane, sphere, sun_sky_cube
+from conftest import covered, plane, sphere, sun_sky_cube
 
 from renderer.camera import Camera
 from renderer.cli import build_parser, resolve_quality
 from renderer.config import MAX_CONTACT_TEXELS
 from renderer.errors import InvalidInputError
+from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
 from renderer.reference import render_reference
 from renderer.renderer import Background, FrameSettings
@@ -72,9 +73,9 @@ def test_contact_shadows_darken_what_the_maps_bias_skips(renderer, azimuth_deg, 
                         ground=(0, 0, 0))
     meshes, materials = [_floor_and_plate()], [Material((0.8, 0.8, 0.8))]
     scene = renderer.create_scene(meshes, materials)
-    pems = renderer.build_pems(cube, paper_pems(24))
+    pems = renderer.build_pems(cube, PEMSettings(24))
     try:
-        base = paper(width, height, shadow_size=64, diffuse="lights", background=Background.BLACK)
+        base = FrameSettings(width, height, shadow_size=64, diffuse="lights", background=Background.BLACK)
         off = renderer.render(scene, pems, dataclasses.replace(base, contact_shadow_texels=0.0), cam).image
         on = renderer.render(scene, pems, dataclasses.replace(base, contact_shadow_texels=RADIUS), cam).image
     finally:
@@ -107,11 +108,11 @@ def test_a_plate_of_its_own_shadows_the_floor_through_the_maps_alone(renderer, a
     cube = sun_sky_cube(64, _sun(azimuth_deg), sun_radiance=5e3, sun_radius_deg=2, sky=(0.02, 0.02, 0.02),
                         ground=(0, 0, 0))
     scene = renderer.create_scene([plane(2.0), _plate()], [Material((0.8, 0.8, 0.8)), Material((0.5, 0.5, 0.5))])
-    pems = renderer.build_pems(cube, paper_pems(24))
+    pems = renderer.build_pems(cube, PEMSettings(24))
     try:
         # 256^2 maps: a texel of 8 mm against the shadow's 25 mm across in the light's view (a 64^2
         # map's 3 cm texel cannot resolve it).
-        fs = paper(64, 64, shadow_size=256, diffuse="lights", contact_shadow_texels=0.0,
+        fs = FrameSettings(64, 64, shadow_size=256, diffuse="lights", contact_shadow_texels=0.0,
                            background=Background.BLACK)
         lum = renderer.render(scene, pems, fs, CAM).image[..., :3].mean(axis=-1)
     finally:
@@ -126,9 +127,9 @@ def test_a_plate_of_its_own_shadows_the_floor_through_the_maps_alone(renderer, a
 def test_a_convex_body_does_not_shadow_itself(renderer):
     cube = sun_sky_cube(32, (0.3, 0.2, 1.0), sun_radiance=1e3, sun_radius_deg=3)
     scene = renderer.create_scene([sphere(0.5, subdivisions=3)], [Material((0.7, 0.7, 0.7), 0.5, 0.6)])
-    pems = renderer.build_pems(cube, paper_pems(12))
+    pems = renderer.build_pems(cube, PEMSettings(12))
     try:
-        fs = paper(64, 64, shadow_size=64, background=Background.BLACK)
+        fs = FrameSettings(64, 64, shadow_size=64, background=Background.BLACK)
         off = renderer.render(scene, pems, dataclasses.replace(fs, contact_shadow_texels=0.0), FRONT)
         on = renderer.render(scene, pems, dataclasses.replace(fs, contact_shadow_texels=MAX_CONTACT_TEXELS), FRONT)
         assert covered(on).sum() > 100

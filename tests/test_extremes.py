@@ -2,23 +2,24 @@
 
 import numpy as np
 import pytest
-from conftest import paper, paper_pems, sun_sky_cube
+from conftest import sun_sky_cube
 
 from renderer.envmap import environment_from_array
 from renderer.errors import EnvironmentMapError, MeshError
+from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
 from renderer.procedural import ground_plane, uv_sphere
-from renderer.renderer import Background
+from renderer.renderer import Background, FrameSettings
 from renderer.shading.material import Material
 
-SMALL = paper(48, 48, shadow_size=64)
+SMALL = FrameSettings(48, 48, shadow_size=64)
 
 
 def _frame(renderer, meshes, cube, materials=None, settings=SMALL, n_lights=24, pem=None, camera=None):
     """One frame of a scene made for it: PEMs of `pem` (else n_lights with the defaults), `camera`
     (else the default framing)."""
     scene = renderer.create_scene(meshes, materials or [Material((0.8, 0.4, 0.3), 0.5, 0.8)] * len(meshes))
-    pems = renderer.build_pems(cube, pem or paper_pems(n_lights))
+    pems = renderer.build_pems(cube, pem or PEMSettings(n_lights))
     try:
         return renderer.render(scene, pems, settings, camera)
     finally:
@@ -41,7 +42,7 @@ def test_sun_far_beyond_half_float_range(renderer, source):
     for sun in (1e5, 1e6):
         cube = sun_sky_cube(32, (0.3, 1.0, 0.4), sun_radiance=sun, sun_radius_deg=3, sky=(0, 0, 0), ground=(0, 0, 0))
         assert cube.max() == sun
-        fs = paper(48, 48, shadow_size=64, background=Background.BLACK, diffuse=source[0], glossy=source[1])
+        fs = FrameSettings(48, 48, shadow_size=64, background=Background.BLACK, diffuse=source[0], glossy=source[1])
         frame = _frame(renderer, meshes, cube, settings=fs)
         images.append(_ok(frame)[..., :3])
     np.testing.assert_allclose(images[1], 10.0 * images[0], rtol=5e-3, atol=1e-3 * images[1].max())
@@ -56,15 +57,15 @@ def test_glossy_discs_at_the_extremes(renderer):
     images = []
     for sun in (1e5, 1e6):
         cube = sun_sky_cube(32, (0.3, 1.0, 0.4), sun_radiance=sun, sun_radius_deg=3, sky=(0, 0, 0), ground=(0, 0, 0))
-        frame = _frame(renderer, meshes, cube, settings=paper(48, 48, shadow_size=64, sub_lights=16, **wide))
+        frame = _frame(renderer, meshes, cube, settings=FrameSettings(48, 48, shadow_size=64, sub_lights=16, **wide))
         images.append(_ok(frame)[..., :3])
     np.testing.assert_allclose(images[1], 10.0 * images[0], rtol=5e-3, atol=1e-3 * images[1].max())
     black = _frame(renderer, meshes, np.zeros((6, 16, 16, 3), np.float32),
-                   settings=paper(48, 48, shadow_size=64, sub_lights=4, **wide))
+                   settings=FrameSettings(48, 48, shadow_size=64, sub_lights=4, **wide))
     assert _ok(black)[..., :3].max() == 0.0
     tiny = np.random.default_rng(3).random((6, 4, 4, 3)).astype(np.float32)
     one, sixteen = (_ok(_frame(renderer, meshes, tiny, n_lights=96,
-                               settings=paper(48, 48, shadow_size=64, sub_lights=k, **wide)))
+                               settings=FrameSettings(48, 48, shadow_size=64, sub_lights=k, **wide)))
                     for k in (1, 16))
     np.testing.assert_allclose(sixteen, one, rtol=1e-5, atol=1e-7)
 
@@ -139,7 +140,7 @@ def test_two_million_triangles(renderer):
     s = uv_sphere(0.5, 1000, 1000, (0, 0.6, 0))
     assert s.n_faces >= 1_990_000
     img = _ok(_frame(renderer, [s, ground_plane(3.0)], sun_sky_cube(16, (0.3, 1, 0.2)),
-                     settings=paper(64, 64, shadow_size=64), n_lights=6))
+                     settings=FrameSettings(64, 64, shadow_size=64), n_lights=6))
     assert (img[..., 3] > 0.5).sum() > 500
 
 
@@ -303,15 +304,15 @@ def test_shadow_maps_beyond_what_the_driver_allocates_are_refused_and_the_render
     size and the bytes; the renderer drops the arrays it had and renders the next frame."""
     from renderer.errors import InvalidInputError
 
-    pems = renderer.build_pems(sun_sky_cube(16, (0.3, 1.0, 0.2)), paper_pems(6))
+    pems = renderer.build_pems(sun_sky_cube(16, (0.3, 1.0, 0.2)), PEMSettings(6))
     scene = renderer.create_scene([uv_sphere(0.5, 12, 24), ground_plane(3.0)], [Material(), Material()])
     try:
-        before = renderer.render(scene, pems, paper(24, 24)).image
+        before = renderer.render(scene, pems, FrameSettings(24, 24)).image
         assert "main" in renderer._shadow_maps
         with pytest.raises(InvalidInputError, match=r"2048 shadow maps of 8192\^2 \(2097152 MiB"):
             renderer._shadow_maps_for("main", 8192, 2048, 2)
         assert "main" not in renderer._shadow_maps   # no released array left for the next frame
-        np.testing.assert_array_equal(renderer.render(scene, pems, paper(24, 24)).image, before)
+        np.testing.assert_array_equal(renderer.render(scene, pems, FrameSettings(24, 24)).image, before)
     finally:
         scene.release()
         pems.release()

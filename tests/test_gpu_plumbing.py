@@ -137,13 +137,12 @@ def test_missing_include_is_a_shader_error():
 
 
 def test_a_second_context_on_the_thread_does_not_steal_the_first(renderer):
-    from conftest import paper_pems
-
     from renderer.gpu.context import GLContext
+    from renderer.lighting.pem import PEMSettings
 
     other = GLContext()   # e.g. a CLI command run inside a process that already holds a renderer
     cube = np.ones((6, 8, 8, 3), np.float32)
-    pems = renderer.build_pems(cube, paper_pems(6))
+    pems = renderer.build_pems(cube, PEMSettings(6))
     try:
         level0 = pems.read_level(0).sum(axis=0)
         np.testing.assert_allclose(level0, 1.0, rtol=1e-3)

@@ -2,8 +2,9 @@
 per-light share of a disc above the triangle's plane, lighting.frag)."""
 
 import numpy as np
-from conftest import CAM, paper_pems, sphere, sun_sky_cube
+from conftest import CAM, sphere, sun_sky_cube
 
+from renderer.lighting.pem import PEMSettings
 from renderer.reference import relative_rmse, render_reference
 from renderer.renderer import FrameSettings
 from renderer.shading.material import Material
@@ -18,7 +19,7 @@ def test_a_glossy_sphere_loses_the_lobes_part_below_its_surface_as_the_reference
     ref = render_reference([sphere()], mats, cube, CAM, 48, 48, 64, seed=1).image
     mask = ref[..., 3] > 0.5
     scene = renderer.create_scene([sphere()], mats)
-    pems = renderer.build_pems(cube, paper_pems(48))
+    pems = renderer.build_pems(cube, PEMSettings(48))
     try:
         img = renderer.render(scene, pems, FrameSettings(48, 48), CAM).image
     finally:
@@ -38,7 +39,7 @@ def test_terminator_removes_a_sun_behind_the_surface(renderer):
     ref = render_reference(meshes, mats, cube, CAM, 64, 64, 128, seed=1).image
     mask = ref[..., 3] > 0.5
     scene = renderer.create_scene(meshes, mats)
-    pems = renderer.build_pems(cube, paper_pems(48))
+    pems = renderer.build_pems(cube, PEMSettings(48))
     try:
         img = renderer.render(scene, pems, FrameSettings(64, 64), CAM)
         err = relative_rmse(img.image, ref, mask)

@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
-from conftest import paper_pems
 
 from renderer.camera import Camera
 from renderer.errors import InvalidInputError, MeshError
+from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
 from renderer.renderer import Background, FrameSettings, ShadingMode
 from renderer.shading.material import Material
@@ -19,7 +19,7 @@ UNSHADOWED = FrameSettings(64, 64, mode=ShadingMode.NO_OCCLUSION, background=Bac
 
 @pytest.fixture(scope="module")
 def white_pems(renderer):
-    pems = renderer.build_pems(np.ones((6, 16, 16, 3), np.float32), paper_pems(6))
+    pems = renderer.build_pems(np.ones((6, 16, 16, 3), np.float32), PEMSettings(6))
     yield pems
     pems.release()
 
@@ -56,7 +56,7 @@ def test_gloss_map_changes_sheen_per_texel(renderer):
     from conftest import sun_sky_cube
 
     cube = sun_sky_cube(64, (0, 0, 1), sun_radiance=100.0, sun_radius_deg=10, sky=(0, 0, 0), ground=(0, 0, 0))
-    pems = renderer.build_pems(cube, paper_pems(6))
+    pems = renderer.build_pems(cube, PEMSettings(6))
     gm = np.zeros((4, 4, 2), np.float32)
     gm[..., 0] = 1.0
     gm[:, :2, 1] = 1.0   # left: mirror

@@ -3,13 +3,14 @@ the shadow maps (renderer/reference/visibility.py, Renderer.render(visibility=))
 
 import numpy as np
 import pytest
-from conftest import paper, paper_pems, plane, sphere, sun_sky_cube
+from conftest import plane, sphere, sun_sky_cube
 
 from renderer.camera import Camera
 from renderer.errors import InvalidInputError
+from renderer.lighting.pem import PEMSettings
 from renderer.reference import relative_rmse
 from renderer.reference.visibility import ExactVisibility
-from renderer.renderer import Background
+from renderer.renderer import Background, FrameSettings
 from renderer.shading.material import Material
 
 SUN = np.array([0.5, 1.0, 0.3]) / np.linalg.norm([0.5, 1.0, 0.3])
@@ -28,7 +29,7 @@ def sun_scene(renderer):
     cube = sun_sky_cube(64, SUN, sun_radiance=5e3, sun_radius_deg=2, sky=(0.1, 0.1, 0.1), ground=(0, 0, 0))
     meshes = [sphere(0.4, centre=(0.0, 0.8, 0.0)), plane(6.0)]
     scene = renderer.create_scene(meshes, [Material((0.5, 0.5, 0.5)), Material((0.8, 0.8, 0.8))])
-    pems = renderer.build_pems(cube, paper_pems(24))
+    pems = renderer.build_pems(cube, PEMSettings(24))
     yield meshes, cube, scene, pems
     pems.release()
     scene.release()
@@ -38,7 +39,7 @@ def test_exact_visibility_shades_as_the_shadow_maps_where_they_are_right(rendere
     """A sphere over a floor under a sun: the oracle's frame is the maps' frame up to the maps' own
     error, the sun's shadow dark under both, and the oracle sees the shadow where the maps do."""
     meshes, cube, scene, pems = sun_scene
-    fs = paper(96, 96, background=Background.BLACK, blur_scale=0.0)
+    fs = FrameSettings(96, 96, background=Background.BLACK, blur_scale=0.0)
     maps = renderer.render(scene, pems, fs, CAM).image
     oracle = Recording(meshes, cube, pems.regions, rays_per_light=16)
     exact = renderer.render(scene, pems, fs, CAM, visibility=oracle).image
@@ -59,10 +60,10 @@ def test_a_convex_object_alone_sees_every_light(renderer):
     cube = sun_sky_cube(32, SUN, sky=(0.3, 0.3, 0.3))
     meshes = [sphere(0.5)]
     scene = renderer.create_scene(meshes, [Material((0.5, 0.5, 0.5))])
-    pems = renderer.build_pems(cube, paper_pems(24))
+    pems = renderer.build_pems(cube, PEMSettings(24))
     try:
         oracle = Recording(meshes, cube, pems.regions, rays_per_light=8)
-        renderer.render(scene, pems, paper(48, 48), Camera((0.0, 0.3, 2.0), (0.0, 0.0, 0.0), fov_y_deg=40.0),
+        renderer.render(scene, pems, FrameSettings(48, 48), Camera((0.0, 0.3, 2.0), (0.0, 0.0, 0.0), fov_y_deg=40.0),
                         visibility=oracle)
     finally:
         pems.release()
@@ -74,7 +75,7 @@ def test_a_convex_object_alone_sees_every_light(renderer):
 def test_an_oracle_of_the_wrong_shape_is_refused(renderer, sun_scene):
     _, _, scene, pems = sun_scene
     with pytest.raises(InvalidInputError, match="shape"):
-        renderer.render(scene, pems, paper(32, 32), CAM, visibility=lambda p, g, c: np.ones((3, 32, 32)))
+        renderer.render(scene, pems, FrameSettings(32, 32), CAM, visibility=lambda p, g, c: np.ones((3, 32, 32)))
 
 
 def test_the_oracle_needs_the_regions_own_cube(sun_scene):

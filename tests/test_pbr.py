@@ -7,16 +7,15 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import CAM, covered, sphere, sun_sky_cube
+from conftest import CAM, balanced, balanced_pems, covered, sphere, sun_sky_cube
 
 from renderer.camera import Camera
 from renderer.errors import InvalidInputError
 from renderer.lighting import material_lobes
 from renderer.lighting.lobe_fit import fibonacci_sphere
-from renderer.lighting.pem import PEMSettings
 from renderer.reference import relative_rmse
 from renderer.reference.montecarlo import primary_rays, render_reference
-from renderer.renderer import FrameSettings, ShadingMode
+from renderer.renderer import ShadingMode
 from renderer.shading import brdf
 from renderer.shading.material import Material
 
@@ -95,10 +94,10 @@ def test_white_furnace_renders_the_directional_albedo(renderer, name, lobes):
     lights lose more at grazing views."""
     material = MATERIALS[name]
     L = 1.7
-    pems = renderer.build_pems(np.full((6, 32, 32, 3), L, np.float32), PEMSettings(n_lights=96))
+    pems = renderer.build_pems(np.full((6, 32, 32, 3), L, np.float32), balanced_pems(lights=96))
     scene = renderer.create_scene([sphere()], [material])
     try:
-        frame = renderer.render(scene, pems, FrameSettings(64, 64, mode=ShadingMode.NO_OCCLUSION, lobes=lobes), CAM)
+        frame = renderer.render(scene, pems, balanced(64, 64, mode=ShadingMode.NO_OCCLUSION, lobes=lobes), CAM)
     finally:
         scene.release()
         pems.release()
@@ -134,7 +133,7 @@ def test_white_furnace_of_the_reference(name):
 @pytest.fixture(scope="module")
 def sun(renderer):
     cube = sun_sky_cube(64, (1, 1, 0.5), sun_radiance=300.0, sun_radius_deg=4)
-    pems = renderer.build_pems(cube, PEMSettings())
+    pems = renderer.build_pems(cube, balanced_pems())
     yield cube, pems
     pems.release()
 
@@ -147,7 +146,7 @@ def test_reference_and_renderer_agree_on_a_sphere_under_a_sun(renderer, sun, nam
     material = MATERIALS[name]
     scene = renderer.create_scene([sphere()], [material])
     try:
-        frame = renderer.render(scene, pems, FrameSettings(64, 64), CAM)
+        frame = renderer.render(scene, pems, balanced(64, 64), CAM)
     finally:
         scene.release()
     ref = render_reference([sphere()], [material], cube, CAM, 64, 64, spp=64)
@@ -158,7 +157,7 @@ def test_reference_and_renderer_agree_on_a_sphere_under_a_sun(renderer, sun, nam
 def test_a_phong_mesh_renders_the_same_beside_a_pbr_one(renderer):
     """The PBR variants of both passes leave a Phong pixel as the Phong-only variants shade it."""
     cube = sun_sky_cube(32, (1, 1, 0.5), sun_radiance=300.0, sun_radius_deg=6)
-    pems = renderer.build_pems(cube, PEMSettings(n_lights=24))
+    pems = renderer.build_pems(cube, balanced_pems(lights=24))
     phong = Material((0.6, 0.5, 0.4), 0.5, 0.8)
     images = []
     try:
@@ -167,7 +166,7 @@ def test_a_phong_mesh_renders_the_same_beside_a_pbr_one(renderer):
             scene = renderer.create_scene(meshes, [phong] + extra)
             assert scene.has_pbr == bool(extra)
             try:
-                settings = FrameSettings(48, 48, mode=ShadingMode.NO_OCCLUSION)
+                settings = balanced(48, 48, mode=ShadingMode.NO_OCCLUSION)
                 images.append(renderer.render(scene, pems, settings, CAM).image)
             finally:
                 scene.release()
@@ -182,7 +181,7 @@ def test_more_lobes_cost_lookups_and_one_lobe_still_renders(renderer, sun):
     cube, pems = sun
     scene = renderer.create_scene([sphere()], [MATERIALS["satin"]])
     try:
-        one, two = (renderer.render(scene, pems, FrameSettings(32, 32, lobes=k), CAM).image for k in (1, 2))
+        one, two = (renderer.render(scene, pems, balanced(32, 32, lobes=k), CAM).image for k in (1, 2))
     finally:
         scene.release()
     px = one[..., 3] > 0.5
@@ -341,7 +340,7 @@ def _frame(renderer, pems, mesh, material, camera=CAM):
     """The renderer's 64 x 64 frame of one mesh."""
     scene = renderer.create_scene([mesh], [material])
     try:
-        return renderer.render(scene, pems, FrameSettings(64, 64), camera)
+        return renderer.render(scene, pems, balanced(64, 64), camera)
     finally:
         scene.release()
 
@@ -582,7 +581,7 @@ def test_a_normal_map_tilts_the_shading_normal_as_the_reference_does(renderer, s
         material = Material((0.6, 0.5, 0.4), normal_map=nm, **kw)
         scene = renderer.create_scene([mesh], [material])
         try:
-            images[name] = renderer.render(scene, pems, FrameSettings(64, 64), CAM).image
+            images[name] = renderer.render(scene, pems, balanced(64, 64), CAM).image
         finally:
             scene.release()
     mask = images["none"][..., 3] > 0.5

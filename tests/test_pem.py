@@ -2,10 +2,11 @@
 
 import numpy as np
 import pytest
-from conftest import paper_pems, sun_sky_cube
+from conftest import sun_sky_cube
 
 from renderer.errors import InvalidInputError
 from renderer.lighting.filters import Filter, taps_1d
+from renderer.lighting.pem import PEMSettings
 from renderer.lighting.pem_reference import pem_chain
 
 HALF_EPS = 2.0**-10  # relative precision of RGBA16F storage
@@ -22,7 +23,7 @@ def test_taps_are_normalized_and_symmetric(kind):
 def test_gpu_chain_matches_numpy_reference_per_region(renderer, kind):
     rng = np.random.default_rng(3)
     cube = (rng.random((6, 16, 16, 3)) ** 4 * 5).astype(np.float32)
-    pems = renderer.build_pems(cube, paper_pems(24, kind))
+    pems = renderer.build_pems(cube, PEMSettings(24, filter=kind))
     try:
         for region in (0, 7, 23):
             masked = np.where((pems.regions.labels == region)[..., None], cube, 0.0)
@@ -39,7 +40,7 @@ def test_gpu_chain_matches_numpy_reference_per_region(renderer, kind):
 @pytest.mark.parametrize("n_lights", [6, 48, 384])
 def test_pems_sum_to_the_filtered_full_map_at_every_level(renderer, n_lights):
     cube = sun_sky_cube(32, (1, 1, 0.3), sun_radiance=5e3)
-    pems = renderer.build_pems(cube, paper_pems(n_lights))
+    pems = renderer.build_pems(cube, PEMSettings(n_lights))
     try:
         ref = pem_chain(cube, Filter.SQRT_COSINE)
         for level in range(pems.levels):
@@ -54,7 +55,7 @@ def test_pems_sum_to_the_filtered_full_map_at_every_level(renderer, n_lights):
 def test_sun_beyond_half_float_range_stays_finite(renderer):
     # A 1e6 sun overflows RGBA16F (max 65504) unless regions are stored scaled.
     cube = sun_sky_cube(32, (0.2, 1, 0.1), sun_radiance=1e6, sun_radius_deg=2)
-    pems = renderer.build_pems(cube, paper_pems(48))
+    pems = renderer.build_pems(cube, PEMSettings(48))
     try:
         for level in range(pems.levels):
             data = pems.read_level_raw(level)
@@ -67,7 +68,7 @@ def test_sun_beyond_half_float_range_stays_finite(renderer):
 
 def test_memory_matches_the_paper_figure_8(renderer):
     # Paper Fig. 8: 48 PEMs of 128^2 faces, RGBA16F with MIP maps, take 48 MB.
-    pems = renderer.build_pems(np.ones((6, 128, 128, 3), np.float32), paper_pems(48))
+    pems = renderer.build_pems(np.ones((6, 128, 128, 3), np.float32), PEMSettings(48))
     try:
         pem_only = sum(t.nbytes for t in pems.textures)
         assert pem_only / 2**20 == pytest.approx(48.0, rel=0.01)
@@ -79,8 +80,8 @@ def test_memory_matches_the_paper_figure_8(renderer):
 
 def test_build_is_deterministic(renderer):
     cube = sun_sky_cube(16, (0, 1, 1))
-    a = renderer.build_pems(cube, paper_pems(12))
-    b = renderer.build_pems(cube, paper_pems(12))
+    a = renderer.build_pems(cube, PEMSettings(12))
+    b = renderer.build_pems(cube, PEMSettings(12))
     try:
         for level in range(a.levels):
             assert np.array_equal(a.read_level_raw(level), b.read_level_raw(level))
@@ -91,11 +92,11 @@ def test_build_is_deterministic(renderer):
 
 def test_exported_set_restores_bit_identical_without_rebuilding(renderer, tmp_path):
     cube = sun_sky_cube(16, (1, 1, 0), sun_radiance=1e5)
-    built = renderer.build_pems(cube, paper_pems(24))
+    built = renderer.build_pems(cube, PEMSettings(24))
     path = tmp_path / "pems.npz"
     np.savez(path, **built.export())
     with np.load(path) as stored:
-        restored = type(built)(renderer.gl, cube, paper_pems(24), stored=dict(stored))
+        restored = type(built)(renderer.gl, cube, PEMSettings(24), stored=dict(stored))
     try:
         for level in range(built.levels):
             assert np.array_equal(built.read_level_raw(level), restored.read_level_raw(level))
@@ -116,14 +117,14 @@ def test_workgroups_out_of_a_regions_reach_skip_their_arithmetic_and_change_noth
 
     cube = sun_sky_cube(face_size, (1, 1, 1), sun_radiance=1e4, sun_radius_deg=3) * np.float32(1.0)
     cube = cube + np.random.default_rng(5).random(cube.shape, np.float32) ** 8
-    skipped = renderer.build_pems(cube, paper_pems(n_lights))
+    skipped = renderer.build_pems(cube, PEMSettings(n_lights))
     live = pem._live_tiles(skipped.regions.labels, n_lights, skipped.levels)
     if face_size >= 64:
         assert 0.0 < np.mean(live[1][1]) < 0.3       # most of a region's finest filter is skipped
     real = pem._live_tiles
     monkeypatch.setattr(pem, "_live_tiles", lambda labels, regions, levels: {
         level: (np.ones_like(r), np.ones_like(f)) for level, (r, f) in real(labels, regions, levels).items()})
-    _assert_the_same_set(skipped, renderer.build_pems(cube, paper_pems(n_lights)))
+    _assert_the_same_set(skipped, renderer.build_pems(cube, PEMSettings(n_lights)))
 
 
 def _assert_the_same_set(a, b) -> None:
@@ -212,8 +213,8 @@ def test_a_set_with_a_base_level_stores_only_the_needed_levels_and_renders_the_s
     base = finest_level_needed(64, Filter.SQRT_COSINE, mats[0].max_glossiness())
     assert base >= 1
     scene = renderer.create_scene([sphere()], mats)
-    full = renderer.build_pems(cube, paper_pems(24))
-    part = renderer.build_pems(cube, paper_pems(24, base_level=base))
+    full = renderer.build_pems(cube, PEMSettings(24))
+    part = renderer.build_pems(cube, PEMSettings(24, base_level=base))
     try:
         assert part.nbytes < full.nbytes / 4 ** base * 1.4   # a 2^base smaller face, its chain below
         for level in range(base, full.levels):
@@ -226,7 +227,7 @@ def test_a_set_with_a_base_level_stores_only_the_needed_levels_and_renders_the_s
         stored = part.export()
         assert "level_0" not in stored and f"level_{base}" in stored
         from renderer.lighting.pem import PEMSet
-        restored = PEMSet(renderer.gl, cube, paper_pems(24, base_level=base), stored=stored)
+        restored = PEMSet(renderer.gl, cube, PEMSettings(24, base_level=base), stored=stored)
         try:
             for level in range(base, full.levels):
                 np.testing.assert_array_equal(restored.read_level_raw(level), part.read_level_raw(level))
@@ -242,7 +243,7 @@ def test_a_set_with_a_base_level_stores_only_the_needed_levels_and_renders_the_s
 def test_base_level_out_of_range_is_a_clear_error(renderer, base):
     cube = sun_sky_cube(16, (1, 1, 0.5))
     with pytest.raises(InvalidInputError, match="base level"):
-        renderer.build_pems(cube, paper_pems(6, base_level=base))
+        renderer.build_pems(cube, PEMSettings(6, base_level=base))
 
 
 def test_max_glossiness_of_materials():
@@ -267,6 +268,6 @@ def test_faces_beyond_the_judged_size_build_every_workgroup_the_same(renderer, m
     labels = np.zeros((6, 2 * pem.MAX_JUDGED_FACE, 2 * pem.MAX_JUDGED_FACE), np.int32)
     assert pem._live_tiles(labels, 1, 8) == {}
     cube = sun_sky_cube(32, (1, 1, 1), sun_radiance=1e4)
-    judged = renderer.build_pems(cube, paper_pems(24))
+    judged = renderer.build_pems(cube, PEMSettings(24))
     monkeypatch.setattr(pem, "MAX_JUDGED_FACE", 16)
-    _assert_the_same_set(judged, renderer.build_pems(cube, paper_pems(24)))
+    _assert_the_same_set(judged, renderer.build_pems(cube, PEMSettings(24)))

@@ -8,12 +8,11 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import plane, sphere
+from conftest import balanced, balanced_pems, plane, sphere
 
 from renderer.camera import Camera
 from renderer.envmap.cube import texel_directions
 from renderer.errors import InvalidInputError
-from renderer.lighting.pem import PEMSettings
 from renderer.reference import relative_rmse, render_reference
 from renderer.renderer import FrameSettings
 from renderer.shading.material import Material
@@ -37,14 +36,14 @@ def _errors(renderer, radius_deg: float, height: float) -> dict[str, float]:
     meshes = [sphere(0.35, centre=(0.0, 0.35 + height, 0.0)), plane(4.0, 0.0)]
     cube = _disc_cube(radius_deg)
     ref = render_reference(meshes, [GREY, GREY], cube, CAM, SIZE, SIZE, spp=64)
-    pems = renderer.build_pems(cube, PEMSettings(n_lights=24, lights_from="area"))
+    pems = renderer.build_pems(cube, balanced_pems(lights=24, lights_from="area"))
     scene = renderer.create_scene(meshes, [GREY, GREY])
     try:
         pieces = int(pems.regions.area_mask.sum())
         assert pieces > 1 if radius_deg > 15.0 else pieces == 1, pieces   # a wider light in pieces
         errors = {}
         for penumbra in ("fixed", "blocker"):
-            frame = renderer.render(scene, pems, FrameSettings(SIZE, SIZE, penumbra=penumbra), CAM)
+            frame = renderer.render(scene, pems, balanced(SIZE, SIZE, penumbra=penumbra), CAM)
             errors[penumbra] = relative_rmse(frame.image, ref.image)
             if penumbra == "blocker":
                 maps = renderer._shadow_maps["main"]

@@ -4,11 +4,12 @@ enough (a smooth map, no occlusion)."""
 
 import numpy as np
 import pytest
-from conftest import CAM, covered, paper, paper_pems, plane, sphere, sun_sky_cube
+from conftest import CAM, covered, plane, sphere, sun_sky_cube
 
 from renderer.camera import Camera
 from renderer.envmap.cube import cube_solid_angles, texel_directions
 from renderer.errors import InvalidInputError
+from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
 from renderer.reference import (
     EnvironmentSampler,
@@ -20,7 +21,7 @@ from renderer.reference import (
     relative_squared_errors,
     render_reference,
 )
-from renderer.renderer import ShadingMode
+from renderer.renderer import FrameSettings, ShadingMode
 from renderer.shading.material import Material
 
 WHITE_DIFFUSE = Material((1.0, 1.0, 1.0), 0.0, 0.5)
@@ -453,9 +454,9 @@ def test_gpu_renderer_without_occlusion_agrees_with_the_reference_on_a_smooth_sk
     cube = soft_sky_cube(32)
     material = Material((0.8, 0.7, 0.6), 0.0, 0.5)
     scene = renderer.create_scene([sphere()], [material])
-    pems = renderer.build_pems(cube, paper_pems(24))
+    pems = renderer.build_pems(cube, PEMSettings(24))
     try:
-        frame = renderer.render(scene, pems, paper(48, 48, mode=ShadingMode.NO_OCCLUSION), CAM)
+        frame = renderer.render(scene, pems, FrameSettings(48, 48, mode=ShadingMode.NO_OCCLUSION), CAM)
     finally:
         pems.release()
         scene.release()
@@ -476,9 +477,9 @@ def test_gpu_many_light_baseline_agrees_with_the_reference_under_a_sun(renderer)
     # (measured with NO_OCCLUSION: rel. RMSE 1.4 and 0.70x the mean; here 0.03 and 1.00x).
     cube = sun_only_cube(32, (1.0, 0.3, 0.4), radius_deg=6.0)
     scene = renderer.create_scene([sphere()], [WHITE_DIFFUSE])
-    pems = renderer.build_pems(cube, paper_pems(24))
+    pems = renderer.build_pems(cube, PEMSettings(24))
     try:
-        frame = renderer.render(scene, pems, paper(32, 32, mode=ShadingMode.MANY_LIGHTS), CAM)
+        frame = renderer.render(scene, pems, FrameSettings(32, 32, mode=ShadingMode.MANY_LIGHTS), CAM)
     finally:
         pems.release()
         scene.release()
@@ -498,10 +499,10 @@ def test_gpu_glossy_term_of_small_lights_in_closed_form_matches_the_reference(re
     cube = sun_only_cube(64, (1.0, 0.6, 0.8), radius_deg=3.0)
     material = Material((0.0, 0.0, 0.0), 1.0, 0.9)
     scene = renderer.create_scene([sphere()], [material])
-    pems = renderer.build_pems(cube, paper_pems(24))
+    pems = renderer.build_pems(cube, PEMSettings(24))
     try:
         small = int((np.sin(pems.regions.disc_radius_rad()) <= 0.1).sum())
-        frames = {g: renderer.render(scene, pems, paper(48, 48, mode=ShadingMode.NO_OCCLUSION, glossy=g), CAM)
+        frames = {g: renderer.render(scene, pems, FrameSettings(48, 48, mode=ShadingMode.NO_OCCLUSION, glossy=g), CAM)
                   for g in ("pem", "wide")}
     finally:
         pems.release()
@@ -522,12 +523,12 @@ def test_gpu_wide_lobes_of_large_lights_in_closed_form_match_the_reference_bette
     cube = soft_sky_cube(32)
     scene = renderer.create_scene([sphere()], [Material((0.0, 0.0, 0.0), 1.0, 0.6)])
     mirror = renderer.create_scene([sphere()], [Material((0.0, 0.0, 0.0), 1.0, 1.0)])
-    pems = renderer.build_pems(cube, paper_pems(24))
+    pems = renderer.build_pems(cube, PEMSettings(24))
     try:
         assert (np.sin(pems.regions.disc_radius_rad()) > 0.1).all()      # no small light
-        frames = {g: renderer.render(scene, pems, paper(48, 48, mode=ShadingMode.NO_OCCLUSION, glossy=g), CAM)
+        frames = {g: renderer.render(scene, pems, FrameSettings(48, 48, mode=ShadingMode.NO_OCCLUSION, glossy=g), CAM)
                   for g in ("pem", "wide")}
-        at_one = [renderer.render(mirror, pems, paper(32, 32, glossy=g), CAM).image for g in ("pem", "wide")]
+        at_one = [renderer.render(mirror, pems, FrameSettings(32, 32, glossy=g), CAM).image for g in ("pem", "wide")]
     finally:
         pems.release()
         scene.release()
@@ -559,10 +560,10 @@ def test_gpu_sub_lights_bring_the_glossy_term_closer_to_the_reference(renderer):
     frames = {}
     try:
         for n_lights in (6, 24):
-            pems = renderer.build_pems(cube, paper_pems(n_lights))
+            pems = renderer.build_pems(cube, PEMSettings(n_lights))
             try:
                 for k in (1, 4):
-                    settings = paper(48, 48, mode=ShadingMode.NO_OCCLUSION, glossy="wide", sub_lights=k)
+                    settings = FrameSettings(48, 48, mode=ShadingMode.NO_OCCLUSION, glossy="wide", sub_lights=k)
                     frames[n_lights, k] = renderer.render(scene, pems, settings, CAM).image
             finally:
                 pems.release()

@@ -5,10 +5,11 @@ import threading
 
 import numpy as np
 import pytest
-from conftest import CAM, covered, paper, paper_pems, plane, sphere, sun_sky_cube
+from conftest import CAM, covered, plane, sphere, sun_sky_cube
 
 from renderer.camera import Camera, bounds_sphere
 from renderer.errors import GLContextError, InvalidInputError
+from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
 from renderer.reference import relative_rmse
 from renderer.renderer import Background, FrameSettings, Renderer, ShadingMode, default_lighting_pass, default_normals
@@ -26,9 +27,9 @@ def sphere_scene(renderer):
 def test_furnace_white_diffuse_sphere_renders_the_environment_radiance(renderer, sphere_scene, mode):
     # A convex white diffuse object in a uniform environment of radiance L reflects exactly L.
     L = 2.5
-    pems = renderer.build_pems(np.full((6, 32, 32, 3), L, np.float32), paper_pems(48))
+    pems = renderer.build_pems(np.full((6, 32, 32, 3), L, np.float32), PEMSettings(48))
     try:
-        frame = renderer.render(sphere_scene, pems, paper(96, 96, mode=mode), CAM)
+        frame = renderer.render(sphere_scene, pems, FrameSettings(96, 96, mode=mode), CAM)
     finally:
         pems.release()
     px = frame.image[covered(frame)][:, :3]
@@ -46,9 +47,9 @@ def test_furnace_white_diffuse_sphere_renders_the_environment_radiance(renderer,
 
 def test_furnace_glossy_lobe_conserves_energy(renderer, sphere_scene):
     scene = renderer.create_scene([sphere()], [Material((0, 0, 0), 1.0, 0.7)])
-    pems = renderer.build_pems(np.full((6, 32, 32, 3), 1.0, np.float32), paper_pems(24))
+    pems = renderer.build_pems(np.full((6, 32, 32, 3), 1.0, np.float32), PEMSettings(24))
     try:
-        frame = renderer.render(scene, pems, paper(64, 64, mode=ShadingMode.NO_OCCLUSION), CAM)
+        frame = renderer.render(scene, pems, FrameSettings(64, 64, mode=ShadingMode.NO_OCCLUSION), CAM)
     finally:
         pems.release()
         scene.release()
@@ -62,9 +63,9 @@ def test_unshadowed_image_does_not_depend_on_region_count(renderer):
     images = []
     try:
         for n_lights in (6, 48, 384):
-            pems = renderer.build_pems(cube, paper_pems(n_lights))
+            pems = renderer.build_pems(cube, PEMSettings(n_lights))
             try:
-                s = paper(64, 64, mode=ShadingMode.NO_OCCLUSION, background=Background.BLACK)
+                s = FrameSettings(64, 64, mode=ShadingMode.NO_OCCLUSION, background=Background.BLACK)
                 images.append(renderer.render(scene, pems, s, CAM).image)
             finally:
                 pems.release()
@@ -82,9 +83,9 @@ def test_extreme_glossiness_gives_finite_images(renderer, g, source):
     # Through the PEM lookups and through the lights' closed forms (s' stays finite at g = 1).
     cube = sun_sky_cube(32, (0.3, 1, 0.2), sun_radiance=1e6, sun_radius_deg=1)
     scene = renderer.create_scene([sphere(), plane(y=-0.6)], [Material((0.8, 0.2, 0.2), 0.5, g), Material()])
-    pems = renderer.build_pems(cube, paper_pems(48))
+    pems = renderer.build_pems(cube, PEMSettings(48))
     try:
-        frame = renderer.render(scene, pems, paper(64, 64, diffuse=source[0], glossy=source[1]), CAM)
+        frame = renderer.render(scene, pems, FrameSettings(64, 64, diffuse=source[0], glossy=source[1]), CAM)
     finally:
         pems.release()
         scene.release()
@@ -96,10 +97,10 @@ def test_extreme_glossiness_gives_finite_images(renderer, g, source):
 def test_same_frame_twice_gives_identical_pixels(renderer):
     cube = sun_sky_cube(32, (0.5, 1, 0.3))
     scene = renderer.create_scene([sphere(centre=(0, 0.6, 0)), plane()], [Material((0.8, 0.2, 0.2), 0.5, 0.8), Material()])
-    pems = renderer.build_pems(cube, paper_pems(24))
+    pems = renderer.build_pems(cube, PEMSettings(24))
     try:
-        a = renderer.render(scene, pems, paper(64, 64), CAM).image
-        b = renderer.render(scene, pems, paper(64, 64), CAM).image
+        a = renderer.render(scene, pems, FrameSettings(64, 64), CAM).image
+        b = renderer.render(scene, pems, FrameSettings(64, 64), CAM).image
     finally:
         pems.release()
         scene.release()
@@ -113,9 +114,9 @@ def test_sphere_above_plane_casts_its_shadow_where_the_sun_says(renderer, sun):
     cube = sun_sky_cube(64, sun, sun_radiance=5e3, sun_radius_deg=2, sky=(0.05, 0.05, 0.05), ground=(0, 0, 0))
     scene = renderer.create_scene([sphere(0.4, centre=centre), plane(6.0)], [Material((0.5, 0.5, 0.5)), Material((0.8, 0.8, 0.8))])
     cam = Camera((0.0, 4.0, 3.0), (0.0, 0.0, 0.0), fov_y_deg=50.0)
-    pems = renderer.build_pems(cube, paper_pems(48))
+    pems = renderer.build_pems(cube, PEMSettings(48))
     try:
-        frame = renderer.render(scene, pems, paper(128, 128, background=Background.BLACK), cam)
+        frame = renderer.render(scene, pems, FrameSettings(128, 128, background=Background.BLACK), cam)
     finally:
         pems.release()
         scene.release()
@@ -139,12 +140,12 @@ def test_sphere_above_plane_casts_its_shadow_where_the_sun_says(renderer, sun):
 
 
 def test_gl_context_is_checked_for_the_owning_thread(renderer, sphere_scene):
-    pems = renderer.build_pems(np.ones((6, 8, 8, 3), np.float32), paper_pems(6))
+    pems = renderer.build_pems(np.ones((6, 8, 8, 3), np.float32), PEMSettings(6))
     errors = []
 
     def other():
         try:
-            renderer.render(sphere_scene, pems, paper(8, 8), CAM)
+            renderer.render(sphere_scene, pems, FrameSettings(8, 8), CAM)
         except GLContextError as exc:
             errors.append(exc)
 
@@ -157,7 +158,7 @@ def test_gl_context_is_checked_for_the_owning_thread(renderer, sphere_scene):
 
 def test_invalid_frame_settings_are_rejected():
     with pytest.raises(InvalidInputError, match="image size"):
-        paper(0, 10)
+        FrameSettings(0, 10)
     with pytest.raises(InvalidInputError, match="bleed"):
         FrameSettings(bleed_reduction=1.5)
     for bad in (0, 3, 32, 2.5, True):
@@ -168,11 +169,11 @@ def test_invalid_frame_settings_are_rejected():
 def test_new_positions_reuse_gpu_objects_and_move_the_image(renderer):
     s = sphere(0.3)
     scene = renderer.create_scene([s], [Material((0.9, 0.9, 0.9))])
-    pems = renderer.build_pems(sun_sky_cube(16, (0, 1, 1)), paper_pems(12))
+    pems = renderer.build_pems(sun_sky_cube(16, (0, 1, 1)), PEMSettings(12))
     buffers = [m.vbo_pos.glo for m in scene.meshes]
     try:
-        a = renderer.render(scene, pems, paper(64, 64, background=Background.BLACK), CAM)
-        b = renderer.render(scene, pems, paper(64, 64, background=Background.BLACK), CAM,
+        a = renderer.render(scene, pems, FrameSettings(64, 64, background=Background.BLACK), CAM)
+        b = renderer.render(scene, pems, FrameSettings(64, 64, background=Background.BLACK), CAM,
                             positions=[s.positions + np.float32([0.5, 0, 0])])
         assert buffers == [m.vbo_pos.glo for m in scene.meshes]
     finally:
@@ -186,10 +187,10 @@ def test_new_positions_reuse_gpu_objects_and_move_the_image(renderer):
 def test_every_light_has_a_shadow_map_and_the_unoccluded_mode_none(renderer):
     cube = sun_sky_cube(32, (0.4, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3)
     scene = renderer.create_scene([sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)], [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
-    pems = renderer.build_pems(cube, paper_pems(48))
+    pems = renderer.build_pems(cube, PEMSettings(48))
     try:
-        full = renderer.render(scene, pems, paper(64, 64), CAM)
-        unshadowed = renderer.render(scene, pems, paper(64, 64, mode=ShadingMode.NO_OCCLUSION), CAM)
+        full = renderer.render(scene, pems, FrameSettings(64, 64), CAM)
+        unshadowed = renderer.render(scene, pems, FrameSettings(64, 64, mode=ShadingMode.NO_OCCLUSION), CAM)
     finally:
         pems.release()
         scene.release()
@@ -201,7 +202,7 @@ def test_every_light_has_a_shadow_map_and_the_unoccluded_mode_none(renderer):
 def test_scene_scale_does_not_change_the_image(renderer):
     # Everything (camera framing, light-space fit, VSM depth, normal offset) is relative to the
     # scene's bounds, so 1e-6 m and 1e6 m versions of one scene render the same picture.
-    pems = renderer.build_pems(sun_sky_cube(32, (0.5, 1, 0.3), sun_radiance=5e3), paper_pems(48))
+    pems = renderer.build_pems(sun_sky_cube(32, (0.5, 1, 0.3), sun_radiance=5e3), PEMSettings(48))
     images = {}
     try:
         for scale in (1.0, 1e-6, 1e6):
@@ -209,7 +210,7 @@ def test_scene_scale_does_not_change_the_image(renderer):
                       for m in (sphere(0.4, centre=(0, 0.6, 0)), plane(4.0))]
             scene = renderer.create_scene(meshes, [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
             try:
-                images[scale] = renderer.render(scene, pems, paper(64, 64)).image
+                images[scale] = renderer.render(scene, pems, FrameSettings(64, 64)).image
             finally:
                 scene.release()
     finally:
@@ -222,9 +223,9 @@ def test_scene_scale_does_not_change_the_image(renderer):
 def test_many_light_baseline_matches_the_furnace_for_diffuse(renderer, sphere_scene):
     # N directional lights carrying the energy of a uniform map: a white diffuse sphere's average
     # radiance approaches L (each point sees about half the lights, cosine-weighted).
-    pems = renderer.build_pems(np.full((6, 32, 32, 3), 1.0, np.float32), paper_pems(384))
+    pems = renderer.build_pems(np.full((6, 32, 32, 3), 1.0, np.float32), PEMSettings(384))
     try:
-        frame = renderer.render(sphere_scene, pems, paper(64, 64, mode=ShadingMode.MANY_LIGHTS), CAM)
+        frame = renderer.render(sphere_scene, pems, FrameSettings(64, 64, mode=ShadingMode.MANY_LIGHTS), CAM)
     finally:
         pems.release()
     px = frame.image[covered(frame)][:, :3]
@@ -243,10 +244,10 @@ def test_a_sun_below_an_open_sheet_does_not_light_it(renderer):
     try:
         for name, y in (("below", -0.25), ("above", 0.25)):
             cube = sun_sky_cube(32, (1.0, y, 0.0), sun_radiance=1e3, sun_radius_deg=4, sky=(0, 0, 0), ground=(0, 0, 0))
-            pems = renderer.build_pems(cube, paper_pems(24))
+            pems = renderer.build_pems(cube, PEMSettings(24))
             try:
                 for diffuse in ("pem", "lights"):
-                    fs = paper(32, 32, diffuse=diffuse, background=Background.BLACK)
+                    fs = FrameSettings(32, 32, diffuse=diffuse, background=Background.BLACK)
                     out[name, diffuse] = renderer.render(scene, pems, fs, cam).image
             finally:
                 pems.release()
@@ -266,9 +267,9 @@ def test_diffuse_from_lights_passes_the_furnace_test(renderer, sphere_scene, n_l
     # regions that straddle it (measured: mean within 0.01 %, worst pixel 0.6 % at 6 lights, 1.8 % at
     # 48, 0.08 % at 384).
     L = 2.5
-    pems = renderer.build_pems(np.full((6, 32, 32, 3), L, np.float32), paper_pems(n_lights))
+    pems = renderer.build_pems(np.full((6, 32, 32, 3), L, np.float32), PEMSettings(n_lights))
     try:
-        s = paper(96, 96, mode=ShadingMode.NO_OCCLUSION, diffuse="lights")
+        s = FrameSettings(96, 96, mode=ShadingMode.NO_OCCLUSION, diffuse="lights")
         image = renderer.render(sphere_scene, pems, s, CAM).image
     finally:
         pems.release()
@@ -287,7 +288,7 @@ def test_coarse_light_counts_pass_the_furnace_with_their_shadows(renderer, spher
     from renderer.presets import preset_frame, preset_pems
 
     pems = renderer.build_pems(np.full((6, 64, 64, 3), 1.0, np.float32),
-                               dataclasses.replace(preset_pems("balanced"), n_lights=n_lights, lights_from="median-cut"))
+                               dataclasses.replace(preset_pems("balanced"), lights=n_lights, lights_from="median-cut"))
     try:
         full, alone = (renderer.render(sphere_scene, pems, preset_frame("balanced", 128, 128, mode=mode), CAM).image
                        for mode in (ShadingMode.FULL, ShadingMode.NO_OCCLUSION))
@@ -307,7 +308,7 @@ def test_diffuse_source_must_be_known():
 
 def test_calibration_changes_the_glossy_level_only_through_the_table(renderer):
     cube = sun_sky_cube(32, (1, 1, 0.5), sun_radiance=300.0, sun_radius_deg=8)
-    pems = renderer.build_pems(cube, paper_pems(24))
+    pems = renderer.build_pems(cube, PEMSettings(24))
     try:
         l2, vol = pems.gloss_table("l2"), pems.gloss_table("volume")
         assert l2.shape == vol.shape == (257,)
@@ -327,8 +328,8 @@ def test_shadow_blur_matches_a_numpy_box_cascade_and_leaves_unblurred_lights_alo
 
     cube = sun_sky_cube(32, (1, 1, 0.5), sun_radiance=300.0, sun_radius_deg=8)
     scene = renderer.create_scene([sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)], [Material(), Material()])
-    pems = renderer.build_pems(cube, paper_pems(n_lights))
-    settings = paper(32, 32, shadow_size=64, blur_scale=0.5)
+    pems = renderer.build_pems(cube, PEMSettings(n_lights))
+    settings = FrameSettings(32, 32, shadow_size=64, blur_scale=0.5)
     try:
         monkeypatch.setattr(vsm, "MAX_BLUR_RADIUS", 0)     # every radius clamps to 0: the raw moments
         renderer.render(scene, pems, settings, CAM)
@@ -366,11 +367,11 @@ def test_without_a_blur_the_maps_skip_the_blur_passes_and_their_scratch(renderer
 
     cube = sun_sky_cube(32, (1, 1, 0.5), sun_radiance=300.0, sun_radius_deg=8)
     scene = renderer.create_scene([sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)], [Material(), Material()])
-    pems = renderer.build_pems(cube, paper_pems(n_lights))
+    pems = renderer.build_pems(cube, PEMSettings(n_lights))
     size = 48 if n_lights == 24 else 40   # sizes no other test uses: a new array, without a scratch yet
     sharp = dict(small_light_scale=1)
     try:
-        plain = renderer.render(scene, pems, paper(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
+        plain = renderer.render(scene, pems, FrameSettings(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
         maps = renderer._shadow_maps["main"]
         assert maps.scratch is None
         # The maps alone: a run of layers per group (the sphere, the plane), (z, z^2) as float32.
@@ -379,12 +380,12 @@ def test_without_a_blur_the_maps_skip_the_blur_passes_and_their_scratch(renderer
         assert "blur" not in plain.timings["wall_ms"]
         original = ShadowMaps.render
         monkeypatch.setattr(ShadowMaps, "render", lambda self, *a, **k: original(self, *a, **{**k, "blur": True}))
-        passes = renderer.render(scene, pems, paper(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
+        passes = renderer.render(scene, pems, FrameSettings(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
         monkeypatch.undo()
         assert renderer._shadow_maps["main"] is maps and maps.scratch is not None
         assert passes.settings["shadow_bytes"] > plain.settings["shadow_bytes"]
         # The next frame without a blur gives the array back and reports the maps alone again.
-        again = renderer.render(scene, pems, paper(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
+        again = renderer.render(scene, pems, FrameSettings(32, 32, shadow_size=size, blur_scale=0.0, **sharp), CAM)
         assert maps.scratch is None and again.settings["shadow_bytes"] == plain.settings["shadow_bytes"]
     finally:
         pems.release()
@@ -402,8 +403,8 @@ def test_a_receiver_that_casts_nothing_is_lit_outside_the_casters_shadow(rendere
     cube = sun_sky_cube(32, (1.0, 1.0, 0.3), sun_radiance=2e3, sun_radius_deg=3)
     meshes, mats = [sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)], [Material((0.8, 0.8, 0.8)), Material((0.8, 0.8, 0.8))]
     cam = Camera((0.0, 4.0, 0.5), (0.0, 0.0, 0.0), fov_y_deg=50.0)
-    pems = renderer.build_pems(cube, paper_pems(24))
-    s = paper(64, 64, background=Background.BLACK)
+    pems = renderer.build_pems(cube, PEMSettings(24))
+    s = FrameSettings(64, 64, background=Background.BLACK)
     try:
         images = []
         for casters in ([True, True], [True, False]):
@@ -432,10 +433,10 @@ def test_maps_are_fitted_to_the_casters_not_the_scene(renderer):
     cube = sun_sky_cube(32, (1.0, 1.0, 0.3), sun_radiance=2e3, sun_radius_deg=3)
     meshes, mats = [sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)], [Material((0.8, 0.8, 0.8)), Material((0.8, 0.8, 0.8))]
     cam = Camera((0.0, 4.0, 0.5), (0.0, 0.0, 0.0), fov_y_deg=50.0)
-    pems = renderer.build_pems(cube, paper_pems(24))
+    pems = renderer.build_pems(cube, PEMSettings(24))
     scene = renderer.create_scene(meshes, mats, casters=[True, False])
     try:
-        frame = renderer.render(scene, pems, paper(64, 64, small_light_scale=1, background=Background.BLACK), cam)
+        frame = renderer.render(scene, pems, FrameSettings(64, 64, small_light_scale=1, background=Background.BLACK), cam)
     finally:
         scene.release()
         pems.release()
@@ -455,17 +456,17 @@ def test_maps_are_fitted_to_what_the_camera_sees(renderer):
     mats = [Material((0.8, 0.8, 0.8))] * 3
     framed = Camera((0.0, 2.5, 0.2), (0.0, 0.3, 0.0), fov_y_deg=30.0)
     both = Camera((2.0, 4.0, 6.0), (2.0, 0.3, 0.0), fov_y_deg=50.0)
-    pems = renderer.build_pems(cube, paper_pems(24))
+    pems = renderer.build_pems(cube, PEMSettings(24))
     scene = renderer.create_scene(meshes, mats, casters=[True, True, False])
     try:
-        fs = paper(64, 64, small_light_scale=1, contact_shadow_texels=24.0, background=Background.BLACK)
+        fs = FrameSettings(64, 64, small_light_scale=1, contact_shadow_texels=24.0, background=Background.BLACK)
         near, wide = (renderer.render(scene, pems, fs, cam) for cam in (framed, both))
         # A caster above the frame still shadows the floor in it: the maps' depth range is the casters'.
         high = renderer.create_scene([sphere(0.3, centre=(0.0, 1.6, 0.0)), plane(10.0)], mats[:2], casters=[True, False])
         try:
             low = Camera((0.0, 0.5, 2.5), (0.0, 0.0, 0.0), fov_y_deg=25.0)
             sun_above = renderer.build_pems(sun_sky_cube(32, (0.0, 1.0, 0.0), sun_radiance=2e3, sun_radius_deg=3),
-                                            paper_pems(24))
+                                            PEMSettings(24))
             try:
                 below = renderer.render(high, sun_above, fs, low)
             finally:
@@ -537,12 +538,12 @@ def test_a_scene_with_one_caster_keeps_one_pair_of_moments(renderer):
     ball, ground = sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)
     inner = sphere(0.1, centre=(0, 0.6, 0), subdivisions=2)
     mats = [Material((0.8, 0.8, 0.8))] * 3
-    pems = renderer.build_pems(cube, paper_pems(24))
+    pems = renderer.build_pems(cube, PEMSettings(24))
     one = renderer.create_scene([ball, ground], mats[:2], casters=[True, False])
     two = renderer.create_scene([ball, ground, inner], mats, casters=[True, False, True])
     try:
         assert (one.shadow_groups, two.shadow_groups) == (1, 2)
-        fs = paper(64, 64, shadow_size=64, small_light_scale=1, background=Background.BLACK)
+        fs = FrameSettings(64, 64, shadow_size=64, small_light_scale=1, background=Background.BLACK)
         a = renderer.render(one, pems, fs, CAM)
         assert renderer._shadow_maps["main"].groups == 1
         b = renderer.render(two, pems, fs, CAM)
@@ -590,9 +591,9 @@ def test_the_shading_normal_is_turned_to_the_side_of_the_sheet_the_camera_sees(r
     cube = np.where(((d[..., 0] < -0.2) & (d[..., 2] > 0.2))[..., None], 1.0, 0.0).repeat(3, -1).astype(np.float32)
     cam = Camera((3.0, 0.0, 0.45), (0.0, 0.0, 0.0), fov_y_deg=30.0)
     scene = renderer.create_scene([sheet], [Material((1.0, 1.0, 1.0), 0.0, 0.0)])
-    pems = renderer.build_pems(cube, paper_pems(24))
+    pems = renderer.build_pems(cube, PEMSettings(24))
     try:
-        fs = paper(32, 32, mode=ShadingMode.NO_OCCLUSION, background=Background.BLACK)
+        fs = FrameSettings(32, 32, mode=ShadingMode.NO_OCCLUSION, background=Background.BLACK)
         frame = renderer.render(scene, pems, fs, cam, positions=[v], normals=[lean])
     finally:
         pems.release()
@@ -621,9 +622,9 @@ def test_compute_lighting_pass_gives_the_fragment_pass_image(renderer, mode):
             images = []
             try:
                 for n_lights in (48, 384):
-                    pems = r.build_pems(cube, paper_pems(n_lights))
+                    pems = r.build_pems(cube, PEMSettings(n_lights))
                     try:
-                        images.append(r.render(scene, pems, paper(45, 37, mode=mode), CAM))
+                        images.append(r.render(scene, pems, FrameSettings(45, 37, mode=mode), CAM))
                     finally:
                         pems.release()
             finally:
@@ -681,9 +682,9 @@ def test_normals_made_on_the_gpu_match_numpys(renderer, monkeypatch, groups_x):
     monkeypatch.setattr("renderer.scene.MAX_GROUPS_X", groups_x)
     with Renderer(renderer.gl, normals="gpu") as r:   # the fixture's context: one current context per thread
         scene = r.create_scene([mesh], [Material()])
-        pems = r.build_pems(np.full((6, 8, 8, 3), 1.0, np.float32), paper_pems(6))
+        pems = r.build_pems(np.full((6, 8, 8, 3), 1.0, np.float32), PEMSettings(6))
         try:
-            frame = r.render(scene, pems, paper(32, 32), CAM, positions=[moved])
+            frame = r.render(scene, pems, FrameSettings(32, 32), CAM, positions=[moved])
             gpu = np.frombuffer(scene.meshes[0].vbo_nrm.read(), np.float32).reshape(-1, 3)
         finally:
             pems.release()
@@ -702,9 +703,9 @@ def test_normals_on_the_gpu_give_the_image_of_normals_on_the_cpu(renderer):
     try:
         for r in (renderer, other):
             scene = r.create_scene([s, plane(4.0)], [Material((0.8, 0.3, 0.3), 0.4, 0.8), Material()])
-            pems = r.build_pems(sun_sky_cube(16, (0.4, 1, 0.3)), paper_pems(12))
+            pems = r.build_pems(sun_sky_cube(16, (0.4, 1, 0.3)), PEMSettings(12))
             try:
-                images.append(r.render(scene, pems, paper(48, 48), CAM, positions=moved).image)
+                images.append(r.render(scene, pems, FrameSettings(48, 48), CAM, positions=moved).image)
             finally:
                 pems.release()
                 scene.release()
@@ -719,8 +720,8 @@ def test_lights_wide_at_every_pixel_skip_their_glossy_pem_for_the_same_image(ren
     # not read; the image is the one where the shader decides per pixel.
     scene = renderer.create_scene([sphere(0.4, centre=(0, 0.5, 0)), plane(4.0)],
                                   [Material((0.5, 0.4, 0.3), 0.6, 0.8), Material((0.6, 0.6, 0.6), 0.2, 0.3)])
-    pems = renderer.build_pems(sun_sky_cube(32, (1, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3), paper_pems(48))
-    settings = paper(64, 64, diffuse="lights", glossy="wide", sub_lights=2)
+    pems = renderer.build_pems(sun_sky_cube(32, (1, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3), PEMSettings(48))
+    settings = FrameSettings(64, 64, diffuse="lights", glossy="wide", sub_lights=2)
     try:
         assert scene.max_glossiness == pytest.approx(0.8)
         skipping = renderer.render(scene, pems, settings, CAM).image
@@ -742,12 +743,12 @@ def test_each_light_sums_its_own_glossy_discs(renderer):
     # PEM set and count, by the first frame that asks, which reports them as its "light_tables" stage.
     scene = renderer.create_scene([sphere(0.4, centre=(0, 0.5, 0)), plane(4.0)],
                                   [Material((0.1, 0.1, 0.1), 1.0, 0.8), Material((0.2, 0.2, 0.2), 0.5, 0.6)])
-    pems = renderer.build_pems(sun_sky_cube(32, (1, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3), paper_pems(48))
+    pems = renderer.build_pems(sun_sky_cube(32, (1, 1, 0.3), sun_radiance=5e3, sun_radius_deg=3), PEMSettings(48))
     try:
-        frames = {(g, k): renderer.render(scene, pems, paper(64, 64, diffuse="lights", glossy=g, sub_lights=k),
+        frames = {(g, k): renderer.render(scene, pems, FrameSettings(64, 64, diffuse="lights", glossy=g, sub_lights=k),
                                           CAM)
                   for g in ("wide", "pem") for k in (1, 2)}
-        again = renderer.render(scene, pems, paper(64, 64, diffuse="lights", glossy="wide", sub_lights=2), CAM)
+        again = renderer.render(scene, pems, FrameSettings(64, 64, diffuse="lights", glossy="wide", sub_lights=2), CAM)
     finally:
         pems.release()
         scene.release()
@@ -768,7 +769,7 @@ def test_each_light_sums_its_own_glossy_discs(renderer):
 def test_a_frames_timings_are_the_typed_record_they_say_they_are(renderer, sphere_scene):
     from renderer.renderer import FrameTimings
 
-    pems = renderer.build_pems(np.full((6, 16, 16, 3), 1.0, np.float32), paper_pems(6))
+    pems = renderer.build_pems(np.full((6, 16, 16, 3), 1.0, np.float32), PEMSettings(6))
     try:
         frame = renderer.render(sphere_scene, pems, FrameSettings(16, 16), CAM, positions=[sphere().positions])
     finally:
@@ -793,7 +794,7 @@ def test_the_per_light_tables_read_from_storage_buffers_give_the_same_image(rend
     try:
         for r in (renderer, small):
             scene = r.create_scene(meshes, mats)
-            pems = r.build_pems(cube, paper_pems(24))
+            pems = r.build_pems(cube, PEMSettings(24))
             try:
                 images.append(r.render(scene, pems, fs, CAM))
             finally:

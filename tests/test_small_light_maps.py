@@ -7,10 +7,11 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import paper, paper_pems, plane, sphere, sun_sky_cube
+from conftest import plane, sphere, sun_sky_cube
 
 from renderer.camera import Camera
 from renderer.errors import InvalidInputError
+from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
 from renderer.renderer import Background, FrameSettings
 from renderer.shading.material import Material
@@ -43,7 +44,7 @@ def sun_scene(renderer):
                         ground=(0, 0, 0))
     scene = renderer.create_scene([sphere(0.4, centre=(0.0, 0.8, 0.0)), plane(3.0)],
                                   [Material((0.5, 0.5, 0.5)), Material((0.8, 0.8, 0.8))])
-    pems = renderer.build_pems(cube, paper_pems(24))
+    pems = renderer.build_pems(cube, PEMSettings(24))
     yield scene, pems
     pems.release()
     scene.release()
@@ -63,7 +64,7 @@ def test_a_small_lights_map_at_k_times_the_size_matches_a_map_of_that_size(rende
 
     def lum(size, k):
         # No contact shadows: their radius is in main-map texels, which differ between the three.
-        fs = paper(160, 160, shadow_size=size, small_light_scale=k, blur_scale=0.0,
+        fs = FrameSettings(160, 160, shadow_size=size, small_light_scale=k, blur_scale=0.0,
                            contact_shadow_texels=0.0, background=Background.BLACK)
         f = renderer.render(scene, pems, fs, cam)
         assert np.isfinite(f.image).all()
@@ -95,7 +96,7 @@ def test_only_small_lights_with_enough_of_the_energy_get_sharp_maps(renderer, su
     small = np.sin(regions.disc_radius_rad()) <= SMALL_LIGHT_MAX_SIN
 
     def frame(k, min_energy):
-        fs = paper(64, 64, shadow_size=32, small_light_scale=k, small_light_min_energy=min_energy)
+        fs = FrameSettings(64, 64, shadow_size=32, small_light_scale=k, small_light_min_energy=min_energy)
         return renderer.render(scene, pems, fs, cam)
 
     assert small.sum() >= 2 and relative[small].max() > 4.0     # the sun, split into small regions
@@ -123,7 +124,7 @@ def test_bright_large_lights_join_the_sharp_maps_only_when_asked(renderer, sun_s
     cut = float(np.median(relative[~small]))      # about half of the large lights are that bright
 
     def sharp_layers(min_energy, large):
-        fs = paper(64, 64, shadow_size=32, small_light_scale=2, small_light_min_energy=min_energy,
+        fs = FrameSettings(64, 64, shadow_size=32, small_light_scale=2, small_light_min_energy=min_energy,
                            sharp_large_lights=large)
         return renderer.render(scene, pems, fs, cam).timings["sharp_layers"]
 
@@ -180,7 +181,7 @@ def test_a_suns_regions_sharing_one_map_shade_as_with_their_own(renderer, sun_sc
     small = np.sin(pems.regions.disc_radius_rad()) <= SMALL_LIGHT_MAX_SIN
 
     def frame(**kw):
-        fs = paper(160, 160, shadow_size=32, small_light_scale=4, blur_scale=0.0,
+        fs = FrameSettings(160, 160, shadow_size=32, small_light_scale=4, blur_scale=0.0,
                            background=Background.BLACK, **kw)
         f = renderer.render(scene, pems, fs, cam)
         assert np.isfinite(f.image).all()
@@ -211,7 +212,7 @@ def test_lights_sharing_a_map_look_it_up_through_the_projection_it_was_drawn_wit
     scene, pems = sun_scene
     cam = Camera((0.0, 3.0, 2.5), (0.0, 0.2, 0.0), fov_y_deg=50.0)
     # A blur: each light's fitted footprint is widened by its own blur width.
-    fs = paper(64, 64, shadow_size=32, small_light_scale=4, blur_scale=1.0, sharp_share_deg=10.0)
+    fs = FrameSettings(64, 64, shadow_size=32, small_light_scale=4, blur_scale=1.0, sharp_share_deg=10.0)
     f = renderer.render(scene, pems, fs, cam)
     assert f.timings["sharp_layers"] == 1
     lights = np.frombuffer(renderer._buffers["lights"].read(), LIGHT_DTYPE)[:f.timings["n_lights"]]   # then the block's room
@@ -239,7 +240,7 @@ def test_each_shadow_bias_knob_reaches_the_shadow_test(renderer, sun_scene):
         # The sun's map is a main map at scale 1 and a sharp one at scale 4.
         for name, value, scale in (("normal_offset_texels", 8.0, 1), ("min_sigma_texels", 12.0, 1),
                                    ("normal_offset_texels", 8.0, 4)):
-            base = paper(64, 64, shadow_size=64, small_light_scale=scale)
+            base = FrameSettings(64, 64, shadow_size=64, small_light_scale=scale)
             ref = renderer.render(scene, pems, base, cam).image
             img = renderer.render(scene, pems, dataclasses.replace(base, **{name: value}), cam).image
             assert np.abs(img - ref)[..., :3].max() > 1e-3, name
@@ -266,11 +267,11 @@ def test_sharp_maps_draw_the_casters_at_full_detail_and_the_main_maps_the_proxy(
         cube[(d @ s) > np.cos(np.radians(radius))] = radiance
     scene = renderer.create_scene([sphere(0.4, centre=(0.0, 0.8, 0.0), subdivisions=5), plane(3.0)],
                                   [Material((0.5, 0.5, 0.5)), Material((0.8, 0.8, 0.8))])
-    pems = renderer.build_pems(cube, paper_pems(48, whole_sources=True))
+    pems = renderer.build_pems(cube, PEMSettings(48, whole_sources=True))
     cam = Camera((0.0, 3.0, 2.5), (0.0, 0.2, 0.0), fov_y_deg=50.0)
     try:
         def frame(detail):
-            fs = paper(48, 48, shadow_size=32, small_light_scale=2, small_light_min_energy=1.0,
+            fs = FrameSettings(48, 48, shadow_size=32, small_light_scale=2, small_light_min_energy=1.0,
                                caster_detail=detail)
             f = renderer.render(scene, pems, fs, cam)
             return f, renderer._shadow_maps["sharp"].read().copy()

@@ -4,11 +4,12 @@ fitted to boxes snapped to a grid: renderer.scene.snap_box)."""
 
 import numpy as np
 import pytest
-from conftest import paper, paper_pems, plane, sphere, sun_sky_cube
+from conftest import plane, sphere, sun_sky_cube
 
 from renderer.camera import Camera
 from renderer.gpu.context import GLContext
-from renderer.renderer import Background, Renderer
+from renderer.lighting.pem import PEMSettings
+from renderer.renderer import Background, FrameSettings, Renderer
 from renderer.scene import SNAP_CELLS, snap_box
 from renderer.shading.material import Material
 from renderer.shadows.vsm import ShadowMaps
@@ -60,8 +61,8 @@ def test_the_still_group_is_drawn_once_and_the_frames_are_the_same(monkeypatch, 
             self, *a, **{**k, "still_key": k.get("still_key") if ShadowMaps._keeps else None}))
         ShadowMaps._keeps = False
         scenes = [r.create_scene(meshes, mats) for r in (keeps, draws)]
-        pems = keeps.build_pems(cube, paper_pems(24))
-        fs = paper(64, 64, small_light_scale=4 if sharp else 1, background=Background.BLACK)
+        pems = keeps.build_pems(cube, PEMSettings(24))
+        fs = FrameSettings(64, 64, small_light_scale=4 if sharp else 1, background=Background.BLACK)
         hits, first = [], None
         for positions in frames:
             images = []
@@ -136,8 +137,8 @@ def test_the_still_meshes_geometry_is_drawn_once_per_camera_and_the_frames_are_t
         scenes = [r.create_scene(meshes, mats) for r in (keeps, draws)]
         for s in scenes:
             assert s.add_variant([None, Material((0.2, 0.3, 0.7)), None]) == 1
-        pems = keeps.build_pems(cube, paper_pems(24))
-        fs = paper(64, 64, background=Background.BLACK)
+        pems = keeps.build_pems(cube, PEMSettings(24))
+        fs = FrameSettings(64, 64, background=Background.BLACK)
         for positions, camera, variant, copied in frames:
             hits = keeps.geometry_still_hits
             images = []

@@ -11,11 +11,12 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import paper_pems, plane, sphere, sun_sky_cube
+from conftest import plane, sphere, sun_sky_cube
 from PIL import Image
 
 from renderer.camera import frame_meshes
 from renderer.errors import InvalidInputError, MeshError
+from renderer.lighting.pem import PEMSettings
 from renderer.renderer import FrameSettings
 from renderer.shading.material import Material
 from renderer.views import contact_sheet, named_views, turntable
@@ -27,7 +28,7 @@ RED = Material((0.9, 0.05, 0.05), 0.5, 0.9)
 @pytest.fixture
 def setup(renderer):
     cube = sun_sky_cube(32, (0.4, 0.8, 0.3), sun_radiance=300.0, sun_radius_deg=4.0)
-    pems = renderer.build_pems(cube, paper_pems(n_lights=12))
+    pems = renderer.build_pems(cube, PEMSettings(lights=12))
     meshes = [sphere(0.4, centre=(0.0, 0.5, 0.0)), plane(3.0, 0.0)]
     scene = renderer.create_scene(meshes, [GARMENT, Material((0.5, 0.5, 0.5))])
     yield renderer, pems, scene, meshes

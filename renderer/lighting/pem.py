@@ -13,7 +13,7 @@ buffers stay bounded whatever the region count.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import KW_ONLY, dataclass, field, make_dataclass, replace
 from functools import cache
 
 import numpy as np
@@ -25,7 +25,6 @@ from ..gpu.context import GLContext, StageTimer
 from ..gpu.contract import Image, PEMBuffer
 from ..gpu.rawgl import GL_RGBA16F, GL_RGBA32F, CubeMapArray
 from ..gpu.shaders import compute_shader
-from ..preset_files import balanced
 from ..shadows.lights import disc_sine
 from .area_lights import light_regions
 from .filters import Filter, taps_1d
@@ -138,27 +137,11 @@ def _live_tiles(labels: np.ndarray, n_regions: int, levels: int) -> dict[int, tu
     return out
 
 
-@dataclass(frozen=True)
-class PEMSettings:
-    """Everything that changes a PEM set (and so its cache key). The light count and the median cut
-    default to the balanced preset's (renderer/presets/balanced.toml), as FrameSettings' do."""
-
-    n_lights: int = balanced("lights")
-    filter: Filter = Filter(config.OPTION["filter"].default)
-    levels: int | None = None  # None: the full chain down to 1x1 faces
-    # Finest level stored: the levels above it are computed on the way down but not kept, since no
-    # lookup of the scene needs them (`finest_level_needed`). 0: the whole chain, mirror included.
-    base_level: int = 0
-    # The median cut keeps compact bright sources (a sun) whole (lighting/median_cut.py); off: the
-    # paper's plain median cut. Every preset but paper turns it on (renderer/presets/*.toml).
-    whole_sources: bool = balanced("whole_sources")
-    # How the map is cut into lights: "median-cut" (the paper), "area" (Arbree, Walter and Bala's
-    # area lights plus the remainder's median cut, lighting/area_lights.py; at most n_lights in all) or
-    # "auto" (area where the map has area lights none wider than 15 degrees: area_lights.auto_regions).
-    lights_from: str = balanced("lights_from")
+class _PEMChecks:
+    """PEMSettings' key and its variant for a scene's materials (its fields are made below)."""
 
     def key(self) -> tuple:
-        base = (self.n_lights, self.filter.value, self.levels, self.base_level, self.whole_sources)
+        base = (self.lights, self.filter.value, self.levels, self.base_level, self.whole_sources)
         return base if self.lights_from == "median-cut" else base + (self.lights_from,)
 
     def for_materials(self, face_size: int, materials, calibration: Calibration | str = Calibration.L2) -> PEMSettings:
@@ -166,6 +149,24 @@ class PEMSettings:
         (`finest_level_needed`): the same image, a fraction of the memory."""
         g_max = max((m.max_glossiness() for m in materials), default=0.0)
         return replace(self, base_level=finest_level_needed(face_size, self.filter, g_max, calibration, self.levels))
+
+
+# Everything that changes a PEM set (and so its cache key): the registry's PEM settings but the face size
+# (renderer/config.py: the light count, whole_sources and lights_from, each its type, limits, default
+# and what it does; the face size is the cube's), the MIP filter, the chain's length (levels; None: down to
+# 1x1 faces) and its finest level stored (base_level: the levels above it are computed on the way down but
+# not kept, since no lookup of the scene reads them, `finest_level_needed`; 0: the whole chain, mirror
+# included). PEMSettings() holds the registry's defaults, the paper's median cut; a preset's come from
+# presets.pem_settings.
+PEMSettings = make_dataclass(
+    "PEMSettings",
+    [*config.fields(config.PEM_FIELDS[:1]), ("_", KW_ONLY),   # the light count by position, the rest by name
+     *config.fields(config.PEM_FIELDS[1:]),
+     ("filter", Filter, field(default=Filter(config.OPTION["filter"].default))),
+     ("levels", int | None, field(default=None)),
+     ("base_level", int, field(default=0))],
+    bases=(_PEMChecks,), frozen=True, namespace={"__module__": __name__})
+PAPER_PEMS = PEMSettings()   # a PEM set's default settings: the paper's median cut
 
 
 @dataclass(frozen=True)
@@ -187,7 +188,7 @@ class PEMCost:
 
 def pem_cost(face_size: int, settings: PEMSettings, export: bool = False) -> PEMCost:
     """The cost of the PEM set of a (6, face_size, face_size) cube for `settings` (see PEMCost)."""
-    n, lights = int(face_size), int(settings.n_lights)
+    n, lights = int(face_size), int(settings.lights)
     full = mip_levels(n)
     levels = full if settings.levels is None else int(np.clip(settings.levels, 1, full))
     base = min(int(settings.base_level), levels - 1)
@@ -210,7 +211,7 @@ def pem_cost(face_size: int, settings: PEMSettings, export: bool = False) -> PEM
 class PEMSet:
     """The GPU-resident PEMs of one environment map. Owns its texture; `release()` frees it."""
 
-    def __init__(self, gl: GLContext, cube: np.ndarray, settings: PEMSettings = PEMSettings(),
+    def __init__(self, gl: GLContext, cube: np.ndarray, settings: PEMSettings = PAPER_PEMS,
                  timer: StageTimer | None = None, stored: dict | None = None):
         """Build the PEMs of `cube` (6, F, F, 3) on the GPU, or upload a set saved by `export()`
         (`stored`, e.g. from a disk cache) for the same cube and settings without rebuilding."""
@@ -237,7 +238,7 @@ class PEMSet:
 
         t0 = time.perf_counter()
         if stored is None:
-            self.regions: RegionSet = light_regions(cube[..., :3], settings.n_lights, settings.whole_sources,
+            self.regions: RegionSet = light_regions(cube[..., :3], settings.lights, settings.whole_sources,
                                                     settings.lights_from)
             # Per-region scale: the brightest channel of the region's texels (1 for a black region).
             brightest = cube[..., :3].max(axis=-1).astype(np.float64)
@@ -248,9 +249,9 @@ class PEMSet:
             self.regions = RegionSet(**{k: np.asarray(stored["regions_" + k]) for k in RegionSet.__dataclass_fields__
                                         if "regions_" + k in stored})
             self.scale = np.asarray(stored["scale"], np.float64)
-            # An area set has its decomposition's count of lights (at most n_lights), not n_lights.
+            # An area set has its decomposition's count of lights (at most `lights`), not `lights`.
             area = bool(self.regions.area_mask.any())
-            lights = settings.n_lights if not area else min(settings.n_lights, self.regions.n_regions)
+            lights = settings.lights if not area else min(settings.lights, self.regions.n_regions)
             have = (self.regions.n_regions, int(stored["levels"]), int(stored.get("base_level", 0)),
                     bool(stored.get("whole_sources", False)), str(stored.get("lights_from", "median-cut")))
             want = (lights, self.levels, self.base_level, settings.whole_sources, settings.lights_from)

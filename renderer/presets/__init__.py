@@ -14,7 +14,6 @@ from ..preset_files import (  # noqa: F401 (the presets' public names)
     PRESET_DIR,
     PRESET_NAMES,
     PRESET_VERSION,
-    balanced,
     preset,
     presets,
     presets_digest,
@@ -57,8 +56,7 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
 
     for name in config.PEM_SETTINGS:
         config.check(name, knobs[name])
-    pem = PEMSettings(knobs["lights"], Filter.parse(filter), levels, whole_sources=knobs["whole_sources"],
-                      lights_from=knobs["lights_from"])
+    pem = PEMSettings(**{name: knobs[name] for name in config.PEM_FIELDS}, filter=Filter.parse(filter), levels=levels)
     if materials is not None:
         pem = pem.for_materials(int(knobs["face_size"]), materials)
     return pem
@@ -162,8 +160,8 @@ def reference_table() -> str:
     values = {name: preset(name) for name in PRESET_NAMES}
     head = ["# Quality settings", "",
             "Generated from the registry (`renderer/config.py`) by `renderer.presets.reference_table`; each is a `--flag` of `render`, `sequence` and "
-            "`reference` (dashes for underscores) and a field of the service's `quality`. `FrameSettings()` holds "
-            "balanced's values; the paper's column is the method as the paper states it (the bias, which it does not "
+            "`reference` (dashes for underscores) and a field of the service's `quality`. `FrameSettings()` and "
+            "`PEMSettings()` hold the paper's values (a preset's come from `presets.resolve`); the paper's column is the method as the paper states it (the bias, which it does not "
             "state, is the presets'); the presets' values are their files' (`renderer/presets/*.toml`).", "",
             "| setting | group | values | paper | " + " | ".join(PRESET_NAMES) + " | a change makes anew | what it does |",
             "|---|---|---|---|" + "---|" * len(PRESET_NAMES) + "---|---|"]

@@ -54,7 +54,7 @@ def pem_set_info(env: EnvironmentRecord, info: PemInfo, with_lights: bool) -> Pe
         lights = [LightInfo(direction=tuple(float(c) for c in d), energy_rgb=tuple(float(c) for c in e),
                             energy_share=float(y / total), solid_angle_sr=float(sa))
                   for d, e, y, sa in zip(info.directions, info.energy_rgb, lum, info.solid_angle_sr)]
-    return PemSetInfo(key=info.key, face_size=info.face_size, n_lights=info.settings.n_lights,
+    return PemSetInfo(key=info.key, face_size=info.face_size, n_lights=info.settings.lights,
                       filter=info.settings.filter.value, levels=s["levels"], base_level=s["base_level"],
                       whole_sources=info.settings.whole_sources, lights_from=s.get("lights_from", "median-cut"),
                       lights_from_used=s.get("lights_from_used", "median-cut"), area_lights=s.get("area_lights"),
