@@ -679,7 +679,7 @@ def cmd_serve(args) -> int:
 
 
 def cmd_lobes(args) -> int:
-    from .lighting.lobe_figures import write_lobe_report
+    from .bench.lobe_figures import write_lobe_report
 
     args.out.mkdir(parents=True, exist_ok=True)
     write_lobe_report(args.out, face_size=args.face_size)
@@ -717,7 +717,7 @@ def cmd_area_lights(args) -> int:
 
 
 def cmd_brdf_lobes(args) -> int:
-    from .lighting.material_figures import markdown, write_brdf_lobe_report
+    from .bench.material_figures import markdown, write_brdf_lobe_report
 
     s = write_brdf_lobe_report(args.out)
     print(markdown(s))

@@ -8,9 +8,9 @@ import math
 import pytest
 from PIL import Image
 
+from renderer.bench.lobe_figures import DEFAULT_S_VALUES, write_lobe_report
 from renderer.errors import InvalidInputError
 from renderer.lighting.filters import Filter
-from renderer.lighting.lobe_figures import DEFAULT_S_VALUES, write_lobe_report
 
 FACE = 32
 

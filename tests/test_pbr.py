@@ -204,7 +204,7 @@ def test_bad_pbr_materials_are_refused_with_the_limit():
 
 @pytest.mark.system
 def test_the_figure_7_report_says_where_the_fit_misses_its_target(tmp_path):
-    from renderer.lighting.material_figures import write_brdf_lobe_report
+    from renderer.bench.material_figures import write_brdf_lobe_report
 
     s = write_brdf_lobe_report(tmp_path)
     for name in ("brdf_lobes_fig7.png", "brdf_lobes_slices.png", "brdf_lobes.md", "brdf_lobes.json"):
@@ -264,7 +264,7 @@ def test_the_material_bench_reports_ratios_to_the_phong_fabric_per_set():
 def test_the_stored_figure_7_table_is_what_the_tables_give():
     from pathlib import Path
 
-    from renderer.lighting.material_figures import markdown, summary
+    from renderer.bench.material_figures import markdown, summary
 
     stored = (Path(__file__).resolve().parent.parent / "docs" / "brdf-lobes.md").read_text()
     assert stored == markdown(summary()), "docs/brdf-lobes.md is stale: run garment-render brdf-lobes and copy it"

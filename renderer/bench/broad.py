@@ -362,7 +362,7 @@ def render_presets(r, scene: Scene, knobs_of: dict, frames: int, res: MapResourc
 @dataclass
 class BroadConfig:
     quick: bool = False
-    frames: int = 3                  # timed frames per preset at 256 x 256, where speed is judged (after one warm-up)
+    frames: int = 5                  # timed frames per preset at 256 x 256, where speed is judged (after one warm-up)
     frames_small: int = 1            # ... at 128 x 128 (accuracy only)
     spp_small: int = 512             # samples per technique of each reference at 128 x 128
     spp_large: int = 256             # ... at 256 x 256 (the rows' error is the excess over the truth's noise)
