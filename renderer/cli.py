@@ -617,10 +617,11 @@ def cmd_bench(args) -> int:
             print(f"wrote {args.out}/{name}.json, {name}.md")
             return 0
     if args.broad and args.curve is not None:
+        from .bench.curve import curve_stem
         from .bench.curve import run as trade_curve
 
         trade_curve(args.curve, args.out, size=args.size or 256)
-        print(f"wrote {args.out}/trade_curve.json, .md, .png")
+        print(f"wrote {args.out}/{curve_stem(args.size or 256)}.json, .md, .png")
         return 0
     if args.broad and args.retime is not None:
         from .bench.broad import retime
@@ -814,9 +815,10 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
                         "wall time; --size 256: the held-out set first, in about twenty minutes from a cold cache on "
                         "two cores)")
     b.add_argument("--workers", type=int, help="with --broad: reference processes (default: one per core)")
-    b.add_argument("--size", type=int, choices=[128, 256],
-                   help="with --broad: only the scenes of this size (default both: the 128x128 sweep and the 256x256 "
-                        "subset where the targets are judged)")
+    b.add_argument("--size", type=int, choices=[128, 256, 512],
+                   help="with --broad: only the scenes of this size (default both the 128x128 sweep and the 256x256 "
+                        "subset where the targets are judged; 512: that subset's held-out scenes at 512x512, where "
+                        "the equal-error targets are judged again)")
     b.add_argument("--reference-cache", type=Path,
                    help="with --broad: the references' folder (default: $GARMENT_RENDER_REFERENCE_CACHE, else "
                         "~/.cache/garment-render/references)")

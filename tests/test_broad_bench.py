@@ -39,6 +39,12 @@ def test_the_sweep_covers_every_map_garment_fabric_and_view():
     assert len(large) == 17 * 3 and {s.map for s in large} == set(MAPS)
     quick = scenes(quick=True)
     assert {split()[s.map] for s in quick} == {"tuning", "held-out"} and len(quick) == 8
+    # The bench adds the held-out 256 x 256 scenes at 512 x 512, the same scenes but for their size.
+    bench = broad.bench_scenes()
+    largest = [s for s in bench if s.size == broad.LARGEST]
+    assert bench[:len(full)] == full and len(bench) == len(full) + len(largest)
+    assert {dataclasses.replace(s, size=256) for s in largest} == {s for s in large if split()[s.map] == "held-out"}
+    assert len(largest) == 9 * 3 and broad.bench_scenes(quick=True) == quick
 
 
 def _cylinder(radius: float, y0: float, y1: float, n: int = 64) -> np.ndarray:
@@ -167,6 +173,17 @@ def test_misses_name_the_scene_the_target_and_the_factor():
     assert misses == {("a", "rel_rmse"): pytest.approx(2.0), ("b", "artefact_share"): pytest.approx(2.0),
                       ("c", "frame_ms"): pytest.approx(2.0), ("c", "equal_error_speedup"): pytest.approx(2.0),
                       ("g", "frame_ms"): pytest.approx(2.0), ("h", "equal_error_speedup"): pytest.approx(2.0)}
+
+
+def test_at_512_only_the_equal_error_targets_are_judged_and_every_size_reports_its_own():
+    rows = [_row("x@512", "fast", 512, frame_ms=200.0, rel_rmse=0.5, equal_error_speedup=5.0),
+            _row("y@512", "balanced", 512, frame_ms=400.0), _row("z@256", "fast", frame_ms=80.0)]
+    misses = broad.all_misses(rows)
+    assert {(m["scene"], m["metric"]) for m in misses} == {("x@512", "equal_error_speedup"), ("z@256", "frame_ms")}
+    lines = "\n".join(broad._target_lines([dataclasses.asdict(r) for r in rows], misses))
+    assert "## Targets on the held-out set at 256 x 256" in lines and "## Targets on the held-out set at 512 x 512" in lines
+    assert "- **balanced** (equal error >= 10x): met on all 1 scenes." in lines
+    assert "- **fast** (equal error >= 10x): equal_error_speedup missed on 1 of 1 scenes" in lines
 
 
 def test_the_excess_takes_the_truths_own_noise_out_in_quadrature():

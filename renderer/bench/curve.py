@@ -78,11 +78,12 @@ def trade_curve(data: dict, size: int = 256, which: str = "held-out") -> dict:
 
 def markdown(curve: dict, source: str) -> str:
     m = curve["machine"]
+    size_flag = "" if curve["size"] == 256 else f" --size {curve['size']}"
     lines = [f"# Trade curve: {curve['set']} scenes at {curve['size']} x {curve['size']}", "",
-             f"Made by `garment-render bench --broad --curve {source}` from that stored run (errors of "
+             f"Made by `garment-render bench --broad --curve {source}{size_flag}` from that stored run (errors of "
              f"{curve['run_date']}, times on {m['gl_renderer']}, {curve['cores']} cores, {m['date']}); the tracer's "
              "points follow the run's model (renderer/bench/curve.py). Medians (worst) over the scenes.", "",
-             "![time against error](trade_curve.png)", "",
+             f"![time against error]({curve_stem(curve['size'])}.png)", "",
              "| setting | frame ms | rel. RMSE | tracer's time at its error | on the lower envelope |",
              "|---|---|---|---|---|"]
     for p in sorted(curve["points"], key=lambda p: p["time_ms_median"]):
@@ -132,12 +133,18 @@ def plot(curve: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def curve_stem(size: int) -> str:
+    """The curve's file name without its suffix: trade_curve at 256 x 256, trade_curve-<size> else."""
+    return "trade_curve" if size == 256 else f"trade_curve-{size}"
+
+
 def run(source: Path, out_dir: Path, size: int = 256, which: str = "held-out") -> dict:
-    """The curve of the stored run at `source`, written to out_dir (trade_curve.json, .md, .png)."""
+    """The curve of the stored run at `source`, written to out_dir (`curve_stem`: .json, .md, .png)."""
     data = json.loads(Path(source).read_text())
     curve = trade_curve(data, size, which)
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "trade_curve.json").write_text(json.dumps(curve, indent=1))
-    (out_dir / "trade_curve.md").write_text(markdown(curve, str(source)))
-    plot(curve, out_dir / "trade_curve.png")
+    stem = curve_stem(size)
+    (out_dir / f"{stem}.json").write_text(json.dumps(curve, indent=1))
+    (out_dir / f"{stem}.md").write_text(markdown(curve, str(source)))
+    plot(curve, out_dir / f"{stem}.png")
     return curve
