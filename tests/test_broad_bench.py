@@ -184,6 +184,10 @@ def test_at_512_only_the_equal_error_targets_are_judged_and_every_size_reports_i
     assert "## Targets on the held-out set at 256 x 256" in lines and "## Targets on the held-out set at 512 x 512" in lines
     assert "- **balanced** (equal error >= 10x): met on all 1 scenes." in lines
     assert "- **fast** (equal error >= 10x): equal_error_speedup missed on 1 of 1 scenes" in lines
+    # The knob table takes every size of the run (512 x 512 as 256 x 256).
+    knobs = [dataclasses.asdict(_row("y@512", "balanced:lights=48", 512, frame_ms=800.0))] + \
+        [dataclasses.asdict(rows[1])]
+    assert [(t["knob"], t["size"], t["time_ratio"]) for t in broad.knob_table(knobs)] == [("lights=48", 512, 2.0)]
 
 
 def test_the_excess_takes_the_truths_own_noise_out_in_quadrature():
