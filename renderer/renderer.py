@@ -117,7 +117,10 @@ FrameSettings = make_dataclass(
      ("bleed_reduction", float, field(default=config.OPTION["bleed_reduction"].default)),
      ("mode", ShadingMode, field(default=ShadingMode.FULL)),
      ("background", Background, field(default=Background.ENVIRONMENT))],
-    bases=(_FrameChecks,), frozen=True, namespace={"__module__": __name__})
+    bases=(_FrameChecks,), frozen=True, namespace={"__module__": __name__, "__doc__": (
+        "Per-frame quality and output settings: the image's size, every frame setting of the registry "
+        "(renderer/config.py), bleed_reduction, the shading mode and the background. FrameSettings() is the "
+        "paper's method; a preset's settings come from presets.resolve(...).frame(width, height).")})
 PAPER_FRAME = FrameSettings()   # render()'s default settings: the paper's method at 512 x 512
 
 

@@ -365,6 +365,11 @@ def run(host: str | None, port: int | None, replicas: int, address: str | None =
     host, port = host or checked.host, checked.port if port is None else port
 
     if address is None and not os.environ.get("RAY_ADDRESS"):
+        # Serve's controller marks a proxy that is not ready within 5 s three times over (5, 10, 15 s)
+        # unhealthy and kills it, and serve.start then fails: on a loaded two-core machine the proxy's
+        # own imports take longer. A local instance's processes inherit this environment (a cluster's,
+        # or a Ray instance already running here, are their own to set).
+        os.environ.setdefault(PROXY_READY_SWITCH, str(PROXY_READY_S))
         from ray._private import services
 
         node = services.get_node_ip_address()
@@ -372,12 +377,6 @@ def run(host: str | None, port: int | None, replicas: int, address: str | None =
             print(f"garment-render: Ray's own ports listen on every interface ({node}): start a local instance with "
                   "`garment-render serve --ray` (it sets RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0 before Ray starts)",
                   flush=True)
-    if address is None and not os.environ.get("RAY_ADDRESS"):
-        # Serve's controller marks a proxy that is not ready within 5 s three times over (5, 10, 15 s)
-        # unhealthy and kills it, and serve.start then fails: on a loaded two-core machine the proxy's
-        # own imports take longer. A local instance's processes inherit this environment; a cluster's
-        # are its own to set.
-        os.environ.setdefault(PROXY_READY_SWITCH, str(PROXY_READY_S))
     ray.init(address=address, include_dashboard=False, ignore_reinit_error=True)
     serve.start(http_options={"host": host, "port": port})
     serve.run(application(replicas, None, gpus_per_replica), name="garment-render", route_prefix="/")

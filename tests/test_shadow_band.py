@@ -8,12 +8,9 @@ from __future__ import annotations
 import numpy as np
 import OpenEXR
 import pytest
-from conftest import ASSETS, needs_assets
+from conftest import asset, needs_assets
 
 from renderer.cli import main
-
-SHIRT = ASSETS / "sim" / "newton_shirt_drape_f060.obj"
-COLLIDERS = ASSETS / "sim" / "newton_shirt_drape_colliders.obj"
 
 
 def _rgba(path) -> np.ndarray:
@@ -32,7 +29,8 @@ def _box(x: np.ndarray, k: int = 2) -> np.ndarray:
 @needs_assets
 @pytest.mark.parametrize("lights_from", ["median-cut", "area"])
 def test_no_false_shadow_band_on_the_shirt_under_the_softbox_studio(tmp_path, lights_from):
-    scene = ["--up", "z", "--mesh", str(SHIRT), "--mesh", str(COLLIDERS), "--size", "128x128", "--background", "black"]
+    shirt, colliders = asset("sim", "newton_shirt_drape_f060.obj"), asset("sim", "newton_shirt_drape_colliders.obj")
+    scene = ["--up", "z", "--mesh", str(shirt), "--mesh", str(colliders), "--size", "128x128", "--background", "black"]
     assert main(["render", *scene, "--preset", "balanced", "--lights-from", lights_from,
                  "--exr", str(tmp_path / "a.exr"), "--out", str(tmp_path / "a.png")]) == 0
     assert main(["reference", *scene, "--spp", "64", "--exr", str(tmp_path / "r.exr")]) == 0

@@ -160,12 +160,15 @@ class _PEMChecks:
 # presets.pem_settings.
 PEMSettings = make_dataclass(
     "PEMSettings",
-    [*config.fields(config.PEM_FIELDS[:1]), ("_", KW_ONLY),   # the light count by position, the rest by name
-     *config.fields(config.PEM_FIELDS[1:]),
+    [*config.fields(("lights",)), ("_", KW_ONLY),   # the light count by position, the rest by name
+     *config.fields(tuple(n for n in config.PEM_FIELDS if n != "lights")),
      ("filter", Filter, field(default=Filter(config.OPTION["filter"].default))),
      ("levels", int | None, field(default=None)),
      ("base_level", int, field(default=0))],
-    bases=(_PEMChecks,), frozen=True, namespace={"__module__": __name__})
+    bases=(_PEMChecks,), frozen=True, namespace={"__module__": __name__, "__doc__": (
+        "Everything that changes a PEM set (its cache key): the registry's PEM settings but the face size "
+        "(renderer/config.py), the MIP filter, the chain's length and its finest level stored. PEMSettings() is "
+        "the paper's median cut; a preset's come from presets.resolve(...).pems().")})
 PAPER_PEMS = PEMSettings()   # a PEM set's default settings: the paper's median cut
 
 
