@@ -106,10 +106,6 @@ class _FrameChecks:
         return d
 
 
-# Per-frame quality and output settings (the PEM set's own settings are PEMSettings): the image's size,
-# every frame setting of the registry (renderer/config.py: each one's type, limits, default and what it
-# does), the options no preset chooses, and the shading mode and background. FrameSettings() holds the
-# registry's defaults, the paper's method; a preset's settings come from presets.frame_settings.
 FrameSettings = make_dataclass(
     "FrameSettings",
     [("width", int, field(default=512)), ("height", int, field(default=512)), ("_", KW_ONLY),   # the size by position
@@ -118,9 +114,10 @@ FrameSettings = make_dataclass(
      ("mode", ShadingMode, field(default=ShadingMode.FULL)),
      ("background", Background, field(default=Background.ENVIRONMENT))],
     bases=(_FrameChecks,), frozen=True, namespace={"__module__": __name__, "__doc__": (
-        "Per-frame quality and output settings: the image's size, every frame setting of the registry "
-        "(renderer/config.py), bleed_reduction, the shading mode and the background. FrameSettings() is the "
-        "paper's method; a preset's settings come from presets.resolve(...).frame(width, height).")})
+        "Per-frame quality and output settings (the PEM set's are PEMSettings): the image's size, every frame "
+        "setting of the registry (renderer/config.py: each one's type, limits, default and what it does), "
+        "bleed_reduction, the shading mode and the background. FrameSettings() is the paper's method; a preset's "
+        "settings come from presets.resolve(...).frame(width, height).")})
 PAPER_FRAME = FrameSettings()   # render()'s default settings: the paper's method at 512 x 512
 
 

@@ -57,6 +57,11 @@ def test_the_frame_and_the_pems_are_made_of_the_registry_and_hold_its_defaults_t
     assert set(frame_fields) - set(config.FRAME_SETTINGS) == {"width", "height", "bleed_reduction", "mode",
                                                                "background"}
     assert set(pem_fields) - set(config.PEM_FIELDS) == {"filter", "levels", "base_level"}
+    # Both check their settings against the registry's limits, naming the setting.
+    with pytest.raises(InvalidInputError, match="lights must be 6"):
+        PEMSettings(13)
+    with pytest.raises(InvalidInputError, match="lights_from must be one of"):
+        PEMSettings(lights_from="sky")
     assert (paper["diffuse"], paper["glossy"], paper["sub_lights"], paper["whole_sources"]) == ("pem", "pem", 1, False)
     # The presets are data no module takes its defaults from: only renderer/presets reads the files.
     import renderer

@@ -138,7 +138,11 @@ def _live_tiles(labels: np.ndarray, n_regions: int, levels: int) -> dict[int, tu
 
 
 class _PEMChecks:
-    """PEMSettings' key and its variant for a scene's materials (its fields are made below)."""
+    """PEMSettings' checks, key and variant for a scene's materials (its fields are made below)."""
+
+    def __post_init__(self):
+        for name in config.PEM_FIELDS:   # each setting against its declared limits (renderer/config.py)
+            object.__setattr__(self, name, config.check(name, getattr(self, name)))
 
     def key(self) -> tuple:
         base = (self.lights, self.filter.value, self.levels, self.base_level, self.whole_sources)
@@ -151,13 +155,6 @@ class _PEMChecks:
         return replace(self, base_level=finest_level_needed(face_size, self.filter, g_max, calibration, self.levels))
 
 
-# Everything that changes a PEM set (and so its cache key): the registry's PEM settings but the face size
-# (renderer/config.py: the light count, whole_sources and lights_from, each its type, limits, default
-# and what it does; the face size is the cube's), the MIP filter, the chain's length (levels; None: down to
-# 1x1 faces) and its finest level stored (base_level: the levels above it are computed on the way down but
-# not kept, since no lookup of the scene reads them, `finest_level_needed`; 0: the whole chain, mirror
-# included). PEMSettings() holds the registry's defaults, the paper's median cut; a preset's come from
-# presets.pem_settings.
 PEMSettings = make_dataclass(
     "PEMSettings",
     [*config.fields(("lights",)), ("_", KW_ONLY),   # the light count by position, the rest by name
@@ -166,9 +163,12 @@ PEMSettings = make_dataclass(
      ("levels", int | None, field(default=None)),
      ("base_level", int, field(default=0))],
     bases=(_PEMChecks,), frozen=True, namespace={"__module__": __name__, "__doc__": (
-        "Everything that changes a PEM set (its cache key): the registry's PEM settings but the face size "
-        "(renderer/config.py), the MIP filter, the chain's length and its finest level stored. PEMSettings() is "
-        "the paper's median cut; a preset's come from presets.resolve(...).pems().")})
+        "Everything that changes a PEM set (its cache key): the registry's PEM settings but the face size, which "
+        "is the cube's (renderer/config.py: each one's type, limits, default and what it does), the MIP filter, "
+        "the chain's length (levels; None: down to 1x1 faces) and its finest level stored (base_level: the levels "
+        "above it are computed on the way down but not kept, since no lookup of the scene reads them, "
+        "finest_level_needed; 0: the whole chain). PEMSettings() is the paper's median cut; a preset's come from "
+        "presets.resolve(...).pems().")})
 PAPER_PEMS = PEMSettings()   # a PEM set's default settings: the paper's median cut
 
 

@@ -54,8 +54,7 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
     from ..lighting.filters import Filter
     from ..lighting.pem import PEMSettings
 
-    for name in config.PEM_SETTINGS:
-        config.check(name, knobs[name])
+    config.check("face_size", knobs["face_size"])   # the others PEMSettings checks
     pem = PEMSettings(**{name: knobs[name] for name in config.PEM_FIELDS}, filter=Filter.parse(filter), levels=levels)
     if materials is not None:
         pem = pem.for_materials(int(knobs["face_size"]), materials)
