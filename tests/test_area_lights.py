@@ -239,3 +239,37 @@ def test_a_wide_light_is_cut_into_pieces_no_wider_than_the_limit_each_with_its_s
     # A light within the limit stays one region.
     small, _ = _discs([((0, 0.2, 1), 10.0, 20.0)], n=64, background=0.05)
     assert area_regions(small, 24)[0].area.sum() == 1
+
+
+def test_the_edge_table_counts_edges_above_a_cosine_as_a_search_does():
+    """The table that bins texels by their angle to a candidate gives np.searchsorted's count for
+    every float32 cosine, the edges themselves and their float32 neighbours included."""
+    from renderer.lighting.area_lights import _EdgeTable
+
+    radii = np.concatenate([INNER_RATIO * outer_radii(), outer_radii()])
+    edges = np.cos(np.sort(radii))
+    rng = np.random.default_rng(3)
+    near = edges.astype(np.float32)
+    cos = np.concatenate([rng.uniform(edges[-1], 1.0, 200_000).astype(np.float32), near,
+                          np.nextafter(near, np.float32(1)), np.nextafter(near, np.float32(0)),
+                          np.float32([1.0, np.nextafter(np.float32(1), np.float32(2))])])
+    cos = cos[cos > edges[-1]]
+    assert np.array_equal(_EdgeTable(edges)(cos), np.searchsorted(-edges, -cos, side="left"))
+
+
+def test_the_tiled_search_sums_what_comparing_every_texel_sums(monkeypatch):
+    """The first search compares each group of candidates with the tiles within reach of it alone; its
+    integrals are those of comparing every candidate with every texel (to rounding), on a sun-and-sky
+    map and on discs, so the lights found are the same."""
+    import renderer.lighting.area_lights as area
+
+    for cube in (sun_sky_cube(64, (0.3, 0.8, 0.5)), _discs(DISCS, n=64, background=0.05)[0]):
+        lum = cube @ LUMINANCE_RGB
+        tiled = area._Search(lum)
+        monkeypatch.setattr(area, "_TILED_PAIRS", np.inf)
+        whole = area._Search(lum)
+        monkeypatch.undo()
+        assert len(tiled.candidates) > 1000
+        np.testing.assert_allclose(tiled.inner, whole.inner, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(tiled.outer_sum, whole.outer_sum, rtol=1e-12, atol=1e-15)
+        assert tiled.best()[:2] == whole.best()[:2]

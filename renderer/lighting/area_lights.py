@@ -34,6 +34,12 @@ MIN_OUTER_DEG, MAX_OUTER_DEG = 4.5, 45.0
 CANDIDATE_SHARE = 0.10
 WEBER = 0.02
 SEARCH_FACE = 64
+# The first search's work: a face in TILES_PER_EDGE^2 tiles of texels, and candidates in
+# GROUPS_PER_EDGE^2 groups a face, each group compared with the tiles within reach of it alone; below
+# _TILED_PAIRS candidate-texel pairs (the searches after a light's removal) everything is compared.
+TILES_PER_EDGE = 16
+GROUPS_PER_EDGE = 16
+_TILED_PAIRS = 1 << 22
 MAX_LIGHTS = 64
 
 
@@ -80,6 +86,46 @@ def _downsample(cube: np.ndarray, face: int) -> np.ndarray:
     return cube
 
 
+class _EdgeTable:
+    """How many of the descending edges (float64) lie above each float32 cosine, as
+    np.searchsorted(-edges, -cos, side="left") counts them, by a table instead of a search: cosines
+    in cells of 1 / CELLS (1 - cos is exact in float32 for cos >= 0.5, and so is its cell), each
+    cell holding at most one edge, which is compared exactly."""
+
+    def __init__(self, edges: np.ndarray):
+        cells = 1 << 12
+        while np.min(-np.diff(edges)) <= 2.0 / cells:
+            cells <<= 1
+        self.cells = np.float32(cells)
+        bottom = min(float(edges[-1]), 0.5)
+        q = np.arange(int(np.ceil((1.0 - bottom) * cells)) + 1)
+        top = 1.0 - q / cells                                      # a cell's cosines: (top - 1/cells, top]
+        self.above = np.searchsorted(-edges, -top, side="left")    # edges above the whole cell
+        first = edges[np.minimum(self.above, len(edges) - 1)]       # the first at or below its top
+        within = (self.above < len(edges)) & (first > top - 1.0 / cells)
+        self.edge = np.where(within, first, -np.inf)                # the cell's edge, compared exactly
+
+    def __call__(self, cos: np.ndarray) -> np.ndarray:
+        """cos: float32, each above min(edges[-1], 0.5)."""
+        q = ((np.float32(1.0) - cos) * self.cells).astype(np.intp)
+        np.maximum(q, 0, out=q)
+        return self.above[q] + (cos < self.edge[q])
+
+
+def _tiles(dirs: np.ndarray, n: int, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The search cube's texels in square tiles of `size` texels a side: each texel's tile (N,), each
+    tile's centre direction (T, 3) and its angular radius about it (T,), radians."""
+    face, row, col = np.unravel_index(np.arange(6 * n * n), (6, n, n))
+    per_edge = -(-n // size)
+    tile = (face * per_edge + row // size) * per_edge + col // size
+    centre = np.zeros((6 * per_edge * per_edge, 3))
+    np.add.at(centre, tile, dirs)
+    centre /= np.linalg.norm(centre, axis=1, keepdims=True)
+    radius = np.zeros(len(centre))
+    np.maximum.at(radius, tile, np.arccos(np.clip(np.einsum("ij,ij->i", dirs, centre[tile]), -1.0, 1.0)))
+    return tile, centre, radius
+
+
 class _Search:
     """The filter responses at the candidates, on the search cube: each candidate's integrals within
     every inner and outer radius, kept, so that a removed disc is subtracted from them (its texels'
@@ -103,6 +149,9 @@ class _Search:
         k = max(1, int(np.ceil(CANDIDATE_SHARE * len(self.y))))
         top = np.argsort(-self.y)[:k]
         self.candidates = top[bright[top]]
+        self._bins = _EdgeTable(self.cos_edges)
+        self._tiles = _tiles(self.dirs, n, max(1, n // TILES_PER_EDGE))
+        self._group = _tiles(self.dirs, n, max(1, n // GROUPS_PER_EDGE))[0]
         rows = np.arange(len(self.candidates))
         self.inner, self.outer_sum = self._integrals(rows, np.arange(len(self.y)))
         self.responses = np.full((len(self.candidates), SIZES), -np.inf)
@@ -110,26 +159,59 @@ class _Search:
 
     def _integrals(self, rows: np.ndarray, texels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Integrals (L times solid angle) of `texels` within each inner and outer radius about
-        each candidate of `rows`: (R, SIZES) each."""
+        each candidate of `rows`: (R, SIZES) each.
+
+        Candidates are taken in groups close on the sphere (a block of a face), each group against the
+        texels of the tiles within reach of it alone (the widest filter plus both bounds' angular
+        radii): some 15 % of the sphere lies within reach of a candidate, so most of the sphere is
+        never compared. Texels keep their order, so each sum adds the same terms in the same order as
+        comparing all of them does (a smaller product's cosines may differ in the last bit, which
+        moves a texel lying exactly on an edge to the next bin: the lights found on every shared map
+        are the same)."""
         cos_max = float(np.cos(self.outer[-1]))
-        weighted = self.y[texels] * self.omega[texels]
+        weighted = self.y * self.omega
         width = 2 * SIZES + 1
         inner = np.zeros((len(rows), SIZES))
         outer = np.zeros((len(rows), SIZES))
-        dirs = self._dirs32[texels]
+        tiled = len(rows) * len(texels) >= _TILED_PAIRS
+        if tiled:
+            tiles, tile_dirs, tile_radius = self._tiles
+            tile_of = tiles[texels]
+            group_of = self._group[self.candidates[rows]]
+            order = np.argsort(group_of, kind="stable")
+            starts = np.flatnonzero(np.diff(group_of[order], prepend=-1))
+            groups = np.split(order, starts[1:])
+        else:
+            groups = [np.arange(len(rows))]
+        work = [(g, k) for g in groups for k in range(0, len(g), 256)]
 
-        def chunk_of(start: int) -> None:
-            chunk = rows[start:start + 256]
-            c = self._dirs32[self.candidates[chunk]] @ dirs.T   # (R, T) cosines
-            r, t = np.nonzero(c > cos_max)
-            # Bin b: the texel lies within edge b (angle below radius b) but outside edge b - 1.
-            b = np.searchsorted(-self.cos_edges, -c[r, t], side="left")
-            sums = np.bincount(r * width + b, weights=weighted[t], minlength=len(chunk) * width).reshape(-1, width)
+        def chunk_of(job) -> None:
+            group, k = job
+            at = group[k:k + 256]
+            cand = self.dirs[self.candidates[rows[at]]]
+            if tiled:
+                # The group's bounding cone: its centre and the widest angle from it to a candidate.
+                centre = cand.sum(axis=0)
+                centre /= np.linalg.norm(centre)
+                spread = float(np.arccos(np.clip((cand @ centre).min(), -1.0, 1.0)))
+                reach = np.cos(np.minimum(np.pi, self.outer[-1] + spread + tile_radius + 1e-6))
+                near = (tile_dirs @ centre) >= reach
+                sub = texels[near[tile_of]]
+            else:
+                sub = texels
+            c = self._dirs32[self.candidates[rows[at]]] @ self._dirs32[sub].T   # (R, T) cosines
+            pair = np.flatnonzero(c > cos_max)
+            cos = c.ravel()[pair]
+            r, t = np.divmod(pair, len(sub))
+            # Bin b: the texel lies within edge b (angle below radius b) but outside edge b - 1, i.e.
+            # b edges are above its cosine (np.searchsorted(-cos_edges, -cos), by table: `_EdgeTable`).
+            b = self._bins(cos)
+            sums = np.bincount(r * width + b, weights=weighted[sub][t], minlength=len(at) * width).reshape(-1, width)
             cum = np.cumsum(sums, axis=1)                                        # within edge b: cum[:, b]
-            inner[start:start + len(chunk)] = cum[:, self.inner_bin]
-            outer[start:start + len(chunk)] = cum[:, self.outer_bin]
+            inner[at] = cum[:, self.inner_bin]
+            outer[at] = cum[:, self.outer_bin]
 
-        map_threads(chunk_of, range(0, len(rows), 256))   # the chunks on every core
+        map_threads(chunk_of, work)   # the chunks on every core
         return inner, outer
 
     def _respond(self, rows: np.ndarray) -> None:
