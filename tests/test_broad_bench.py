@@ -179,11 +179,16 @@ def test_at_512_only_the_equal_error_targets_are_judged_and_every_size_reports_i
     rows = [_row("x@512", "fast", 512, frame_ms=200.0, rel_rmse=0.5, equal_error_speedup=5.0),
             _row("y@512", "balanced", 512, frame_ms=400.0), _row("z@256", "fast", frame_ms=80.0)]
     misses = broad.all_misses(rows)
-    assert {(m["scene"], m["metric"]) for m in misses} == {("x@512", "equal_error_speedup"), ("z@256", "frame_ms")}
+    assert {(m["scene"], m["size"], m["metric"]) for m in misses} == {("x@512", 512, "equal_error_speedup"),
+                                                                       ("z@256", 256, "frame_ms")}
     lines = "\n".join(broad._target_lines([dataclasses.asdict(r) for r in rows], misses))
     assert "## Targets on the held-out set at 256 x 256" in lines and "## Targets on the held-out set at 512 x 512" in lines
     assert "- **balanced** (equal error >= 10x): met on all 1 scenes." in lines
     assert "- **fast** (equal error >= 10x): equal_error_speedup missed on 1 of 1 scenes" in lines
+    # A miss is counted at its own row's size, whatever the scene is called.
+    renamed = [{**m, "scene": "renamed"} for m in misses]
+    assert "\n".join(broad._target_lines([dataclasses.asdict(r) for r in rows], renamed)) == lines.replace(
+        "x@512)", "renamed)").replace("z@256)", "renamed)")
     # The knob table takes every size of the run (512 x 512 as 256 x 256).
     knobs = [dataclasses.asdict(_row("y@512", "balanced:lights=48", 512, frame_ms=800.0))] + \
         [dataclasses.asdict(rows[1])]

@@ -496,11 +496,11 @@ def target_misses(rows: list[BroadRow], size: int = TARGET_SIZE) -> list[dict]:
             continue
         for metric, limit in (TARGETS[r.preset] if size == TARGET_SIZE else {}).items():
             if limit is not None and getattr(r, metric) > limit:
-                misses.append({"scene": r.scene, "preset": r.preset, "metric": metric, "value": getattr(r, metric),
-                               "target": limit, "factor": getattr(r, metric) / limit})
+                misses.append({"scene": r.scene, "size": r.size, "preset": r.preset, "metric": metric,
+                               "value": getattr(r, metric), "target": limit, "factor": getattr(r, metric) / limit})
         want = EQUAL_ERROR_TARGETS[r.preset]
         if r.equal_error_speedup is not None and r.equal_error_speedup < want:
-            misses.append({"scene": r.scene, "preset": r.preset, "metric": "equal_error_speedup",
+            misses.append({"scene": r.scene, "size": r.size, "preset": r.preset, "metric": "equal_error_speedup",
                            "value": r.equal_error_speedup, "target": want, "factor": want / r.equal_error_speedup})
     return misses
 
@@ -804,7 +804,7 @@ def _target_lines(rows: list[dict], misses: list[dict]) -> list[str]:
         for preset, targets in TARGETS.items():
             named = ", ".join(f"{k} <= {v:g}" for k, v in targets.items() if v is not None and size == TARGET_SIZE)
             named = ", ".join(x for x in (named, f"equal error >= {EQUAL_ERROR_TARGETS[preset]:g}x") if x)
-            mine = [x for x in misses if x["preset"] == preset and x["scene"].endswith(f"@{size}")]
+            mine = [x for x in misses if x["preset"] == preset and x["size"] == size]
             n = len({r["scene"] for r in held if r["preset"] == preset})
             unresolved = sum(1 for r in held if r["preset"] == preset and r["equal_error_speedup"] is None)
             within = (f"; equal error unresolved on {unresolved} (the error within the truth's own noise)"
