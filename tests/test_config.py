@@ -68,6 +68,61 @@ def test_the_frame_and_the_pems_are_made_of_the_registry_and_hold_its_defaults_t
     readers = sorted(str(p.relative_to(Path(renderer.__file__).parent)) for p in Path(renderer.__file__).parent.rglob("*.py")
                      if "preset_files" in p.read_text() and p.name != "preset_files.py")
     assert readers == ["presets/__init__.py"], readers
+    # ... and no product module takes a preset's values when it is imported or as a default argument
+    # (the benchmarks measure around the presets: theirs is the point).
+    assert _preset_defaults() == [], _preset_defaults()
+
+
+# What reads a preset's values (renderer.presets' functions).
+_PRESET_READERS = {"preset", "presets", "resolve", "frame_settings", "pem_settings", "preset_pems", "merge_knobs"}
+
+
+def _preset_defaults(sources: dict[str, str] | None = None) -> list[str]:
+    """'module:line' of every call to a preset reader at a module's top level (a class body included) or
+    in a default argument, in renderer/ (but renderer/presets and the benchmarks) and service/."""
+    import ast
+
+    import renderer
+
+    if sources is None:
+        root = Path(renderer.__file__).parent
+        files = [f for d in (root, root.parent / "service") for f in d.rglob("*.py")
+                 if not {"presets", "bench"} & set(f.relative_to(root.parent).parts) and f.name != "preset_files.py"]
+        sources = {str(f.relative_to(root.parent)): f.read_text() for f in files}
+    found = []
+
+    def calls(node):
+        for sub in ast.walk(node):
+            if isinstance(sub, ast.Call):
+                f = sub.func
+                # resolve(...) imported from renderer.presets, or presets.resolve(...): not Path.resolve().
+                if (isinstance(f, ast.Name) and f.id in _PRESET_READERS) or (
+                        isinstance(f, ast.Attribute) and f.attr in _PRESET_READERS and isinstance(f.value, ast.Name)
+                        and "preset" in f.value.id.lower()):
+                    yield sub
+
+    def visit(body, name):
+        for stmt in body:
+            if isinstance(stmt, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                for d in stmt.args.defaults + [d for d in stmt.args.kw_defaults if d is not None]:
+                    found.extend(f"{name}:{c.lineno}" for c in calls(d))
+            elif isinstance(stmt, ast.ClassDef):
+                visit(stmt.body, name)
+            else:
+                found.extend(f"{name}:{c.lineno}" for c in calls(stmt))
+
+    for name, text in sources.items():
+        visit(ast.parse(text).body, name)
+    return found
+
+
+def test_the_preset_defaults_check_finds_a_preset_read_at_import_or_as_a_default():
+    assert _preset_defaults({"m.py": "from renderer.presets import preset\nBASE = preset('balanced')\n"}) == ["m.py:2"]
+    assert _preset_defaults({"m.py": "from renderer import presets\ndef f(s=presets.resolve(None).frame(8, 8)):\n    pass\n"}) \
+        == ["m.py:2"]
+    assert _preset_defaults({"m.py": "class A:\n    k = presets.preset('fast')\n"}) == ["m.py:2"]
+    assert _preset_defaults({"m.py": "def f():\n    return preset('fast')\n"}) == []   # at run time: the caller's choice
+    assert _preset_defaults({"m.py": "ROOT = Path(__file__).resolve()\n"}) == []
 
 
 @pytest.mark.parametrize("st", config.SETTINGS, ids=lambda s: s.name)
