@@ -30,6 +30,21 @@ def test_every_stamped_run_was_made_with_the_preset_files_of_today():
     assert {p: d for p, d in stamped.items() if d != now} == {}
 
 
+def test_the_script_that_makes_them_again_names_every_one():
+    """scripts/stored-runs.sh makes every stamped run again (a preset change stales them all): it names
+    each one's file, and refuses a run it does not know before it sets anything up."""
+    import re
+    import subprocess
+
+    script = ROOT / "scripts" / "stored-runs.sh"
+    text = script.read_text()
+    # The file itself, or the folder a command writes it into.
+    assert [p for p in _stamped()
+            if p not in text and not re.search(rf"--out {re.escape(Path(p).parent.as_posix())}\s", text)] == []
+    done = subprocess.run(["bash", str(script), "broad-1024"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and "unknown run 'broad-1024'" in done.stderr and "one-shot" in done.stderr
+
+
 def test_a_changed_preset_file_changes_the_digest(tmp_path):
     folder = tmp_path / "presets"
     shutil.copytree(ROOT / "renderer" / "presets", folder, ignore=shutil.ignore_patterns("*.py", "__pycache__"))

@@ -1,0 +1,66 @@
+#!/usr/bin/env bash
+# Makes the stored benchmark runs that record the presets' digest again, one after another, and the
+# files made from them (the broad runs' reports, the README's quality table, the trade curves). A
+# preset change makes every one of them stale (tests/test_stored_runs.py fails until they are made
+# again). Names the runs to make (default all, in this order):
+#   broad-256   garment-render bench --broad --size 256   (~20 min warm, an hour from a cold cache)
+#   broad-512   garment-render bench --broad --size 512   (~30 min warm, an hour cold)
+#   error-split garment-render error-split                (~35 min)
+#   energy      garment-render bench --energy             (~2 min)
+#   materials   garment-render bench --materials          (~10 min)
+#   one-shot    garment-render speed --one-shot           (~5 min)
+# Times are for this project's 2-core machine. The frame times in them are judged against budgets:
+# run this on a quiet machine, nothing else at work, and give each run the whole machine.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+all=(broad-256 broad-512 error-split energy materials one-shot)
+runs=("$@")
+if [[ ${#runs[@]} -eq 0 ]]; then
+    runs=("${all[@]}")
+fi
+for run in "${runs[@]}"; do
+    if [[ " ${all[*]} " != *" $run "* ]]; then
+        echo "unknown run '$run': the runs are ${all[*]}" >&2
+        exit 2
+    fi
+done
+bash scripts/setup.sh >/dev/null
+gr=(.venv/bin/python -m renderer.cli)
+py=.venv/bin/python
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+
+broad() {   # size, the stored run, its trade curve (curve.curve_stem names it)
+    local size=$1 stored=$2 curve=$3
+    "${gr[@]}" bench --broad --size "$size" --out "$tmp/broad-$size"
+    cp "$tmp/broad-$size/broad.json" "$stored"
+    "$py" - "$stored" <<'EOF'
+import sys
+from pathlib import Path
+
+from renderer.bench import broad
+
+data = broad.rewrite(Path(sys.argv[1]))   # its report, with today's targets
+if Path(sys.argv[1]).as_posix().endswith(broad.README_RUN):
+    readme = Path("README.md")
+    text = readme.read_text()
+    start, end = text.index(broad.README_BEGIN), text.index(broad.README_END) + len(broad.README_END)
+    readme.write_text(text[:start] + broad.readme_table(data) + text[end:])
+EOF
+    "${gr[@]}" bench --broad --curve "$stored" --size "$size" --out docs/broad
+    echo "made $stored, its report and $curve"
+}
+
+for run in "${runs[@]}"; do
+    case "$run" in
+        broad-256) broad 256 docs/broad/broad-256.json docs/broad/trade_curve.json ;;
+        broad-512) broad 512 docs/broad/broad-512.json docs/broad/trade_curve-512.json ;;
+        error-split) "${gr[@]}" error-split --out docs/error-split ;;
+        energy) "${gr[@]}" bench --energy --out docs/energy ;;
+        materials)
+            "${gr[@]}" bench --materials --out "$tmp/materials"
+            cp "$tmp/materials/materials.json" docs/materials-bench.json
+            cp "$tmp/materials/materials.md" docs/materials-bench.md ;;
+        one-shot) "${gr[@]}" speed --one-shot --out docs/one-shot ;;
+    esac
+done
