@@ -89,7 +89,7 @@ def _downsample(cube: np.ndarray, face: int) -> np.ndarray:
 class _EdgeTable:
     """How many of the descending edges (float64) lie above each float32 cosine, as
     np.searchsorted(-edges, -cos, side="left") counts them, by a table instead of a search: cosines
-    in cells of 1 / CELLS (1 - cos is exact in float32 for cos >= 0.5, and so is its cell), each
+    in cells of 1 / `cells` (1 - cos is exact in float32 for cos >= 0.5, and so is its cell), each
     cell holding at most one edge, which is compared exactly."""
 
     def __init__(self, edges: np.ndarray):
@@ -112,13 +112,18 @@ class _EdgeTable:
         return self.above[q] + (cos < self.edge[q])
 
 
-def _tiles(dirs: np.ndarray, n: int, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The search cube's texels in square tiles of `size` texels a side: each texel's tile (N,), each
-    tile's centre direction (T, 3) and its angular radius about it (T,), radians."""
+def _tile_of(n: int, size: int) -> np.ndarray:
+    """Each texel's square tile of `size` texels a side on a cube of face n: int (6 n^2,)."""
     face, row, col = np.unravel_index(np.arange(6 * n * n), (6, n, n))
     per_edge = -(-n // size)
-    tile = (face * per_edge + row // size) * per_edge + col // size
-    centre = np.zeros((6 * per_edge * per_edge, 3))
+    return (face * per_edge + row // size) * per_edge + col // size
+
+
+def _tiles(dirs: np.ndarray, n: int, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The search cube's texels in tiles (`_tile_of`): each texel's tile (N,), each tile's centre
+    direction (T, 3) and its angular radius about it (T,), radians."""
+    tile = _tile_of(n, size)
+    centre = np.zeros((tile.max() + 1, 3))
     np.add.at(centre, tile, dirs)
     centre /= np.linalg.norm(centre, axis=1, keepdims=True)
     radius = np.zeros(len(centre))
@@ -151,7 +156,7 @@ class _Search:
         self.candidates = top[bright[top]]
         self._bins = _EdgeTable(self.cos_edges)
         self._tiles = _tiles(self.dirs, n, max(1, n // TILES_PER_EDGE))
-        self._group = _tiles(self.dirs, n, max(1, n // GROUPS_PER_EDGE))[0]
+        self._group = _tile_of(n, max(1, n // GROUPS_PER_EDGE))
         rows = np.arange(len(self.candidates))
         self.inner, self.outer_sum = self._integrals(rows, np.arange(len(self.y)))
         self.responses = np.full((len(self.candidates), SIZES), -np.inf)
@@ -188,9 +193,10 @@ class _Search:
         def chunk_of(job) -> None:
             group, k = job
             at = group[k:k + 256]
-            cand = self.dirs[self.candidates[rows[at]]]
+            who = self.candidates[rows[at]]
             if tiled:
                 # The group's bounding cone: its centre and the widest angle from it to a candidate.
+                cand = self.dirs[who]
                 centre = cand.sum(axis=0)
                 centre /= np.linalg.norm(centre)
                 spread = float(np.arccos(np.clip((cand @ centre).min(), -1.0, 1.0)))
@@ -199,7 +205,7 @@ class _Search:
                 sub = texels[near[tile_of]]
             else:
                 sub = texels
-            c = self._dirs32[self.candidates[rows[at]]] @ self._dirs32[sub].T   # (R, T) cosines
+            c = self._dirs32[who] @ self._dirs32[sub].T   # (R, T) cosines
             pair = np.flatnonzero(c > cos_max)
             cos = c.ravel()[pair]
             r, t = np.divmod(pair, len(sub))
