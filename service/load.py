@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -79,7 +80,8 @@ def serve_ray(replicas: int, tmp: Path, timeout_s: float = 300.0,
               state_dir: bool = True) -> tuple[subprocess.Popen, str, dict]:
     """`garment-render serve --ray --replicas N` on a free port of 127.0.0.1, its state, PEM cache,
     Ray session and log under `tmp`, once it answers ready: (the process, its URL, its environment,
-    with which another process reaches the same Ray instance by `ray.init(address="auto")`).
+    with which another process reaches the same Ray instance by `ray.init(address="auto")`: RAY_ADDRESS
+    names it, as `address="auto"` alone attaches to any instance running on this machine).
     `state_dir` False: no GARMENT_RENDER_STATE_DIR, the local default (XDG_STATE_HOME under `tmp`)."""
     port = _free_port()
     env = {k: v for k, v in os.environ.items()
@@ -101,9 +103,13 @@ def serve_ray(replicas: int, tmp: Path, timeout_s: float = 300.0,
         if proc.poll() is not None:
             raise RuntimeError(f"serve --ray exited: {log_path.read_text()[-3000:]}")
         try:
-            if httpx.get(f"{url}/health/ready", timeout=2).status_code == 200:
-                # Another process attaches as `serve --ray` started it: the node at the loopback.
-                return proc, url, {**env, "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"}
+            if httpx.get(f"{url}/health/ready", timeout=2).status_code == 200 and (
+                    found := re.search(r"\(Ray at ([^)\s]+)\)", log_path.read_text())):
+                # Another process attaches as `serve --ray` started it: the node at the loopback, and
+                # the token a new local instance requires unless told otherwise (Ray enables it for an
+                # address found by "auto" alone, never for one named).
+                return proc, url, {"RAY_AUTH_MODE": "token", **env, "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0",
+                                   "RAY_ADDRESS": found.group(1)}
         except httpx.TransportError:
             pass
         if time.monotonic() > deadline:

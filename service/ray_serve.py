@@ -380,7 +380,11 @@ def run(host: str | None, port: int | None, replicas: int, address: str | None =
     ray.init(address=address, include_dashboard=False, ignore_reinit_error=True)
     serve.start(http_options={"host": host, "port": port})
     serve.run(application(replicas, None, gpus_per_replica), name="garment-render", route_prefix="/")
-    print(f"garment-render: {replicas} Ray Serve replicas on http://{host}:{port}", flush=True)
+    # The Ray instance's own address: `ray.init(address="auto")` elsewhere on this machine picks any
+    # instance it finds running when none was started by `ray start`, so a process that must reach this
+    # one sets RAY_ADDRESS to it.
+    print(f"garment-render: {replicas} Ray Serve replicas on http://{host}:{port} "
+          f"(Ray at {ray.get_runtime_context().gcs_address})", flush=True)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:

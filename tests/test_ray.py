@@ -133,6 +133,33 @@ def test_a_local_instance_without_a_state_dir_shares_the_default_one(cluster):
 
 
 @pytest.mark.system
+def test_another_ray_instance_on_the_machine_is_not_the_one_reached(cluster, tmp_path):
+    """A process told the cluster's environment reaches its Ray instance, not another running beside it
+    (a second cluster of a parallel test run): `ray.init(address="auto")` alone attaches to any instance
+    it finds when none was started by `ray start`, and its kills then missed (named actor not found)."""
+    env = {k: v for k, v in cluster["env"].items() if k != "RAY_ADDRESS"}
+    env["RAY_TMPDIR"] = tempfile.mkdtemp(prefix="ray-other-", dir="/tmp")
+    code = ("import sys, ray\n"
+            "ray.init(include_dashboard=False, logging_level='ERROR')\n"
+            "print(ray.get_runtime_context().gcs_address, flush=True)\n"
+            "sys.stdin.readline()\n")
+    other = subprocess.Popen([sys.executable, "-c", code], env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                             text=True)
+    try:
+        address = other.stdout.readline().strip()
+        assert address and address != cluster["env"]["RAY_ADDRESS"], address
+        names = _replicas(cluster["env"])
+        # The two render replicas of this cluster: their names end with the ids its answers carry.
+        with httpx.Client(base_url=cluster["url"], timeout=120) as http:
+            ids = {http.get("/health/ready").headers["x-replica"] for _ in range(8)}
+        assert len(names) == 2 and all(any(n.endswith(i) for n in names) for i in ids), (names, ids)
+    finally:
+        other.stdin.close()
+        other.wait(timeout=120)
+        shutil.rmtree(env["RAY_TMPDIR"], ignore_errors=True)
+
+
+@pytest.mark.system
 def test_scenes_stay_on_their_replica_and_survive_one_dying(cluster, tmp_path):
     mesh = garment(16)
     frames = [np.asarray(mesh.positions) + np.float32(0.01 * k) for k in range(8)]
