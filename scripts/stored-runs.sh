@@ -43,9 +43,7 @@ from renderer.bench import broad
 data = broad.rewrite(Path(sys.argv[1]))   # its report, with today's targets
 if Path(sys.argv[1]).as_posix().endswith(broad.README_RUN):
     readme = Path("README.md")
-    text = readme.read_text()
-    start, end = text.index(broad.README_BEGIN), text.index(broad.README_END) + len(broad.README_END)
-    readme.write_text(text[:start] + broad.readme_table(data) + text[end:])
+    readme.write_text(broad.with_readme_table(readme.read_text(), data))
 EOF
     "${gr[@]}" bench --broad --curve "$stored" --size "$size" --out docs/broad
     echo "made $stored, its report and $curve"

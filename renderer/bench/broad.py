@@ -534,6 +534,13 @@ README_BEGIN = "<!-- quality table: generated from docs/broad/broad-256.json (re
 README_END = "<!-- end of the generated table -->"
 
 
+def with_readme_table(text: str, data: dict) -> str:
+    """The README's text with the table between its markers made anew from the run `data`
+    (readme_table); the text as it was where it already holds that table."""
+    start, end = text.index(README_BEGIN), text.index(README_END) + len(README_END)
+    return text[:start] + readme_table(data) + text[end:]
+
+
 def readme_table(data: dict) -> str:
     """The presets on the held-out scenes at 256 x 256: light count, frame budget and measured frame,
     error, artefact share and the tracer's time at the same error, as markdown between the markers."""

@@ -82,7 +82,8 @@ void contact_sectors(vec3 p, vec3 v, vec3 plane, ivec2 px) {
 }
 
 // The occluded sectors of a mask up to x (in sectors, 0..32), the last partly. Without branches or a
-// shift by 32: x = 32 reads as bit 31 in full.
+// shift by 32: x = 32 reads as bit 31 in full (bit_range(0, i) gives the same bits through a branch,
+// slower on every scene measured).
 float sectors_below(uint mask, float x) {
     float xc = clamp(x, 0.0, 32.0);
     int i = min(int(xc), 31);
