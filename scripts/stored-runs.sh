@@ -9,18 +9,23 @@
 #   energy      garment-render bench --energy             (~2 min)
 #   materials   garment-render bench --materials          (~10 min)
 #   one-shot    garment-render speed --one-shot           (~5 min)
+# and, named only (never by default), the broad runs retimed: their stored errors kept, every frame and
+# the tracer's rate timed again (`bench --broad --retime`), for a change that leaves every image as it
+# was (a faster shader that draws the same pixels, the machine's timings on another day):
+#   broad-256-retime, broad-512-retime   (~13 min each)
 # Times are for this project's 2-core machine. The frame times in them are judged against budgets:
 # run this on a quiet machine, nothing else at work, and give each run the whole machine.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 all=(broad-256 broad-512 error-split energy materials one-shot)
+named=("${all[@]}" broad-256-retime broad-512-retime)
 runs=("$@")
 if [[ ${#runs[@]} -eq 0 ]]; then
     runs=("${all[@]}")
 fi
 for run in "${runs[@]}"; do
-    if [[ " ${all[*]} " != *" $run "* ]]; then
-        echo "unknown run '$run': the runs are ${all[*]}" >&2
+    if [[ " ${named[*]} " != *" $run "* ]]; then
+        echo "unknown run '$run': the runs are ${named[*]}" >&2
         exit 2
     fi
 done
@@ -30,9 +35,13 @@ py=.venv/bin/python
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 
-broad() {   # size, the stored run, its trade curve (curve.curve_stem names it)
-    local size=$1 stored=$2 curve=$3
-    "${gr[@]}" bench --broad --size "$size" --out "$tmp/broad-$size"
+broad() {   # size, the stored run, its trade curve (curve.curve_stem names it), run or retime
+    local size=$1 stored=$2 curve=$3 how=$4
+    if [[ $how == retime ]]; then
+        "${gr[@]}" bench --broad --retime "$stored" --out "$tmp/broad-$size"
+    else
+        "${gr[@]}" bench --broad --size "$size" --out "$tmp/broad-$size"
+    fi
     cp "$tmp/broad-$size/broad.json" "$stored"
     "$py" - "$stored" <<'EOF'
 import sys
@@ -51,8 +60,10 @@ EOF
 
 for run in "${runs[@]}"; do
     case "$run" in
-        broad-256) broad 256 docs/broad/broad-256.json docs/broad/trade_curve.json ;;
-        broad-512) broad 512 docs/broad/broad-512.json docs/broad/trade_curve-512.json ;;
+        broad-256) broad 256 docs/broad/broad-256.json docs/broad/trade_curve.json run ;;
+        broad-512) broad 512 docs/broad/broad-512.json docs/broad/trade_curve-512.json run ;;
+        broad-256-retime) broad 256 docs/broad/broad-256.json docs/broad/trade_curve.json retime ;;
+        broad-512-retime) broad 512 docs/broad/broad-512.json docs/broad/trade_curve-512.json retime ;;
         error-split) "${gr[@]}" error-split --out docs/error-split ;;
         energy) "${gr[@]}" bench --energy --out docs/energy ;;
         materials)

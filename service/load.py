@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import subprocess
 import sys
 import tempfile
@@ -25,6 +24,8 @@ from pathlib import Path
 
 import httpx
 import numpy as np
+
+from .logs import RAY_ADDRESS_IN_LOG
 
 
 def run_load(url: str, scenes: int = 4, frames: int = 16, clients: int = 4, size: int = 128,
@@ -104,7 +105,7 @@ def serve_ray(replicas: int, tmp: Path, timeout_s: float = 300.0,
             raise RuntimeError(f"serve --ray exited: {log_path.read_text()[-3000:]}")
         try:
             if httpx.get(f"{url}/health/ready", timeout=2).status_code == 200 and (
-                    found := re.search(r"\(Ray at ([^)\s]+)\)", log_path.read_text())):
+                    found := RAY_ADDRESS_IN_LOG.search(log_path.read_text())):
                 # Another process attaches as `serve --ray` started it: the node at the loopback, and
                 # the token a new local instance requires unless told otherwise (Ray enables it for an
                 # address found by "auto" alone, never for one named).

@@ -15,6 +15,16 @@ from contextvars import ContextVar
 
 REQUEST_ID: ContextVar[str] = ContextVar("request_id", default="-")
 
+# `serve --ray`'s start-up line names its Ray instance (service/ray_serve.py, run), which another
+# process on the machine reads back to reach that instance and no other (service/load.py, serve_ray).
+RAY_ADDRESS_IN_LOG = re.compile(r"\(Ray at ([^)\s]+)\)")
+
+
+def ray_address_note(address: str) -> str:
+    """The part of the start-up line that names the Ray instance's address (RAY_ADDRESS_IN_LOG reads it)."""
+    return f"(Ray at {address})"
+
+
 # What a client's own request id may be (it is echoed and logged): short, printable, no separators.
 _CLIENT_ID = re.compile(r"^[A-Za-z0-9._:-]{1,64}$")
 

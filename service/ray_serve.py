@@ -62,6 +62,8 @@ try:
 except ImportError as exc:   # pragma: no cover - the extra is not installed
     raise ImportError("Ray Serve is an optional extra: pip install 'garment-render[ray]' (or .[ray])") from exc
 
+from .logs import ray_address_note
+
 # /scenes/{id}... : the scene a request is for.
 SCENE_PATH = re.compile(r"^/scenes/(scn_[0-9a-f]+)(?:/|$)")
 # The client's header naming the scene a request is for (service.client sends it; Serve's routing key).
@@ -384,7 +386,7 @@ def run(host: str | None, port: int | None, replicas: int, address: str | None =
     # instance it finds running when none was started by `ray start`, so a process that must reach this
     # one sets RAY_ADDRESS to it.
     print(f"garment-render: {replicas} Ray Serve replicas on http://{host}:{port} "
-          f"(Ray at {ray.get_runtime_context().gcs_address})", flush=True)
+          f"{ray_address_note(ray.get_runtime_context().gcs_address)}", flush=True)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:

@@ -384,6 +384,17 @@ def test_merged_metrics_label_each_replicas_samples_and_write_each_family_once()
     assert _series(text, "garment_render_replicas_reporting") == {"": 2.0}
 
 
+def test_the_start_up_lines_ray_address_is_read_back_as_written():
+    """serve --ray writes its Ray instance's address into its start-up line and service.load reads it
+    back from the log (service/logs.py holds both sides): an IPv4 and an IPv6 address, followed by more text."""
+    from service.logs import RAY_ADDRESS_IN_LOG, ray_address_note
+
+    for address in ("127.0.0.1:61234", "[::1]:6379"):
+        line = f"garment-render: 2 Ray Serve replicas on http://127.0.0.1:8000 {ray_address_note(address)}\nmore"
+        assert RAY_ADDRESS_IN_LOG.search(line).group(1) == address
+    assert RAY_ADDRESS_IN_LOG.search("garment-render: 2 Ray Serve replicas on http://127.0.0.1:8000") is None
+
+
 def test_the_cli_refuses_workers_with_ray():
     r = subprocess.run([sys.executable, "-m", "renderer.cli", "serve", "--ray", "--workers", "2"], capture_output=True,
                        text=True, timeout=60, cwd=ROOT)

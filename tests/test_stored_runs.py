@@ -43,6 +43,7 @@ def test_the_script_that_makes_them_again_names_every_one():
             if p not in text and not re.search(rf"--out {re.escape(Path(p).parent.as_posix())}\s", text)] == []
     done = subprocess.run(["bash", str(script), "broad-1024"], capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "unknown run 'broad-1024'" in done.stderr and "one-shot" in done.stderr
+    assert "broad-256-retime" in done.stderr   # the retimed runs are named too (never run by default)
 
 
 def test_a_changed_preset_file_changes_the_digest(tmp_path):
