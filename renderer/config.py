@@ -50,7 +50,6 @@ class Setting:
     below_maximum: bool = False      # maximum itself excluded
     choices: tuple[str, ...] | None = None
     power_of_two: bool = False
-    lights_rule: bool = False        # 6 * 2^k
     # The values `garment-render bench` measures around balanced (renderer/bench/run.py); a dict
     # changes several settings at once.
     sweep: tuple = ()
@@ -64,8 +63,6 @@ class Setting:
             return "one of " + ", ".join(self.choices)
         if self.type is bool:
             return "true or false"
-        if self.lights_rule:
-            return f"6 * 2^k, at most {MAX_LIGHTS}"
         lo = "(" if self.above_minimum else "["
         hi = ")" if self.below_maximum else "]"
         span = f"{lo}{self.minimum:g}, {self.maximum:g}{hi}"
@@ -86,11 +83,6 @@ class Setting:
             return bool(value)
         if not isinstance(value, numbers.Integral if self.type is int else numbers.Real) or not math.isfinite(value):
             raise bad
-        if self.lights_rule:   # the median cut's own rule (6 * 2^k), within the registry's range
-            try:
-                regions_per_face(int(value))
-            except InvalidInputError:
-                raise bad from None
         if (value < self.minimum or value > self.maximum or (self.above_minimum and value == self.minimum)
                 or (self.below_maximum and value == self.maximum)):
             raise bad
@@ -100,8 +92,8 @@ class Setting:
 
 
 def regions_per_face(n_lights: int) -> int:
-    """Validate N = 6 * 2^k and return 2^k: the median cut's rule (renderer/lighting/median_cut.py), which
-    the `lights` setting checks."""
+    """Validate N = 6 * 2^k and return 2^k: the uniform median cut's rule (renderer/lighting/median_cut.py,
+    median_cut; median_cut_to takes any count from 6, the extra regions where the energy is)."""
     per_face = n_lights // 6
     if n_lights < 6 or n_lights % 6 or per_face & (per_face - 1):
         raise InvalidInputError(
@@ -114,7 +106,7 @@ def regions_per_face(n_lights: int) -> int:
 SETTINGS: tuple[Setting, ...] = (
     # Lights and PEMs.
     Setting("lights", int, 48, "median-cut regions, one light and one shadow map each", "lights", "pem set",
-            6, MAX_LIGHTS, lights_rule=True,
+            6, MAX_LIGHTS,
             sweep=(6, 12, 24, 48, 96, 192, 384)),
     Setting("face_size", int, 128, "PEM cube face size", "lights", "pem set", 4, 2048, power_of_two=True,
             sweep=(32, 64, 128, 256)),

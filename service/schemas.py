@@ -63,7 +63,7 @@ class _Strict(BaseModel):
 def _registry_field(st: config.Setting):
     """A request field of a quality setting of renderer/config.py: its type (strict: no strings for
     numbers, no floats for whole numbers), its range for the schema, and the registry's own check
-    (power of two, 6 * 2^k) with the registry's message. None: the preset's value."""
+    (a power of two) with the registry's message. None: the preset's value."""
     base = Literal[st.choices] if st.choices is not None else st.type
     # The range in JSON Schema's own words (a Field's ge/le beside the validators below would reach the
     # schema as "ge"/"le", which no checker reads); the registry's check enforces it with its message.
@@ -75,10 +75,9 @@ def _registry_field(st: config.Setting):
 
     strict = {} if st.choices is not None else {"strict": True}
     schema = dict(bounds)
-    if st.type is int and (st.lights_rule or st.power_of_two):   # the registry's rule in the schema too
+    if st.type is int and st.power_of_two:   # the registry's rule in the schema too
         lo = max(int(st.minimum), 1)
-        schema["enum"] = [6 << k for k in range(12) if lo <= 6 << k <= st.maximum] if st.lights_rule else \
-            [1 << k for k in range(16) if lo <= 1 << k <= st.maximum]
+        schema["enum"] = [1 << k for k in range(16) if lo <= 1 << k <= st.maximum]
     validators = [BeforeValidator(_whole)] if st.type is int else []
     kind = Annotated[base, *validators, Field(**strict, json_schema_extra=schema or None), AfterValidator(checked)]
     return (kind | None, Field(None, description=f"{st.doc}; {st.limits()} (null: the preset's)"))

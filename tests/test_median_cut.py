@@ -242,3 +242,15 @@ def test_sub_lights_per_region_must_be_a_power_of_two(bad):
     with pytest.raises(InvalidInputError, match="power of two"):
         sub_lights(cube, median_cut(cube, 6), bad)
 
+
+
+def test_a_pem_sets_median_cut_takes_any_count_and_is_the_uniform_cut_at_6_times_a_power_of_two():
+    """light_regions (what a PEM set's regions come from) with lights_from median-cut: median_cut_to,
+    so a preset may name 16 or 18 lights; at 6 * 2^k the paper's uniform cut, label for label."""
+    from renderer.lighting.area_lights import light_regions
+
+    cube = (np.random.default_rng(3).random((6, 16, 16, 3)) ** 6).astype(np.float32)
+    for count in (16, 18, 20):
+        rs = light_regions(cube, count, True, "median-cut")
+        assert rs.n_regions == count and set(np.unique(rs.labels)) == set(range(count))
+    np.testing.assert_array_equal(light_regions(cube, 24, True, "median-cut").labels, median_cut(cube, 24, True).labels)

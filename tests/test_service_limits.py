@@ -350,14 +350,11 @@ def test_a_huge_face_is_refused_before_any_table_of_it_is_made(tmp_path, mesh):
 
 def _extremes(st) -> list:
     """Each end of a registry setting's range (every value of a choice or a switch)."""
-    from renderer.config import MAX_LIGHTS
 
     if st.choices is not None:
         return list(st.choices)
     if st.type is bool:
         return [False, True]
-    if st.lights_rule:
-        return [6, MAX_LIGHTS]
     lo = st.minimum + (1 if st.type is int else 1e-6) * st.above_minimum
     return [st.type(lo), st.type(st.maximum)]
 

@@ -285,13 +285,13 @@ def decompose(cube: np.ndarray, weber: float = WEBER, max_lights: int = MAX_LIGH
 
 def light_regions(cube: np.ndarray, n_lights: int, whole_sources: bool, lights_from: str):
     """A PEM set's regions by `PEMSettings.lights_from`: "median-cut", "area" or "auto"."""
-    from .median_cut import median_cut
+    from .median_cut import median_cut_to
 
     if lights_from == "area":
         return area_regions(cube, n_lights, whole_sources)[0]
     if lights_from == "auto":
         return auto_regions(cube, n_lights, whole_sources)[0]
-    return median_cut(cube, n_lights, whole_sources)
+    return median_cut_to(cube, n_lights, whole_sources)
 
 
 # `lights_from` "auto": the area decomposition where it found lights and none is wider than this
@@ -308,12 +308,12 @@ MAX_PIECE_RADIUS_DEG = 15.0
 def auto_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False):
     """(RegionSet, Decomposition, what was used): `area_regions` where the decomposition found lights
     and none is wider than MAX_PIECE_RADIUS_DEG, else the median cut."""
-    from .median_cut import median_cut
+    from .median_cut import median_cut_to
 
     dec = decompose(cube, max_lights=max(0, n_lights - 6))
     if dec.lights and max(lt.radius_rad for lt in dec.lights) <= np.radians(MAX_PIECE_RADIUS_DEG):
         return area_regions(cube, n_lights, whole_sources, dec)[0], dec, "area"
-    return median_cut(cube[..., :3], n_lights, whole_sources), dec, "median-cut"
+    return median_cut_to(cube[..., :3], n_lights, whole_sources), dec, "median-cut"
 
 
 def _light_pieces(dec: Decomposition, energy: np.ndarray, n_lights: int) -> np.ndarray:
@@ -373,12 +373,12 @@ def area_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False, d
     and shadow map like any other. Returns (RegionSet, Decomposition); a map without area lights
     gets the plain median cut. `dec`: the decomposition, if made already (at most n_lights - 6 lights,
     room for the remainder's six)."""
-    from .median_cut import RegionSet, _region_stats, median_cut, median_cut_to
+    from .median_cut import RegionSet, _region_stats, median_cut_to
 
     if dec is None:
         dec = decompose(cube, max_lights=max(0, n_lights - 6))
     if not dec.lights:
-        return median_cut(cube[..., :3], n_lights, whole_sources), dec
+        return median_cut_to(cube[..., :3], n_lights, whole_sources), dec
     n = cube.shape[1]
     rgb = np.asarray(cube[..., :3], np.float64)
     energy = np.maximum(rgb @ LUMINANCE_RGB, 0.0) * cube_solid_angles(n)

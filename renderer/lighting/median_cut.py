@@ -3,7 +3,9 @@
 Debevec, "A median cut algorithm for light probe sampling" (SIGGRAPH 2008 classes), applied to
 each of the six cube faces separately as in Knuth et al. 2014, section 4: every face is cut k
 times, each time every region is split across its longer side where its energy is halved, giving
-N = 6 * 2^k regions. Energy of a texel = luminance x exact texel solid angle, so regions near face
+N = 6 * 2^k regions (`median_cut`). Any other count N >= 6 (`median_cut_to`, what a PEM set's
+regions come from): the cut to the largest 6 * 2^k below it, then its most energetic regions halved
+once more, each by the same rule. Energy of a texel = luminance x exact texel solid angle, so regions near face
 corners (smaller texels) are not over-weighted. Every texel belongs to exactly one region
 (Knuth et al. Eq. 1): the partition is stored as a label per texel.
 
