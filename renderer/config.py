@@ -97,8 +97,8 @@ def regions_per_face(n_lights: int) -> int:
     per_face = n_lights // 6
     if n_lights < 6 or n_lights % 6 or per_face & (per_face - 1):
         raise InvalidInputError(
-            f"--lights must be 6 * 2^k (6, 12, 24, 48, 96, 192, 384, ...), got {n_lights}: "
-            "median cut is applied per cube face and halves every region at each step"
+            f"the uniform median cut takes 6 * 2^k regions (6, 12, 24, 48, 96, 192, 384, ...), got {n_lights}: "
+            "it halves every region of each cube face at each step; median_cut_to takes any count from 6"
         )
     return per_face
 

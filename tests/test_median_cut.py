@@ -243,7 +243,6 @@ def test_sub_lights_per_region_must_be_a_power_of_two(bad):
         sub_lights(cube, median_cut(cube, 6), bad)
 
 
-
 def test_a_pem_sets_median_cut_takes_any_count_and_is_the_uniform_cut_at_6_times_a_power_of_two():
     """light_regions (what a PEM set's regions come from) with lights_from median-cut: median_cut_to,
     so a preset may name 16 or 18 lights; at 6 * 2^k the paper's uniform cut, label for label."""

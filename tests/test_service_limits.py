@@ -350,7 +350,6 @@ def test_a_huge_face_is_refused_before_any_table_of_it_is_made(tmp_path, mesh):
 
 def _extremes(st) -> list:
     """Each end of a registry setting's range (every value of a choice or a switch)."""
-
     if st.choices is not None:
         return list(st.choices)
     if st.type is bool:

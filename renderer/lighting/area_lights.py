@@ -371,7 +371,7 @@ def area_regions(cube: np.ndarray, n_lights: int, whole_sources: bool = False, d
     each, `_light_pieces`), and the ambient remainder median-cut into the n_lights - k
     regions the k area lights leave (`median_cut_to`; at least 6), each a light with its own PEM
     and shadow map like any other. Returns (RegionSet, Decomposition); a map without area lights
-    gets the plain median cut. `dec`: the decomposition, if made already (at most n_lights - 6 lights,
+    gets the median cut (median_cut_to). `dec`: the decomposition, if made already (at most n_lights - 6 lights,
     room for the remainder's six)."""
     from .median_cut import RegionSet, _region_stats, median_cut_to
 
