@@ -179,6 +179,27 @@ SNAP_CELLS = 16
 _SERIALS = itertools.count()
 
 
+def _seen_box(sm: SceneMesh, frustum: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
+    """Scene.visible_bounds for one mesh: the part of its box in the frustum (a floor of two
+    triangles), and within it the box of its vertices in view (a body whose head and legs are out of
+    the frame), each plane moved out by the mesh's reach. None: nothing of it in view."""
+    clipped = _clip_box(*sm.box, *frustum)
+    if clipped is None:
+        return None
+    if np.allclose(clipped[0], sm.box[0]) and np.allclose(clipped[1], sm.box[1]):
+        return clipped   # all in view: no vertex to leave out
+    p = np.asarray(sm.positions, np.float32)
+    # Plane by plane in float32 (one matrix-vector product each): 8 ms for 2M vertices here,
+    # where one (V, 6) product in float64 took 200 ms of every frame.
+    inside = np.ones(len(p), bool)
+    for plane in frustum[0].astype(np.float32):
+        inside &= p @ plane[:3] >= -sm.reach - plane[3]
+    if not inside.any():
+        return None
+    seen = box(p[inside])
+    return np.maximum(seen[0], clipped[0]), np.minimum(seen[1], clipped[1])
+
+
 class SceneMesh:
     """One mesh's buffers, vertex arrays and material textures; owned by its `Scene`."""
 
@@ -195,6 +216,8 @@ class SceneMesh:
         # tells this mesh from any other the process made (an id() can be reused once one is freed).
         self.version = 0
         self.serial = next(_SERIALS)
+        # Scene.visible_bounds' box of this mesh, kept while it holds still: ((version, camera), box).
+        self.seen_box: tuple | None = None
         self._pbr, self._programs = pbr, programs
         # Checked before any GL object exists, so that a refused proxy leaks nothing.
         self._check_maps(material)
@@ -523,28 +546,20 @@ class Scene:
         frustum = _frustum(view_proj)
         if frustum is None:
             return None
-        planes = frustum[0]
+        vp_key = np.asarray(view_proj, np.float64).tobytes()
         los, his = [], []
         for sm in self.meshes:
-            # The part of the mesh's box in the frustum (a floor of two triangles), and within it the
-            # box of the vertices in view (a body whose head and legs are out of the frame).
-            clipped = _clip_box(*sm.box, *frustum)
-            if clipped is None:
-                continue
-            if np.allclose(clipped[0], sm.box[0]) and np.allclose(clipped[1], sm.box[1]):
-                los.append(clipped[0])   # all in view: no vertex to leave out
-                his.append(clipped[1])
-                continue
-            p = np.asarray(sm.positions, np.float32)
-            # Plane by plane in float32 (one matrix-vector product each): 8 ms for 2M vertices here,
-            # where one (V, 6) product in float64 took 200 ms of every frame.
-            inside = np.ones(len(p), bool)
-            for plane in planes.astype(np.float32):
-                inside &= p @ plane[:3] >= -sm.reach - plane[3]
-            if inside.any():
-                seen = box(p[inside])
-                los.append(np.maximum(seen[0], clipped[0]))
-                his.append(np.minimum(seen[1], clipped[1]))
+            # A mesh that holds still (outside group 0: a body, a floor) keeps its box while it and the
+            # camera do, as the geometry pass keeps its targets: a body's costs a millisecond a frame.
+            key = (sm.version, vp_key)
+            if sm.group != 0 and sm.seen_box is not None and sm.seen_box[0] == key:
+                seen = sm.seen_box[1]
+            else:
+                seen = _seen_box(sm, frustum)
+                sm.seen_box = (key, seen) if sm.group != 0 else None
+            if seen is not None:
+                los.append(seen[0])
+                his.append(seen[1])
         if not los:
             return None
         return np.min(los, axis=0), np.max(his, axis=0)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from conftest import HDRI, needs_assets
 
+from renderer import presets as presets_mod
 from renderer.bench import broad, catalogue
 from renderer.bench.catalogue import MAPS, Scene, fit_body_inside, scenes, split
 from renderer.bench.scenes import TARGET_PROBES
@@ -192,7 +193,7 @@ def test_at_512_only_the_equal_error_targets_are_judged_and_every_size_reports_i
     # The knob table takes every size of the run (512 x 512 as 256 x 256).
     knobs = [dataclasses.asdict(_row("y@512", "balanced:lights=48", 512, frame_ms=800.0))] + \
         [dataclasses.asdict(rows[1])]
-    assert [(t["knob"], t["size"], t["time_ratio"]) for t in broad.knob_table(knobs)] == [("lights=48", 512, 2.0)]
+    assert [(t["knob"], t["size"], t["time_ratio"]) for t in broad.knob_table(knobs)] == [("balanced:lights=48", 512, 2.0)]
 
 
 def test_the_excess_takes_the_truths_own_noise_out_in_quadrature():
@@ -223,11 +224,11 @@ def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path, monkeypatch):
     only = [Scene("ennis.hdr", "shirt", "cotton", "three-quarter", 32), Scene("pisa.hdr", "polo", "satin", "front", 32)]
     cfg = broad.BroadConfig(frames=1, frames_small=1, spp_small=8, spp_large=8, workers=1, cache=str(tmp_path / "refs"))
     rows = broad.run_broad(tmp_path / "out", cfg, log=lambda *_: None, only=only)
-    # The held-out satin scene also runs balanced with each knob variant (KNOB_SMALL_FABRIC).
+    # The held-out satin scene also runs each knob variant (KNOB_SMALL_FABRIC).
     assert len(rows) == 2 * len(PRESET_NAMES) + len(broad.KNOB_VARIANTS)
     # Every preset, the paper's among them; the targets are the other three's.
     assert {r.preset for r in rows if ":" not in r.preset} == set(PRESET_NAMES) == set(catalogue.PRESETS) | {"paper"}
-    assert {r.preset.split(":")[1] for r in rows if ":" in r.preset} == set(broad.KNOB_VARIANTS)
+    assert {r.preset for r in rows if ":" in r.preset} == set(broad.KNOB_VARIANTS)
     assert all(r.scene == only[1].name for r in rows if ":" in r.preset)
     rows = [r for r in rows if ":" not in r.preset]
     for r in rows:
@@ -281,19 +282,30 @@ def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path, monkeypatch):
                 (rate["setup_ms"] + spp * rate["ms_per_spp"] / cores) / r["frame_ms"])
 
 
-def test_the_knob_table_sets_each_variant_against_balanced_on_the_same_scenes():
+def test_the_knob_table_sets_each_variant_against_its_preset_on_the_same_scenes():
     rows = [dataclasses.asdict(r) for r in (
         _row("a", "balanced", rel_rmse=0.10, frame_ms=100.0), _row("b", "balanced", rel_rmse=0.20, frame_ms=100.0),
         _row("a", "balanced:lights=48", rel_rmse=0.08, frame_ms=200.0),
         _row("b", "balanced:lights=48", rel_rmse=0.22, frame_ms=180.0),
         _row("a", "balanced:sub_lights=1", size=128, rel_rmse=0.5))]   # no balanced row at 128: none
     (t,) = broad.knob_table(rows)
-    assert (t["knob"], t["size"], t["set"], t["scenes"], t["better"]) == ("lights=48", 256, "held-out", 2, 1)
+    assert (t["knob"], t["size"], t["set"], t["scenes"], t["better"]) == ("balanced:lights=48", 256, "held-out", 2, 1)
     assert t["d_rel_rmse"] == pytest.approx(0.0) and t["time_ratio"] == pytest.approx(1.9)
     # Variants are rows of their own, never counted as presets.
     assert {m["preset"] for m in broad.target_misses([broad.BroadRow(**r) for r in rows])} == {"balanced"}
-    assert "| lights=48 | 256 | held-out | 2 |" in "\n".join(broad.knob_lines(rows))
+    assert "| balanced:lights=48 | 256 | held-out | 2 |" in "\n".join(broad.knob_lines(rows))
     # The 128 x 128 satin scenes' variants make rows of their own size.
     small = rows + [dataclasses.asdict(_row("a", "balanced", size=128, rel_rmse=0.3))]
     assert [(t["knob"], t["size"], t["scenes"]) for t in broad.knob_table(small)] == [
-        ("lights=48", 256, 2), ("sub_lights=1", 128, 1)]
+        ("balanced:lights=48", 256, 2), ("balanced:sub_lights=1", 128, 1)]
+    # A variant of fast is set against fast on the same scene, not against balanced.
+    with_fast = rows + [dataclasses.asdict(r) for r in (
+        _row("a", "fast", rel_rmse=0.18, frame_ms=40.0), _row("a", "fast:lights=20", rel_rmse=0.15, frame_ms=46.0))]
+    t = next(t for t in broad.knob_table(with_fast) if t["knob"] == "fast:lights=20")
+    assert (t["scenes"], t["better"]) == (1, 1)
+    assert t["d_rel_rmse"] == pytest.approx(-0.03) and t["time_ratio"] == pytest.approx(1.15)
+    # Every variant names a preset and is that preset's knobs with its own values over them.
+    knobs = broad.setting_knobs(presets_mod.presets()[0])
+    for name, over in broad.KNOB_VARIANTS.items():
+        assert broad.knob_base(name) in broad.PRESETS
+        assert knobs[name] == {**knobs[broad.knob_base(name)], **over} != knobs[broad.knob_base(name)]

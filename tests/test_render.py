@@ -488,6 +488,38 @@ def test_maps_are_fitted_to_what_the_camera_sees(renderer):
     assert np.isfinite(below.image).all() and dark[24:40, 16:48].sum() > 20 and dark[covered(below)].mean() < 0.05
 
 
+def test_a_still_mesh_keeps_its_box_in_view_while_it_and_the_camera_do(renderer):
+    # The body (shadow group 1) keeps the box of its vertices in view between frames (a millisecond of
+    # numpy a frame); the garment (group 0) is measured every frame. Each box is the one a new scene
+    # would measure: after the camera moves, after it comes back, after the body moves.
+    garment, body = sphere(0.3, centre=(0.0, 0.5, 0.0)), sphere(0.6, centre=(0.0, 0.2, 0.0))
+    scene = renderer.create_scene([garment, body], [Material()] * 2)
+    try:
+        close = Camera((0.0, 0.5, 1.2), (0.0, 0.5, 0.0), fov_y_deg=30.0)   # the body's lower half out of view
+        far = Camera((0.0, 0.5, 4.0), (0.0, 0.5, 0.0), fov_y_deg=40.0)     # all in view
+        vp = {name: cam.view_proj(1.0, *bounds_sphere(*scene.bounds())) for name, cam in (("close", close), ("far", far))}
+
+        def fresh():
+            other = renderer.create_scene([garment, body.with_positions(scene.meshes[1].positions)], [Material()] * 2)
+            try:
+                return {name: other.visible_bounds(v) for name, v in vp.items()}
+            finally:
+                other.release()
+
+        want = fresh()
+        assert want["close"][0][1] > want["far"][0][1] + 0.3   # the close view leaves the body's lower part out
+        for name in ("close", "far", "close"):
+            np.testing.assert_array_equal(np.array(scene.visible_bounds(vp[name])), np.array(want[name]))
+        assert scene.meshes[1].seen_box is not None and scene.meshes[0].seen_box is None
+        scene.meshes[1].set_positions(scene.meshes[1].positions + np.float32([0.0, 0.3, 0.0]))
+        moved = fresh()
+        assert moved["far"][0][1] > want["far"][0][1] + 0.2
+        for name in ("close", "far"):
+            np.testing.assert_array_equal(np.array(scene.visible_bounds(vp[name])), np.array(moved[name]))
+    finally:
+        scene.release()
+
+
 def test_shadow_groups_put_the_first_caster_apart():
     from renderer.scene import RECEIVER_ONLY, shadow_groups
 

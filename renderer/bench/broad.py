@@ -290,21 +290,32 @@ def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, truth
                     floor, truth.floor_flip, spp, truth.ms_per_spp, speedup, {"rel_rmse_measured": measured})
 
 
-# Balanced with one knob changed, on the 256 x 256 scenes of both sets (the sheen fabric) and the
-# held-out 128 x 128 scenes of KNOB_SMALL_FABRIC (satin, whose narrow lobe reads the PEMs where the
-# sheen's terms are all in closed form): what each knob costs and buys on the scenes the presets are
-# chosen on and away from them (the report's knob table; a knob that does not pay goes).
+# A preset with one knob changed ("PRESET:KNOB=VALUE", a row of its own), on the 256 x 256 scenes of
+# both sets (the sheen fabric) and the held-out 128 x 128 scenes of KNOB_SMALL_FABRIC (satin, whose
+# narrow lobe reads the PEMs where the sheen's terms are all in closed form): what each knob costs and
+# buys against its preset on the scenes the presets are chosen on and away from them (the report's
+# knob table; a knob that does not pay goes). Balanced's knobs, and fast's light count: fast holds
+# fewer lights than balanced for its frame budget (renderer/presets/fast.toml), and these rows show
+# what more of them cost and buy on the held-out scenes.
 KNOB_SMALL_FABRIC = "satin"
 KNOB_VARIANTS = {
-    "lights=48": {"lights": 48},
-    "shadow_size=256": {"shadow_size": 256},
-    "min_sigma_texels=2": {"min_sigma_texels": 2.0},
-    "caster_detail=1": {"caster_detail": 1.0},
-    "sub_lights=1": {"sub_lights": 1},
-    "small_light_scale=1": {"small_light_scale": 1},
-    "contact_shadow_texels=0": {"contact_shadow_texels": 0.0},
-    "whole_sources=off": {"whole_sources": False},
+    "balanced:lights=48": {"lights": 48},
+    "balanced:shadow_size=256": {"shadow_size": 256},
+    "balanced:min_sigma_texels=2": {"min_sigma_texels": 2.0},
+    "balanced:caster_detail=1": {"caster_detail": 1.0},
+    "balanced:sub_lights=1": {"sub_lights": 1},
+    "balanced:small_light_scale=1": {"small_light_scale": 1},
+    "balanced:contact_shadow_texels=0": {"contact_shadow_texels": 0.0},
+    "balanced:whole_sources=off": {"whole_sources": False},
+    "fast:lights=18": {"lights": 18},
+    "fast:lights=20": {"lights": 20},
+    "fast:lights=24": {"lights": 24},
 }
+
+
+def knob_base(variant: str) -> str:
+    """The preset a knob variant's row changes ("fast" of "fast:lights=20")."""
+    return variant.split(":", 1)[0]
 
 
 class MapResources:
@@ -368,7 +379,7 @@ class BroadConfig:
     frames_small: int = 1            # ... at 128 x 128 (accuracy only)
     spp_small: int = 512             # samples per technique of each reference at 128 x 128
     spp_large: int = 256             # ... at 256 x 256 (the rows' error is the excess over the truth's noise)
-    knobs: bool = True               # balanced with each of KNOB_VARIANTS on the held-out 256 x 256 scenes too
+    knobs: bool = True               # each of KNOB_VARIANTS on the 256 x 256 scenes too
     sizes: tuple = (128, 256)        # which of the sweep's image sizes to run
     workers: int | None = None       # reference processes (default: one per core)
     cache: str | None = None         # reference cache folder (default: default_cache_dir())
@@ -605,11 +616,11 @@ def spp_at_error(error: float, floor: float, ref_spp: int) -> float:
 
 def setting_knobs(in_use: dict) -> dict[str, dict]:
     """Every setting the benchmark renders, by its row name: the presets (`in_use`, presets.presets()'s
-    table, as the CLI and service apply them) and balanced with each knob variant ("balanced:NAME")."""
+    table, as the CLI and service apply them) and each knob variant ("PRESET:KNOB=VALUE", KNOB_VARIANTS)."""
     from .. import presets as presets_mod
 
     knobs = {p: {**presets_mod.merge_knobs(in_use[p], {}), "filter": "sqrt-cosine"} for p in PRESETS}
-    knobs.update({f"balanced:{name}": {**knobs["balanced"], **v} for name, v in KNOB_VARIANTS.items()})
+    knobs.update({name: {**knobs[knob_base(name)], **v} for name, v in KNOB_VARIANTS.items()})
     return knobs
 
 
@@ -687,23 +698,23 @@ def retime(path: Path, out: Path, frames: int = BroadConfig.frames, log=print) -
 
 
 def knob_table(rows: list[dict]) -> list[dict]:
-    """Per knob variant, image size and set: the medians over scenes of its change against balanced in
-    the same scene (rel. RMSE and FLIP as differences, artefact share in points, time as a ratio), and
-    on how many scenes its rel. RMSE is lower."""
-    base = {(r["scene"], r["size"]): r for r in rows if r["preset"] == "balanced"}
+    """Per knob variant, image size and set: the medians over scenes of its change against its preset
+    in the same scene (rel. RMSE and FLIP as differences, artefact share in points, time as a ratio),
+    and on how many scenes its rel. RMSE is lower."""
+    base = {(r["preset"], r["scene"], r["size"]): r for r in rows if r["preset"] in PRESETS}
     out = []
     for size in sorted({r["size"] for r in rows}, reverse=True):
         for name in KNOB_VARIANTS:
             for part in ("tuning", "held-out"):
-                pairs = [(r, base[r["scene"], size]) for r in rows if r["preset"] == f"balanced:{name}"
-                         and r["set"] == part and r["size"] == size and (r["scene"], size) in base]
+                pairs = [(r, base[knob_base(name), r["scene"], size]) for r in rows if r["preset"] == name
+                         and r["set"] == part and r["size"] == size and (knob_base(name), r["scene"], size) in base]
                 if pairs:
                     out.append(_knob_change(name, size, part, pairs))
     return out
 
 
 def _knob_change(name: str, size: int, part: str, pairs: list) -> dict:
-    """One variant's row of the knob table: `pairs` are (its row, balanced's row) per scene."""
+    """One variant's row of the knob table: `pairs` are (its row, its preset's row) per scene."""
     return {"knob": name, "size": size, "set": part, "scenes": len(pairs),
             "d_rel_rmse": float(np.median([v["rel_rmse"] - b["rel_rmse"] for v, b in pairs])),
             "d_flip": float(np.median([v["flip"] - b["flip"] for v, b in pairs])),
@@ -716,8 +727,8 @@ def knob_lines(rows: list[dict]) -> list[str]:
     table = knob_table(rows)
     if not table:
         return []
-    lines = ["", "## Knobs around balanced", "",
-             "Balanced with one knob changed, against balanced on the same scenes (medians over the scenes; "
+    lines = ["", "## Knobs around the presets", "",
+             "A preset with one knob changed, against that preset on the same scenes (medians over the scenes; "
              f"time as the ratio of the two settings' medians in the same run; negative changes are better): at "
              f"256 x 256 and above the sheen scenes, at 128 x 128 the {KNOB_SMALL_FABRIC} scenes.", "",
              "| variant | size | set | scenes | rel. RMSE change | FLIP change | artefact share change | time | "
