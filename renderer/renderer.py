@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
-from dataclasses import KW_ONLY, asdict, dataclass, field, make_dataclass
+from dataclasses import KW_ONLY, asdict, dataclass, field, make_dataclass, replace
 from enum import Enum
 from typing import TypedDict
 
@@ -346,6 +346,9 @@ class Renderer:
         self._shadow_maps: dict[str, ShadowMaps] = {}
         self._target = None
         self._still_target: _StillTarget | None = None   # the still meshes' geometry pass (_geometry_pass)
+        # The last frame's light plan: (its PEM set, its key, the plan) (_light_plan).
+        self._kept_plan: tuple | None = None
+        self.kept_plan_hits = 0
         self.geometry_still_hits = 0   # frames whose still meshes were copied, not drawn (tests)
         self._readback: np.ndarray | None = None
         self._buffers: dict[str, moderngl.Buffer] = {}
@@ -625,14 +628,33 @@ class Renderer:
         `receivers`: the box of what the cameras see (Scene.visible_bounds; None: all the casters)."""
         # Lights: directions and energies from the PEM set, projections fitted to the casters now,
         # over the receivers in view.
-        regions = pems.regions
-        n = regions.n_regions
         lo, hi = scene.bounds(casters_only=True)
         # The projections' boxes, snapped to a grid: the same while what moves stays inside its
         # cells, so the still casters' maps are kept too (snap_box); the contact search's reach
         # follows the casters' own box.
         fit_lo, fit_hi = snap_box(lo, hi, scene.footprint_unit)
         fit_receivers = None if receivers is None else snap_box(*receivers, scene.footprint_unit)
+        # The plan is a function of the PEM set, the settings and the snapped boxes alone: the last
+        # frame's is kept while they stay (a garment moving within its cells), as the still casters'
+        # maps are. The contact search's distance follows the casters' own box: made every frame.
+        key = (settings, scene.footprint_unit, fit_lo.tobytes(), fit_hi.tobytes(),
+               None if fit_receivers is None else b"".join(b.tobytes() for b in fit_receivers))
+        kept = self._kept_plan
+        if kept is not None and kept[0] is pems and kept[1] == key:
+            lp = kept[2]
+            self.kept_plan_hits += 1
+        else:
+            self._kept_plan = None   # a plan that fails half-way leaves nothing to be kept
+            lp = self._plan_lights(pems, settings, fit_lo, fit_hi, fit_receivers, scene.footprint_unit)
+            self._kept_plan = (pems, key, lp)
+        return replace(lp, contact_radius=self._contact_radius(lp, settings, lo, hi, scene.footprint_unit))
+
+    @staticmethod
+    def _plan_lights(pems: PEMSet, settings: FrameSettings, fit_lo: np.ndarray, fit_hi: np.ndarray,
+                     fit_receivers: tuple[np.ndarray, np.ndarray] | None, unit: float) -> _LightPlan:
+        """_light_plan's lights and maps from the snapped boxes (the contact search's distance 0)."""
+        regions = pems.regions
+        n = regions.n_regions
         shadowed = settings.mode is not ShadingMode.NO_OCCLUSION
         # Every light has a map (none in the no-occlusion mode).
         layers = np.arange(n, dtype=np.int32) if shadowed else np.full(n, -1, np.int32)
@@ -651,7 +673,7 @@ class Renderer:
         blur = bool((sigma > 0).any())   # blur scale 0 (every preset): the maps stay as drawn
         # Square texels: the blur's sigma is in texels, the same on both axes, so rectangular texels
         # would make penumbrae anisotropic (a side run fitting x and y separately gained 0-2.5 %).
-        vp = fit_light_view_projs(shadow_dirs, fit_lo, fit_hi, sigma, sizes, scene.footprint_unit, fit_receivers)
+        vp = fit_light_view_projs(shadow_dirs, fit_lo, fit_hi, sigma, sizes, unit, fit_receivers)
         # Lights sharing a map look it up through the projection it was drawn with (its first light's:
         # with a blur the fit's margin follows each light's own width).
         sharp_layer = plan.layer[plan.sharp]
@@ -662,18 +684,22 @@ class Renderer:
         blocker = (settings.penumbra == "blocker") & regions.area_mask & (plan.layer >= 0) & ~plan.sharp
         lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
                              sigma, plan.layer, disc_radius, plan.sharp, texels, blocker)
-        contact_radius = 0.0
-        if settings.contact_shadow_texels > 0 and shadowed and settings.mode is ShadingMode.FULL:
-            # In main-map texels (the maps whose bias hides the contact), else the sharp maps', of maps
-            # over all the casters, not the view: the search's distance in the scene does not follow the
-            # camera (a closer view, finer maps, the same search).
-            main = ~plan.sharp
-            pick = main if main.any() else np.ones(n, bool)
-            scene_texels = texel_sizes(fit_light_view_projs(shadow_dirs[pick], lo, hi, sigma[pick], sizes[pick],
-                                                            scene.footprint_unit), sizes[pick])
-            contact_radius = settings.contact_shadow_texels * float(np.median(scene_texels[:, 0]))
         return _LightPlan(regions, layers, disc_radius, plan, shadow_dirs, sizes, sigma, blur, texels, lights,
-                          bool(blocker.any()), contact_radius)
+                          bool(blocker.any()), 0.0)
+
+    @staticmethod
+    def _contact_radius(lp: _LightPlan, settings: FrameSettings, lo: np.ndarray, hi: np.ndarray, unit: float) -> float:
+        """The contact search's distance in world units (0: no search): settings.contact_shadow_texels
+        in main-map texels (the maps whose bias hides the contact), else the sharp maps', of maps over
+        all the casters (lo, hi), not the view: the search's distance in the scene does not follow the
+        camera (a closer view, finer maps, the same search)."""
+        if not (settings.contact_shadow_texels > 0 and settings.mode is ShadingMode.FULL):
+            return 0.0
+        main = ~lp.plan.sharp
+        pick = main if main.any() else np.ones(lp.n, bool)
+        scene_texels = texel_sizes(fit_light_view_projs(lp.shadow_dirs[pick], lo, hi, lp.sigma[pick], lp.sizes[pick],
+                                                        unit), lp.sizes[pick])
+        return settings.contact_shadow_texels * float(np.median(scene_texels[:, 0]))
 
     def _shadow_pass(self, scene: Scene, settings: FrameSettings, lp: _LightPlan, lights_buf: moderngl.Buffer,
                      timer: StageTimer) -> dict[str, ShadowMaps]:

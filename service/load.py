@@ -189,8 +189,13 @@ def main(argv=None) -> int:
     text = markdown(rows, machine, " ".join(["python -m service.load", *shown]))
     print(text)
     if a.out:
+        from renderer.presets import presets_digest
+
         a.out.write_text(text)
-        a.out.with_suffix(".json").write_text(json.dumps(rows, indent=1))
+        # Stamped with the preset files it ran (tests/test_stored_runs.py: a preset change stales it).
+        a.out.with_suffix(".json").write_text(json.dumps(
+            {"machine": machine, "command": " ".join(["python -m service.load", *shown]),
+             "presets_digest": presets_digest(), "rows": rows}, indent=1))
     return 0
 
 

@@ -2,6 +2,8 @@
 shadow-map layers while its positions and the lights' projections stay the same (the projections are
 fitted to boxes snapped to a grid: renderer.scene.snap_box)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from conftest import plane, sphere, sun_sky_cube
@@ -151,6 +153,43 @@ def test_the_still_meshes_geometry_is_drawn_once_per_camera_and_the_frames_are_t
             assert keeps.geometry_still_hits - hits == int(copied)
             assert (images[0][..., 3] > 0.5).mean() > 0.3
         assert draws.geometry_still_hits == 0
+    finally:
+        pems.release()
+        for s in scenes:
+            s.release()
+
+
+def test_the_light_plan_is_kept_while_the_snapped_boxes_stay_and_the_frames_are_the_same(two_renderers):
+    """The light plan (each light's map and projection, the lights' records) is a function of the PEM
+    set, the settings and the snapped boxes: it is kept while they stay (a garment moving within its
+    cells), made again when one changes, and the frames (and the contact search's distance, made every
+    frame from the casters' own box) equal those of a renderer that plans every frame."""
+    cube, meshes, mats = _garment_on_body()
+    garment = meshes[0]
+    up = np.array([0.0, 1.0, 0.0], np.float32)
+    fs = FrameSettings(64, 64, background=Background.BLACK, contact_shadow_texels=12.0)
+    # (positions, settings, whether the plan is kept)
+    frames = [(None, fs, False),                                           # the first plans
+              ([garment.positions + 1e-4 * up, None, None], fs, True),     # within its cells
+              ([garment.positions + 0.3 * up, None, None], fs, False),     # across a cell's side
+              ([garment.positions + 0.3 * up, None, None], fs, True),
+              (None, dataclasses.replace(fs, shadow_size=128), False),     # other settings
+              ([garment.positions, None, None], fs, False)]                # back: planned again
+    keeps, plans = two_renderers
+    pems = keeps.build_pems(cube, PEMSettings(24))
+    scenes = [r.create_scene(meshes, mats) for r in (keeps, plans)]
+    try:
+        for positions, settings, kept in frames:
+            hits = keeps.kept_plan_hits
+            out = []
+            for r, scene in zip((keeps, plans), scenes):
+                if r is plans:
+                    r._kept_plan = None   # nothing kept: planned anew
+                out.append(r.render_views(scene, pems, settings, [CAM], positions=positions)[0])
+            np.testing.assert_array_equal(out[0].image, out[1].image)
+            assert out[0].settings["contact_radius"] == out[1].settings["contact_radius"] > 0.0
+            assert keeps.kept_plan_hits - hits == int(kept)
+        assert plans.kept_plan_hits == 0
     finally:
         pems.release()
         for s in scenes:

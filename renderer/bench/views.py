@@ -18,7 +18,7 @@ import numpy as np
 
 from ..camera import frame_meshes
 from ..envmap import environment_from_array, studio_environment
-from ..presets import frame_settings, pem_settings, preset
+from ..presets import frame_settings, pem_settings, preset, presets_digest
 from ..procedural import default_scene
 from ..renderer import Renderer
 from ..shading.material import Material
@@ -61,7 +61,7 @@ def run(out_dir: Path, quick: bool = False, rounds: int = 5, log=print) -> dict:
                     s.release()
                 pems.release()
         machine = machine_info(r.gl)
-    data = {"machine": machine, "size": SIZE, "rounds": rounds, "quick": quick,
+    data = {"machine": machine, "presets_digest": presets_digest(), "size": SIZE, "rounds": rounds, "quick": quick,
             "wall_s": time.perf_counter() - t_start, "rows": rows}
     (out_dir / "views.json").write_text(json.dumps(data, indent=1))
     (out_dir / "views.md").write_text(markdown(data))
