@@ -9,6 +9,9 @@
 #   energy      garment-render bench --energy             (~2 min)
 #   materials   garment-render bench --materials          (~10 min)
 #   one-shot    garment-render speed --one-shot           (~5 min)
+#   sweep       garment-render bench                      (docs/sweep.json, sweep.md, pareto.png; ~30 min)
+#   views       garment-render bench --views              (docs/views-bench.json and .md; ~2 min)
+#   scale-out   python -m service.load --ray 1,2 --frames 32   (docs/scale-out.json and .md; ~3 min)
 # and, named only (never by default), the broad runs retimed: their stored errors kept, every frame and
 # the tracer's rate timed again (`bench --broad --retime`), for a change that leaves every image as it
 # was (a faster shader that draws the same pixels, the machine's timings on another day):
@@ -17,7 +20,7 @@
 # run this on a quiet machine, nothing else at work, and give each run the whole machine.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-all=(broad-256 broad-512 error-split energy materials one-shot)
+all=(broad-256 broad-512 error-split energy materials one-shot sweep views scale-out)
 named=("${all[@]}" broad-256-retime broad-512-retime)
 runs=("$@")
 if [[ ${#runs[@]} -eq 0 ]]; then
@@ -71,5 +74,15 @@ for run in "${runs[@]}"; do
             cp "$tmp/materials/materials.json" docs/materials-bench.json
             cp "$tmp/materials/materials.md" docs/materials-bench.md ;;
         one-shot) "${gr[@]}" speed --one-shot --out docs/one-shot ;;
+        sweep)
+            "${gr[@]}" bench --out "$tmp/sweep"
+            cp "$tmp/sweep/bench.json" docs/sweep.json
+            cp "$tmp/sweep/bench.md" docs/sweep.md
+            cp "$tmp/sweep/pareto.png" docs/pareto.png ;;
+        views)
+            "${gr[@]}" bench --views --out "$tmp/views"
+            cp "$tmp/views/views.json" docs/views-bench.json
+            cp "$tmp/views/views.md" docs/views-bench.md ;;
+        scale-out) "$py" -m service.load --ray 1,2 --frames 32 --out docs/scale-out.md ;;
     esac
 done

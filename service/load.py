@@ -127,10 +127,10 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def markdown(rows: list[dict], machine: str, command: str) -> str:
+def markdown(rows: list[dict], machine: str, command: str, date: str) -> str:
     lines = ["# Scale-out: Ray Serve replicas", "",
              f"Made by `{command}` on {machine} "
-             f"({time.strftime('%Y-%m-%d')}): {rows[0]['clients']} clients, {rows[0]['scenes']} scenes of the procedural "
+             f"({date}): {rows[0]['clients']} clients, {rows[0]['scenes']} scenes of the procedural "
              f"garment, {rows[0]['size']} x {rows[0]['size']}, the fast preset, frames of every scene in turn.", "",
              "| replicas | frames | frames/s | p50 ms | p99 ms | retries | frames per replica |", "|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -152,6 +152,11 @@ def markdown(rows: list[dict], machine: str, command: str) -> str:
                   "- **Routing.** The frames per replica are the scenes' owners at work: every request of a scene, "
                   "its registration first, goes by a consistent-hash ring on the scene's id to one replica "
                   "(service/ray_serve.py), so the split follows how the ring placed the scenes' ids."]
+    for r in counted:
+        if len(r["replicas"]) < r["replica_count"]:
+            lines.append(f"- **This run's ring.** With {r['replica_count']} replicas the ring placed all "
+                         f"{r['scenes']} scenes' ids on {len(r['replicas'])} of them: the others served nothing, "
+                         "so that row is the throughput of fewer replicas than were started.")
     return "\n".join(lines) + "\n"
 
 
@@ -186,7 +191,8 @@ def main(argv=None) -> int:
     if "--out" in shown:   # the table's own path says nothing about how it was made
         i = shown.index("--out")
         del shown[i:i + 2]
-    text = markdown(rows, machine, " ".join(["python -m service.load", *shown]))
+    date = time.strftime("%Y-%m-%d")
+    text = markdown(rows, machine, " ".join(["python -m service.load", *shown]), date)
     print(text)
     if a.out:
         from renderer.presets import presets_digest
@@ -194,7 +200,7 @@ def main(argv=None) -> int:
         a.out.write_text(text)
         # Stamped with the preset files it ran (tests/test_stored_runs.py: a preset change stales it).
         a.out.with_suffix(".json").write_text(json.dumps(
-            {"machine": machine, "command": " ".join(["python -m service.load", *shown]),
+            {"machine": machine, "date": date, "command": " ".join(["python -m service.load", *shown]),
              "presets_digest": presets_digest(), "rows": rows}, indent=1))
     return 0
 

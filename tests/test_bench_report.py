@@ -145,7 +145,8 @@ def test_bench_end_to_end_writes_its_three_outputs(tmp_path):
     cfg = BenchConfig(quick=True, size=24, frames=1, ref_spp=8, ladder=(1, 4), shared=False)
     rows = run_bench(tmp_path, cfg, log=lambda *a: None)
     data = json.loads((tmp_path / "bench.json").read_text())
-    assert set(data) == {"machine", "presets_digest", "config", "rows"} and data["machine"]["gl_renderer"]
+    assert set(data) == {"machine", "presets_digest", "config", "rows", "refused"} and data["machine"]["gl_renderer"]
+    assert data["refused"] == []   # nothing in the quick sweep is beyond the driver
     from renderer.presets import presets_digest
 
     assert data["presets_digest"] == presets_digest()
@@ -169,6 +170,21 @@ def test_bench_end_to_end_writes_its_three_outputs(tmp_path):
         assert text in md, text
     w, h = Image.open(tmp_path / "pareto.png").size
     assert w > 100 and h > 100
+
+
+def test_a_setting_the_renderer_refuses_is_reported_under_its_scene(tmp_path):
+    # The sweep goes on past a setting whose maps the driver cannot hold (run.bench_scene); the report
+    # names it, with the renderer's reason, under the scene that refused it.
+    from renderer.bench.report import write_markdown
+    from renderer.bench.run import BenchConfig
+
+    rows = [_row("balanced", "balanced", 90.0, 0.05, scene="a"), _row("balanced", "balanced", 95.0, 0.06, scene="b")]
+    why = "35 shadow maps of 2048^2 (2240 MiB of moments in one texture array) are more than this GL driver allocates"
+    write_markdown(tmp_path / "bench.md", rows, {"cpu": "x", "gl_renderer": "gl", "gl_version": "4.5", "date": "d"},
+                   BenchConfig(), [{"scene": "b", "knob": "lights", "value": 384, "mode": "full", "why": why}])
+    md = (tmp_path / "bench.md").read_text()
+    section_b = md[md.index("## b (env)"):]
+    assert f"- lights = 384 [full]: {why}" in section_b and "Not run" not in md[:md.index("## b (env)")]
 
 
 def test_a_preset_over_its_frame_budget_is_a_missed_row():

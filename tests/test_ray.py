@@ -408,8 +408,20 @@ def test_the_load_script_reports_throughput_and_latency_per_replica(cluster):
     row = run_load(cluster["url"], scenes=2, frames=3, clients=2, size=32, resolution=8)
     assert row["frames"] == 6 and row["throughput_fps"] > 0 and row["p99_ms"] >= row["p50_ms"] > 0
     assert sum(row["replicas"].values()) == 6 and all(name != "-" for name in row["replicas"])
-    text = markdown([{**row, "replica_count": 2}], "test machine", "python -m service.load --ray 2")
-    assert "`python -m service.load --ray 2`" in text and "| 2 | 6 |" in text
+    text = markdown([{**row, "replica_count": 2}], "test machine", "python -m service.load --ray 2", "2026-01-02")
+    assert "`python -m service.load --ray 2`" in text and "| 2 | 6 |" in text and "(2026-01-02)" in text
+
+
+def test_the_load_table_says_when_the_ring_left_a_replica_without_scenes():
+    from service.load import markdown
+
+    row = {"frames": 8, "wall_s": 1.0, "throughput_fps": 8.0, "p50_ms": 100.0, "p99_ms": 150.0, "retries": 0,
+           "scenes": 4, "clients": 4, "size": 32}
+    rows = [{**row, "replicas": {"a": 8}, "replica_count": 1}, {**row, "replicas": {"b": 8}, "replica_count": 2}]
+    text = markdown(rows, "test machine", "python -m service.load --ray 1,2", "2026-01-02")
+    assert "With 2 replicas the ring placed all 4 scenes' ids on 1 of them" in text
+    rows[1]["replicas"] = {"b": 5, "c": 3}
+    assert "the ring placed all" not in markdown(rows, "test machine", "python -m service.load --ray 1,2", "2026-01-02")
 
 
 def test_the_cluster_config_builds_the_deployment_it_names():

@@ -11,7 +11,8 @@ from renderer.presets import presets_digest
 ROOT = Path(__file__).resolve().parents[1]
 # The runs the README and docs read their current numbers from.
 CURRENT = ("docs/error-split/error_split.json", "docs/one-shot/one_shot.json", "docs/broad/broad-256.json",
-           "docs/broad/broad-512.json", "docs/energy/energy.json", "docs/materials-bench.json")
+           "docs/broad/broad-512.json", "docs/energy/energy.json", "docs/materials-bench.json", "docs/sweep.json",
+           "docs/views-bench.json", "docs/scale-out.json")
 
 
 def _stamped() -> dict[str, str]:
@@ -66,3 +67,9 @@ def test_the_stored_reports_are_what_their_runs_make():
                       (broad.README_RUN, broad.markdown), ("docs/broad/broad-512.json", broad.markdown)):
         data = json.loads((ROOT / run).read_text())
         assert (ROOT / run).with_suffix(".md").read_text() == make(data), run
+    from renderer.bench import views
+    from service import load
+
+    assert (ROOT / "docs/views-bench.md").read_text() == views.markdown(json.loads((ROOT / "docs/views-bench.json").read_text()))
+    data = json.loads((ROOT / "docs/scale-out.json").read_text())
+    assert (ROOT / "docs/scale-out.md").read_text() == load.markdown(data["rows"], data["machine"], data["command"], data["date"])

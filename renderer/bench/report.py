@@ -99,7 +99,9 @@ def _artefacts(r) -> str:
     return "-" if share is None else f"{100 * share:.2f} %"
 
 
-def write_markdown(path: Path, rows, machine: dict, cfg) -> None:
+def write_markdown(path: Path, rows, machine: dict, cfg, refused: list[dict] = ()) -> None:
+    """The sweep's report: a table per scene, the settings this machine refused under it (run.bench_scene),
+    then the targets at the balanced preset."""
     lines = [f"# Benchmark ({'quick' if cfg.quick else 'full'})", "",
              f"Made by `garment-render bench{' --quick' if cfg.quick else ''}` (renderer/bench/run.py): every knob "
              "varied alone from the balanced preset of the preset files of the day (bench.json records their digest).",
@@ -131,6 +133,11 @@ def write_markdown(path: Path, rows, machine: dict, cfg) -> None:
                 f"{r.shadow_bytes / MB:.1f} ({paper_vsm_mb(s['lights'], s['shadow_size']):.1f}) | "
                 f"{r.rel_rmse:.4f} | {r.flip:.4f} | {_artefacts(r)} | {eq} |")
         lines.append("")
+        no = [x for x in refused if x["scene"] == scene]
+        if no:
+            lines += ["Not run on this machine (the renderer refused them before drawing):", ""]
+            lines += [f"- {x['knob']} = {x['value']} [{x['mode']}]: {x['why']}" for x in no]
+            lines.append("")
     lines += target_lines(rows)
     lines += ["VSM memory: moments are 32-bit floats (RG32F), a layer per light and shadow group (the garment's "
               "and the body's), four times the paper's RG16F maps at the same size and count; a setting that blurs "

@@ -19,6 +19,7 @@ import numpy as np
 
 from .. import config, presets
 from ..camera import frame_meshes
+from ..errors import InvalidInputError
 from ..gpu.context import GLContext
 from ..lighting.filters import Filter
 from ..presets import PRESET_NAMES, knob_defaults, preset
@@ -128,7 +129,10 @@ def time_frames(r: Renderer, scene, pems, fs: FrameSettings, camera, n: int):
     return frames[-1], frame_ms, stages
 
 
-def bench_scene(r: Renderer, bs: BenchScene, cfg: BenchConfig, log=print) -> list[Row]:
+def bench_scene(r: Renderer, bs: BenchScene, cfg: BenchConfig, log=print, refused: list | None = None) -> list[Row]:
+    """The scene's rows, one per setting of the sweep. A setting the renderer refuses on this machine
+    (its shadow maps beyond what the GL driver allocates) makes no row: it goes to `refused` (scene,
+    knob, value and the renderer's reason) and the sweep goes on."""
     size = cfg.size
     camera = frame_meshes(bs.meshes, 1.0)
     sweeps = QUICK_SWEEPS if cfg.quick else SWEEPS
@@ -171,7 +175,13 @@ def bench_scene(r: Renderer, bs: BenchScene, cfg: BenchConfig, log=print) -> lis
         for knob, value, s, mode in jobs:
             pems = _pems_for(r, bs, s, pem_cache)
             fs = frame_settings(s, size, mode)
-            frame, frame_ms, stages = time_frames(r, scene, pems, fs, camera, cfg.frames)
+            try:
+                frame, frame_ms, stages = time_frames(r, scene, pems, fs, camera, cfg.frames)
+            except InvalidInputError as exc:
+                if refused is not None:
+                    refused.append({"scene": bs.name, "knob": knob, "value": value, "mode": mode.value, "why": str(exc)})
+                log(f"  {knob}={value} [{mode.value}]: not run: {exc}")
+                continue
             err = relative_rmse(frame.image, truth, mask)
             flip = mean_flip(frame.image, truth, mask)
             artefacts = artefact_share(frame.image, ref_a.image, ref_b.image, mask)
@@ -196,22 +206,23 @@ def run_bench(out_dir: Path, cfg: BenchConfig, log=print) -> list[Row]:
     scenes = [bundled_scene()] + (shared_scenes() if cfg.shared else [])
     gl = GLContext()
     rows: list[Row] = []
+    refused: list[dict] = []
     with Renderer(gl) as r:
         machine = machine_info(gl)
         for bs in scenes:
             log(f"scene {bs.name} ({bs.env_name})")
-            rows += bench_scene(r, bs, cfg, log)
-            _write(out_dir, rows, machine, cfg)  # partial results survive an interrupted run
+            rows += bench_scene(r, bs, cfg, log, refused)
+            _write(out_dir, rows, machine, cfg, refused)  # partial results survive an interrupted run
     gl.release()
     return rows
 
 
-def _write(out_dir: Path, rows: list[Row], machine: dict, cfg: BenchConfig) -> None:
+def _write(out_dir: Path, rows: list[Row], machine: dict, cfg: BenchConfig, refused: list[dict] = ()) -> None:
     from ..presets import presets_digest
     from .report import write_markdown, write_pareto
 
     (out_dir / "bench.json").write_text(json.dumps(
         {"machine": machine, "presets_digest": presets_digest(), "config": asdict(cfg),
-         "rows": [asdict(r) for r in rows]}, indent=1, default=float))
-    write_markdown(out_dir / "bench.md", rows, machine, cfg)
+         "rows": [asdict(r) for r in rows], "refused": list(refused)}, indent=1, default=float))
+    write_markdown(out_dir / "bench.md", rows, machine, cfg, refused)
     write_pareto(out_dir / "pareto.png", rows)
