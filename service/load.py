@@ -191,8 +191,8 @@ def main(argv=None) -> int:
     if "--out" in shown:   # the table's own path says nothing about how it was made
         i = shown.index("--out")
         del shown[i:i + 2]
-    date = time.strftime("%Y-%m-%d")
-    text = markdown(rows, machine, " ".join(["python -m service.load", *shown]), date)
+    date, command = time.strftime("%Y-%m-%d"), " ".join(["python -m service.load", *shown])
+    text = markdown(rows, machine, command, date)
     print(text)
     if a.out:
         from renderer.presets import presets_digest
@@ -200,7 +200,7 @@ def main(argv=None) -> int:
         a.out.write_text(text)
         # Stamped with the preset files it ran (tests/test_stored_runs.py: a preset change stales it).
         a.out.with_suffix(".json").write_text(json.dumps(
-            {"machine": machine, "date": date, "command": " ".join(["python -m service.load", *shown]),
+            {"machine": machine, "date": date, "command": command,
              "presets_digest": presets_digest(), "rows": rows}, indent=1))
     return 0
 

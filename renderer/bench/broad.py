@@ -705,9 +705,10 @@ def knob_table(rows: list[dict]) -> list[dict]:
     out = []
     for size in sorted({r["size"] for r in rows}, reverse=True):
         for name in KNOB_VARIANTS:
+            preset = knob_base(name)
             for part in ("tuning", "held-out"):
-                pairs = [(r, base[knob_base(name), r["scene"], size]) for r in rows if r["preset"] == name
-                         and r["set"] == part and r["size"] == size and (knob_base(name), r["scene"], size) in base]
+                pairs = [(r, base[preset, r["scene"], size]) for r in rows if r["preset"] == name
+                         and r["set"] == part and r["size"] == size and (preset, r["scene"], size) in base]
                 if pairs:
                     out.append(_knob_change(name, size, part, pairs))
     return out
