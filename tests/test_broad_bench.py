@@ -300,8 +300,8 @@ def test_the_knob_table_sets_each_variant_against_its_preset_on_the_same_scenes(
         ("balanced:lights=48", 256, 2), ("balanced:sub_lights=1", 128, 1)]
     # A variant of fast is set against fast on the same scene, not against balanced.
     with_fast = rows + [dataclasses.asdict(r) for r in (
-        _row("a", "fast", rel_rmse=0.18, frame_ms=40.0), _row("a", "fast:lights=20", rel_rmse=0.15, frame_ms=46.0))]
-    t = next(t for t in broad.knob_table(with_fast) if t["knob"] == "fast:lights=20")
+        _row("a", "fast", rel_rmse=0.18, frame_ms=40.0), _row("a", "fast:lights=24", rel_rmse=0.15, frame_ms=46.0))]
+    t = next(t for t in broad.knob_table(with_fast) if t["knob"] == "fast:lights=24")
     assert (t["scenes"], t["better"]) == (1, 1)
     assert t["d_rel_rmse"] == pytest.approx(-0.03) and t["time_ratio"] == pytest.approx(1.15)
     # Every variant names a preset and is that preset's knobs with its own values over them.

@@ -307,14 +307,13 @@ KNOB_VARIANTS = {
     "balanced:small_light_scale=1": {"small_light_scale": 1},
     "balanced:contact_shadow_texels=0": {"contact_shadow_texels": 0.0},
     "balanced:whole_sources=off": {"whole_sources": False},
-    "fast:lights=18": {"lights": 18},
-    "fast:lights=20": {"lights": 20},
+    "fast:lights=16": {"lights": 16},
     "fast:lights=24": {"lights": 24},
 }
 
 
 def knob_base(variant: str) -> str:
-    """The preset a knob variant's row changes ("fast" of "fast:lights=20")."""
+    """The preset a knob variant's row changes ("fast" of "fast:lights=24")."""
     return variant.split(":", 1)[0]
 
 
