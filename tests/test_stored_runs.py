@@ -73,3 +73,13 @@ def test_the_stored_reports_are_what_their_runs_make():
     assert (ROOT / "docs/views-bench.md").read_text() == views.markdown(json.loads((ROOT / "docs/views-bench.json").read_text()))
     data = json.loads((ROOT / "docs/scale-out.json").read_text())
     assert (ROOT / "docs/scale-out.md").read_text() == load.markdown(data["rows"], data["machine"], data["command"], data["date"])
+
+
+def test_the_stored_sweep_report_is_what_its_run_makes(tmp_path):
+    from renderer.bench.report import write_markdown
+    from renderer.bench.run import BenchConfig, Row
+
+    data = json.loads((ROOT / "docs/sweep.json").read_text())
+    cfg = BenchConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in data["config"].items()})
+    write_markdown(tmp_path / "bench.md", [Row(**r) for r in data["rows"]], data["machine"], cfg, data["refused"])
+    assert (tmp_path / "bench.md").read_text() == (ROOT / "docs/sweep.md").read_text()
