@@ -792,8 +792,9 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
                    help="median cut against area lights (and auto) on every shared map, at equal light count and "
                         "equal frame time (renderer/bench/area.py)")
     b.add_argument("--shadow-maps", action="store_true",
-                   help="balanced's main shadow maps at 256^2 and 512^2 with the casters at 1/4, 1/2 and full detail, "
-                        "on the broad catalogue's 256 x 256 scenes, tuning and held-out apart (renderer/bench/shadow_maps.py)")
+                   help="balanced's main shadow maps at 256^2, 384^2 and 512^2 with the casters at 1/4, 1/2 and full "
+                        "detail, on the broad catalogue's 256 x 256 scenes, tuning and held-out apart "
+                        "(renderer/bench/shadow_maps.py)")
     b.add_argument("--preset", choices=PRESET_NAMES, default="balanced",
                    help="the preset --shadow-maps varies (default balanced)")
     b.add_argument("--sizes", action="store_true",

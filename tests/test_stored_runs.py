@@ -54,7 +54,7 @@ def test_a_changed_preset_file_changes_the_digest(tmp_path):
     balanced = folder / "balanced.toml"
     balanced.write_text("# a comment changes no setting\n" + balanced.read_text())
     assert presets_digest(folder) == presets_digest()
-    balanced.write_text(balanced.read_text().replace("lights = 24", "lights = 96", 1))
+    balanced.write_text(balanced.read_text().replace("lights = 40", "lights = 96", 1))
     assert presets_digest(folder) != presets_digest()
 
 

@@ -297,20 +297,25 @@ def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, truth
 # knob table; a knob that does not pay goes). Balanced's knobs, and fast's light count: fast holds
 # fewer lights than balanced for its frame budget (renderer/presets/fast.toml), and these rows show
 # what more of them cost and buy on the held-out scenes. A variant may change several knobs where
-# one trade is weighed against another: balanced's maps at 256^2 (the contact search's reach kept in
-# the scene, 24 of their texels as 48 of 512^2) with the frame they save spent on more lights.
+# one trade is weighed against another: the maps' size with the contact search's reach kept in the
+# scene, and balanced as it was before its lights were bought with cheaper maps.
 KNOB_SMALL_FABRIC = "satin"
 KNOB_VARIANTS = {
+    # The light count either side of balanced's 40.
+    "balanced:lights=32": {"lights": 32},
     "balanced:lights=48": {"lights": 48},
-    "balanced:shadow_size=256": {"shadow_size": 256},
+    # Its maps' size either side, the contact search's reach kept in the scene (48 texels of 512^2).
+    "balanced:shadow_size=256,contact_shadow_texels=24": {"shadow_size": 256, "contact_shadow_texels": 24.0},
+    "balanced:shadow_size=512,contact_shadow_texels=48": {"shadow_size": 512, "contact_shadow_texels": 48.0},
+    "balanced:caster_detail=0.5": {"caster_detail": 0.5},
+    # The preset before its lights were bought with cheaper maps.
+    "balanced:lights=24,shadow_size=512,contact_shadow_texels=48,caster_detail=0.5": {
+        "lights": 24, "shadow_size": 512, "contact_shadow_texels": 48.0, "caster_detail": 0.5},
     "balanced:min_sigma_texels=2": {"min_sigma_texels": 2.0},
-    "balanced:caster_detail=1": {"caster_detail": 1.0},
     "balanced:sub_lights=1": {"sub_lights": 1},
     "balanced:small_light_scale=1": {"small_light_scale": 1},
     "balanced:contact_shadow_texels=0": {"contact_shadow_texels": 0.0},
     "balanced:whole_sources=off": {"whole_sources": False},
-    "balanced:shadow_size=256,lights=32": {"shadow_size": 256, "contact_shadow_texels": 24.0, "lights": 32},
-    "balanced:shadow_size=256,lights=36": {"shadow_size": 256, "contact_shadow_texels": 24.0, "lights": 36},
     "fast:lights=16": {"lights": 16},
     "fast:lights=24": {"lights": 24},
 }

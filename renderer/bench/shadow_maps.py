@@ -39,6 +39,8 @@ def _variant(side: int, detail: float) -> dict:
 VARIANTS = {
     "256^2, casters at 1/4": _variant(256, 0.25),
     "256^2, full casters": _variant(256, 1.0),
+    "384^2, casters at 1/4": _variant(384, 0.25),
+    "384^2, casters at 1/2": _variant(384, 0.5),
     "512^2, casters at 1/4": _variant(512, 0.25),
     "512^2, casters at 1/2": _variant(512, 0.5),
     "512^2, full casters": _variant(512, 1.0),
