@@ -31,7 +31,7 @@ mkdir -p out
 
 if [ "$still" = 1 ]; then
     .venv/bin/garment-render render --out out/demo.png --exr out/demo.exr --timings out/demo_timings.json \
-        --size 512x512 --lights 48 --albedo 0.8,0.2,0.2 --specular 0.5 --glossiness 0.8 "${sim_args[@]}"
+        --size 512x512 --albedo 0.8,0.2,0.2 --specular 0.5 --glossiness 0.8 "${sim_args[@]}"
     echo "demo: wrote out/demo.png, out/demo.exr, out/demo_timings.json"
     exit 0
 fi
