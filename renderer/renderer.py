@@ -439,8 +439,8 @@ class Renderer:
                      casters: list[bool] | None = None,
                      proxies: dict[float, list[np.ndarray | None]] | None = None,
                      variants: list[list[Material | None]] | None = None) -> Scene:
-        """`proxies`: caster proxies (shadows/proxy.py) made in advance off the GL thread, per detail
-        one face array per mesh (None: made on first use); a 4M-triangle mesh takes seconds.
+        """`proxies`: the shadow pass's triangles (shadows/proxy.py shadow_faces) made in advance off
+        the GL thread, per detail one face array per mesh (None: made on first use); a 4M-triangle mesh takes seconds.
         `variants`: colourways, one material (or None: the mesh's own) per mesh each (Scene.add_variant)."""
         materials = materials or [Material() for _ in meshes]
         everything = list(materials) + [m for v in variants or () for m in v if m is not None]
@@ -725,7 +725,7 @@ class Renderer:
             # maps: docs/broad-benchmark.md).
             arrays["sharp"] = self._shadow_maps_for("sharp", settings.shadow_size * k, len(plan.sharp_lights), groups)
             still = (scene.still_key(1), lp.lights.tobytes(), plan.sharp_lights.tobytes())
-            arrays["sharp"].render([(sm.vao_shadow, sm.group) for sm in casters], lights_buf,
+            arrays["sharp"].render([(sm.shadow_vao(1.0), sm.group) for sm in casters], lights_buf,
                                    self._buffer("shadow_lights_sharp", plan.sharp_lights.tobytes()),
                                    lp.lights["view_proj"][plan.sharp_lights], timer, blur=blur,
                                    still_key=still)

@@ -16,7 +16,7 @@ from .gpu.contract import GeometryTexture, NormalsBuffer
 from .gpu.shaders import set_uniform
 from .mesh import FALLBACK_NORMAL, Mesh, box, box_corners, vertex_normals
 from .shading.material import Material, TextureSet
-from .shadows.proxy import caster_proxy
+from .shadows.proxy import shadow_faces
 
 # Shadow groups (Scene): each caster's moments go to its group's pair of the shadow maps; a receiver
 # compares against its own group's pair with the bias that keeps a surface from shadowing itself and
@@ -248,10 +248,9 @@ class SceneMesh:
         self._normals_prog = programs.get("normals")
         self._adjacency: tuple[moderngl.Buffer, moderngl.Buffer] | None = None
         self._ctx, self._moments_prog = ctx, programs["moments"]
-        self.vao_shadow = ctx.vertex_array(programs["moments"], [(self.vbo_pos, "3f", "in_position")],
-                                           index_buffer=self.ibo, index_element_size=4)
-        # Coarser casters for the shadow pass (shadows/proxy.py): given (made off the GL thread by a
-        # caller that knows the detail it will use), else made on first use per detail.
+        # The shadow pass's triangles per detail (shadows/proxy.py shadow_faces: the proxy, light
+        # facing): given (made off the GL thread by a caller that knows the detail it will use), else
+        # made on first use per detail.
         self._proxies: dict[float, tuple[moderngl.Buffer, moderngl.VertexArray, int]] = {}
         # The material's buffers, textures and geometry-pass vertex array; more variants (colourways,
         # Scene.add_variant) share everything else.
@@ -275,13 +274,13 @@ class SceneMesh:
 
     def shadow_vao(self, detail: float = 1.0) -> moderngl.VertexArray:
         """The casters' vertex array for the shadow pass at a share `detail` of the triangles (the
-        same vertex buffer; the proxy's triangles are made once, from the mesh as registered)."""
-        if detail >= 1.0:
-            return self.vao_shadow
+        same vertex buffer; its triangles are made once, from the mesh as registered, and drawn with
+        back faces culled)."""
+        detail = min(float(detail), 1.0)
         if detail not in self._proxies:
             faces = self._proxy_faces.pop(detail, None)
             if faces is None:
-                faces = caster_proxy(self.mesh.positions, self.mesh.faces, detail)
+                faces = shadow_faces(self.mesh.positions, self.mesh.faces, detail)
             ibo = self._ctx.buffer(faces.tobytes())
             vao = self._ctx.vertex_array(self._moments_prog, [(self.vbo_pos, "3f", "in_position")],
                                          index_buffer=ibo, index_element_size=4)
@@ -289,11 +288,9 @@ class SceneMesh:
         return self._proxies[detail][1]
 
     def shadow_triangles(self, detail: float = 1.0) -> int:
-        """Triangles the shadow pass draws per light at this detail."""
-        if detail >= 1.0:
-            return int(self.mesh.faces.shape[0])
+        """Triangles the shadow pass draws per light at this detail (a piece drawn both ways twice)."""
         self.shadow_vao(detail)
-        return self._proxies[detail][2]
+        return self._proxies[min(float(detail), 1.0)][2]
 
     def set_positions(self, positions: np.ndarray, normals: np.ndarray | None = None) -> None:
         """New frame: positions (V, 3) float32 (validated by the caller through Mesh.with_positions);
@@ -338,7 +335,7 @@ class SceneMesh:
         self._proxies = {}
         for v in {id(v): v for v in self.__dict__.get("variants", ())}.values():   # a shared one once
             v.release()
-        for obj in (self.vao_shadow, self.vbo_pos, self.vbo_nrm, self.vbo_uv, self.ibo):
+        for obj in (self.vbo_pos, self.vbo_nrm, self.vbo_uv, self.ibo):
             obj.release()
 
 

@@ -17,7 +17,7 @@ from renderer.mesh import Mesh, z_up_to_y_up
 from renderer.presets import pem_settings, resolve
 from renderer.renderer import Background, FrameSettings, ShadingMode
 from renderer.shading.material import Material, TextureSet
-from renderer.shadows.proxy import caster_proxy_isolated
+from renderer.shadows.proxy import shadow_faces_isolated
 from renderer.shadows.vsm import MOMENT_BYTES
 
 from .errors import InvalidRequestError, PayloadTooLargeError
@@ -272,8 +272,9 @@ def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshe
     quality.info["base_level"] = quality.pem.base_level
     check_pem_cost(quality.face_size, quality.pem, settings)
     detail = quality.frame.caster_detail
-    proxies = ({detail: [caster_proxy_isolated(m.positions, m.faces, detail) if c else None
-                         for m, c in zip(built, casters)]}
-               if detail < 1.0 else None)
+    # The shadow pass's triangles at the main maps' detail and in full (the sharp maps'), made here, off
+    # the GL thread.
+    proxies = {d: [shadow_faces_isolated(m.positions, m.faces, d) if c else None for m, c in zip(built, casters)]
+               for d in {min(detail, 1.0), 1.0}}
     return PreparedScene(built, [r for r, _ in specs], materials, camera, quality, casters, proxies, material_specs,
                          colourways)

@@ -1,6 +1,7 @@
 import pytest
 
 from renderer.errors import InvalidInputError
+from renderer.presets import preset
 from renderer.presets.budget import budget_knobs, choose, summarize
 
 
@@ -85,7 +86,9 @@ def test_a_budget_sets_every_measured_knob_unless_a_flag_says_otherwise(monkeypa
     assert "budget" in q["source"]
     assert knobs("--error-budget", "0.05", "--sub-lights", "8", "--whole-sources")[1] == (8, True, 0.1)
     q, k = knobs()                                              # no budget: the balanced preset's file
-    assert k == (2, True, 0.25) and q["small_light_scale"] == 4 and "preset balanced" in q["source"]
+    file = preset("balanced")
+    assert k == (file["sub_lights"], file["whole_sources"], file["caster_detail"]) and "preset balanced" in q["source"]
+    assert q["small_light_scale"] == file["small_light_scale"]
 
 
 def test_a_presets_small_light_scale_yields_to_a_large_shadow_map():
@@ -147,7 +150,7 @@ def test_a_budget_for_a_frame_size_the_table_was_not_measured_at_is_refused(monk
     with pytest.raises(InvalidInputError, match="measured at 256x256 on test; a 512x384 frame"):
         resolve_quality(build_parser().parse_args(["render", "--size", "512x384", "--error-budget", "0.1"]))
     # A preset is not a measurement of one size: any size takes it.
-    assert resolve_quality(build_parser().parse_args(["render", "--size", "512x384"]))["lights"] == 40
+    assert resolve_quality(build_parser().parse_args(["render", "--size", "512x384"]))["lights"] == preset("balanced")["lights"]
 
 
 def test_a_budget_measured_on_another_device_is_refused(renderer):

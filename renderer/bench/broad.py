@@ -301,16 +301,17 @@ def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, truth
 # scene, and balanced as it was before its lights were bought with cheaper maps.
 KNOB_SMALL_FABRIC = "satin"
 KNOB_VARIANTS = {
-    # The light count either side of balanced's 40.
-    "balanced:lights=32": {"lights": 32},
+    # The light count either side of balanced's 56.
     "balanced:lights=48": {"lights": 48},
+    "balanced:lights=64": {"lights": 64},
     # Its maps' size either side, the contact search's reach kept in the scene (48 texels of 512^2).
     "balanced:shadow_size=256,contact_shadow_texels=24": {"shadow_size": 256, "contact_shadow_texels": 24.0},
     "balanced:shadow_size=512,contact_shadow_texels=48": {"shadow_size": 512, "contact_shadow_texels": 48.0},
-    "balanced:caster_detail=0.5": {"caster_detail": 0.5},
-    # The preset before its lights were bought with cheaper maps.
-    "balanced:lights=24,shadow_size=512,contact_shadow_texels=48,caster_detail=0.5": {
-        "lights": 24, "shadow_size": 512, "contact_shadow_texels": 48.0, "caster_detail": 0.5},
+    # Its casters' proxy either side of a half.
+    "balanced:caster_detail=0.25": {"caster_detail": 0.25},
+    "balanced:caster_detail=1": {"caster_detail": 1.0},
+    # The preset before the shadow pass drew front faces alone.
+    "balanced:lights=40,caster_detail=0.25": {"lights": 40, "caster_detail": 0.25},
     "balanced:min_sigma_texels=2": {"min_sigma_texels": 2.0},
     "balanced:sub_lights=1": {"sub_lights": 1},
     "balanced:small_light_scale=1": {"small_light_scale": 1},
@@ -318,6 +319,9 @@ KNOB_VARIANTS = {
     "balanced:whole_sources=off": {"whole_sources": False},
     "fast:lights=16": {"lights": 16},
     "fast:lights=24": {"lights": 24},
+    # Accurate's light count before, and the next step up.
+    "accurate:lights=96": {"lights": 96},
+    "accurate:lights=192": {"lights": 192},
 }
 
 

@@ -138,6 +138,10 @@ class ShadowMaps:
             if enabled:
                 ctx.enable(moderngl.BLEND)
                 ctx.blend_equation = moderngl.MIN
+                # The casters' triangles face outwards (shadows/proxy.py light_facing): the far side
+                # of a surface never holds a texel's nearest depth.
+                ctx.enable(moderngl.CULL_FACE)
+                ctx.cull_face = "back"
                 for first in range(0, n, LAYERS_PER_DRAW):
                     count = min(LAYERS_PER_DRAW, n - first)
                     self.projections.bind_to_uniform_block(LightingBuffer.LAYER_PROJECTIONS, offset=first * MAT4_BYTES,
@@ -148,7 +152,7 @@ class ShadowMaps:
                             if g == group:
                                 vao.render(moderngl.TRIANGLES, instances=count)
                 ctx.blend_equation = moderngl.FUNC_ADD
-                ctx.disable(moderngl.BLEND)
+                ctx.disable(moderngl.BLEND | moderngl.CULL_FACE)
         self.still_key = still_key
         self.still_hits += int(hit)
         if blur:
