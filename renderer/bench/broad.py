@@ -300,13 +300,23 @@ def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, truth
 # one trade is weighed against another: the maps' size with the contact search's reach kept in the
 # scene, and balanced as it was before its lights were bought with cheaper maps.
 KNOB_SMALL_FABRIC = "satin"
+# The contact search's reach in texels of 256^2 main maps (balanced's 36 of 384^2): a variant of the
+# maps' side keeps the reach in the scene.
+CONTACT_TEXELS_AT_256 = 24.0
+
+
+def maps_of_side(side: int) -> dict:
+    """Main maps of `side`^2 with the contact search's reach kept in the scene (its texels follow the side)."""
+    return {"shadow_size": side, "contact_shadow_texels": CONTACT_TEXELS_AT_256 * side / 256}
+
+
 KNOB_VARIANTS = {
     # The light count either side of balanced's 56.
     "balanced:lights=48": {"lights": 48},
     "balanced:lights=64": {"lights": 64},
     # Its maps' size either side, the contact search's reach kept in the scene (48 texels of 512^2).
-    "balanced:shadow_size=256,contact_shadow_texels=24": {"shadow_size": 256, "contact_shadow_texels": 24.0},
-    "balanced:shadow_size=512,contact_shadow_texels=48": {"shadow_size": 512, "contact_shadow_texels": 48.0},
+    "balanced:shadow_size=256,contact_shadow_texels=24": maps_of_side(256),
+    "balanced:shadow_size=512,contact_shadow_texels=48": maps_of_side(512),
     # Its casters' proxy either side of a half.
     "balanced:caster_detail=0.25": {"caster_detail": 0.25},
     "balanced:caster_detail=1": {"caster_detail": 1.0},

@@ -21,6 +21,7 @@ import numpy as np
 from ..presets import frame_settings, pem_settings, preset
 from ..reference import relative_rmse
 from ..renderer import Renderer
+from .broad import maps_of_side
 from .catalogue import GARMENTS, LARGE_FABRIC, LARGE_VIEW, MAPS, Scene, environment_cube, split
 from .materials import ReferencePair
 from .report import machine_info
@@ -28,11 +29,10 @@ from .run import time_frames
 from .sizes import excess
 
 SIZE = 256
-CONTACT_TEXELS_AT_256 = 24.0
 
 
 def _variant(side: int, detail: float) -> dict:
-    return {"shadow_size": side, "caster_detail": detail, "contact_shadow_texels": CONTACT_TEXELS_AT_256 * side / 256}
+    return {**maps_of_side(side), "caster_detail": detail}
 
 
 # The first is what the others are compared with: balanced's maps before this comparison.
