@@ -10,8 +10,9 @@ buffer is new. What it costs in accuracy is measured by the benchmark (`caster_d
 The shadow pass draws front faces only (`shadow_faces`): a map keeps each texel's nearest surface,
 and from outside a closed surface that is one facing the light, so the far side's triangles were
 rasterized for nothing (about a third of the pass on llvmpipe). Cloth is two-sided and its winding is
-the source's, so each connected piece is first wound one way throughout and then turned to face
-outwards by its signed volume; a piece whose way out is not clear (a flat sheet) is drawn both ways.
+the source's, so the triangles are split into pieces that are wound one way throughout (neighbours
+joined by an edge they run along in opposite directions), each piece is turned to face outwards by
+its signed volume, and a piece whose way out is not clear (a flat sheet) is drawn both ways.
 """
 
 from __future__ import annotations
@@ -122,9 +123,8 @@ def shadow_faces(positions: np.ndarray, faces: np.ndarray, keep: float) -> np.nd
 
 
 # Above this many triangles the shadow pass's triangles are made in a child process: fast_simplification
-# holds the GIL for the whole simplification (1.8 s for 1.3M triangles on this machine), and so does the
-# winding's repair, which would stall every other
-# thread of a service (its event loop, its GL thread) meanwhile.
+# holds the GIL for the whole simplification (1.8 s for 1.3M triangles on this machine), which would
+# stall every other thread of a service (its event loop, its GL thread) meanwhile.
 ISOLATE_ABOVE = 200_000
 
 
