@@ -329,9 +329,10 @@ KNOB_VARIANTS = {
     "balanced:whole_sources=off": {"whole_sources": False},
     "fast:lights=16": {"lights": 16},
     "fast:lights=24": {"lights": 24},
-    # Accurate's light count before, and the next step up.
-    "accurate:lights=96": {"lights": 96},
+    # Accurate's light count either side of its 160, and its casters at half (the preset before).
+    "accurate:lights=128": {"lights": 128},
     "accurate:lights=192": {"lights": 192},
+    "accurate:caster_detail=0.5": {"caster_detail": 0.5},
 }
 
 
