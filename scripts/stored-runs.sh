@@ -11,6 +11,8 @@
 #   one-shot    garment-render speed --one-shot           (~5 min)
 #   sweep       garment-render bench                      (docs/sweep.json, sweep.md, pareto.png; ~30 min)
 #   views       garment-render bench --views              (docs/views-bench.json and .md; ~2 min)
+#   area        garment-render bench --area               (docs/area-bench.json and .md; ~8 min)
+#   shadow-maps garment-render bench --shadow-maps        (docs/shadow-maps-bench.json and .md; ~7 min)
 #   scale-out   python -m service.load --ray 1,2 --frames 32   (docs/scale-out.json and .md; ~3 min)
 # and, named only (never by default), the broad runs retimed: their stored errors kept, every frame and
 # the tracer's rate timed again (`bench --broad --retime`), for a change that leaves every image as it
@@ -20,7 +22,7 @@
 # run this on a quiet machine, nothing else at work, and give each run the whole machine.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-all=(broad-256 broad-512 error-split energy materials one-shot sweep views scale-out)
+all=(broad-256 broad-512 error-split energy materials one-shot sweep views area shadow-maps scale-out)
 named=("${all[@]}" broad-256-retime broad-512-retime)
 runs=("$@")
 if [[ ${#runs[@]} -eq 0 ]]; then
@@ -83,6 +85,14 @@ for run in "${runs[@]}"; do
             "${gr[@]}" bench --views --out "$tmp/views"
             cp "$tmp/views/views.json" docs/views-bench.json
             cp "$tmp/views/views.md" docs/views-bench.md ;;
+        area)
+            "${gr[@]}" bench --area --out "$tmp/area"
+            cp "$tmp/area/area.json" docs/area-bench.json
+            cp "$tmp/area/area.md" docs/area-bench.md ;;
+        shadow-maps)
+            "${gr[@]}" bench --shadow-maps --out "$tmp/shadow-maps"
+            cp "$tmp/shadow-maps/shadow_maps.json" docs/shadow-maps-bench.json
+            cp "$tmp/shadow-maps/shadow_maps.md" docs/shadow-maps-bench.md ;;
         scale-out) "$py" -m service.load --ray 1,2 --frames 32 --out docs/scale-out.md ;;
     esac
 done

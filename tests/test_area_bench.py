@@ -33,9 +33,9 @@ def test_area_is_judged_against_the_median_cut_at_its_own_frame_time():
 
 def test_the_table_says_where_the_blocker_penumbrae_win_and_what_they_cost():
     data = {"machine": {"gl_renderer": "llvmpipe", "cores": 2, "date": "2026-12-02"}, "quick": False, "spp": 8,
-            "frames": 1, "wall_s": 60.0, "rows": ROWS, "maps": compare(ROWS)}
+            "frames": 1, "budgets": [12, 24, 48], "wall_s": 60.0, "rows": ROWS, "maps": compare(ROWS)}
     text = markdown(data)
-    assert "0.110 (150)" in text
+    assert "0.110 (150)" in text and "budget of 48 lights" in text
     assert "lower error on 1, higher on 0 of 1 maps" in text and "1.50x the fixed maps'" in text
     # A map without area lights has no blocker row, and its column says so.
     rows = [dict(r, area_lights=0) for r in ROWS if r["penumbra"] == "fixed"]

@@ -13,7 +13,8 @@ ROOT = Path(__file__).resolve().parents[1]
 # The runs the README and docs read their current numbers from.
 CURRENT = ("docs/error-split/error_split.json", "docs/one-shot/one_shot.json", "docs/broad/broad-256.json",
            "docs/broad/broad-512.json", "docs/energy/energy.json", "docs/materials-bench.json", "docs/sweep.json",
-           "docs/views-bench.json", "docs/scale-out.json")
+           "docs/views-bench.json", "docs/scale-out.json", "docs/area-bench.json",
+           "docs/shadow-maps-bench.json")
 
 
 def _stamped() -> dict[str, str]:
@@ -70,8 +71,12 @@ def test_the_stored_reports_are_what_their_runs_make():
                       (broad.README_RUN, broad.markdown), ("docs/broad/broad-512.json", broad.markdown)):
         data = json.loads((ROOT / run).read_text())
         assert (ROOT / run).with_suffix(".md").read_text() == make(data), run
-    from renderer.bench import views
+    from renderer.bench import area, shadow_maps, views
     from service import load
+
+    assert (ROOT / "docs/area-bench.md").read_text() == area.markdown(json.loads((ROOT / "docs/area-bench.json").read_text()))
+    assert (ROOT / "docs/shadow-maps-bench.md").read_text() == shadow_maps.markdown(
+        json.loads((ROOT / "docs/shadow-maps-bench.json").read_text()))
 
     assert (ROOT / "docs/views-bench.md").read_text() == views.markdown(json.loads((ROOT / "docs/views-bench.json").read_text()))
     data = json.loads((ROOT / "docs/scale-out.json").read_text())

@@ -2,7 +2,8 @@
 Monte Carlo reference (issue: a second way to cut the light).
 
 Per map (the polo on its body, front view, 128 x 128, the broad benchmark's mid-gloss fabric),
-the balanced preset with `lights_from` median-cut and area at each light budget of `BUDGETS`, and
+the balanced preset with `lights_from` median-cut and area at each light budget of `budgets` (a
+quarter, a half and all of balanced's lights), and
 auto (`PEMSettings.lights_from`, its rule in lighting/area_lights.py) at the balanced budget: rel.
 RMSE against the mean of two references (`spp` samples per technique, the floor their own), the
 median frame time of `frames` frames, side by side in one run, and the lights each used.
@@ -26,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..presets import frame_settings, pem_settings, preset
+from ..presets import frame_settings, pem_settings, preset, presets_digest
 from ..reference import relative_rmse
 from ..renderer import Renderer
 from .catalogue import BODY, FABRICS, MAPS, Scene, environment_cube, split
@@ -35,8 +36,12 @@ from .report import machine_info
 from .run import time_frames
 from .scenes import bundled_scene, shared_scenes
 
-BUDGETS = (12, 24, 48)
 FABRIC = "sheen"
+
+
+def budgets(lights: int) -> tuple[int, ...]:
+    """The light budgets compared: a quarter, a half and all of a preset's `lights`."""
+    return (max(6, lights // 4), max(6, lights // 2), lights)
 
 
 def run(out_dir: Path, quick: bool = False, spp: int = 128, frames: int = 3, log=print) -> dict:
@@ -46,6 +51,7 @@ def run(out_dir: Path, quick: bool = False, spp: int = 128, frames: int = 3, log
     maps = [m for m in MAPS if sets[m] == "tuning"][:2] + [m for m in MAPS if sets[m] == "held-out"][:2] \
         if quick else list(MAPS)
     base = preset("balanced")
+    steps = budgets(int(base["lights"]))
     rows = []
     t_start = time.perf_counter()
     with Renderer() as r:
@@ -56,7 +62,7 @@ def run(out_dir: Path, quick: bool = False, spp: int = 128, frames: int = 3, log
             cube = environment_cube(name, int(base["face_size"]))
             gs = r.create_scene(meshes, materials)
             try:
-                variants = ([(lf, b, "fixed") for b in BUDGETS for lf in ("median-cut", "area")]
+                variants = ([(lf, b, "fixed") for b in steps for lf in ("median-cut", "area")]
                             + [("auto", base["lights"], "fixed"), ("area", base["lights"], "blocker")])
                 for lights_from, budget, penumbra in variants:
                     if penumbra != base["penumbra"] and not any(
@@ -83,7 +89,8 @@ def run(out_dir: Path, quick: bool = False, spp: int = 128, frames: int = 3, log
                 gs.release()
         sweep = [] if quick else sweep_scenes(r, base, spp, frames, log)
         machine = machine_info(r.gl)
-    data = {"machine": machine, "spp": spp, "frames": frames, "quick": quick, "budgets": list(BUDGETS),
+    data = {"machine": machine, "presets_digest": presets_digest(), "spp": spp, "frames": frames, "quick": quick,
+            "budgets": list(steps),
             "wall_s": time.perf_counter() - t_start, "rows": rows, "maps": compare(rows), "sweep": sweep}
     (out_dir / "area.json").write_text(json.dumps(data, indent=1))
     (out_dir / "area.md").write_text(markdown(data))
@@ -167,8 +174,8 @@ def markdown(data: dict) -> str:
              f"Made by `garment-render bench --area{' --quick' if data['quick'] else ''}` on {m['gl_renderer']}, "
              f"{m['cores']} cores ({m['date']}): the polo, front, 128 x 128, balanced otherwise; references of "
              f"{data['spp']} spp per technique, two seeds; frame times the median of {data['frames']} frames side by "
-             f"side ({data['wall_s'] / 60:.0f} min in all). The balanced budget of 48 lights unless "
-             "said; 'at area's time': the median cut's error interpolated (log time) at the area set's frame time.",
+             f"side ({data['wall_s'] / 60:.0f} min in all). Balanced's budget of {data['budgets'][-1]} "
+             "lights unless said; 'at area's time': the median cut's error interpolated (log time) at the area set's frame time.",
              "", "| map | set | area lights | ambient | median cut | area | median cut at area's time | area ms | "
              "median cut ms | auto (used) | auto / best at its time | area, blocker penumbrae (ms) | floor |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]

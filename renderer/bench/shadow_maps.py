@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..presets import frame_settings, pem_settings, preset
+from ..presets import frame_settings, pem_settings, preset, presets_digest
 from ..reference import relative_rmse
 from ..renderer import Renderer
 from .broad import maps_of_side
@@ -83,7 +83,7 @@ def run(out_dir: Path, quick: bool = False, spp: int = 64, frames: int = 2, pres
                 log(f"{sets[name]:8s} {garment:6s} {name:30s} floor {truth.floor:.3f} | "
                     + " | ".join(f"{k} {v['excess']:.3f} ({v['frame_ms']:.0f} ms)" for k, v in got.items()))
         machine = machine_info(r.gl)
-    data = {"machine": machine, "spp": spp, "frames": frames, "quick": quick, "size": SIZE, "preset": preset_name,
+    data = {"machine": machine, "presets_digest": presets_digest(), "spp": spp, "frames": frames, "quick": quick, "size": SIZE, "preset": preset_name,
             "variants": variants, "wall_s": time.perf_counter() - t_start, "rows": rows,
             "summary": summary(rows, list(variants))}
     (out_dir / "shadow_maps.json").write_text(json.dumps(data, indent=1))
