@@ -63,6 +63,13 @@ EOF
     echo "made $stored, its report and $curve"
 }
 
+side() {    # a side bench's flag, the name of the files it writes, the stored run (its report beside it, .md)
+    local flag=$1 stem=$2 stored=$3
+    "${gr[@]}" bench "--$flag" --out "$tmp/$flag"
+    cp "$tmp/$flag/$stem.json" "$stored"
+    cp "$tmp/$flag/$stem.md" "${stored%.json}.md"
+}
+
 for run in "${runs[@]}"; do
     case "$run" in
         broad-256) broad 256 docs/broad/broad-256.json docs/broad/trade_curve.json run ;;
@@ -71,28 +78,16 @@ for run in "${runs[@]}"; do
         broad-512-retime) broad 512 docs/broad/broad-512.json docs/broad/trade_curve-512.json retime ;;
         error-split) "${gr[@]}" error-split --out docs/error-split ;;
         energy) "${gr[@]}" bench --energy --out docs/energy ;;
-        materials)
-            "${gr[@]}" bench --materials --out "$tmp/materials"
-            cp "$tmp/materials/materials.json" docs/materials-bench.json
-            cp "$tmp/materials/materials.md" docs/materials-bench.md ;;
+        materials) side materials materials docs/materials-bench.json ;;
         one-shot) "${gr[@]}" speed --one-shot --out docs/one-shot ;;
         sweep)
             "${gr[@]}" bench --out "$tmp/sweep"
             cp "$tmp/sweep/bench.json" docs/sweep.json
             cp "$tmp/sweep/bench.md" docs/sweep.md
             cp "$tmp/sweep/pareto.png" docs/pareto.png ;;
-        views)
-            "${gr[@]}" bench --views --out "$tmp/views"
-            cp "$tmp/views/views.json" docs/views-bench.json
-            cp "$tmp/views/views.md" docs/views-bench.md ;;
-        area)
-            "${gr[@]}" bench --area --out "$tmp/area"
-            cp "$tmp/area/area.json" docs/area-bench.json
-            cp "$tmp/area/area.md" docs/area-bench.md ;;
-        shadow-maps)
-            "${gr[@]}" bench --shadow-maps --out "$tmp/shadow-maps"
-            cp "$tmp/shadow-maps/shadow_maps.json" docs/shadow-maps-bench.json
-            cp "$tmp/shadow-maps/shadow_maps.md" docs/shadow-maps-bench.md ;;
+        views) side views views docs/views-bench.json ;;
+        area) side area area docs/area-bench.json ;;
+        shadow-maps) side shadow-maps shadow_maps docs/shadow-maps-bench.json ;;
         scale-out) "$py" -m service.load --ray 1,2 --frames 32 --out docs/scale-out.md ;;
     esac
 done

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config import BY_NAME
 from ..presets import frame_settings, pem_settings, preset, presets_digest
 from ..reference import relative_rmse
 from ..renderer import Renderer
@@ -40,8 +41,10 @@ FABRIC = "sheen"
 
 
 def budgets(lights: int) -> tuple[int, ...]:
-    """The light budgets compared: a quarter, a half and all of a preset's `lights`."""
-    return (max(6, lights // 4), max(6, lights // 2), lights)
+    """The light budgets compared: a quarter, a half and all of a preset's `lights` (none below the
+    setting's least)."""
+    least = BY_NAME["lights"].minimum
+    return (max(least, lights // 4), max(least, lights // 2), lights)
 
 
 def run(out_dir: Path, quick: bool = False, spp: int = 128, frames: int = 3, log=print) -> dict:
