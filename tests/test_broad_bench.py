@@ -311,4 +311,5 @@ def test_the_knob_table_sets_each_variant_against_its_preset_on_the_same_scenes(
         assert knobs[name] == {**knobs[broad.knob_base(name)], **over} != knobs[broad.knob_base(name)]
         # Its name says its values: "preset:knob=value,...", a switch "on" or "off".
         named = dict(part.split("=") for part in name.split(":", 1)[1].split(","))
-        assert named == {k: ("on" if v else "off") if isinstance(v, bool) else f"{v:g}" for k, v in over.items()}
+        assert named == {k: ("on" if v else "off") if isinstance(v, bool) else v if isinstance(v, str) else f"{v:g}"
+                         for k, v in over.items()}

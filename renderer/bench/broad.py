@@ -322,13 +322,20 @@ KNOB_VARIANTS = {
     "balanced:caster_detail=1": {"caster_detail": 1.0},
     # The preset before the shadow pass drew front faces alone.
     "balanced:lights=40,caster_detail=0.25": {"lights": 40, "caster_detail": 0.25},
-    "balanced:min_sigma_texels=2": {"min_sigma_texels": 2.0},
+    # Chebyshev's variance floor: the preset before.
+    "balanced:min_sigma_texels=3": {"min_sigma_texels": 3.0},
+    # The paper's median cut on every map, against auto's area lights where a map has them.
+    "balanced:lights_from=median-cut": {"lights_from": "median-cut"},
     "balanced:sub_lights=1": {"sub_lights": 1},
     "balanced:small_light_scale=1": {"small_light_scale": 1},
     "balanced:contact_shadow_texels=0": {"contact_shadow_texels": 0.0},
     "balanced:whole_sources=off": {"whole_sources": False},
-    "fast:lights=16": {"lights": 16},
+    # Fast's light count either side of its 28, and the preset before (20 lights, 128^2 maps, a tenth of
+    # the casters).
     "fast:lights=24": {"lights": 24},
+    "fast:lights=32": {"lights": 32},
+    "fast:lights=20,caster_detail=0.1,shadow_size=128,contact_shadow_texels=12":
+        {"lights": 20, "caster_detail": 0.1, **maps_of_side(128)},
     # Accurate's light count either side of its 160, and its casters at half (the preset before).
     "accurate:lights=128": {"lights": 128},
     "accurate:lights=192": {"lights": 192},
