@@ -13,7 +13,7 @@
 #   views       garment-render bench --views              (docs/views-bench.json and .md; ~2 min)
 #   area        garment-render bench --area               (docs/area-bench.json and .md; ~8 min)
 #   shadow-maps garment-render bench --shadow-maps        (docs/shadow-maps-bench.json and .md; ~7 min)
-#   scale-out   python -m service.load --ray 1,2 --frames 32   (docs/scale-out.json and .md; ~3 min)
+#   scale-out   python -m service.load --ray 1,2 --frames 32 --scenes 8   (docs/scale-out.json and .md; ~3 min)
 # and, named only (never by default), the broad runs retimed: their stored errors kept, every frame and
 # the tracer's rate timed again (`bench --broad --retime`), for a change that leaves every image as it
 # was (a faster shader that draws the same pixels, the machine's timings on another day):
@@ -88,6 +88,6 @@ for run in "${runs[@]}"; do
         views) side views views docs/views-bench.json ;;
         area) side area area docs/area-bench.json ;;
         shadow-maps) side shadow-maps shadow_maps docs/shadow-maps-bench.json ;;
-        scale-out) "$py" -m service.load --ray 1,2 --frames 32 --out docs/scale-out.md ;;
+        scale-out) "$py" -m service.load --ray 1,2 --frames 32 --scenes 8 --out docs/scale-out.md ;;
     esac
 done
