@@ -311,5 +311,11 @@ def test_the_knob_table_sets_each_variant_against_its_preset_on_the_same_scenes(
         assert knobs[name] == {**knobs[broad.knob_base(name)], **over} != knobs[broad.knob_base(name)]
         # Its name says its values: "preset:knob=value,...", a switch "on" or "off".
         named = dict(part.split("=") for part in name.split(":", 1)[1].split(","))
-        assert named == {k: ("on" if v else "off") if isinstance(v, bool) else v if isinstance(v, str) else f"{v:g}"
-                         for k, v in over.items()}
+        assert named == {k: _shown(v) for k, v in over.items()}
+
+
+def _shown(value) -> str:
+    """A knob's value as a variant's name writes it: a switch "on" or "off", a word as it is, a number by %g."""
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    return value if isinstance(value, str) else f"{value:g}"
