@@ -324,8 +324,8 @@ KNOB_VARIANTS = {
     "balanced:lights=40,caster_detail=0.25": {"lights": 40, "caster_detail": 0.25},
     # Chebyshev's variance floor: the preset before.
     "balanced:min_sigma_texels=3": {"min_sigma_texels": 3.0},
-    # The paper's median cut on every map, against auto's area lights where a map has them.
-    "balanced:lights_from=median-cut": {"lights_from": "median-cut"},
+    # Auto's area lights where a map has them (the preset before), against the paper's median cut.
+    "balanced:lights_from=auto": {"lights_from": "auto"},
     "balanced:sub_lights=1": {"sub_lights": 1},
     "balanced:small_light_scale=1": {"small_light_scale": 1},
     "balanced:contact_shadow_texels=0": {"contact_shadow_texels": 0.0},
