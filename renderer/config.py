@@ -197,6 +197,11 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("sub_lights", int, 1, "discs per region in the closed-form glossy term (1: the paper's one light)",
             "shading", "shader variant", 1, MAX_SUB_LIGHTS, power_of_two=True,
             sweep=(1, 4, 8)),
+    # Anti-aliasing (shaders/edges/): the geometry pass multisampled, the lighting pass once a pixel, and
+    # each pixel's samples given the colour of the neighbour that shaded their surface (renderer.py,
+    # _edges_pass). The driver bounds it (GL_MAX_SAMPLES: 4 on llvmpipe).
+    Setting("aa_samples", int, 1, "geometry samples a pixel: edges anti-aliased from them, fractional coverage in "
+            "alpha, shading still once a pixel (1: none, the paper)", "shading", "frame", 1, 8, power_of_two=True),
     # Kautz and McCool's fit (lighting/material_lobes.py): GGX's lobes and, where the scene has sheen,
     # sheen's.
     Setting("lobes", int, 2, "fitted lobes per layer of a physically based material (GGX, sheen): one PEM lookup "

@@ -28,6 +28,7 @@ from .gpu.contract import (
     G_BUFFER_UNITS,
     N_LIGHT_KINDS,
     WIDE_LOBE_DISC_VARIANCE,
+    EdgeTexture,
     Image,
     LightingBuffer,
     LightingTexture,
@@ -82,6 +83,22 @@ class Background(str, Enum):
 
 # Screen lines (slices) and steps per side of the contact-shadow search (lighting.frag).
 CONTACT_SLICES, CONTACT_STEPS = 4, 8
+# Two samples of a pixel show one surface when each lies within this many pixel footprints of the
+# other's plane (shaders/edges/surfaces.glsl): a sheet's neighbouring triangles, not a garment over
+# the body a centimetre behind it at 256 x 256.
+EDGE_PLANE_TOLERANCE_PX = 1.0
+# A pixel's samples lie in one plane when opposite samples' window depths sum alike within this
+# (edges/classify.frag): float32 rounding of depths in [0, 1] is ~6e-8.
+PLANE_DEPTH_TOLERANCE = 1e-6
+
+
+def _plane_depth_tolerance(sample_positions: np.ndarray) -> float:
+    """classify.frag's tolerance: PLANE_DEPTH_TOLERANCE where sample s and n - 1 - s of the driver's
+    pattern lie opposite each other about the pixel's centre (the pattern has pairs to test a plane
+    with), else -1: every pixel a surface touches is resolved as an edge."""
+    n = len(sample_positions)
+    symmetric = n >= 4 and np.allclose(sample_positions + sample_positions[::-1], 1.0, atol=1e-4)
+    return PLANE_DEPTH_TOLERANCE if symmetric else -1.0
 # How far behind what the camera sees the contact search takes it to be solid, in units of its radius:
 # a garment's near layer at a silhouette does not shadow the far layer from a light behind both
 # (docs/sweep.md).
@@ -251,28 +268,67 @@ LIGHTING_PASSES = ("fragment", "compute")
 
 
 def _geometry_targets(ctx: moderngl.Context, w: int, h: int, pbr: bool
-                      ) -> tuple[list[moderngl.Texture], moderngl.Renderbuffer]:
+                      ) -> tuple[list[moderngl.Texture], moderngl.Texture]:
     """The geometry pass's textures and depth buffer for a w x h image: position + specular, normal +
     glossiness, geometric normal, albedo (and with `pbr` the physically based materials' parameters),
     32-bit floats so that g = 1 - 1e-7 and positions far from the origin keep their precision."""
     gbuf = [ctx.texture((w, h), 4, dtype="f4") for _ in range(5 if pbr else 4)]
     for t in gbuf:
         t.filter = (moderngl.NEAREST, moderngl.NEAREST)
-    return gbuf, ctx.depth_renderbuffer((w, h))
+    # A texture, which the edges pass reads (edges/classify.frag).
+    return gbuf, ctx.depth_texture((w, h))
 
 
 class _StillTarget:
-    """The geometry pass's targets for the meshes that hold still (Renderer._geometry_pass), of the
-    frame's own formats, and what they were drawn for (`key`; None: nothing)."""
+    """The targets of a pass for the meshes that hold still (Renderer._geometry_pass, _coverage_pass),
+    of the frame's own formats, and what they were drawn for (`key`; None: nothing): the geometry
+    pass's, or with `samples` the coverage pass's multisampled depth alone."""
 
-    def __init__(self, ctx: moderngl.Context, w: int, h: int, pbr: bool):
-        self.shape, self.key = (w, h, pbr), None
-        self.textures, self.depth = _geometry_targets(ctx, w, h, pbr)
+    def __init__(self, ctx: moderngl.Context, w: int, h: int, pbr: bool, samples: int = 0):
+        self.shape, self.key = (w, h, pbr, samples), None
+        if samples:
+            self.textures, self.depth = [], ctx.depth_texture((w, h), samples=samples)
+        else:
+            self.textures, self.depth = _geometry_targets(ctx, w, h, pbr)
         self.fbo = ctx.framebuffer(self.textures, self.depth)
 
     def release(self) -> None:
         for obj in (self.fbo, self.depth, *self.textures):
             obj.release()
+
+
+class _Targets:
+    """A frame's render targets for one image size, material kind and sample count: the lighting pass's
+    output and the geometry targets it reads (`gbuf`), which share one depth buffer; with several
+    samples a pixel (FrameSettings.aa_samples) also the coverage pass's multisampled depth (`ms_depth`)
+    and the anti-aliased image (`final`), which `output_fbo`, the image read back, is then."""
+
+    def __init__(self, ctx: moderngl.Context, w: int, h: int, pbr: bool, samples: int):
+        self.key = (w, h, pbr, samples)
+        self.samples = samples
+        # A texture, so that the compute lighting pass can store into it (Renderer.lighting_pass).
+        self.color = ctx.texture((w, h), 4, dtype="f4")
+        self.gbuf, self.depth = _geometry_targets(ctx, w, h, pbr)
+        self.image_fbo = ctx.framebuffer([self.color], self.depth)
+        self.gbuf_fbo = ctx.framebuffer(self.gbuf, self.depth)
+        self.ms_depth, self.ms_fbo, self.final, self.edge_marks, self.final_fbo = None, None, None, None, None
+        self.sample_positions: np.ndarray | None = None   # (samples, 2) in the pixel, set by the coverage pass
+        if samples > 1:
+            self.ms_depth = ctx.depth_texture((w, h), samples=samples)
+            self.ms_fbo = ctx.framebuffer([], self.ms_depth)
+            self.final = ctx.texture((w, h), 4, dtype="f4")
+            self.edge_marks = ctx.depth_renderbuffer((w, h))   # the edge pixels (Renderer._edges_pass)
+            self.final_fbo = ctx.framebuffer([self.final], self.edge_marks)
+
+    @property
+    def output_fbo(self):
+        return self.final_fbo if self.samples > 1 else self.image_fbo
+
+    def release(self) -> None:
+        for obj in (self.final_fbo, self.edge_marks, self.final, self.ms_fbo, self.ms_depth, self.gbuf_fbo, self.image_fbo,
+                    self.depth, *self.gbuf, self.color):
+            if obj is not None:
+                obj.release()
 
 
 def default_lighting_pass(gl_renderer: str) -> str:
@@ -343,9 +399,12 @@ class Renderer:
         self._shade_progs: dict[tuple, tuple[moderngl.Program, moderngl.VertexArray]] = {}
         # The background pass's programs, a cube's and a lat-long's (made on first use).
         self._bg_progs: dict[bool, tuple[moderngl.Program, moderngl.VertexArray]] = {}
+        # The edges pass's programs (_edge_program), per program and sample count.
+        self._edge_progs: dict[tuple[str, int], tuple[moderngl.Program, moderngl.VertexArray]] = {}
         self._shadow_maps: dict[str, ShadowMaps] = {}
-        self._target = None
-        self._still_target: _StillTarget | None = None   # the still meshes' geometry pass (_geometry_pass)
+        self._target: _Targets | None = None
+        # The still meshes' targets of the geometry and coverage passes (_with_still_meshes).
+        self._still_targets: dict[str, _StillTarget] = {}
         # The last frame's light plan: (its PEM set, its key, the plan) (_light_plan).
         self._kept_plan: tuple | None = None
         self.kept_plan_hits = 0
@@ -358,7 +417,8 @@ class Renderer:
         self._shadow_prog = program(ctx, "shadows/moments.vert", "shadows/moments.frag",
                                     {"LAYERS_PER_DRAW": LAYERS_PER_DRAW})
         self.gbuffer_prog = program(ctx, "shading/surface.vert", "shading/gbuffer.frag")
-        self._programs = {"moments": self._shadow_prog, "gbuffer": self.gbuffer_prog}
+        self._programs = {"moments": self._shadow_prog, "gbuffer": self.gbuffer_prog,
+                          "coverage": program(ctx, "edges/coverage.vert", "edges/coverage.frag")}
         if self.normals == "gpu":
             self._programs["normals"] = compute_shader(ctx, "mesh/normals.comp")
 
@@ -460,24 +520,19 @@ class Renderer:
             sm = self._shadow_maps[which] = ShadowMaps(self.gl, size, n_lights, self._shadow_prog, groups)
         return sm
 
-    def _target_for(self, w: int, h: int, pbr: bool = False
-                    ) -> tuple[moderngl.Framebuffer, moderngl.Framebuffer, list[moderngl.Texture]]:
-        """(image framebuffer, geometry-pass framebuffer, geometry-pass textures) of an image size;
-        the two framebuffers share one depth buffer. `pbr`: a fifth target for the physically based
-        materials' parameters (gbuffer.frag)."""
-        if self._target is None or self._target[0] != (w, h, pbr):
+    def _target_for(self, w: int, h: int, pbr: bool = False, samples: int = 1) -> _Targets:
+        """The frame's render targets (_Targets) of an image size, made anew when it, the material kind
+        (`pbr`: a fifth geometry target for the physically based materials' parameters) or the samples
+        a pixel change."""
+        if self._target is None or self._target.key != (w, h, pbr, samples):
             if self._target is not None:
-                for obj in self._target[1]:
-                    obj.release()
-            ctx = self.gl.ctx
-            # A texture, so that the compute lighting pass can store into it (Renderer.lighting_pass).
-            color = ctx.texture((w, h), 4, dtype="f4")
-            gbuf, depth = _geometry_targets(ctx, w, h, pbr)
-            image_fbo = ctx.framebuffer([color], depth)
-            gbuf_fbo = ctx.framebuffer(gbuf, depth)
-            self._target = ((w, h, pbr), (image_fbo, gbuf_fbo, color, depth, *gbuf))
-        objs = self._target[1]
-        return objs[0], objs[1], list(objs[4:])
+                self._target.release()
+                self._target = None   # a failed allocation below leaves no released targets behind
+            if samples > 1 and samples > self.gl.ctx.max_samples:
+                raise InvalidInputError(f"aa_samples must be at most {self.gl.ctx.max_samples} on this GL renderer "
+                                        f"({self.gl.renderer_name}), got {samples}")
+            self._target = _Targets(self.gl.ctx, w, h, pbr, samples)
+        return self._target
 
     def _buffer(self, name: str, data: bytes, size: int | None = None) -> moderngl.Buffer:
         """A per-frame buffer holding `data` (at its start), re-created only when its size (that of
@@ -561,7 +616,8 @@ class Renderer:
         lights_buf = self._buffer("lights", lp.lights.tobytes(), self._lights_block or None)
         arrays = self._shadow_pass(scene, settings, lp, lights_buf, shared)
 
-        fbo, gbuf_fbo, gbuf = self._target_for(w, h, scene.has_pbr)
+        targets = self._target_for(w, h, scene.has_pbr, settings.aa_samples)
+        fbo, gbuf = targets.image_fbo, targets.gbuf
         # The PEM set's tables the shading pass reads (the glossy discs), made once per set when a
         # frame first asks for them: that frame reports them as their own stage.
         discs = settings.sub_lights if _glossy_closed_form(settings.mode, settings.glossy) else 1
@@ -578,12 +634,14 @@ class Renderer:
             for variant in variants:
                 timer = shared if not frames else StageTimer()
                 t_view = time.perf_counter()
-                self._geometry_pass(scene, camera, depth_vp, gbuf_fbo, w, h, timer, variant)
+                self._geometry_pass(scene, camera, depth_vp, targets, w, h, timer, variant)
                 oracle = self._oracle_texture(visibility, gbuf, lp.n, w, h) if visibility is not None else None
                 contact_radius = self._lighting_pass(inputs, camera, view_proj, vp_bytes, timer, oracle)
                 if oracle is not None:
                     oracle.release()
-                image = self._readback_image(fbo, w, h, timer)
+                if targets.samples > 1:
+                    self._edges_pass(inputs, targets, view_proj, depth_vp, camera, timer)
+                image = self._readback_image(targets.output_fbo, w, h, timer)
                 timings: FrameTimings = {**timer.as_dict(), **report[0]}   # its stages, then the frame's counts
                 timings["frame_wall_ms"] = (time.perf_counter() - t_view) * 1e3 + (shared_ms if not frames else 0.0)
                 info = {**report[1], "camera": {"eye": list(camera.eye), "target": list(camera.target),
@@ -733,40 +791,139 @@ class Renderer:
             self._shadow_maps.pop("sharp").release()
         return arrays
 
-    def _geometry_pass(self, scene: Scene, camera: Camera, vp_bytes: bytes, gbuf_fbo, w: int, h: int,
+    def _geometry_pass(self, scene: Scene, camera: Camera, vp_bytes: bytes, targets: _Targets, w: int, h: int,
                        timer: StageTimer, variant: int = 0) -> None:
         """The nearest surface's position, normals and material (variant `variant`) per pixel
-        (gbuffer.frag). The meshes that hold still (every one outside shadow group 0: the body, a
-        floor) are drawn into targets of their own only when they, their material or the camera
-        change, and copied in under the moving ones each frame: on a CPU rasterizer a body costs as
-        much as the garment (the vertex stage runs on one thread)."""
+        (gbuffer.frag); with several samples a pixel, then their depths (_coverage_pass). The meshes
+        that hold still (every one outside shadow group 0: the body, a floor) are drawn into targets of
+        their own only when they, their material or the camera change, and copied in under the moving
+        ones each frame: on a CPU rasterizer a body costs as much as the garment (the vertex stage runs
+        on one thread)."""
         gl = self.gl
         with gl.stage(timer, "geometry"):
             g = self._programs["gbuffer_pbr"] if scene.has_pbr else self.gbuffer_prog
             g["u_view_proj"].write(vp_bytes)
             set_uniform(g, "u_camera_pos", tuple(float(x) for x in camera.eye))
-            moving = [sm for sm in scene.meshes if sm.group == 0]
-            still = [sm for sm in scene.meshes if sm.group != 0]
-            if not (moving and still):
-                self._draw_geometry(g, gbuf_fbo, scene.meshes, w, h, variant)
-                return
+            draw = lambda fbo, meshes, clear=True: self._draw_geometry(g, fbo, meshes, w, h, variant, clear)  # noqa: E731
             # The camera is in vp_bytes (its view and its depth range, fitted to the snapped box).
-            key = (tuple((sm.serial, sm.version, sm.variants[variant]) for sm in still), vp_bytes, g.glo)
-            targets = self._still_target_for(w, h, scene.has_pbr)
-            if targets.key != key:
-                targets.key = None   # a draw that fails half-way leaves nothing to be kept
-                self._draw_geometry(g, targets.fbo, still, w, h, variant)
-                targets.key = key
-            else:
-                self.geometry_still_hits += 1
-            _, _, _, depth, *gbuf = self._target[1]
-            for src, dst in zip(targets.textures, gbuf):
-                rawgl.copy_image(gl.gl, src.glo, dst.glo, rawgl.GL_TEXTURE_2D, w, h)
-            rawgl.copy_image(gl.gl, targets.depth.glo, depth.glo, rawgl.GL_RENDERBUFFER, w, h)
-            # Drawn after the still meshes: where a moving and a still surface lie at the same depth
-            # (a garment through its body) the still one is in front, where the garment was when it
-            # was drawn first.
-            self._draw_geometry(g, gbuf_fbo, moving, w, h, variant, clear=False)
+            self._with_still_meshes(scene, variant, (vp_bytes, g.glo), targets.gbuf_fbo, (targets.gbuf, targets.depth), draw,
+                                    lambda: self._still_target_for("geometry", w, h, scene.has_pbr))
+            if targets.samples > 1:
+                self._coverage_pass(scene, vp_bytes, targets)
+
+    def _with_still_meshes(self, scene: Scene, variant: int, key: tuple, fbo, textures: tuple[list, object], draw,
+                           kept_target) -> None:
+        """Draw the scene's meshes (material variant `variant`) into `fbo` with `draw(fbo, meshes,
+        clear)`: the meshes that hold still from their own targets (`kept_target()`, drawn again only
+        when they or `key` change), copied in (`textures`: fbo's colour textures and depth), then the
+        moving ones over them."""
+        moving = [sm for sm in scene.meshes if sm.group == 0]
+        still = [sm for sm in scene.meshes if sm.group != 0]
+        if not (moving and still):
+            draw(fbo, scene.meshes)
+            return
+        key = (tuple((sm.serial, sm.version, sm.variants[variant]) for sm in still), *key)
+        kept = kept_target()
+        if kept.key != key:
+            kept.key = None   # a draw that fails half-way leaves nothing to be kept
+            draw(kept.fbo, still)
+            kept.key = key
+        elif kept.shape[3] == 0:
+            self.geometry_still_hits += 1   # the geometry pass's (tests)
+        colour, depth = textures
+        w, h = kept.shape[:2]
+        for src, dst in zip(kept.textures, colour):
+            rawgl.copy_image(self.gl.gl, src.glo, dst.glo, rawgl.GL_TEXTURE_2D, w, h)
+        depth_target = rawgl.GL_TEXTURE_2D_MULTISAMPLE if kept.shape[3] else rawgl.GL_TEXTURE_2D
+        rawgl.copy_image(self.gl.gl, kept.depth.glo, depth.glo, depth_target, w, h)
+        # Drawn after the still meshes: where a moving and a still surface lie at the same depth (a
+        # garment through its body) the still one is in front, where the garment was when it was
+        # drawn first.
+        draw(fbo, moving, False)
+
+    def _coverage_pass(self, scene: Scene, vp_bytes: bytes, targets: _Targets) -> None:
+        """The surfaces' depth at every sample of every pixel (targets.ms_depth), positions alone and
+        no shading: what the edges pass (_edges_pass) tells a pixel's coverage and surfaces from."""
+        ctx = self.gl.ctx
+        w, h, _, samples = targets.key
+        prog = self._programs["coverage"]
+        prog["u_view_proj"].write(vp_bytes)
+
+        def draw(fbo, meshes, clear=True):
+            fbo.use()
+            ctx.viewport = (0, 0, w, h)
+            if clear:
+                fbo.clear(depth=1.0)
+            ctx.enable(moderngl.DEPTH_TEST)
+            ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+            ctx.depth_func = "<"
+            for sm in meshes:
+                sm.coverage_vao().render(moderngl.TRIANGLES)
+            ctx.disable(moderngl.DEPTH_TEST)
+
+        self._with_still_meshes(scene, 0, (vp_bytes,), targets.ms_fbo, ([], targets.ms_depth), draw,
+                                lambda: self._still_target_for("coverage", w, h, False, samples))
+        if targets.sample_positions is None:
+            targets.ms_fbo.use()
+            targets.sample_positions = rawgl.sample_positions(self.gl.gl, samples)
+
+    def _edge_program(self, name: str, samples: int) -> tuple[moderngl.Program, moderngl.VertexArray]:
+        """One of the edges pass's programs (edges/classify.frag or edges/resolve.frag), a full-screen
+        triangle, compiled once per sample count."""
+        if (name, samples) not in self._edge_progs:
+            prog = program(self.gl.ctx, "shading/background.vert", f"edges/{name}.frag", {"AA_SAMPLES": samples})
+            self._edge_progs[name, samples] = (prog, self.gl.ctx.vertex_array(prog, []))
+        return self._edge_progs[name, samples]
+
+    def _edges_pass(self, inputs: _FrameInputs, targets: _Targets, view_proj: np.ndarray, depth_vp: bytes,
+                    camera: Camera, timer: StageTimer) -> None:
+        """Each pixel from its samples: the pixels one surface covers whole and those none touches at
+        once (edges/classify.frag), then the edge pixels alone (edges/resolve.frag): colour premultiplied
+        by coverage and alpha the coverage; then the background blended in under it where the frame has
+        one."""
+        ctx = self.gl.ctx
+        w, h = inputs.settings.width, inputs.settings.height
+        with self.gl.stage(timer, "edges"):
+            targets.ms_depth.use(location=EdgeTexture.MS_DEPTH)
+            targets.depth.use(location=EdgeTexture.DEPTH)
+            targets.gbuf[0].use(location=EdgeTexture.POSITION)
+            targets.gbuf[2].use(location=EdgeTexture.GEOMETRIC)
+            targets.color.use(location=EdgeTexture.COLOUR)
+            targets.final_fbo.use()
+            ctx.viewport = (0, 0, w, h)
+            ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+            ctx.enable(moderngl.DEPTH_TEST)
+            classify, vao = self._edge_program("classify", targets.samples)
+            set_uniform(classify, "u_plane_depth_tolerance", _plane_depth_tolerance(targets.sample_positions))
+            ctx.depth_func = "1"   # every pixel writes its mark
+            vao.render(moderngl.TRIANGLES, vertices=3)
+            resolve, vao = self._edge_program("resolve", targets.samples)
+            inv = np.linalg.inv(np.frombuffer(depth_vp, np.float32).reshape(4, 4).T.astype(np.float64))
+            set_uniform(resolve, "u_inv_view_proj", inv.T.astype(np.float32).tobytes())
+            set_uniform(resolve, "u_sample_positions", targets.sample_positions.tobytes())
+            set_uniform(resolve, "u_camera_pos", tuple(float(x) for x in camera.eye))
+            set_uniform(resolve, "u_footprint_per_distance", 2.0 * float(np.tan(np.radians(camera.fov_y_deg) / 2.0)) / h)
+            set_uniform(resolve, "u_plane_tolerance_px", EDGE_PLANE_TOLERANCE_PX)
+            ctx.depth_func = ">"   # the edge pixels (marked 0) alone
+            vao.render(moderngl.TRIANGLES, vertices=3)
+            ctx.depth_func = "<"
+            ctx.disable(moderngl.DEPTH_TEST)
+            if inputs.settings.background is Background.ENVIRONMENT:
+                # Under what the surfaces cover: c = c + (1 - alpha) * background, alpha kept.
+                ctx.enable(moderngl.BLEND)
+                ctx.blend_func = (moderngl.ONE_MINUS_DST_ALPHA, moderngl.ONE, moderngl.ZERO, moderngl.ONE)
+                self._draw_background(inputs, view_proj)
+                ctx.blend_func = moderngl.DEFAULT_BLENDING
+                ctx.disable(moderngl.BLEND)
+
+    def _draw_background(self, inputs: _FrameInputs, view_proj: np.ndarray) -> None:
+        """The environment seen along each pixel's view ray (shading/background.frag), into the bound
+        framebuffer."""
+        background = inputs.background
+        (background if background is not None else inputs.pems.env_texture).use(location=LightingTexture.ENVIRONMENT)
+        bg_prog, bg_vao = self._background_program(background is not None and background.latlong)
+        bg_prog["u_inv_view_proj"].write(np.linalg.inv(view_proj).T.astype(np.float32).tobytes())
+        bg_vao.render(moderngl.TRIANGLES, vertices=3)
 
     def _draw_geometry(self, g: moderngl.Program, fbo, meshes: list, w: int, h: int, variant: int,
                        clear: bool = True) -> None:
@@ -787,14 +944,15 @@ class Renderer:
                 part.bind(g)
                 part.vao.render(moderngl.TRIANGLES)
 
-    def _still_target_for(self, w: int, h: int, pbr: bool) -> _StillTarget:
-        """The still meshes' geometry-pass targets for an image size (made anew, empty, when it changes)."""
-        t = self._still_target
-        if t is None or t.shape != (w, h, pbr):
+    def _still_target_for(self, which: str, w: int, h: int, pbr: bool, samples: int = 0) -> _StillTarget:
+        """The still meshes' targets of a pass ("geometry" or "coverage") for an image size (made anew,
+        empty, when it or the samples change)."""
+        t = self._still_targets.get(which)
+        if t is None or t.shape != (w, h, pbr, samples):
             if t is not None:
                 t.release()
-            self._still_target = None
-            t = self._still_target = _StillTarget(self.gl.ctx, w, h, pbr)
+            self._still_targets.pop(which, None)
+            t = self._still_targets[which] = _StillTarget(self.gl.ctx, w, h, pbr, samples)
         return t
 
     def _lighting_pass(self, inputs: _FrameInputs, camera: Camera, view_proj: np.ndarray, vp_bytes: bytes,
@@ -804,8 +962,7 @@ class Renderer:
         Returns the contact search's distance in world units (0: none)."""
         gl, ctx = self.gl, self.gl.ctx
         scene, pems, settings, lp, arrays = inputs.scene, inputs.pems, inputs.settings, inputs.lp, inputs.arrays
-        lights_buf, fbo, gbuf, discs, background = (inputs.lights_buf, inputs.fbo, inputs.gbuf, inputs.discs,
-                                                    inputs.background)
+        lights_buf, fbo, gbuf, discs = inputs.lights_buf, inputs.fbo, inputs.gbuf, inputs.discs
         w, h = settings.width, settings.height
         regions, n, plan, disc_radius, n_shadowed = lp.regions, lp.n, lp.plan, lp.disc_radius, lp.n_shadowed
         lights = lp.lights
@@ -836,12 +993,10 @@ class Renderer:
             arrays.get("sharp", shadow_maps).moments.use(location=LightingTexture.MOMENTS_SHARP)
             if lp.blocker:
                 shadow_maps.casters.use(location=LightingTexture.CASTERS)   # the penumbrae's blocker search (PENUMBRA_BLOCKER)
-            if settings.background is Background.ENVIRONMENT:
+            if settings.background is Background.ENVIRONMENT and settings.aa_samples == 1:
+                # (With several samples a pixel the background goes in after the edges: _edges_pass.)
                 ctx.disable(moderngl.DEPTH_TEST)
-                (background if background is not None else pems.env_texture).use(location=LightingTexture.ENVIRONMENT)
-                bg_prog, bg_vao = self._background_program(background is not None and background.latlong)
-                bg_prog["u_inv_view_proj"].write(np.linalg.inv(view_proj).T.astype(np.float32).tobytes())
-                bg_vao.render(moderngl.TRIANGLES, vertices=3)
+                self._draw_background(inputs, view_proj)
             # Lighting pass: a full-screen triangle at the far plane, drawn where the geometry pass's
             # depth is nearer (covered pixels only; the depth buffer is not written).
             ctx.enable(moderngl.DEPTH_TEST)
@@ -937,15 +1092,14 @@ class Renderer:
             sm.release()
         self._shadow_maps = {}
         if self._target is not None:
-            for obj in self._target[1]:
-                obj.release()
-        if self._still_target is not None:
-            self._still_target.release()
-        self._target, self._still_target, self._readback = None, None, None
+            self._target.release()
+        for t in self._still_targets.values():
+            t.release()
+        self._target, self._still_targets, self._readback = None, {}, None
         for buf in self._buffers.values():
             buf.release()
         self._gloss_buf.release()
-        variants = [obj for progs in (self._shade_progs, self._bg_progs) for pair in progs.values()
+        variants = [obj for progs in (self._shade_progs, self._bg_progs, self._edge_progs) for pair in progs.values()
                     for obj in pair[::-1] if obj is not None]
         for obj in (*variants, *self._programs.values()):
             obj.release()

@@ -248,6 +248,9 @@ class SceneMesh:
         self._normals_prog = programs.get("normals")
         self._adjacency: tuple[moderngl.Buffer, moderngl.Buffer] | None = None
         self._ctx, self._moments_prog = ctx, programs["moments"]
+        # The anti-aliasing's depth-only pass over every triangle (Renderer._coverage_pass), made on first use.
+        self._coverage_prog = programs["coverage"]
+        self._coverage_vao: moderngl.VertexArray | None = None
         # The shadow pass's triangles per detail (shadows/proxy.py shadow_faces: the proxy, light
         # facing): given (made off the GL thread by a caller that knows the detail it will use), else
         # made on first use per detail.
@@ -286,6 +289,13 @@ class SceneMesh:
                                          index_buffer=ibo, index_element_size=4)
             self._proxies[detail] = (ibo, vao, len(faces))
         return self._proxies[detail][1]
+
+    def coverage_vao(self) -> moderngl.VertexArray:
+        """The vertex array of the anti-aliasing's depth-only pass: every triangle, positions alone."""
+        if self._coverage_vao is None:
+            self._coverage_vao = self._ctx.vertex_array(self._coverage_prog, [(self.vbo_pos, "3f", "in_position")],
+                                                        index_buffer=self.ibo, index_element_size=4)
+        return self._coverage_vao
 
     def shadow_triangles(self, detail: float = 1.0) -> int:
         """Triangles the shadow pass draws per light at this detail (a piece drawn both ways twice)."""
@@ -333,6 +343,9 @@ class SceneMesh:
             vao.release()
             ibo.release()
         self._proxies = {}
+        if self._coverage_vao is not None:
+            self._coverage_vao.release()
+            self._coverage_vao = None
         for v in {id(v): v for v in self.__dict__.get("variants", ())}.values():   # a shared one once
             v.release()
         for obj in (self.vbo_pos, self.vbo_nrm, self.vbo_uv, self.ibo):

@@ -56,7 +56,7 @@ def _floor_and_plate() -> Mesh:
 def _floor_regions(renderer, width, height, azimuth_deg):
     """(a strip in the plate's shadow beyond its edge, open floor far from it): masks of the last
     frame's pixels, from the geometry pass's world positions."""
-    pos = np.frombuffer(renderer._target[1][4].read(), np.float32).reshape(height, width, 4)[::-1]
+    pos = np.frombuffer(renderer._target.gbuf[0].read(), np.float32).reshape(height, width, 4)[::-1]
     floor = (pos[..., 1] < 1e-4) & (np.abs(pos[..., 2]) < 0.3)
     reach = H * np.cos(np.radians(azimuth_deg)) / np.tan(ELEVATION)
     strip = floor & (pos[..., 0] > 0.1 * reach) & (pos[..., 0] < 0.6 * reach)

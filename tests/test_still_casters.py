@@ -117,11 +117,12 @@ def test_a_snapped_box_holds_the_box_and_depends_on_it_alone():
     np.testing.assert_allclose(big[1], small[1] * 1e6)
 
 
-def test_the_still_meshes_geometry_is_drawn_once_per_camera_and_the_frames_are_the_same(two_renderers):
+@pytest.mark.parametrize("aa_samples", [1, 4])
+def test_the_still_meshes_geometry_is_drawn_once_per_camera_and_the_frames_are_the_same(two_renderers, aa_samples):
     """The geometry pass draws the body and the floor (every mesh outside shadow group 0) into targets
     of their own, kept while they, their material and the camera stay the same: the frames equal
     those of a renderer that draws them anew every frame, and a body that moves, another camera or a
-    colourway draws them again."""
+    colourway draws them again. With anti-aliasing the coverage pass keeps its own (its depths)."""
     cube, meshes, mats = _garment_on_body()
     garment, body = meshes[:2]
     up = np.array([0.0, 0.01, 0.0], np.float32)
@@ -140,13 +141,14 @@ def test_the_still_meshes_geometry_is_drawn_once_per_camera_and_the_frames_are_t
         for s in scenes:
             assert s.add_variant([None, Material((0.2, 0.3, 0.7)), None]) == 1
         pems = keeps.build_pems(cube, PEMSettings(24))
-        fs = FrameSettings(64, 64, background=Background.BLACK)
+        fs = FrameSettings(64, 64, background=Background.BLACK, aa_samples=aa_samples)
         for positions, camera, variant, copied in frames:
             hits = keeps.geometry_still_hits
             images = []
             for r, scene in zip((keeps, draws), scenes):
-                if r is draws and r._still_target is not None:
-                    r._still_target.key = None   # nothing kept: drawn anew
+                if r is draws:
+                    for kept in r._still_targets.values():
+                        kept.key = None   # nothing kept: drawn anew
                 images.append(r.render_views(scene, pems, fs, [camera], positions=positions,
                                              variants=[variant])[0].image)
             np.testing.assert_array_equal(images[0], images[1])

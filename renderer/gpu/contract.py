@@ -61,6 +61,16 @@ class GeometryTexture(IntEnum):
     SHEEN_MAP = 6
 
 
+class EdgeTexture(IntEnum):
+    """Texture units of the anti-aliasing's edges pass (shaders/edges/resolve.frag)."""
+
+    MS_DEPTH = 0            # the coverage pass's depth at every sample
+    DEPTH = 1               # the geometry pass's depth, position and geometric normal (at the centres)
+    POSITION = 2
+    GEOMETRIC = 3
+    COLOUR = 4              # the lighting pass's output
+
+
 class Image(IntEnum):
     """Image units: the lighting pass's output (compute variant), the shadow maps' blur and caster
     coverage (shadows/blur.comp, coverage.comp), the PEM build's output (pem/*.comp)."""
@@ -128,7 +138,8 @@ CONVEX_SURFACE = 4
 # variance, a^2 / 4), and then its term is in closed form.
 WIDE_LOBE_DISC_VARIANCE = 0.25
 
-_PREFIXES = ((LightingBuffer, "BUF"), (LightingTexture, "TEX"), (GeometryTexture, "TEX"), (Image, "IMG"),
+_PREFIXES = ((LightingBuffer, "BUF"), (LightingTexture, "TEX"), (GeometryTexture, "TEX"), (EdgeTexture, "TEX_AA"),
+             (Image, "IMG"),
              (PEMBuffer, "BUF_PEM"), (NormalsBuffer, "BUF_NORMALS"), (ProbeBuffer, "BUF_PROBE"), (Mode, "MODE"),
              (LightKind, "KIND"))
 

@@ -35,6 +35,7 @@ GL_LINEAR = 0x2601
 GL_LINEAR_MIPMAP_LINEAR = 0x2703
 GL_TEXTURE_MAX_LEVEL = 0x813D
 GL_TEXTURE_2D = 0x0DE1
+GL_TEXTURE_2D_MULTISAMPLE = 0x9100
 GL_TEXTURE_WRAP_S = 0x2802
 GL_TEXTURE_WRAP_T = 0x2803
 GL_REPEAT = 0x2901
@@ -62,6 +63,7 @@ class RawGL:
         "glTextureSubImage3D": (_u, _i, _i, _i, _i, _i, _i, _i, _u, _u, ctypes.c_void_p),
         "glClearTexSubImage": (_u, _i, _i, _i, _i, _i, _i, _i, _u, _u, ctypes.c_void_p),
         "glCopyImageSubData": (_u, _u, _i, _i, _i, _i, _u, _u, _i, _i, _i, _i, _i, _i, _i),
+        "glGetMultisamplefv": (_u, _u, ctypes.POINTER(ctypes.c_float)),
     }
 
     def __init__(self):
@@ -85,9 +87,22 @@ def clear_layers(gl: RawGL, glo: int, first: int, count: int, size: int, value: 
     gl.glClearTexSubImage(glo, 0, 0, 0, first, size, size, count, GL_RG, GL_FLOAT, ctypes.cast(data, ctypes.c_void_p))
 
 
+GL_SAMPLE_POSITION = 0x8E50
+
+
+def sample_positions(gl: RawGL, samples: int) -> np.ndarray:
+    """Where in its pixel each sample of the bound multisampled framebuffer lies: float32 (samples, 2),
+    x right and y up from the pixel's lower left corner, in [0, 1) (the driver's pattern)."""
+    out = np.zeros((samples, 2), np.float32)
+    for i in range(samples):
+        gl.glGetMultisamplefv(GL_SAMPLE_POSITION, i, out[i].ctypes.data_as(ctypes.POINTER(ctypes.c_float)))
+    return out
+
+
 def copy_image(gl: RawGL, src: int, dst: int, target: int, width: int, height: int) -> None:
-    """Level 0 of image `src` into `dst` (GL names of one target, GL_TEXTURE_2D or GL_RENDERBUFFER, and
-    one format), texel for texel: no framebuffer, no filtering, no conversion."""
+    """Level 0 of image `src` into `dst` (GL names of one target, GL_TEXTURE_2D, GL_TEXTURE_2D_MULTISAMPLE
+    or GL_RENDERBUFFER, and one format and sample count), texel for texel: no framebuffer, no filtering,
+    no conversion."""
     gl.glCopyImageSubData(src, target, 0, 0, 0, 0, dst, target, 0, 0, 0, 0, width, height, 1)
 
 

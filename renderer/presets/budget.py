@@ -31,7 +31,8 @@ KNOB_DEFAULTS = {"diffuse": "pem", "caster_detail": 1.0, "small_light_scale": 1,
                  "glossy": "pem", "sharp_large_lights": False, "sharp_share_deg": 0.0, "sub_lights": 1,
                  **OLD_SHADOW_BIAS, "contact_shadow_texels": 0.0, "whole_sources": False,
                  "lobes": 1,   # before the fitted lobes, every pixel had the one Phong lobe
-                 "lights_from": "median-cut", "penumbra": "fixed"}
+                 "lights_from": "median-cut", "penumbra": "fixed",
+                 "aa_samples": 1}   # before anti-aliasing, one sample a pixel
 
 
 def summarize(bench: dict) -> dict:
@@ -113,7 +114,7 @@ def budget_knobs(frame_budget_ms: float | None, error_budget: float | None,
             f"measured: render at {measured}x{measured}, name a preset, or store a table measured at this size "
             "(garment-render bench --store)")
     entry = choose(table, frame_budget_ms, error_budget)
-    knobs = {k: v for k, v in entry["settings"].items() if k != "filter"}
+    knobs = {k: entry["settings"].get(k, KNOB_DEFAULTS.get(k)) for k in KNOBS if k != "filter"}
     source = (f"budget: measured {entry['median_frame_ms']:.1f} ms median, worst rel. RMSE "
               f"{entry['worst_rel_rmse']:.4f} on {table['machine'].get('gl_renderer', '?')} "
               f"({table['machine'].get('date', '?')})")

@@ -1,0 +1,3 @@
+// Depth only: the coverage pass writes no colour.
+void main() {
+}
