@@ -19,6 +19,7 @@ from .errors import InvalidInputError, RenderError
 from .presets import PRESET_NAMES, resolve
 from .presets import frame_settings as presets_frame_settings
 from .presets import pem_settings as presets_pem_settings
+from .shading.tonemap import DEFAULT_CURVE, ToneCurve
 from .views import VIEW_NAMES
 
 
@@ -150,7 +151,8 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
                         "else ~/.cache/garment-render: the PEM sets and cubes of the maps rendered before, the "
                         "mesh files read before)")
     o.add_argument("--exposure", type=float, help="exposure in EV (default: automatic)")
-    o.add_argument("--tone", default="filmic", choices=["filmic", "reinhard", "linear"])
+    o.add_argument("--tone", default=DEFAULT_CURVE.value, choices=[c.value for c in ToneCurve],
+                   help=f"tone curve of the PNG (default {DEFAULT_CURVE.value}: it keeps base colours)")
     o.add_argument("--background", default="env", choices=["env", "black"],
                    help="the map behind the garment, or nothing (alpha 0)")
 
@@ -333,7 +335,7 @@ def _write_views(args, frames, n_variants: int) -> None:
     labelled), all at the first view's exposure."""
     from PIL import Image
 
-    from .shading.tonemap import ToneCurve, auto_exposure_ev, encode_rgba8, write_png
+    from .shading.tonemap import auto_exposure_ev, encode_rgba8, srgb_pnginfo, write_png
     from .views import contact_sheet, label_tiles, sheet_columns, view_labels
 
     if not args.out:
@@ -349,7 +351,8 @@ def _write_views(args, frames, n_variants: int) -> None:
     colourways = ["garment"] + [p.stem for p in args.colourway]
     labels = view_labels(len(images) // n_variants, args.views, colourways)
     sheet = encode_rgba8(contact_sheet(images, columns), exposure, ToneCurve(args.tone))
-    Image.fromarray(label_tiles(sheet, labels, images[0].shape[:2], columns)).save(args.out)
+    Image.fromarray(label_tiles(sheet, labels, images[0].shape[:2], columns)).save(args.out, format="PNG",
+                                                                                  pnginfo=srgb_pnginfo())
 
 
 def png_image(img: np.ndarray, opaque: bool) -> np.ndarray:
@@ -384,7 +387,7 @@ def _pem_line(pems, source: str) -> str:
 def cmd_render(args) -> int:
     from .envmap import write_exr
     from .renderer import Renderer
-    from .shading.tonemap import ToneCurve, auto_exposure_ev, write_png
+    from .shading.tonemap import auto_exposure_ev, write_png
 
     t_start = time.perf_counter()
     q = resolve_quality(args)
@@ -444,7 +447,7 @@ def cmd_sequence(args) -> int:
     from .renderer import Renderer
     from .sequence import load_sequence, to_meshes
     from .shading.material import Material
-    from .shading.tonemap import ToneCurve, auto_exposure_ev, to_png_bytes
+    from .shading.tonemap import auto_exposure_ev, to_png_bytes
 
     if args.out is None:
         raise SystemExit("error: sequence needs --out DIR (the folder for the numbered frames)")
@@ -529,24 +532,24 @@ def cmd_reference(args) -> int:
     """The Monte Carlo ground truth of the same scene, with the same output flags as `render`."""
     from .envmap import write_exr
     from .reference import render_reference
-    from .shading.tonemap import ToneCurve, auto_exposure_ev, write_png
+    from .shading.tonemap import auto_exposure_ev, write_png
 
     face = args.face_size or 256  # the reference reads the map itself: a fine cube by default
     env, meshes, materials, casters = load_scene_inputs(args, face)
     w, h = args.size
     camera = camera_from_args(args, [m for m, c in zip(meshes, casters) if c], w / h)
     t0 = time.perf_counter()
-    ref = render_reference(meshes, materials, env.cube, camera, w, h, args.spp, seed=args.seed)
+    ref = render_reference(meshes, materials, env.cube, camera, w, h, args.spp, seed=args.seed,
+                           pixel_samples=args.pixel_samples)
     wall = time.perf_counter() - t0
-    img = ref.image
-    if args.background == "black":   # as the renderer draws it: nothing behind the object
-        img = np.where(img[..., 3:] > 0.5, img, 0.0).astype(np.float32)
+    # As the renderer draws it: over black, the surfaces' colour premultiplied by their coverage.
+    img = ref.foreground if args.background == "black" else ref.image
     if args.exr:
         write_exr(args.exr, img)
     exposure = args.exposure if args.exposure is not None else auto_exposure_ev(img[..., :3], img[..., 3])
     if args.out:
         write_png(args.out, png_image(img, args.background == "env"), exposure, ToneCurve(args.tone))
-    report = {"spp": args.spp, "seed": args.seed, "wall_s": wall, "rays_cast": int(ref.rays_cast),
+    report = {"spp": int(ref.spp), "pixel_samples": args.pixel_samples, "seed": args.seed, "wall_s": wall, "rays_cast": int(ref.rays_cast),
               "noise_floor_rel": float(ref.noise_floor_rel()), "environment": env.name, "face_size": face,
               "background": args.background,
               "camera": {"eye": list(camera.eye), "target": list(camera.target), "fov_y_deg": camera.fov_y_deg}}
@@ -610,7 +613,7 @@ def cmd_bench(args) -> int:
     # The side benchmarks: flag -> extra keyword arguments of renderer.bench.<flag>.run, which writes
     # <flag>.json and <flag>.md.
     side = {"area": {}, "shadow_maps": {"preset_name": args.preset}, "sizes": {}, "views": {}, "materials": {},
-            "energy": {}}
+            "energy": {}, "edges": {}}
     for name, extra in side.items():
         if getattr(args, name):
             importlib.import_module(f"renderer.bench.{name}").run(args.out, quick=args.quick, **extra)
@@ -779,6 +782,9 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     add_scene_arguments(ref)
     ref.add_argument("--spp", type=int, default=256, help="samples per pixel (per technique)")
     ref.add_argument("--seed", type=int, default=0)
+    ref.add_argument("--pixel-samples", type=int, default=4, metavar="K",
+                     help="each pixel's area integrated over K x K jittered strata (the truth of an anti-aliased "
+                          "frame; 1: one ray through the pixel's centre)")
     ref.set_defaults(func=cmd_reference)
     for scene_command in (r, sq, ref):
         scene_command.add_argument("--help-all", action="help", help="show every flag, the advanced ones too")
@@ -803,6 +809,10 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     b.add_argument("--views", action="store_true",
                    help="a turntable's views and colourways in one call against one by one: what sharing the shadow "
                         "pass saves (renderer/bench/views.py)")
+    b.add_argument("--edges", action="store_true",
+                   help="the ways to anti-alias (none, the renderer's 4 samples a pixel, 2 x 2 supersampling) at fast "
+                        "and balanced: silhouette and interior error against references that integrate each pixel's "
+                        "area, and frame time, on the held-out maps (renderer/bench/edges.py)")
     b.add_argument("--materials", action="store_true",
                    help="the physically based fabrics (1 and 2 fitted lobes) against the reference beside the Phong "
                         "fabric, on tuning and held-out maps apart (renderer/bench/materials.py)")

@@ -528,11 +528,16 @@ class Renderer:
             if self._target is not None:
                 self._target.release()
                 self._target = None   # a failed allocation below leaves no released targets behind
-            if samples > 1 and samples > self.gl.ctx.max_samples:
-                raise InvalidInputError(f"aa_samples must be at most {self.gl.ctx.max_samples} on this GL renderer "
-                                        f"({self.gl.renderer_name}), got {samples}")
+            self.check_device(samples)
             self._target = _Targets(self.gl.ctx, w, h, pbr, samples)
         return self._target
+
+    def check_device(self, aa_samples: int) -> None:
+        """InvalidInputError naming the limit where this GL renderer cannot take a frame's samples a pixel
+        (GL_MAX_SAMPLES: 4 on llvmpipe): what a service checks when a scene is registered."""
+        if aa_samples > 1 and aa_samples > self.gl.ctx.max_samples:
+            raise InvalidInputError(f"aa_samples must be at most {self.gl.ctx.max_samples} on this GL renderer "
+                                    f"({self.gl.renderer_name}), got {aa_samples}")
 
     def _buffer(self, name: str, data: bytes, size: int | None = None) -> moderngl.Buffer:
         """A per-frame buffer holding `data` (at its start), re-created only when its size (that of

@@ -13,6 +13,8 @@
 #   views       garment-render bench --views              (docs/views-bench.json and .md; ~2 min)
 #   area        garment-render bench --area               (docs/area-bench.json and .md; ~8 min)
 #   shadow-maps garment-render bench --shadow-maps        (docs/shadow-maps-bench.json and .md; ~7 min)
+#   edges       garment-render bench --edges              (docs/edges-bench.json and .md; ~10 min warm, the broad
+#               run's reference cache shared)
 #   scale-out   python -m service.load --ray 1,2 --frames 32 --scenes 8   (docs/scale-out.json and .md; ~3 min)
 # and, named only (never by default), the broad runs retimed: their stored errors kept, every frame and
 # the tracer's rate timed again (`bench --broad --retime`), for a change that leaves every image as it
@@ -22,7 +24,7 @@
 # run this on a quiet machine, nothing else at work, and give each run the whole machine.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-all=(broad-256 broad-512 error-split energy materials one-shot sweep views area shadow-maps scale-out)
+all=(broad-256 broad-512 error-split energy materials one-shot sweep views area shadow-maps edges scale-out)
 named=("${all[@]}" broad-256-retime broad-512-retime)
 runs=("$@")
 if [[ ${#runs[@]} -eq 0 ]]; then
@@ -86,6 +88,7 @@ for run in "${runs[@]}"; do
             cp "$tmp/sweep/bench.md" docs/sweep.md
             cp "$tmp/sweep/pareto.png" docs/pareto.png ;;
         views) side views views docs/views-bench.json ;;
+        edges) side edges edges docs/edges-bench.json ;;
         area) side area area docs/area-bench.json ;;
         shadow-maps) side shadow-maps shadow_maps docs/shadow-maps-bench.json ;;
         scale-out) "$py" -m service.load --ray 1,2 --frames 32 --scenes 8 --out docs/scale-out.md ;;

@@ -237,6 +237,7 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
         record.frame_counter = functools.partial(svc.state.count_frames, record.id)
 
     def job(gl: GLResources) -> None:
+        gl.renderer.check_device(q.frame.aa_samples)   # refused here, not at every frame
         pems, source = gl.pem_set(env.content_hash, cube, pem)
         env.note_pem_set(key, q.face_size, pem, pems, source)
         variants = [[c] + [None] * (len(prepared.meshes) - 1) for c in prepared.colourways]

@@ -21,6 +21,7 @@ from fastapi import Request
 from fastapi.responses import JSONResponse, Response
 
 from renderer.renderer import Background, Frame
+from renderer.shading.tonemap import DEFAULT_CURVE
 
 from .codecs import FrameArrays, encode_exr, encode_png
 from .errors import NotAcceptableError, NotFoundError
@@ -97,7 +98,7 @@ def encode(frame: Frame, fmt: ImageFormat, output: dict, exposure_ev: float | No
         content = encode_exr(frame.image)
     else:
         ev_in = exposure_ev if exposure_ev is not None else output.get("exposure_ev")
-        content, ev = encode_png(frame.image, ev_in, output.get("tone", "filmic"),
+        content, ev = encode_png(frame.image, ev_in, output.get("tone", DEFAULT_CURVE.value),
                                  opaque=output.get("background", "env") == "env", compress_level=compress_level)
     return Encoded(content, MEDIA[kind], ev, (time.perf_counter() - t0) * 1e3)
 

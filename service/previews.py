@@ -11,6 +11,7 @@ import numpy as np
 
 from renderer.envmap import Layout, cube_to_latlong, dir_to_image, dir_to_texel, image_to_dir
 from renderer.lighting.median_cut import LUMINANCE_RGB
+from renderer.shading.tonemap import srgb_pnginfo
 
 
 def _palette(n: int) -> np.ndarray:
@@ -68,5 +69,5 @@ def region_preview_png(cube: np.ndarray, labels: np.ndarray, directions: np.ndar
         draw.ellipse([x - r, y - r, x + r, y + r], outline=(255, 255, 255), width=2)
         draw.line([x - 1, y, x + 1, y], fill=(255, 255, 255))
     buf = io.BytesIO()
-    img.save(buf, format="PNG", compress_level=3)
+    img.save(buf, format="PNG", compress_level=3, pnginfo=srgb_pnginfo())
     return buf.getvalue()

@@ -11,6 +11,7 @@ from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Fie
 from renderer import config
 from renderer.presets import PRESET_NAMES
 from renderer.shading.material import MAX_TEXTURE_SETS
+from renderer.shading.tonemap import DEFAULT_CURVE, ToneCurve
 
 Preset = Enum("Preset", {name.upper(): name for name in PRESET_NAMES}, type=str)
 Preset.__doc__ = "A quality preset (renderer/presets/*.toml)."
@@ -26,6 +27,9 @@ def _option_enum(name: str, option: str) -> type[Enum]:
     return Enum(name, {v.upper().replace("-", "_"): v for v in config.OPTION[option].choices}, type=str,
                 module=__name__)
 
+
+# The renderer's tone curves (renderer/shading/tonemap.py), as the strings a request names.
+ToneName = Literal[tuple(c.value for c in ToneCurve)]
 
 FilterName = _option_enum("FilterName", "filter")
 LayoutName = _option_enum("LayoutName", "layout")
@@ -134,7 +138,8 @@ class OutputSpec(_Strict):
     height: int = Field(512, ge=1)
     background: Literal["env", "black"] = "env"
     exposure_ev: float | None = Field(None, description="fixed exposure in stops; null: automatic per frame")
-    tone: Literal["filmic", "reinhard", "linear"] = "filmic"
+    tone: ToneName = Field(DEFAULT_CURVE.value, description="tone curve of PNG images (pbr-neutral: a base colour "
+                           "under white light of radiance 1 shows as itself)")
 
 
 class CameraSpec(_Strict):

@@ -52,5 +52,5 @@ def render_preview(out: Path | str, garment: tuple[np.ndarray, np.ndarray, np.nd
     img = np.concatenate(images, axis=1)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    write_png(out, img, auto_exposure_ev(img[..., :3], img[..., 3]), ToneCurve("filmic"))
+    write_png(out, img, auto_exposure_ev(img[..., :3], img[..., 3]), ToneCurve(args.tone))
     return out

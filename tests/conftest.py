@@ -3,6 +3,9 @@ from the main thread; tests that need ../shared/assets skip with the reason when
 
 from __future__ import annotations
 
+import io
+import struct
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -114,3 +117,49 @@ def http(server):
 
     with httpx.Client(base_url=server.url, timeout=120) as c:
         yield c
+
+
+# -- colour metadata of the files the project writes ------------------------------------------------
+
+def png_chunks(data: bytes) -> list[tuple[bytes, bytes]]:
+    """The (type, data) of every chunk of a PNG, in file order, each chunk's CRC checked."""
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    chunks, at = [], 8
+    while at < len(data):
+        (n,), kind = struct.unpack(">I", data[at:at + 4]), data[at + 4:at + 8]
+        body = data[at + 8:at + 8 + n]
+        assert struct.unpack(">I", data[at + 8 + n:at + 12 + n])[0] == zlib.crc32(kind + body), kind
+        chunks.append((kind, body))
+        at += 12 + n
+    return chunks
+
+
+# What a PNG of sRGB pixels carries (PNG specification, 11.3.3.5): sRGB with perceptual intent, and
+# the gAMA and cHRM an encoder writes beside it for decoders that ignore sRGB.
+SRGB_CHUNKS = [(b"sRGB", b"\x00"), (b"gAMA", struct.pack(">I", 45455)),
+               (b"cHRM", struct.pack(">8I", 31270, 32900, 64000, 33000, 30000, 60000, 15000, 6000))]
+
+
+def assert_tagged_srgb(data: bytes) -> None:
+    """The PNG says its pixels are sRGB: the chunks before the first IDAT, and what Pillow reads."""
+    from PIL import Image
+
+    chunks = png_chunks(data)
+    kinds = [k for k, _ in chunks]
+    before = chunks[:kinds.index(b"IDAT")]
+    for chunk in SRGB_CHUNKS:
+        assert chunk in before, chunk[0]
+    info = Image.open(io.BytesIO(data)).info
+    assert info["srgb"] == 0 and info["gamma"] == pytest.approx(1 / 2.2, abs=1e-5)
+    np.testing.assert_allclose(info["chromaticity"], [0.3127, 0.329, 0.64, 0.33, 0.3, 0.6, 0.15, 0.06])
+
+
+def assert_rec709_exr(source) -> None:
+    """An EXR (a path or its bytes) states Rec. 709 primaries and D65 white: OpenEXR reads its
+    chromaticities as the linear Rec. 709 colour space's (colorInteropID lin_rec709_scene)."""
+    import OpenEXR
+
+    f = OpenEXR.File(io.BytesIO(source) if isinstance(source, bytes) else str(source), header_only=True)
+    chroma = f.header()["chromaticities"]
+    np.testing.assert_allclose(chroma, [0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290], atol=1e-6)
+    assert OpenEXR.chromaticitiesToColorInteropID(chroma) == "lin_rec709_scene"

@@ -13,7 +13,6 @@ from renderer.camera import Camera, bounds_sphere
 from renderer.errors import InvalidInputError
 from renderer.lighting.pem import PEMSettings
 from renderer.mesh import Mesh
-from renderer.presets import preset_frame
 from renderer.renderer import Background, FrameSettings, ShadingMode
 from renderer.shading.material import Material
 
@@ -116,14 +115,6 @@ def test_the_background_goes_under_the_edges(renderer):
     behind = over_env[..., :3] - over_black[..., :3]
     np.testing.assert_allclose(behind, (1.0 - over_black[..., 3:4]) * np.array([0.3, 0.6, 0.9]), atol=0.02)
     assert ((over_black[..., 3] > 0) & (over_black[..., 3] < 1)).sum() > 40
-
-
-def test_every_product_preset_anti_aliases():
-    """Anti-aliasing is in every product preset's frames; the paper preset, the method as published,
-    and FrameSettings() have none."""
-    for name in ("fast", "balanced", "accurate"):
-        assert preset_frame(name, 64, 64).aa_samples == 4
-    assert preset_frame("paper", 64, 64).aa_samples == FrameSettings().aa_samples == 1
 
 
 def test_samples_beyond_the_driver_are_refused_naming_the_limit(renderer, uniform_pems):

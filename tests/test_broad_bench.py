@@ -19,10 +19,10 @@ from renderer.presets import PRESET_NAMES
 
 def test_the_split_is_a_rule_not_a_choice():
     sets = split()
-    assert set(sets) == set(MAPS) and len(MAPS) == 17
+    assert set(sets) == set(MAPS) and len(MAPS) == 18
     # The maps the presets were tuned on before the benchmark existed are never held out.
     assert all(sets[m] == "tuning" for m in TARGET_PROBES.values())
-    assert sum(v == "tuning" for v in sets.values()) == 8 and sum(v == "held-out" for v in sets.values()) == 9
+    assert sum(v == "tuning" for v in sets.values()) == 8 and sum(v == "held-out" for v in sets.values()) == 10
     assert split(tuple(reversed(MAPS))) == sets          # the order the maps are listed in does not matter
 
 
@@ -35,9 +35,9 @@ def test_every_shared_map_is_in_the_benchmark():
 def test_the_sweep_covers_every_map_garment_fabric_and_view():
     full = scenes()
     small = [s for s in full if s.size == 128]
-    assert len(small) == 17 * 3 * 3 * 2 and len({(s.map, s.garment, s.fabric, s.view) for s in small}) == len(small)
+    assert len(small) == len(MAPS) * 3 * 3 * 2 and len({(s.map, s.garment, s.fabric, s.view) for s in small}) == len(small)
     large = [s for s in full if s.size == 256]
-    assert len(large) == 17 * 3 and {s.map for s in large} == set(MAPS)
+    assert len(large) == len(MAPS) * 3 and {s.map for s in large} == set(MAPS)
     quick = scenes(quick=True)
     assert {split()[s.map] for s in quick} == {"tuning", "held-out"} and len(quick) == 8
     # The bench adds the held-out 256 x 256 scenes at 512 x 512, the same scenes but for their size.
@@ -45,7 +45,7 @@ def test_the_sweep_covers_every_map_garment_fabric_and_view():
     largest = [s for s in bench if s.size == broad.LARGEST]
     assert bench[:len(full)] == full and len(bench) == len(full) + len(largest)
     assert {dataclasses.replace(s, size=256) for s in largest} == {s for s in large if split()[s.map] == "held-out"}
-    assert len(largest) == 9 * 3 and broad.bench_scenes(quick=True) == quick
+    assert len(largest) == sum(v == "held-out" for v in split().values()) * 3 and broad.bench_scenes(quick=True) == quick
 
 
 def _cylinder(radius: float, y0: float, y1: float, n: int = 64) -> np.ndarray:
@@ -80,17 +80,22 @@ def test_the_shared_bodies_sit_inside_their_garments():
         assert np.abs(b[inside][:, 2] - g[:, 2].mean()).max() < np.abs(g[:, 2] - g[:, 2].mean()).max(), garment
 
 
-def test_references_are_cached_by_scene_samples_seed_and_code(tmp_path, monkeypatch):
+def test_references_are_cached_by_scene_samples_seed_pixel_samples_and_code(tmp_path, monkeypatch):
     monkeypatch.setattr(broad, "reference_inputs_digest", lambda scene: f"inputs of {scene}")
-    cache = broad.ReferenceCache(tmp_path)
+    cache = broad.ReferenceCache(tmp_path, pixel_samples=4)
     a, b = Scene("pisa.hdr", "shirt", "satin", "front", 128), Scene("pisa.hdr", "shirt", "satin", "front", 256)
-    keys = {cache.key(a, 64, 1), cache.key(a, 64, 2), cache.key(a, 128, 1), cache.key(b, 64, 1)}
-    assert len(keys) == 4
+    keys = {cache.key(a, 64, 1), cache.key(a, 64, 2), cache.key(a, 128, 1), cache.key(b, 64, 1),
+            broad.ReferenceCache(tmp_path, pixel_samples=1).key(a, 64, 1)}
+    assert len(keys) == 5
     assert cache.get(a, 64, 1) is None
-    image = np.random.default_rng(0).random((8, 8, 4)).astype(np.float32)
-    cache.put(a, 64, 1, image, 1.5)
+    rng = np.random.default_rng(0)
+    ref = {"image": rng.random((8, 8, 4)).astype(np.float32), "foreground": rng.random((8, 8, 4)).astype(np.float32),
+           "edge": rng.random((8, 8)) > 0.5, "spp": 64}
+    cache.put(a, 64, 1, ref, 1.5)
     got = cache.get(a, 64, 1)
-    assert np.array_equal(got["image"], image) and got["wall_s"] == 1.5
+    assert all(np.array_equal(got[k], ref[k]) for k in ref) and got["wall_s"] == 1.5 and got["edge"].dtype == bool
+    # References of other strata are others: one point sample a pixel does not stand for sixteen.
+    assert broad.ReferenceCache(tmp_path, pixel_samples=1).get(a, 64, 1) is None
     # Other reference code: another key, the old entry is not found.
     cache.code = "other code"
     assert cache.get(a, 64, 1) is None
@@ -204,6 +209,35 @@ def test_the_excess_takes_the_truths_own_noise_out_in_quadrature():
     assert broad.excess_rel_rmse(0.02, 0.06) == 0.0   # within the truth's own noise
 
 
+def _report(rows, config) -> str:
+    data = {"machine": {"gl_renderer": "gl", "gl_version": "4.5", "cores": 2, "date": "today"}, "config": config,
+            "presets": "p", "split": split(), "reference_s": 1.0, "summary": broad.summary(rows),
+            "misses": broad.all_misses(rows), "rows": [dataclasses.asdict(r) for r in rows]}
+    return broad.markdown(json.loads(json.dumps(data, default=float)))
+
+
+def test_the_report_has_the_edge_columns_only_where_the_run_measured_them():
+    old = [_row("a", "balanced", rel_rmse=0.08), _row("b", "balanced", rel_rmse=0.1), _row("a", "fast")]
+    config = dataclasses.asdict(broad.BroadConfig())
+    before = {k: v for k, v in config.items() if k != "pixel_samples"}
+    text = _report(old, before)
+    assert "silhouette" not in text and "windows" not in text and "strata" not in text
+    new = [dataclasses.replace(r, silhouette_rel_rmse=sil, coverage_rmse=0.5 * sil, window_share=win)
+           for r, sil, win in zip(old, (0.2, 0.4, 0.3), (0.01, 0.05, float("nan")))]
+    summary = broad.summary(new)
+    held = summary["held-out/256/balanced"]
+    assert held["silhouette_rel_rmse_median"] == pytest.approx(0.3) and held["window_share_max"] == pytest.approx(0.05)
+    assert np.isnan(summary["held-out/256/fast"]["window_share_max"])   # no judged window: no number
+    text = _report(new, config)
+    assert "each pixel over 4 x 4 strata" in text and "Silhouette: rel. RMSE of the frame over black" in text
+    assert "| 0.300 (0.150) | 3.00 % / 5.00 % |" in text            # balanced's medians and worst window share
+    assert "| a | held-out | balanced | 0.080 | 0.010 | 0.00 % | 0 / 0 | 0.200 (0.100) | 1.00 % |" in text
+    # Every table row has its header's cells.
+    for table in ("## Summary", "## Every preset's row"):
+        block = text.split(table)[1].split("\n\n")[1].splitlines()
+        assert len({line.count("|") for line in block}) == 1, table
+
+
 @pytest.mark.system
 @needs_assets
 def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path, monkeypatch):
@@ -223,6 +257,7 @@ def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path, monkeypatch):
     assert (sets["ennis.hdr"], sets["pisa.hdr"]) == ("tuning", "held-out")
     only = [Scene("ennis.hdr", "shirt", "cotton", "three-quarter", 32), Scene("pisa.hdr", "polo", "satin", "front", 32)]
     cfg = broad.BroadConfig(frames=1, frames_small=1, spp_small=8, spp_large=8, workers=1, cache=str(tmp_path / "refs"))
+    assert cfg.pixel_samples == 4
     rows = broad.run_broad(tmp_path / "out", cfg, log=lambda *_: None, only=only)
     # The held-out satin scene also runs each knob variant (KNOB_SMALL_FABRIC).
     assert len(rows) == 2 * len(PRESET_NAMES) + len(broad.KNOB_VARIANTS)
@@ -234,6 +269,12 @@ def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path, monkeypatch):
     for r in rows:
         assert np.isfinite([r.rel_rmse, r.flip, r.artefact_share, r.background_rel_rmse, r.ref_noise_rel_rmse]).all()
         assert 0.5 < r.mean_ratio < 2.0 and r.frame_ms > 0
+        # The edges: each setting's frame over black against the references' foreground at their edge
+        # pixels, and the 5 x 5 windows; 8 samples a pixel over 4 x 4 strata take 8 a stratum (one a batch).
+        assert r.extra["edge_pixels"] > 0 and r.ref_spp == 16 * 8
+        assert np.isfinite([r.silhouette_rel_rmse, r.coverage_rmse]).all() and r.silhouette_rel_rmse > 0
+        assert r.silhouette_rel_rmse <= r.extra["silhouette_measured"] and 0 <= r.coverage_rmse <= 1
+        assert r.window_share is None or np.isnan(r.window_share) or 0 <= r.window_share <= 1
     # Each row's error is its excess over the truth's own noise (half the pair's floor), the error
     # against the pair's mean kept beside it.
     for r in rows:
@@ -242,9 +283,12 @@ def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path, monkeypatch):
         assert r.rel_rmse <= measured
     data = json.loads((tmp_path / "out" / "broad.json").read_text())
     assert {s["set"] for s in data["summary"].values()} == {"tuning", "held-out"}
+    assert all(np.isfinite(s["silhouette_rel_rmse_median"]) and "window_share_max" in s
+               for s in data["summary"].values())
+    assert data["config"]["pixel_samples"] == 4
     # The tracer's rate is measured beside the presets' frames, scene by scene: not the references'
     # own times (rendered before, perhaps on another day).
-    cache = broad.ReferenceCache(tmp_path / "refs")
+    cache = broad.ReferenceCache(tmp_path / "refs", pixel_samples=cfg.pixel_samples)
     for r in rows:
         rate = data["tracer"][r.scene]
         assert r.ref_ms_per_spp == rate["ms_per_spp"] > 0 and rate["setup_ms"] >= 0
@@ -258,11 +302,13 @@ def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path, monkeypatch):
     assert timed["references"] == {"held-out": {"rendered": 2, "in_all": 2}, "tuning": {"rendered": 2, "in_all": 2}}
     text = (tmp_path / "out" / "broad.md").read_text()
     assert "Held-out maps:" in text and "No held-out scene at 256 x 256" in text
+    assert "| silhouette rel. RMSE (coverage) | 5 x 5 windows off 1.5x |" in text and "over 4 x 4 strata" in text
     assert "Wall time of each set, its references included: held-out " in text and "rendering 2 of its 2" in text
     # A second run renders no reference: every one is in the cache.
     assert len(list((tmp_path / "refs").glob("*.npz"))) == 4
     logged = []
-    broad.ensure_references(only, cfg.spp_of, broad.ReferenceCache(tmp_path / "refs"), 1, log=logged.append)
+    broad.ensure_references(only, cfg.spp_of, broad.ReferenceCache(tmp_path / "refs", pixel_samples=4), 1,
+                            log=logged.append)
     assert logged == []   # what run_broad asks first: nothing to render
     # Retimed on this machine: every row's time measured again, the tracer's rate beside it, the errors
     # kept, and the speed-up at equal error the tracer's time on every core over the frame's.
@@ -274,6 +320,7 @@ def test_the_broad_bench_end_to_end_on_two_small_scenes(tmp_path, monkeypatch):
     for r in again["rows"]:
         old = before[(r["scene"], r["preset"])]
         assert (r["rel_rmse"], r["artefact_share"], r["ref_spp"]) == (old["rel_rmse"], old["artefact_share"], old["ref_spp"])
+        assert (r["silhouette_rel_rmse"], r["window_share"]) == (old["silhouette_rel_rmse"], old["window_share"])
         rate = again["retimed"]["tracer"][r["scene"]]
         assert r["frame_ms"] > 0 and r["ref_ms_per_spp"] == rate["ms_per_spp"] > 0
         if r["equal_error_speedup"] is not None:

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 import pytest
-from conftest import HDRI, needs_assets
+from conftest import HDRI, assert_rec709_exr, needs_assets
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -311,6 +311,15 @@ def test_write_exr_round_trip(tmp_path):
     rgba = np.concatenate([rgb, np.full((33, 70, 1), 0.25, np.float32)], axis=-1)
     write_exr(tmp_path / "a.exr", rgba)
     np.testing.assert_array_equal(read_hdr_image(tmp_path / "a.exr"), rgb)  # alpha dropped
+
+
+def test_written_exrs_state_rec709_chromaticities(tmp_path):
+    """The renderer's linear RGB is Rec. 709 / sRGB with D65 white; every EXR it writes says so."""
+    rgb = np.full((3, 5, 3), 0.5, np.float32)
+    for name, image, half in (("rgb.exr", rgb, False), ("half.exr", rgb, True),
+                              ("rgba.exr", np.concatenate([rgb, np.ones((3, 5, 1), np.float32)], axis=-1), False)):
+        write_exr(tmp_path / name, image, half=half)
+        assert_rec709_exr(tmp_path / name)
 
 
 def test_write_exr_refuses_half_overflow_and_bad_shapes(tmp_path):

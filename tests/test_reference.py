@@ -598,10 +598,15 @@ def test_reference_command_draws_the_background_it_is_asked_for(tmp_path):
         assert rc == 0
         images[background] = (read_rgba(f"{out}.exr"), np.asarray(Image.open(f"{out}.png")))
     (env_exr, env_png), (black_exr, black_png) = images["env"], images["black"]
-    empty = env_exr[..., 3] < 0.5
-    assert empty.any() and (~empty).any()
+    # Each pixel's area (4 x 4 strata by default): alpha is the covered share; over black the colour is
+    # premultiplied by it, over the map the map fills the rest.
+    alpha = env_exr[..., 3]
+    empty, full, part = alpha == 0, alpha == 1, (alpha > 0) & (alpha < 1)
+    assert empty.any() and full.any() and part.any()
+    np.testing.assert_array_equal(black_exr[..., 3], alpha)
     assert env_exr[empty][:, :3].max() > 0 and black_exr[empty][:, :3].max() == 0
-    assert np.array_equal(env_exr[~empty], black_exr[~empty])
+    assert np.array_equal(env_exr[full], black_exr[full])
+    assert (env_exr[part][:, :3] > black_exr[part][:, :3]).all()
     # The PNG is transparent where nothing is drawn, opaque over the map.
     assert black_png.shape[2] == 4 and black_png[empty][:, 3].max() == 0
-    assert env_png.shape[2] == 3 or env_png[empty][:, 3].min() == 255
+    assert env_png.shape[2] == 3 or env_png[empty | part][:, 3].min() == 255

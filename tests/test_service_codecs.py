@@ -8,13 +8,15 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from conftest import assert_rec709_exr, assert_tagged_srgb, png_chunks
 from PIL import Image
 
 from renderer.errors import MeshError
 from renderer.mesh import vertex_normals, z_up_to_y_up
-from renderer.shading.tonemap import auto_exposure_ev, encode_rgba8
+from renderer.shading.tonemap import ToneCurve, auto_exposure_ev, encode_rgba8, to_png_bytes
 from service.codecs import (
     decode_frame,
+    encode_exr,
     encode_png,
     frame_exposure_ev,
     hdr_dimensions,
@@ -44,7 +46,7 @@ def test_png_writer_round_trips_through_pillow(channels):
 
 
 @pytest.mark.parametrize("opaque", [True, False])
-@pytest.mark.parametrize("tone", ["filmic", "reinhard", "linear"])
+@pytest.mark.parametrize("tone", [c.value for c in ToneCurve])
 def test_encode_png_matches_the_renderers_encoding(opaque, tone):
     img = _image()
     png, ev = encode_png(img, 0.7, tone, opaque)
@@ -52,6 +54,36 @@ def test_encode_png_matches_the_renderers_encoding(opaque, tone):
     expected = encode_rgba8(img, 0.7, tone)
     got = np.asarray(Image.open(io.BytesIO(png)))
     assert np.array_equal(got, expected[..., :3] if opaque else expected)
+
+
+@pytest.mark.parametrize("channels", [3, 4])
+def test_service_pngs_are_tagged_srgb_like_the_renderers(channels):
+    """The hand-written PNG carries the same colour chunks as Pillow's (the CLI's), before the image data."""
+    pixels = np.random.default_rng(2).integers(0, 256, (9, 11, channels), dtype=np.uint8)
+    data = png_bytes(pixels)
+    assert_tagged_srgb(data)
+    colour = [c for c in png_chunks(data) if c[0] in (b"sRGB", b"gAMA", b"cHRM", b"iCCP")]
+    assert colour == [c for c in png_chunks(to_png_bytes(_image(4, 4))) if c[0] in (b"sRGB", b"gAMA", b"cHRM", b"iCCP")]
+    assert_tagged_srgb(encode_png(_image(), None, "pbr-neutral", opaque=True)[0])
+
+
+def test_service_exrs_state_rec709_chromaticities():
+    img = _image(6, 5)
+    data = encode_exr(img)
+    assert_rec709_exr(data)
+    import OpenEXR
+
+    np.testing.assert_array_equal(OpenEXR.File(io.BytesIO(data)).channels()["RGBA"].pixels, img)
+
+
+def test_region_previews_are_tagged_srgb():
+    from renderer.envmap import texel_directions
+    from service.previews import region_preview_png
+
+    d = texel_directions(8)
+    labels = (d[..., 1] > 0).astype(np.int32)
+    directions = np.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0]])
+    assert_tagged_srgb(region_preview_png(np.ones((6, 8, 8, 3), np.float32), labels, directions, np.ones((2, 3)), 64))
 
 
 def test_subsampled_auto_exposure_is_close_to_the_full_one():

@@ -23,8 +23,21 @@ the row's `extra`). So the references can be cheap: at 256 x 256 two of 256 samp
 cache in under twenty minutes on two cores (the run records each set's wall time, its references
 included, and how many of its references it rendered). FLIP and the artefact share are read against
 the truth as it is (noisier references judge fewer pixels: the share judged is in each row).
-References are cached on disk (`ReferenceCache`), keyed by the scene's inputs and by the source of the
-code that renders them: a rerun renders only what changed.
+References are cached on disk (`ReferenceCache`), keyed by the scene's inputs, their samples, seed and
+pixel samples and by the source of the code that renders them: a rerun renders only what changed.
+
+Edges: the references integrate each pixel's area over `BroadConfig.pixel_samples`^2 jittered strata
+(`reference.strata`; 4 x 4 by default): their alpha is the covered share of the pixel, their foreground
+the premultiplied radiance over black, and their edge mask the pixels whose strata do not all see one
+surface. The object's metrics above (rel. RMSE, FLIP, the artefact share, the mean ratio) are read on the
+pixels both references cover wholly, the background's on those neither covers at all (with one stratum,
+the pixels of alpha 1 and 0 as before). At the edges each setting renders one more frame, untimed, over a
+black background: its silhouette error (`reference.metrics.silhouette_error`) is the rel. RMSE of that
+frame against the pair's mean foreground over the union of their edge masks, the excess over half the
+pair's own (as the rows' rel. RMSE), and the RMSE of its alpha there (the coverage error, likewise). The
+window share (`reference.metrics.window_share`) counts the 5 x 5 windows wholly inside the object whose
+mean luminance is off by more than 1.5x either way, where the two references agree: a band or a blotch
+the per-pixel share's 2x misses. Runs made before these columns existed report without them.
 
 Equal error is estimated, not laddered (a ladder per scene would cost more than the whole sweep): the
 reference is unbiased, so its relMSE falls as 1/spp; from the pair's floor (one render against the
@@ -32,8 +45,9 @@ other: sqrt(2) x each one's error) the samples that reach the preset's error fol
 at the tracer's rate measured beside the presets' frames, scene by scene in the same run (two short
 renders in a process of one thread, `_tracer_rate`: the cached references' own times were taken on
 another day), the tracer on every core (its samples split evenly over them: the ideal split, which
-favours the tracer). A preset within twice the truth's own error is unresolved. `retime` measures a
-stored run's times again on another day or machine, the tracer's beside the presets'.
+favours the tracer; its rate is measured at one stratum a pixel, where a stratified pixel costs the same
+shadow rays for the same samples). A preset within twice the truth's own error is unresolved. `retime`
+measures a stored run's times again on another day or machine, the tracer's beside the presets'.
 """
 
 from __future__ import annotations
@@ -53,7 +67,8 @@ import numpy as np
 from ..atomic import atomic_file
 from ..mesh import FALLBACK_NORMAL, vertex_normals
 from ..presets import PRESET_NAMES as PRESETS  # every preset, paper's included (targets: TARGETS)
-from ..reference import artefact_share, mean_flip, relative_rmse, render_reference
+from ..reference import artefact_share, mean_flip, relative_rmse, render_reference, silhouette_error, window_share
+from ..reference.metrics import FULL_COVERAGE
 from ..shading.background import background_truth
 from .catalogue import (
     EQUAL_ERROR_TARGETS,
@@ -139,44 +154,53 @@ def default_cache_dir() -> Path:
 
 
 class ReferenceCache:
-    """Reference renders on disk, one .npz per (scene, samples, seed, reference code)."""
+    """Reference renders on disk, one .npz per (scene, samples, seed, pixel samples, reference code); a
+    cache holds the references of one pixel_samples (k x k strata a pixel)."""
 
-    def __init__(self, folder: Path):
+    def __init__(self, folder: Path, *, pixel_samples: int):
         self.folder = Path(folder)
         self.code = reference_code_digest()
+        self.pixel_samples = int(pixel_samples)
 
     def key(self, scene: Scene, spp: int, seed: int) -> str:
-        spec = {"inputs": reference_inputs_digest(scene), "spp": spp, "seed": seed, "code": self.code}
+        spec = {"inputs": reference_inputs_digest(scene), "spp": spp, "seed": seed, "code": self.code,
+                "pixel_samples": self.pixel_samples}
         return hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()[:32]
 
     def path(self, scene: Scene, spp: int, seed: int) -> Path:
         return self.folder / f"{self.key(scene, spp, seed)}.npz"
 
     def get(self, scene: Scene, spp: int, seed: int) -> dict | None:
+        """{"image", "foreground": (H, W, 4) float32, "edge": (H, W) bool, "spp": samples a pixel taken,
+        "wall_s"} (`ReferenceFrame`'s), or None."""
         p = self.path(scene, spp, seed)
         if not p.exists():
             return None
         try:
             with np.load(p) as z:
-                return {"image": z["image"], "wall_s": float(z["wall_s"])}
+                return {"image": z["image"], "foreground": z["foreground"], "edge": z["edge"].astype(bool),
+                        "spp": int(z["spp"]), "wall_s": float(z["wall_s"])}
         except Exception:   # a damaged file is rendered again, never trusted
             return None
 
-    def put(self, scene: Scene, spp: int, seed: int, image: np.ndarray, wall_s: float) -> None:
+    def put(self, scene: Scene, spp: int, seed: int, ref: dict, wall_s: float) -> None:
+        """ref: `_reference_job`'s arrays (image, foreground, edge, spp)."""
         self.folder.mkdir(parents=True, exist_ok=True)
         buf = io.BytesIO()
-        np.savez_compressed(buf, image=image.astype(np.float32), wall_s=np.float64(wall_s))
+        np.savez_compressed(buf, image=ref["image"].astype(np.float32), foreground=ref["foreground"].astype(np.float32),
+                            edge=ref["edge"].astype(bool), spp=np.int64(ref["spp"]), wall_s=np.float64(wall_s))
         with atomic_file(self.path(scene, spp, seed)) as f:
             f.write(buf.getvalue())
 
 
-def _reference_job(scene: Scene, spp: int, seed: int) -> tuple[np.ndarray, float]:
-    """One reference render in a worker process: (image, wall seconds)."""
+def _reference_job(scene: Scene, spp: int, seed: int, pixel_samples: int = 1) -> tuple[dict, float]:
+    """One reference render in a worker process: ({"image", "foreground", "edge", "spp"}, wall seconds)."""
     cube = _reference_cube(scene.map)
     t0 = time.perf_counter()
     ref = render_reference(scene.meshes(), scene.materials(), cube, scene.camera(), scene.size, scene.size, spp,
-                           seed=seed)
-    return np.array(ref.image), time.perf_counter() - t0
+                           seed=seed, pixel_samples=pixel_samples)
+    return ({"image": np.array(ref.image), "foreground": np.array(ref.foreground), "edge": np.array(ref.edge),
+             "spp": ref.spp}, time.perf_counter() - t0)
 
 
 SEEDS = (1, 2)
@@ -191,11 +215,12 @@ def ensure_references(todo: list[Scene], spp_of, cache: ReferenceCache, workers:
     log(f"rendering {len(missing)} references ({len(todo) * len(SEEDS) - len(missing)} cached) in {workers} processes")
     t0 = time.perf_counter()
     with one_thread_pool(workers) as pool:
-        jobs = {pool.submit(_reference_job, s, spp, seed): (s, spp, seed) for s, spp, seed in missing}
+        jobs = {pool.submit(_reference_job, s, spp, seed, cache.pixel_samples): (s, spp, seed)
+                for s, spp, seed in missing}
         for k, job in enumerate(cf.as_completed(jobs), 1):
             s, spp, seed = jobs[job]
-            image, wall = job.result()
-            cache.put(s, spp, seed, image, wall)
+            ref, wall = job.result()
+            cache.put(s, spp, seed, ref, wall)
             if k % 10 == 0 or k == len(jobs):
                 log(f"  {k}/{len(jobs)} references, {time.perf_counter() - t0:.0f} s")
     return len(missing)
@@ -228,6 +253,10 @@ class BroadRow:
     ref_ms_per_spp: float     # the tracer's time per sample on one thread
     equal_error_speedup: float | None   # None: unresolved (within twice the truth's own error)
     extra: dict = field(default_factory=dict)
+    # At the references' edge pixels (module doc); None in runs made before them.
+    silhouette_rel_rmse: float | None = None   # the frame over black against the truth's foreground (excess)
+    coverage_rmse: float | None = None          # its alpha against the truth's (excess)
+    window_share: float | None = None           # 5 x 5 windows off by more than 1.5x, of those judged
 
 
 def _luminance_mean(img: np.ndarray, mask: np.ndarray) -> float:
@@ -239,26 +268,38 @@ def _luminance_mean(img: np.ndarray, mask: np.ndarray) -> float:
 @dataclass(frozen=True)
 class Truth:
     """A scene's truth, made once for all its rows: the mean of the reference pair, their floor
-    (one against the other), the reference's time per sample, and the background's truth."""
+    (one against the other), the reference's time per sample, and the background's truth; at the
+    edges the pair's mean foreground, the union of their edge masks and their floors there."""
 
     a: np.ndarray
     b: np.ndarray
     image: np.ndarray
-    mask: np.ndarray
+    mask: np.ndarray         # covered wholly by both references: the object's metrics
     floor_rel_rmse: float
     floor_flip: float
     ms_per_spp: float
     background: np.ndarray
     setup_ms: float   # the tracer's time before its first sample
+    empty: np.ndarray        # covered by neither at all: the background's metric
+    foreground: np.ndarray   # the pair's mean foreground (premultiplied over black)
+    edge: np.ndarray
+    floor_silhouette: float  # the pair's silhouette error, one against the other
+    floor_coverage: float
+    spp: int                 # samples a pixel each reference took
 
     @classmethod
     def of(cls, ref_a: dict, ref_b: dict, background: np.ndarray, rate: tuple[float, float]) -> Truth:
-        """rate: the tracer's (setup ms, ms a sample) measured in this run (`_tracer_rate`)."""
+        """ref_a, ref_b: `ReferenceCache.get`'s; rate: the tracer's (setup ms, ms a sample) measured in
+        this run (`_tracer_rate`)."""
         a, b = ref_a["image"], ref_b["image"]
-        mask = a[..., 3] > 0.5
+        mask = (a[..., 3] >= FULL_COVERAGE) & (b[..., 3] >= FULL_COVERAGE)
+        empty = (a[..., 3] <= 0) & (b[..., 3] <= 0)
+        edge = ref_a["edge"] | ref_b["edge"]
+        pair = silhouette_error(ref_b["foreground"], ref_a["foreground"], edge)
         setup, per = rate
         return cls(a, b, 0.5 * (a + b), mask, relative_rmse(b, a, mask), mean_flip(b, a, mask), per, background,
-                   setup)
+                   setup, empty, 0.5 * (ref_a["foreground"] + ref_b["foreground"]), edge, pair.rel_rmse,
+                   pair.coverage_rmse, ref_a["spp"])
 
 
 def excess_rel_rmse(error: float, floor: float) -> float:
@@ -269,13 +310,14 @@ def excess_rel_rmse(error: float, floor: float) -> float:
 
 
 def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, truth: Truth, spp: int,
-            sets: dict) -> BroadRow:
-    """One setting's row against the scene's truth."""
+            sets: dict, black: np.ndarray | None = None) -> BroadRow:
+    """One setting's row against the scene's truth; `black`: its frame over a black background, for
+    the silhouette error (none without)."""
     mask, floor = truth.mask, truth.floor_rel_rmse
     measured = relative_rmse(image, truth.image, mask)
     err = excess_rel_rmse(measured, floor)
     art = artefact_share(image, truth.a, truth.b, mask)
-    background = ~mask
+    background = truth.empty
     bg_err = relative_rmse(image[..., :3], truth.background, background) if background.any() else float("nan")
     # Equal error (module doc): one render of spp samples is off by floor / sqrt(2); the truth, the
     # mean of two, by half the floor.
@@ -284,10 +326,22 @@ def measure(scene: Scene, preset: str, image: np.ndarray, frame_ms: float, truth
         # The tracer on every core: its samples split evenly (its rate is one thread's, setup included).
         speedup = tracer_time_ms(spp_at_error(err, floor, spp), truth.setup_ms, truth.ms_per_spp,
                                  len(os.sched_getaffinity(0))) / frame_ms
-    return BroadRow(scene.name, scene.map, sets[scene.map], scene.garment, scene.fabric, scene.view, scene.size, preset,
-                    frame_ms, err, mean_flip(image, truth.image, mask), art.share, art.judged, art.too_bright,
-                    art.too_dark, _luminance_mean(image, mask) / max(_luminance_mean(truth.image, mask), 1e-30), bg_err,
-                    floor, truth.floor_flip, spp, truth.ms_per_spp, speedup, {"rel_rmse_measured": measured})
+    row = BroadRow(scene.name, scene.map, sets[scene.map], scene.garment, scene.fabric, scene.view, scene.size, preset,
+                   frame_ms, err, mean_flip(image, truth.image, mask), art.share, art.judged, art.too_bright,
+                   art.too_dark, _luminance_mean(image, mask) / max(_luminance_mean(truth.image, mask), 1e-30), bg_err,
+                   floor, truth.floor_flip, spp, truth.ms_per_spp, speedup, {"rel_rmse_measured": measured})
+    windows = window_share(image, truth.a, truth.b, mask)
+    row.window_share = windows.share
+    row.extra.update(window_judged=windows.judged, windows_too_bright=windows.too_bright,
+                     windows_too_dark=windows.too_dark)
+    if black is not None:
+        sil = silhouette_error(black, truth.foreground, truth.edge)
+        row.silhouette_rel_rmse = excess_rel_rmse(sil.rel_rmse, truth.floor_silhouette)
+        row.coverage_rmse = excess_rel_rmse(sil.coverage_rmse, truth.floor_coverage)
+        row.extra.update(silhouette_measured=sil.rel_rmse, silhouette_floor=truth.floor_silhouette,
+                         coverage_measured=sil.coverage_rmse, coverage_floor=truth.floor_coverage,
+                         edge_pixels=sil.pixels)
+    return row
 
 
 # A preset with one knob changed ("PRESET:KNOB=VALUE", a row of its own), on the 256 x 256 scenes of
@@ -381,10 +435,12 @@ class MapResources:
         self.background.release()
 
 
-def render_presets(r, scene: Scene, knobs_of: dict, frames: int, res: MapResources) -> dict[str, tuple[np.ndarray, float]]:
-    """Each setting's image of the scene (`knobs_of`: name -> knobs) and its median frame time (after
-    one warm-up frame)."""
+def render_presets(r, scene: Scene, knobs_of: dict, frames: int, res: MapResources,
+                   black: bool = False) -> dict[str, tuple[np.ndarray, float, np.ndarray | None]]:
+    """Each setting's image of the scene (`knobs_of`: name -> knobs), its median frame time (after
+    one warm-up frame) and, with `black`, one more frame over a black background (untimed; else None)."""
     from .. import presets as presets_mod
+    from ..renderer import Background
 
     meshes, materials = scene.meshes(), scene.materials()
     gl_scene = r.create_scene(meshes, materials)
@@ -396,7 +452,10 @@ def render_presets(r, scene: Scene, knobs_of: dict, frames: int, res: MapResourc
             cam = scene.camera()
             r.render(gl_scene, pems, fs, cam, background=res.background)
             timed = [r.render(gl_scene, pems, fs, cam, background=res.background) for _ in range(frames)]
-            out[preset] = (np.array(timed[-1].image), float(np.median([f.timings["frame_wall_ms"] for f in timed])))
+            over_black = (np.array(r.render(gl_scene, pems, replace(fs, background=Background.BLACK), cam).image)
+                          if black else None)
+            out[preset] = (np.array(timed[-1].image), float(np.median([f.timings["frame_wall_ms"] for f in timed])),
+                           over_black)
     finally:
         gl_scene.release()
     return out
@@ -409,6 +468,7 @@ class BroadConfig:
     frames_small: int = 1            # ... at 128 x 128 (accuracy only)
     spp_small: int = 512             # samples per technique of each reference at 128 x 128
     spp_large: int = 256             # ... at 256 x 256 (the rows' error is the excess over the truth's noise)
+    pixel_samples: int = 4           # the references' k x k strata a pixel (module doc: edges)
     knobs: bool = True               # each of KNOB_VARIANTS on the 256 x 256 scenes too
     sizes: tuple = (128, 256)        # which of the sweep's image sizes to run
     workers: int | None = None       # reference processes (default: one per core)
@@ -449,7 +509,7 @@ def run_broad(out_dir: Path, cfg: BroadConfig, log=print, only: list[Scene] | No
                          + (" in a quick run (its scenes are 128 x 128)" if cfg.quick else ""))
     if not (shared_assets() / "hdri").is_dir():
         raise FileNotFoundError(f"the broad benchmark needs the shared assets ({shared_assets()})")
-    cache = ReferenceCache(Path(cfg.cache) if cfg.cache else default_cache_dir())
+    cache = ReferenceCache(Path(cfg.cache) if cfg.cache else default_cache_dir(), pixel_samples=cfg.pixel_samples)
     workers = max(1, cfg.workers or len(os.sched_getaffinity(0)))
     in_use, source = presets_mod.presets()
     knobs_of = setting_knobs(in_use)
@@ -481,16 +541,18 @@ def run_broad(out_dir: Path, cfg: BroadConfig, log=print, only: list[Scene] | No
                     res = MapResources(r, scene.map)
                 knob_scene = cfg.knobs and (scene.size > 128 or (part == "held-out" and scene.fabric == KNOB_SMALL_FABRIC))
                 settings = {p: kn for p, kn in knobs_of.items() if knob_scene or ":" not in p}
-                images = render_presets(r, scene, settings, cfg.frames if scene.size > 128 else cfg.frames_small, res)
+                images = render_presets(r, scene, settings, cfg.frames if scene.size > 128 else cfg.frames_small, res,
+                                        black=True)
                 setup, per = rates[scene.name] = _tracer_rate(scene, tracer)   # beside the presets' frames
                 truth = Truth.of(ref_a, ref_b,
                                  background_truth(res.image, res.layout, scene.camera(), scene.size, scene.size),
                                  (setup, per))
-                for preset, (image, ms) in images.items():
-                    rows.append(measure(scene, preset, image, ms, truth, spp, sets))
+                for preset, (image, ms, black) in images.items():
+                    rows.append(measure(scene, preset, image, ms, truth, truth.spp, sets, black))
                 b = next(x for x in rows[-len(images):] if x.preset == "balanced")
                 log(f"[{k}/{len(todo)}] {scene.name} ({part}): balanced rel. RMSE {b.rel_rmse:.3f}, FLIP {b.flip:.3f}, "
-                    f"artefacts {100 * b.artefact_share:.2f} %, {b.frame_ms:.0f} ms; floor {b.ref_noise_rel_rmse:.3f}")
+                    f"artefacts {100 * b.artefact_share:.2f} %, silhouette {b.silhouette_rel_rmse:.3f}, "
+                    f"{b.frame_ms:.0f} ms; floor {b.ref_noise_rel_rmse:.3f}")
                 if k % 20 == 0:
                     write(out_dir, rows, machine, cfg, source, ref_s, tracer=_rates_json(rates))
             set_wall_s[part] = time.perf_counter() - t0
@@ -519,7 +581,22 @@ def summary(rows: list[BroadRow]) -> dict:
             "mean_ratio_min": float(np.min([r.mean_ratio for r in sel])),
             "worst_scene": worst.scene, "equal_error_min": float(min(speed)) if speed else None,
             "equal_error_median": float(np.median(speed)) if speed else None,
-            "unresolved": len(sel) - len(speed)}
+            "unresolved": len(sel) - len(speed), **_edge_summary(sel)}
+    return out
+
+
+def _edge_summary(sel: list[BroadRow]) -> dict:
+    """The silhouette and window columns' medians and worst values over `sel` (NaN-free: a scene without
+    edge pixels or judged windows has none); absent where no row has them (runs made before)."""
+    out = {}
+    for m, stats in (("silhouette_rel_rmse", ("median", "max")), ("coverage_rmse", ("median",)),
+                     ("window_share", ("median", "max"))):
+        values = [getattr(r, m) for r in sel if getattr(r, m) is not None]
+        if not values:
+            continue
+        finite = [v for v in values if np.isfinite(v)]
+        for stat in stats:
+            out[f"{m}_{stat}"] = float(getattr(np, stat)(finite)) if finite else float("nan")
     return out
 
 
@@ -657,7 +734,8 @@ def setting_knobs(in_use: dict) -> dict[str, dict]:
 def _tracer_rate(scene: Scene, pool) -> tuple[float, float]:
     """(setup ms, ms per sample) of one thread rendering `scene` in `pool` (one_thread_pool): the line
     through RETIME_SPP's times."""
-    (lo, t_lo), (hi, t_hi) = ((spp, pool.submit(_reference_job, scene, spp, 1).result()[1]) for spp in RETIME_SPP)
+    (lo, t_lo), (hi, t_hi) = ((spp, pool.submit(_reference_job, scene, spp, 1, pixel_samples=1).result()[1])
+                              for spp in RETIME_SPP)
     per = max((t_hi - t_lo) / (hi - lo), 1e-9) * 1e3
     return max(t_lo * 1e3 - lo * per, 0.0), per
 
@@ -874,22 +952,47 @@ def _target_lines(rows: list[dict], misses: list[dict]) -> list[str]:
     return lines
 
 
+def _edge_lines(data: dict) -> list[str]:
+    """What the silhouette and window columns are, in runs that have them (module doc: edges)."""
+    if not _has_edges(data["summary"].values()):
+        return []
+    return ["Silhouette: rel. RMSE of the frame over black against the references' foreground at their edge "
+            "pixels (coverage: the RMSE of alpha there), each the excess over the truth's own noise; windows: the "
+            "share of the judged 5 x 5 windows inside the object whose mean luminance is off by more than 1.5x."]
+
+
+def _has_edges(summaries) -> bool:
+    return any("window_share_max" in s for s in summaries)
+
+
+def _edge_cells(s: dict) -> str:
+    """A summary row's silhouette and window cells (the median silhouette and coverage errors, the
+    windows' median and worst share)."""
+    sil = s.get("silhouette_rel_rmse_median")
+    sil = "-" if sil is None else f"{sil:.3f} ({s['coverage_rmse_median']:.3f})"
+    return f"{sil} | {_pct(s['window_share_median'])} / {_pct(s['window_share_max'])} | "
+
+
 def markdown(data: dict) -> str:
     m, cfg = data["machine"], data["config"]
     rows = data["rows"]
     sets = data["split"]
+    edges = _has_edges(data["summary"].values())
+    strata = (f", each pixel over {cfg['pixel_samples']} x {cfg['pixel_samples']} strata" if "pixel_samples" in cfg
+              else "")
     lines = [f"# Broad benchmark: {len(rows)} rows", "",
              f"Machine: {m['gl_renderer']} (GL {m['gl_version']}), {m['cores']} cores, {m['date']}. Presets: {data['presets']}.",
-             f"References: two per scene, {cfg['spp_small']} spp at 128 x 128 and {cfg['spp_large']} at 256 x 256 and above "
-             f"(cached; {data['reference_s']:.0f} s rendering this run). Command: `garment-render bench --broad"
+             f"References: two per scene, {cfg['spp_small']} spp at 128 x 128 and {cfg['spp_large']} at 256 x 256 and above"
+             f"{strata} (cached; {data['reference_s']:.0f} s rendering this run). Command: `garment-render bench --broad"
              f"{' --quick' if cfg['quick'] else ''}{_size_flag(cfg)}`.", *_set_lines(data), *_retimed_lines(data),
-             *_excess_lines(rows), "",
+             *_excess_lines(rows), *_edge_lines(data), "",
              "Tuning maps: " + ", ".join(k for k, v in sets.items() if v == "tuning") + ".",
              "Held-out maps: " + ", ".join(k for k, v in sets.items() if v == "held-out") + ".", "",
              "## Summary (median / worst over the scenes)", "",
-             "| set | size | preset | scenes | rel. RMSE | FLIP | artefact share | frame ms | mean ratio (min) | "
-             "ref. floor | equal error median (min) | worst scene |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| set | size | preset | scenes | rel. RMSE | FLIP | artefact share | "
+             + ("silhouette rel. RMSE (coverage) | 5 x 5 windows off 1.5x | " if edges else "")
+             + "frame ms | mean ratio (min) | ref. floor | equal error median (min) | worst scene |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|" + ("---|---|" if edges else "")]
     for s in data["summary"].values():
         ee = (f"{_times(s['equal_error_median'])} ({_times(s['equal_error_min'])})" if s["equal_error_min"] is not None
               else "-")
@@ -898,18 +1001,24 @@ def markdown(data: dict) -> str:
         lines.append(f"| {s['set']} | {s['size']} | {s['preset']} | {s['scenes']} | {s['rel_rmse_median']:.3f} / "
                      f"{s['rel_rmse_max']:.3f} | {s['flip_median']:.3f} / {s['flip_max']:.3f} | "
                      f"{_pct(s['artefact_share_median'])} / {_pct(s['artefact_share_max'])} | "
+                     f"{_edge_cells(s) if edges else ''}"
                      f"{s['frame_ms_median']:.0f} / {s['frame_ms_max']:.0f} | {s['mean_ratio_median']:.3f} "
                      f"({s['mean_ratio_min']:.3f}) | {s['ref_noise_rel_rmse_median']:.3f} | {ee} | {s['worst_scene']} |")
     lines += _target_lines(rows, data["misses"])
     lines += garment_lines(rows)
     lines += knob_lines(rows)
     lines += ["", "## Every preset's row", "",
-              "| scene | set | preset | rel. RMSE | FLIP | artefacts | too bright / dark | mean ratio | background | "
-              "frame ms | ref. floor | equal error |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "| scene | set | preset | rel. RMSE | FLIP | artefacts | too bright / dark | "
+              + ("silhouette (coverage) | windows off 1.5x | " if edges else "")
+              + "mean ratio | background | frame ms | ref. floor | equal error |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|" + ("---|---|" if edges else "")]
     for r in sorted((r for r in rows if r["preset"] in PRESETS),
                     key=lambda r: (r["set"], r["size"], r["scene"], PRESETS.index(r["preset"]))):
         ee = _times(r["equal_error_speedup"]) if r["equal_error_speedup"] is not None else "unresolved"
+        sil = r.get("silhouette_rel_rmse")
+        cells = (("-" if sil is None else f"{sil:.3f} ({r['coverage_rmse']:.3f})") + " | "
+                 + ("-" if r.get("window_share") is None else _pct(r["window_share"])) + " | ") if edges else ""
         lines.append(f"| {r['scene']} | {r['set']} | {r['preset']} | {r['rel_rmse']:.3f} | {r['flip']:.3f} | "
-                     f"{_pct(r['artefact_share'])} | {r['too_bright']} / {r['too_dark']} | {r['mean_ratio']:.3f} | "
+                     f"{_pct(r['artefact_share'])} | {r['too_bright']} / {r['too_dark']} | {cells}{r['mean_ratio']:.3f} | "
                      f"{r['background_rel_rmse']:.3f} | {r['frame_ms']:.0f} | {r['ref_noise_rel_rmse']:.3f} | {ee} |")
     return "\n".join(lines) + "\n"

@@ -25,7 +25,7 @@ MAPS = ("adams_place_bridge_1k.hdr", "dikhololo_night_1k.hdr", "empty_warehouse_
         "immenstadter_horn_1k.hdr", "kiara_1_dawn_1k.hdr", "lebombo_1k.hdr", "potsdamer_platz_1k.hdr",
         "rooitou_park_1k.hdr", "st_fagans_interior_1k.hdr", "ennis.hdr", "pisa.hdr", "wells.hdr",
         "openexr_StageEnvLatLong.exr", "openexr_KernerEnvLatLong.exr", "pmndrs_assets_hall.exr",
-        "pmndrs_assets_sky.exr")
+        "pmndrs_assets_sky.exr", "studio_small_03_1k.hdr")
 # Tuning maps besides the ones the presets were already tuned on.
 EXTRA_TUNING_MAPS = 4
 

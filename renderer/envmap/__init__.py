@@ -24,7 +24,7 @@ from renderer.envmap.cube import (
     texel_directions,
     texel_solid_angles,
 )
-from renderer.envmap.io import TexelReport, check_texels, read_hdr_image, write_exr
+from renderer.envmap.io import REC709_CHROMATICITIES, TexelReport, check_texels, exr_header, read_hdr_image, write_exr
 from renderer.envmap.layouts import (
     Layout,
     as_layout,
@@ -42,7 +42,7 @@ from renderer.errors import InvalidInputError
 __all__ = [
     "FACE_NAMES", "cube_solid_angles", "dir_to_face_uv", "dir_to_texel", "face_uv_to_dir", "neighbour_texel",
     "sample_bilinear", "texel_centers_uv", "texel_directions", "texel_solid_angles",
-    "TexelReport", "check_texels", "read_hdr_image", "write_exr",
+    "REC709_CHROMATICITIES", "TexelReport", "check_texels", "exr_header", "read_hdr_image", "write_exr",
     "Layout", "as_layout", "check_layout_size", "cube_to_latlong", "detect_layout", "dir_to_image", "image_to_dir",
     "latlong_row_solid_angles", "to_cube",
     "sky_environment", "studio_environment",

@@ -52,8 +52,24 @@ def read_hdr_image(path: str | Path) -> np.ndarray:
         f"(.hdr, .pic)")
 
 
+# The primaries and white of the renderer's linear RGB, stated in every EXR written: Rec. 709 / sRGB,
+# CIE 1931 xy (ITU-R BT.709-6, part 1, items 1.3 and 1.4: D65 white), in the order of OpenEXR's
+# `chromaticities` attribute (red, green, blue, white). A reader that assumes another space (ACES
+# AP0, say) converts from these rather than guessing.
+REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
+
+
+def exr_header() -> dict:
+    """The header of every EXR the project writes: ZIP-compressed scanlines, Rec. 709 chromaticities."""
+    import OpenEXR
+
+    return {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+            "chromaticities": REC709_CHROMATICITIES}
+
+
 def write_exr(path: str | Path, rgb_or_rgba: np.ndarray, half: bool = False) -> None:
-    """Write float (H, W, 3) or (H, W, 4) as a ZIP-compressed scanline OpenEXR, float32 or half channels.
+    """Write float (H, W, 3) or (H, W, 4) as a ZIP-compressed scanline OpenEXR, float32 or half channels,
+    with Rec. 709 chromaticities (`exr_header`).
 
     With half=True, values beyond the half range (|x| > 65504) are refused rather than written as Inf.
     """
@@ -73,10 +89,9 @@ def write_exr(path: str | Path, rgb_or_rgba: np.ndarray, half: bool = False) -> 
                 f"write_exr({path}): values up to {float(np.max(np.abs(finite))):.6g} exceed the half-float "
                 f"range ({HALF_MAX:g}); write with half=False")
     data = np.ascontiguousarray(arr, np.float16 if half else np.float32)
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     name = "RGB" if data.shape[2] == 3 else "RGBA"
     try:
-        OpenEXR.File(header, {name: data}).write(str(path))
+        OpenEXR.File(exr_header(), {name: data}).write(str(path))
     except Exception as exc:  # the binding raises RuntimeError/ValueError/OSError variously
         raise EnvironmentMapError(f"{path}: cannot write OpenEXR file ({exc})") from exc
 

@@ -24,6 +24,19 @@ nothing until the difference itself is visible, and a leak of 3 % of the mean in
 (ratio 2.5 against a black truth) still counts. A pixel is judged only where the reference's own
 noise is small: its two independent renders agree within 1.25x (the same floored ratio), so that
 noise in the truth is never counted as an artefact of the fast method.
+
+Window share: the same count over the object's 5 x 5 windows (every position, wholly inside the object:
+by default the pixels every stratum of the reference covers), each judged by its mean luminance, wrong
+beyond 1.5x either way. A blotch or a band of false shadow a few pixels wide moves a window's mean
+where the pixels' own noise does not, so the ratio can be tighter than the pixels' 2x; the floor d and
+the agreement of the two references are the artefact share's, on the windows' means.
+
+Silhouette error: at the edge pixels of a reference that integrates the pixel's area
+(`ReferenceFrame.edge`: pixels whose strata do not all see one surface), the relative RMSE above of the
+test's premultiplied RGB against the reference's foreground (both over black: a frame rendered with a
+black background is that; the normalization is over the edge pixels), and the RMSE of the coverage
+alpha there. A renderer that shades pixel centres is off there by the part of the pixel it misses or
+adds; one that anti-aliases by how well its coverage and its colour there follow the area.
 """
 
 from __future__ import annotations
@@ -41,6 +54,12 @@ ARTEFACT_RATIO = 2.0
 ARTEFACT_DARK_FLOOR = 0.02
 # ...and judged only where the reference's two renders agree within this ratio.
 ARTEFACT_AGREEMENT = 1.25
+# Window share (module doc): windows of this side, wrong beyond this ratio of their mean luminance.
+WINDOW_SIDE = 5
+WINDOW_RATIO = 1.5
+# A pixel is inside the object for the window share where the reference's alpha is at least this: every
+# stratum hit (alpha is a share of the strata, 1 exactly when all hit; 0 or 1 without strata).
+FULL_COVERAGE = 1.0 - 1e-6
 # Rec. ITU-R BT.709 luminance weights (linear RGB).
 LUMINANCE_RGB = np.array([0.2126, 0.7152, 0.0722])
 
@@ -142,14 +161,94 @@ def artefact_share(test: np.ndarray, ref_a: np.ndarray, ref_b: np.ndarray | None
     y_t, y_a, y_b = (np.maximum(x[mask] @ LUMINANCE_RGB, 0.0) for x in (t, a, b))
     if not y_a.size:
         return ArtefactShare(float("nan"), float("nan"), 0, 0, 0)
+    return _judge(y_t, y_a, y_b, _dark_floor(y_a, y_b), ARTEFACT_RATIO)
+
+
+def _dark_floor(y_a: np.ndarray, y_b: np.ndarray) -> float:
+    """d of the module doc: ARTEFACT_DARK_FLOOR x the truth's mean luminance over the object's pixels."""
+    floor = ARTEFACT_DARK_FLOOR * float((0.5 * (y_a + y_b)).mean())
+    return floor if floor > 0 else 1e-30   # a black truth: any light at all is a leak
+
+
+def _judge(y_t: np.ndarray, y_a: np.ndarray, y_b: np.ndarray, floor: float, ratio: float) -> ArtefactShare:
+    """Luminances (N,) of the test and of the two references, judged (module doc): where the references
+    agree within ARTEFACT_AGREEMENT, wrong beyond `ratio` either way of their mean (floored ratios)."""
     truth = 0.5 * (y_a + y_b)
-    floor = ARTEFACT_DARK_FLOOR * float(truth.mean())
-    if floor <= 0:
-        floor = 1e-30   # a black truth: any light at all is a leak
     judged = np.abs(np.log((y_a + floor) / (y_b + floor))) <= np.log(ARTEFACT_AGREEMENT)
-    ratio = (y_t + floor) / (truth + floor)
-    bright = judged & (ratio > ARTEFACT_RATIO)
-    dark = judged & (ratio < 1.0 / ARTEFACT_RATIO)
+    r = (y_t + floor) / (truth + floor)
+    bright = judged & (r > ratio)
+    dark = judged & (r < 1.0 / ratio)
     n = int(judged.sum())
     share = float((bright.sum() + dark.sum()) / n) if n else float("nan")
-    return ArtefactShare(share, n / y_a.size, int(bright.sum()), int(dark.sum()), n)
+    return ArtefactShare(share, n / y_a.size if y_a.size else float("nan"), int(bright.sum()), int(dark.sum()), n)
+
+
+def window_share(test: np.ndarray, ref_a: np.ndarray, ref_b: np.ndarray | None = None,
+                 mask: np.ndarray | None = None, side: int = WINDOW_SIDE,
+                 ratio: float = WINDOW_RATIO) -> ArtefactShare:
+    """The share of the object's side x side windows whose mean luminance is off by more than `ratio`
+    either way from the truth's (module doc), the truth the mean of ref_a and ref_b (or ref_a alone,
+    every window judged). Images (H, W, 3 or 4) linear RGB; mask: bool (H, W), default the pixels that
+    ref_a (and ref_b) cover wholly (alpha >= FULL_COVERAGE; alpha > 0.5 of 3-channel images: all). Every
+    window position wholly inside the mask counts once; the result's counts are windows (judged: judged
+    windows / windows inside; NaN share when none is judged)."""
+    if mask is None:
+        refs = [np.asarray(r) for r in (ref_a, ref_b) if r is not None]
+        if all(r.ndim == 3 and r.shape[2] >= 4 for r in refs):
+            mask = np.logical_and.reduce([r[..., 3] >= FULL_COVERAGE for r in refs])
+    t, a, mask = _rgb_pair(test, ref_a, mask)
+    b = a if ref_b is None else _rgb_pair(ref_b, ref_a, mask)[0]
+    if isinstance(side, bool) or not isinstance(side, (int, np.integer)) or side < 1:
+        raise InvalidInputError(f"the window's side must be a positive integer; got {side!r}")
+    if not ratio > 1.0:
+        raise InvalidInputError(f"the window's ratio must be > 1; got {ratio!r}")
+    y_t, y_a, y_b = (np.where(mask, np.maximum(x @ LUMINANCE_RGB, 0.0), 0.0) for x in (t, a, b))
+    if not mask.any():
+        return ArtefactShare(float("nan"), float("nan"), 0, 0, 0)
+    inside = _window_sums(mask.astype(np.int64), side) == side * side
+    means = [_window_sums(y, side)[inside] / (side * side) for y in (y_t, y_a, y_b)]
+    if not means[0].size:
+        return ArtefactShare(float("nan"), float("nan"), 0, 0, 0)
+    return _judge(*means, _dark_floor(y_a[mask], y_b[mask]), ratio)
+
+
+def _window_sums(x: np.ndarray, side: int) -> np.ndarray:
+    """Sums of x (H, W) over every side x side window, (H - side + 1, W - side + 1) (empty when the
+    image is smaller), from the summed-area table (Crow 1984)."""
+    h, w = x.shape
+    if h < side or w < side:
+        return np.zeros((0, 0), x.dtype)
+    c = np.zeros((h + 1, w + 1), x.dtype)
+    c[1:, 1:] = x.cumsum(axis=0).cumsum(axis=1)
+    return c[side:, side:] - c[:-side, side:] - c[side:, :-side] + c[:-side, :-side]
+
+
+@dataclass(frozen=True)
+class SilhouetteError:
+    """The silhouette error (module doc): rel_rmse of the premultiplied RGB and coverage_rmse of alpha
+    over the `pixels` edge pixels (both NaN when there are none)."""
+
+    rel_rmse: float
+    coverage_rmse: float
+    pixels: int
+
+    def as_dict(self) -> dict:
+        return {"rel_rmse": self.rel_rmse, "coverage_rmse": self.coverage_rmse, "pixels": self.pixels}
+
+
+def silhouette_error(test: np.ndarray, ref_foreground: np.ndarray, edge: np.ndarray) -> SilhouetteError:
+    """The silhouette error of test against the reference (module doc). test: (H, W, 4) a frame over a
+    black background (premultiplied linear RGB, coverage alpha); ref_foreground: (H, W, 4) the
+    reference's `foreground`; edge: bool (H, W), the reference's `edge` mask."""
+    t, r = np.asarray(test), np.asarray(ref_foreground)
+    if t.ndim != 3 or r.ndim != 3 or t.shape[2] < 4 or r.shape[2] < 4:
+        raise InvalidInputError(f"the silhouette error needs (H, W, 4) images with alpha; got {t.shape} and {r.shape}")
+    edge = np.asarray(edge, bool)
+    n = int(edge.sum()) if edge.shape == r.shape[:2] else 0
+    rel = relative_rmse(t, r, edge)   # validates the sizes and the mask
+    if not n:
+        return SilhouetteError(float("nan"), float("nan"), 0)
+    da = t[..., 3][edge].astype(np.float64) - r[..., 3][edge].astype(np.float64)
+    if not np.all(np.isfinite(da)):
+        raise InvalidInputError("alpha has NaN or Inf at the edge pixels")
+    return SilhouetteError(rel, float(np.sqrt(np.mean(da * da))), n)

@@ -34,6 +34,7 @@ from fastapi import APIRouter, Depends, Header, Query, Request, Response
 from renderer.cache import cache_key
 from renderer.errors import InvalidInputError
 from renderer.renderer import Frame
+from renderer.shading.tonemap import DEFAULT_CURVE
 from renderer.views import MAX_VIEWS, VIEW_NAMES, contact_sheet, label_tiles, named_views, sheet_columns, view_labels
 from renderer.views import turntable as turntable_cameras
 
@@ -289,7 +290,7 @@ async def post_views(
 
     columns = sheet_columns(len(frames), n_variants)
     opaque = scene.output.get("background", "env") == "env"
-    tone = scene.output.get("tone", "filmic")
+    tone = scene.output.get("tone", DEFAULT_CURVE.value)
 
     def encode_all() -> tuple[bytes, np.ndarray | None, float]:
         # One exposure for every image (the first view's, when the scene names none): views compare.

@@ -20,6 +20,8 @@ import anyio
 from fastapi import APIRouter, Depends
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
+from renderer.shading.tonemap import DEFAULT_CURVE
+
 from .. import operations
 from ..codecs import encode_png
 from ..deps import ScenesDep, ServicesDep, SettingsDep, require_token
@@ -75,7 +77,7 @@ async def scene_latest(scene_id: str, svc: ServicesDep) -> dict:
 def _png_of(rec: SceneRecord, frame: LatestFrame, compress_level: int) -> bytes:
     if frame.png is None:
         ev = frame.exposure_ev if frame.exposure_ev is not None else rec.output.get("exposure_ev")
-        frame.png, _ = encode_png(frame.image, ev, rec.output.get("tone", "filmic"),
+        frame.png, _ = encode_png(frame.image, ev, rec.output.get("tone", DEFAULT_CURVE.value),
                                   opaque=rec.output.get("background", "env") == "env", compress_level=compress_level)
     return frame.png
 
