@@ -153,6 +153,42 @@ def test_exr_frame(http, scene, mesh, tmp_path, how):
     assert "render" in server_timing(r.headers["server-timing"])
 
 
+def test_an_anti_aliased_frame_has_fractional_coverage_and_premultiplied_colour(http, env_upload, mesh, tmp_path):
+    """quality.aa_samples through the service: the EXR's alpha is each pixel's coverage (fractional at the
+    garment's edges), its colour premultiplied by it (no pixel brighter than its alpha allows beside
+    its covered neighbours); the PNG of the same frame is straight (its edge pixels' colour is not dimmed)."""
+    import OpenEXR
+
+    body = scene_body(env_upload[0]["id"], mesh)
+    body["quality"] = {**body["quality"], "aa_samples": 4}
+    body["output"] = {**body["output"], "background": "black"}
+    r = http.post("/scenes", json=body)
+    assert r.status_code == 201, r.text
+    sid = r.json()["id"]
+    try:
+        exr = post_frame(http, sid, mesh.positions, params={"format": "exr"})
+        assert exr.status_code == 200, exr.text
+        path = tmp_path / "aa.exr"
+        path.write_bytes(exr.content)
+        rgba = np.asarray(OpenEXR.File(str(path)).channels()["RGBA"].pixels, np.float32)
+        alpha = rgba[..., 3]
+        part = (alpha > 0) & (alpha < 1)
+        assert part.sum() > 20 and set(np.unique(alpha)) <= {0.0, 0.25, 0.5, 0.75, 1.0}
+        full = rgba[alpha == 1][:, :3].mean(axis=-1)
+        assert rgba[part][:, :3].mean(axis=-1).mean() < full.mean()   # dimmed by coverage
+        png = post_frame(http, sid, mesh.positions, params={"format": "png"})
+        assert png.status_code == 200, png.text
+        pixels = png_array(png.content).astype(np.float64)
+        assert pixels.shape[2] == 4
+        faint = (pixels[..., 3] > 0) & (pixels[..., 3] < 70)   # a quarter of the pixel covered
+        assert faint.sum() > 5
+        # Straight colour: the faint edge pixels about as bright as the covered ones (premultiplied, a
+        # quarter's colour would show at about half their sRGB code values).
+        assert pixels[faint][:, :3].mean() > 0.8 * pixels[pixels[..., 3] == 255][:, :3].mean()
+    finally:
+        http.delete(f"/scenes/{sid}")
+
+
 def test_normals_layout(http, scene, mesh):
     from renderer.mesh import vertex_normals
 
