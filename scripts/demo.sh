@@ -5,7 +5,7 @@
 #
 #   bash scripts/demo.sh [--host 127.0.0.1] [--port 8000] [--frames N] [--size 512x512] [--preset fast]
 #                        [--views front,three-quarter] [--spacing 0.025] [--env MAP.hdr]
-#   bash scripts/demo.sh --still    # the one-frame render of the bundled default to out/demo.png
+#   bash scripts/demo.sh --still    # the one-frame render of the bundled default to out/demo.png (anti-aliased)
 #
 # Options other than --host, --port and --still go to `python -m simulation.demo` (see its --help);
 # --frames 0 (the default) simulates until Ctrl-C, draping the dress anew every 90 frames.
@@ -31,7 +31,7 @@ mkdir -p out
 
 if [ "$still" = 1 ]; then
     .venv/bin/garment-render render --out out/demo.png --exr out/demo.exr --timings out/demo_timings.json \
-        --size 512x512 --albedo 0.8,0.2,0.2 --specular 0.5 --glossiness 0.8 "${sim_args[@]}"
+        --size 512x512 --albedo 0.8,0.2,0.2 --specular 0.5 --glossiness 0.8 --aa-samples 4 "${sim_args[@]}"
     echo "demo: wrote out/demo.png, out/demo.exr, out/demo_timings.json"
     exit 0
 fi
