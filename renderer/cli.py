@@ -929,6 +929,17 @@ def main(argv: list[str] | None = None) -> int:
     except RenderError as exc:
         print(f"garment-render: error: {exc}", file=sys.stderr)
         return 2
+    except ModuleNotFoundError as exc:
+        if exc.name not in LAB_MODULES:
+            raise
+        # The benchmarks' figures and FLIP come with the lab extra, which `pip install .` leaves out.
+        print(f"garment-render: error: {args.command} needs {exc.name!r}, which the lab extra installs: "
+              "pip install 'garment-render[lab]' (from a checkout: pip install '.[lab]')", file=sys.stderr)
+        return 2
+
+
+# What the lab extra (pyproject.toml) installs, by the names Python imports them as.
+LAB_MODULES = ("matplotlib", "flip_evaluator")
 
 
 if __name__ == "__main__":

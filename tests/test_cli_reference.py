@@ -44,3 +44,20 @@ def test_a_retired_flag_is_refused_with_what_replaced_it(name, capsys):
     with pytest.raises(SystemExit):
         build_parser().parse_args(["render", f"--{name.replace('_', '-')}"])
     assert "removed" in capsys.readouterr().err
+
+
+def test_a_lab_command_without_the_lab_extra_says_which_extra(monkeypatch, capsys):
+    """`pip install .` leaves the benchmarks' figures and FLIP out: a lab command that needs them ends
+    in a line naming the extra, not a traceback."""
+    import sys
+
+    from renderer import cli
+
+    def needs_flip(args):
+        import flip_evaluator  # noqa: F401
+
+    monkeypatch.setitem(sys.modules, "flip_evaluator", None)   # as if not installed
+    monkeypatch.setattr(cli, "cmd_bench", needs_flip)
+    assert cli.main(["bench", "--quick"]) == 2
+    err = capsys.readouterr().err
+    assert "flip_evaluator" in err and "pip install 'garment-render[lab]'" in err
