@@ -384,11 +384,23 @@ def _pem_line(pems, source: str) -> str:
     return f"PEM set from the cache folder ({pems.build_ms:.0f} ms)"
 
 
+def check_outputs(args) -> None:
+    """Before any work: a render that would write nothing, or into a folder that is not there, is
+    refused with the flag named (InvalidInputError)."""
+    given = {flag: getattr(args, flag.lstrip("-")) for flag in ("--out", "--exr", "--timings")}
+    if all(path is None for path in given.values()):
+        raise InvalidInputError(f"{args.command} would write nothing: name --out (a PNG), --exr or --timings")
+    for flag, path in given.items():
+        if path is not None and not Path(path).parent.is_dir():
+            raise InvalidInputError(f"{flag} {path}: the folder {Path(path).parent} does not exist")
+
+
 def cmd_render(args) -> int:
     from .envmap import write_exr
     from .renderer import Renderer
     from .shading.tonemap import auto_exposure_ev, write_png
 
+    check_outputs(args)
     t_start = time.perf_counter()
     q = resolve_quality(args)
     env, meshes, materials, casters = load_scene_inputs(args, q["face_size"])
@@ -534,6 +546,7 @@ def cmd_reference(args) -> int:
     from .reference import render_reference
     from .shading.tonemap import auto_exposure_ev, write_png
 
+    check_outputs(args)
     face = args.face_size or 256  # the reference reads the map itself: a fine cube by default
     env, meshes, materials, casters = load_scene_inputs(args, face)
     w, h = args.size

@@ -61,3 +61,15 @@ def test_a_lab_command_without_the_lab_extra_says_which_extra(monkeypatch, capsy
     assert cli.main(["bench", "--quick"]) == 2
     err = capsys.readouterr().err
     assert "flip_evaluator" in err and "pip install 'garment-render[lab]'" in err
+
+
+@pytest.mark.parametrize("command", ["render", "reference"])
+def test_a_render_that_would_write_nothing_or_into_no_folder_is_refused_before_the_work(tmp_path, capsys, command):
+    from renderer import cli
+
+    assert cli.main([command, "--size", "16x16"]) == 2
+    assert "would write nothing: name --out" in capsys.readouterr().err
+    missing = tmp_path / "no-such-folder" / "frame.png"
+    assert cli.main([command, "--size", "16x16", "--out", str(missing)]) == 2
+    assert f"the folder {missing.parent} does not exist" in capsys.readouterr().err
+    assert not missing.parent.exists()

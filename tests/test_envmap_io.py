@@ -201,6 +201,22 @@ def test_rgbe_round_trip_exact(tmp_path, rle):
     np.testing.assert_array_equal(read_hdr_image(path), read_rgbe_reference(path))
 
 
+def test_a_file_named_for_another_format_reads_as_what_it_is_and_says_so(tmp_path):
+    """A Radiance file saved as .exr (and an EXR saved as .hdr) reads by its bytes, with a warning that
+    names both."""
+    import shutil
+
+    rgbe = _rgbe_image(np.random.default_rng(2), 5, 11)
+    hdr = write_rgbe(tmp_path / "a.hdr", rgbe)
+    misnamed = shutil.copy(hdr, tmp_path / "studio.exr")
+    with pytest.warns(UserWarning, match=r"studio\.exr: named \.exr but a Radiance RGBE file"):
+        np.testing.assert_array_equal(read_hdr_image(misnamed), _expected(rgbe))
+    exr = tmp_path / "b.exr"
+    write_exr(exr, np.ones((4, 8, 3), np.float32))
+    with pytest.warns(UserWarning, match="named .hdr but an OpenEXR file"):
+        assert read_hdr_image(shutil.copy(exr, tmp_path / "b.hdr")).shape == (4, 8, 3)
+
+
 def test_rgbe_narrow_images_are_flat(tmp_path):
     rgbe = _rgbe_image(np.random.default_rng(2), 3, 6)  # width < 8: writers never run-length encode
     np.testing.assert_array_equal(read_hdr_image(write_rgbe(tmp_path / "n.hdr", rgbe)), _expected(rgbe))

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -37,15 +38,18 @@ def read_hdr_image(path: str | Path) -> np.ndarray:
     if not path.is_file():
         raise EnvironmentMapError(f"{path}: no such file")
     suffix = path.suffix.lower()
-    if suffix == ".exr":
-        return _read_exr(path)
-    if suffix in _RGBE_SUFFIXES:
-        return _read_rgbe(path)
     with path.open("rb") as fh:
         magic = fh.read(4)
-    if magic == _EXR_MAGIC:
+    # The bytes decide, not the name; a name that says otherwise is reported (a Radiance file saved as
+    # .exr reads as what it is).
+    kind = "exr" if magic == _EXR_MAGIC else "rgbe" if magic[:2] == b"#?" else None
+    named = "exr" if suffix == ".exr" else "rgbe" if suffix in _RGBE_SUFFIXES else None
+    if kind is not None and named is not None and kind != named:
+        what = {"exr": "an OpenEXR file", "rgbe": "a Radiance RGBE file"}
+        warnings.warn(f"{path}: named {suffix} but {what[kind]}; read as {what[kind]}", stacklevel=2)
+    if kind == "exr" or (kind is None and named == "exr"):
         return _read_exr(path)
-    if magic[:2] == b"#?":
+    if kind == "rgbe" or (kind is None and named == "rgbe"):
         return _read_rgbe(path)
     raise EnvironmentMapError(
         f"{path}: unsupported file type {suffix or '(no extension)'}; expected OpenEXR (.exr) or Radiance RGBE "
