@@ -99,8 +99,10 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--mesh", type=Path, action="append", default=[],
                    help="mesh file (PLY/OBJ/GLB); the first is the garment, others (e.g. the body) follow; "
                         "default: the bundled dress, draped on a mannequin over a floor")
-    g.add_argument("--up", choices=["y", "z"], default="y", help="up axis of the mesh files")
-    g.add_argument("--mesh-scale", type=float, default=1.0, help="scale applied to the mesh files (e.g. 0.01 for cm)")
+    g.add_argument("--up", type=_per_mesh(str, "y or z", ("y", "z")), default=("y",),
+                   metavar="y|z", help="mesh files' up axis, or one a mesh: y,z")
+    g.add_argument("--mesh-scale", type=_per_mesh(float, "a positive number"), default=(1.0,),
+                   metavar="S", help="mesh files' scale (0.01: cm), or one a mesh")
     g.add_argument("--albedo", type=_floats(3), default=(0.8, 0.2, 0.2), help="garment diffuse reflectance r,g,b")
     g.add_argument("--specular", type=float, default=0.5, help="garment weight of the glossy lobe")
     g.add_argument("--glossiness", type=float, default=0.8, help="garment glossiness g in [0,1] (paper Eq. 3)")
@@ -269,6 +271,59 @@ def cache_folder(args, kind: str):
     return user_cache_dir(kind)
 
 
+def _per_mesh(kind, what: str, choices: tuple | None = None):
+    """An argparse type: one value, or a comma-separated value a mesh (a tuple either way)."""
+    def parse(text: str) -> tuple:
+        try:
+            values = tuple(kind(v.strip()) for v in text.split(","))
+        except ValueError:
+            values = ()
+        if not values or any((choices is not None and v not in choices) or (kind is float and not v > 0)
+                             for v in values):
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {what}, or one a mesh separated by commas")
+        return values
+    return parse
+
+
+def per_mesh(values: tuple, n: int, flag: str) -> list:
+    """A flag's values for n meshes: one for all, or one each."""
+    if len(values) == 1:
+        return list(values) * n
+    if len(values) != n:
+        raise InvalidInputError(f"{flag} gives {len(values)} values for {n} meshes: give one, or one a mesh")
+    return list(values)
+
+
+def one_value(values: tuple, flag: str):
+    """A flag's one value where a command has no meshes to give one each (a sequence's frames)."""
+    if len(values) != 1:
+        raise InvalidInputError(f"{flag} takes one value here, got {len(values)}")
+    return values[0]
+
+
+# The sizes' ratio beyond which meshes of one scene are taken to be in different units (a garment in
+# centimetres beside a body in metres is 100 times its size).
+UNITS_RATIO = 20.0
+
+
+def mesh_warnings(meshes, names: list[str]) -> list[str]:
+    """What a scene's meshes suggest was meant otherwise: meshes of very different sizes (one in
+    centimetres, one in metres: the small one vanishes) and a scene far flatter along Y than along the
+    horizontal (a Z-up file read as Y-up: the garment lies on its back)."""
+    out = []
+    sizes = [float(np.linalg.norm(m.positions.max(axis=0) - m.positions.min(axis=0))) for m in meshes]
+    big, small = int(np.argmax(sizes)), int(np.argmin(sizes))
+    if sizes[small] > 0 and sizes[big] / sizes[small] > UNITS_RATIO:
+        out.append(f"{names[big]} is {sizes[big] / sizes[small]:.0f} times the size of {names[small]}: meshes in "
+                   "different units? give each its scale (--mesh-scale 0.01,1: the first in centimetres)")
+    everything = np.concatenate([m.positions for m in meshes])
+    extent = everything.max(axis=0) - everything.min(axis=0)
+    if extent[1] < 0.5 * max(extent[0], extent[2]):
+        out.append(f"the meshes are {extent[1]:.3g} tall (Y) and {max(extent[0], extent[2]):.3g} across: a Z-up file "
+                   "read as Y-up lies on its back (--up z, or one a mesh: --up y,z)")
+    return out
+
+
 def load_scene_inputs(args, face_size: int):
     """Environment map, meshes, materials and which meshes cast shadows, from the arguments (or
     the bundled defaults: the studio, and the draped dress on the mannequin over a floor that only
@@ -287,8 +342,11 @@ def load_scene_inputs(args, face_size: int):
     garment = garment_material(args)
     body = Material(args.body_albedo, 0.1, 0.3)
     if args.mesh:
-        meshes = [load_mesh_cached(p, up=args.up, scale=args.mesh_scale, cache=cache_folder(args, "meshes"))
-                  for p in args.mesh]
+        ups, scales = per_mesh(args.up, len(args.mesh), "--up"), per_mesh(args.mesh_scale, len(args.mesh), "--mesh-scale")
+        meshes = [load_mesh_cached(p, up=up, scale=scale, cache=cache_folder(args, "meshes"))
+                  for p, up, scale in zip(args.mesh, ups, scales)]
+        for line in mesh_warnings(meshes, [Path(p).name for p in args.mesh]):
+            print(f"garment-render: warning: {line}", file=sys.stderr)
         return env, meshes, [garment] + [body] * (len(meshes) - 1), [True] * len(meshes)
     meshes, casters = default_scene()
     return env, meshes, [garment, body, Material(*FLOOR_MATERIAL)], casters
@@ -470,9 +528,10 @@ def cmd_sequence(args) -> int:
         extra_meshes = []
     # The first material is the garment's, the last the body's (load_scene_inputs' convention).
     materials = [materials[0]] + [Material(args.body_albedo, 0.1, 0.3)] * len(extra_meshes)
-    topology = load_mesh(args.topology, up=args.up, scale=args.mesh_scale) if args.topology else None
-    seq = load_sequence(args.frames, up=args.up, scale=args.mesh_scale, garment=args.garment)
-    garment, positions = to_meshes(seq, topology, up=args.up, scale=args.mesh_scale)
+    up, scale = one_value(args.up, "--up"), one_value(args.mesh_scale, "--mesh-scale")
+    topology = load_mesh(args.topology, up=up, scale=scale) if args.topology else None
+    seq = load_sequence(args.frames, up=up, scale=scale, garment=args.garment)
+    garment, positions = to_meshes(seq, topology, up=up, scale=scale)
     # A USD stage's still meshes (the body) join the scene with the body's material.
     extra_meshes = extra_meshes + list(seq.extras)
     materials = materials + [Material(args.body_albedo, 0.1, 0.3)] * len(seq.extras)

@@ -73,3 +73,30 @@ def test_a_render_that_would_write_nothing_or_into_no_folder_is_refused_before_t
     assert cli.main([command, "--size", "16x16", "--out", str(missing)]) == 2
     assert f"the folder {missing.parent} does not exist" in capsys.readouterr().err
     assert not missing.parent.exists()
+
+
+def test_meshes_in_other_units_or_lying_down_are_warned_of_and_take_a_scale_and_an_up_each(tmp_path, capsys):
+    """A garment in centimetres beside a body in metres, and a Z-up pair read as Y-up: the render says
+    so (before it starts); per-mesh --mesh-scale and --up fix both, and the warnings go."""
+    import trimesh
+
+    from renderer import cli
+
+    body = trimesh.creation.cylinder(radius=0.15, height=1.7)   # Z-up: its height along Z
+    garment = trimesh.creation.cylinder(radius=20.0, height=60.0)   # centimetres, Z-up too
+    body.apply_translation((0, 0, 0.85))
+    garment.apply_translation((0, 0, 120.0))
+    paths = [tmp_path / "garment.obj", tmp_path / "body.obj"]
+    garment.export(paths[0])
+    body.export(paths[1])
+    meshes = [arg for p in paths for arg in ("--mesh", str(p))]
+    common = ["render", "--size", "24x24", "--preset", "fast", "--lights", "6", "--face-size", "16",
+              "--timings", str(tmp_path / "t.json")]
+    assert cli.main(common + meshes) == 0
+    err = capsys.readouterr().err
+    assert "times the size of" in err and "--mesh-scale 0.01,1" in err
+    assert "Z-up file read as Y-up" in err
+    assert cli.main(common + meshes + ["--mesh-scale", "0.01,1", "--up", "z"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert cli.main(common + meshes + ["--mesh-scale", "0.01,1,1"]) == 2
+    assert "--mesh-scale gives 3 values for 2 meshes" in capsys.readouterr().err
