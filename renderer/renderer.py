@@ -622,6 +622,8 @@ class Renderer:
         arrays = self._shadow_pass(scene, settings, lp, lights_buf, shared)
 
         targets = self._target_for(w, h, scene.has_pbr, settings.aa_samples)
+        if settings.aa_samples == 1 and "coverage" in self._still_targets:   # no coverage pass now: its memory back
+            self._still_targets.pop("coverage").release()
         fbo, gbuf = targets.image_fbo, targets.gbuf
         # The PEM set's tables the shading pass reads (the glossy discs), made once per set when a
         # frame first asks for them: that frame reports them as their own stage.

@@ -25,7 +25,7 @@ from .errors import ConflictError, InvalidRequestError, NotFoundError, PayloadTo
 from .registry import EnvironmentRecord, EnvironmentStore, MeshStore, PemInfo, SceneMeshInfo, SceneRecord, SceneStore
 from .schemas import MeshSpec, QualitySpec, SceneCreate
 from .settings import ServiceSettings
-from .specs import RequestQuality, check_pem_cost, prepare_scene, resolve_quality
+from .specs import RequestQuality, check_pem_set, prepare_scene, resolve_quality
 from .state import StateDir
 from .worker import GLResources, RenderWorker
 
@@ -45,11 +45,13 @@ class Services:
     _restoring: dict[str, tuple[asyncio.Lock, int]] = field(default_factory=dict)
 
     def quality(self, spec: QualitySpec) -> RequestQuality:
+        """The quality of an upload's PEM set, judged as a scene's is (`check_pem_set`): an upload makes
+        no frame, so no frame's limit applies to it."""
         from .schemas import OutputSpec
 
         q = resolve_quality(spec, OutputSpec(width=16, height=16), self.presets, self.measured,
                             self.settings, self.device)
-        check_pem_cost(q.face_size, q.pem, self.settings)   # the whole chain: what an upload builds
+        check_pem_set(q, self.settings)
         return q
 
     @property
@@ -240,6 +242,8 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
         gl.renderer.check_device(q.frame.aa_samples)   # refused here, not at every frame
         pems, source = gl.pem_set(env.content_hash, cube, pem)
         env.note_pem_set(key, q.face_size, pem, pems, source)
+        # The frame's memory on the light plan of this set's regions, before the scene's GPU objects.
+        record.frame_cost = prepared.exact_frame_cost(pems.regions, svc.settings)
         variants = [[c] + [None] * (len(prepared.meshes) - 1) for c in prepared.colourways]
         record.gpu = gl.renderer.create_scene(prepared.meshes, prepared.materials, casters=prepared.casters,
                                               proxies=prepared.proxies, variants=variants)

@@ -132,6 +132,8 @@ def render_info(frame: Frame, source: str) -> dict:
     t = frame.timings
     return {"n_lights": t["n_lights"], "shadowed_lights": t["shadowed_lights"], "n_triangles": t["n_triangles"],
             "device": t["device"], "lighting_pass": t["lighting_pass"], "pem_source": source, "gpu_ms": t.get("gpu_ms", {}),
+            # The shadow maps' bytes as the renderer's arrays hold them (ShadowMaps.nbytes).
+            "shadow_bytes": frame.settings.get("shadow_bytes"),
             "settings": frame.settings.get("frame", {}), "pem_set": frame.settings.get("pems", {})}
 
 

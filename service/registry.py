@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from renderer.camera import Camera
+from renderer.costs import FrameCost
 from renderer.envmap import EnvironmentMap, Layout, environment_from_array
 from renderer.envmap.io import TexelReport, check_texels
 from renderer.lighting.pem import PEMSettings
@@ -291,6 +292,8 @@ class SceneRecord:
     quality: dict
     output: dict
     pem_key: str = ""
+    # What one frame allocates (renderer.costs.frame_cost on the PEM set's regions), known at registration.
+    frame_cost: FrameCost | None = None
     gpu: Scene | None = None
     released: bool = False
     frames_rendered: int = 0

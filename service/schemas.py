@@ -9,6 +9,7 @@ from typing import Annotated, Any, Literal
 from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, create_model, model_validator
 
 from renderer import config
+from renderer.lighting.pem_reference import mip_levels
 from renderer.presets import PRESET_NAMES
 from renderer.shading.material import MAX_TEXTURE_SETS
 from renderer.shading.tonemap import DEFAULT_CURVE, ToneCurve
@@ -95,6 +96,10 @@ def _whole(value):
     return value
 
 
+# The longest MIP chain a PEM set has: the largest face's, down to 1 x 1.
+MAX_LEVELS = mip_levels(int(config.BY_NAME["face_size"].maximum))
+
+
 class _QualityBase(_Strict):
     """A preset, refined by explicit knobs (each overrides the preset's value)."""
 
@@ -105,7 +110,7 @@ class _QualityBase(_Strict):
                                        "within this worst-scene rel. RMSE (with frame_budget_ms: the most accurate "
                                        "within both)")
     filter: FilterName = Field(FilterName(config.OPTION["filter"].default), description=config.OPTION["filter"].doc)
-    levels: int | None = Field(None, ge=1, le=12, description="MIP levels built (default: the full chain)")
+    levels: int | None = Field(None, ge=1, le=MAX_LEVELS, description="MIP levels built (default: the full chain)")
     bleed_reduction: float = Field(config.OPTION["bleed_reduction"].default,
                                    **_range_bounds(config.OPTION["bleed_reduction"]),
                                    description=config.OPTION["bleed_reduction"].doc)
@@ -341,6 +346,10 @@ class SceneInfo(BaseModel):
     frames_rendered: int
     created: float
     default_layout: str = "positions"
+    frame_memory: dict[str, Any] | None = Field(
+        None, description="what one frame allocates on the GL device, in bytes, estimated at registration from the "
+                          "PEM set's light plan (renderer.costs.frame_cost): the shadow maps (judged against "
+                          "GARMENT_RENDER_MAX_SHADOW_MAP_BYTES), the render targets and the PEM set")
 
 
 class FrameImage(BaseModel):

@@ -30,10 +30,11 @@ class ServiceSettings(BaseSettings):
     max_vertices: int = Field(2_000_000, ge=3, description="per mesh")
     max_faces: int = Field(4_000_000, ge=1, description="per mesh")
     max_image_side: int = Field(4096, ge=16, le=8192, description="largest rendered width or height, pixels")
-    max_shadow_map_bytes: int = Field(4 << 30, ge=1 << 20, description="largest shadow-map memory a quality may "
-                                      "ask for: lights x (shadow_size x small_light_scale)^2 x 32 bytes (moments "
-                                      "and blur scratch, two shadow groups' RG32F layers; every light counted at "
-                                      "the small lights' size)")
+    max_shadow_map_bytes: int = Field(4 << 30, ge=1 << 20, description="largest shadow-map memory a scene's frame "
+                                      "may allocate: its main and sharp maps' arrays as its light plan lays them out "
+                                      "on the scene's PEM set (renderer.costs.frame_cost: 8 bytes a texel and shadow "
+                                      "group, twice with a blur); judged when the scene is registered (a request no "
+                                      "map could fit before its PEM set is built), never on an upload")
     max_env_pixels: int = Field(16 << 20, ge=64, description="largest uploaded environment map, width x height, "
                                 "read from the file's header before it is decoded (16 Mi: a 4k lat-long map and "
                                 "more; decoding one of 64 Mi took 20 s and 3.4 GB)")

@@ -10,15 +10,14 @@ import numpy as np
 
 from renderer import config
 from renderer.camera import Camera, frame_meshes
+from renderer.costs import FrameCost, frame_cost
 from renderer.errors import MeshError
 from renderer.lighting.pem import PEMSettings, pem_cost
-from renderer.lighting.pem_reference import mip_levels
 from renderer.mesh import Mesh, z_up_to_y_up
 from renderer.presets import pem_settings, resolve
 from renderer.renderer import Background, FrameSettings, ShadingMode
 from renderer.shading.material import Material, TextureSet
 from renderer.shadows.proxy import shadow_faces_isolated
-from renderer.shadows.vsm import MOMENT_BYTES
 
 from .errors import InvalidRequestError, PayloadTooLargeError
 from .registry import MeshStore
@@ -58,21 +57,6 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: di
                                       "(GARMENT_RENDER_MAX_IMAGE_SIDE)")
     frame = resolved.frame(out.width, out.height, bleed_reduction=q.bleed_reduction,
                            mode=ShadingMode(q.mode.value), background=Background(out.background))
-    # The shadow maps' memory before any is made, bounded as if every light that may be small were
-    # (at most lights / small_light_min_energy of them carry that multiple of the mean): a request
-    # that cannot fit is refused here with the numbers, not by the GL driver mid-frame.
-    n = int(knobs["lights"])
-    n_sharp = config.most_sharp_lights(n, frame.small_light_scale, frame.small_light_min_energy)
-    side = frame.shadow_size * frame.small_light_scale
-    # Each map twice: its moments and the blur's scratch (shadows/vsm.py).
-    worst = (n_sharp * side * side + (n - n_sharp) * frame.shadow_size ** 2) * 2 * MOMENT_BYTES
-    if worst > settings.max_shadow_map_bytes:
-        raise InvalidRequestError(
-            f"quality asks for up to {worst / 2**30:.1f} GiB of shadow maps ({n_sharp} of {n} lights at "
-            f"({frame.shadow_size} x {frame.small_light_scale})^2, the others at {frame.shadow_size}^2, x {2 * MOMENT_BYTES} "
-            f"bytes), over the limit of {settings.max_shadow_map_bytes / 2**30:.1f} GiB "
-            "(GARMENT_RENDER_MAX_SHADOW_MAP_BYTES): use fewer lights, a smaller shadow_size or "
-            "small_light_scale, or a larger small_light_min_energy")
     applied = frame.as_dict()   # the knobs as the frame holds them (enums as their values)
     info = {"preset": resolved.preset, "source": resolved.source, **{k: applied.get(k, knobs[k]) for k in _KNOBS},
             "filter": pem.filter.value,
@@ -96,6 +80,15 @@ def _pem_over(face_size: int, pem: PEMSettings, settings: ServiceSettings) -> li
                     f"{settings.pem_build_ns_per_texel_light:g} ns), over the {settings.max_pem_build_s:g} s of "
                     "GARMENT_RENDER_MAX_PEM_BUILD_S")
     return over
+
+
+def check_pem_set(quality: RequestQuality, settings: ServiceSettings) -> None:
+    """Refuse (422) the PEM sets of a request's quality beyond the service's limits: the one judgement
+    an upload and a scene both make. Judged on the whole chain, which an upload builds and which costs
+    the most of any set of these settings (a scene keeps only the levels its materials read, fewer
+    bytes in the same time: `pem_cost` grows with the levels kept), so that one face size gets one
+    answer, and what it says fits, fits either route."""
+    check_pem_cost(quality.face_size, replace(quality.pem, base_level=0), settings)
 
 
 def check_pem_cost(face_size: int, pem: PEMSettings, settings: ServiceSettings) -> None:
@@ -242,6 +235,11 @@ class PreparedScene:
     material_specs: list | None = None   # each mesh's MaterialSpec as used (a glTF file's own, where it applied)
     colourways: list[Material] = field(default_factory=list)   # more garment materials (SceneCreate.colourways)
 
+    def exact_frame_cost(self, regions, settings: ServiceSettings) -> FrameCost:
+        """`check_frame_cost` with the scene's PEM set's regions (on the GL thread, before the scene's
+        GPU objects are made)."""
+        return check_frame_cost(self.quality, self.casters, self.materials + self.colourways, settings, regions)
+
 
 def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshes: MeshStore,
                   settings: ServiceSettings, device: str | None = None) -> PreparedScene:
@@ -263,14 +261,14 @@ def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshe
         raise InvalidRequestError("cast_shadows is false on every mesh, so nothing would cast a shadow: set "
                                   "cast_shadows: true on the garment (a floor alone may be false)")
     # Judged before the glossiness calibration the materials' levels need is made (seconds and a GB
-    # at a 2048^2 face, once per process): the cheapest set of these settings (every level but the
-    # last left out) is what any base level costs at least.
-    levels = quality.pem.levels if quality.pem.levels is not None else mip_levels(quality.face_size)
-    check_pem_cost(quality.face_size, replace(quality.pem, base_level=max(0, levels - 1)), settings)
-    # The scene's PEM set: only the levels its materials' glossiness reads.
+    # at a 2048^2 face, once per process), as an upload judges its set (`check_pem_set`).
+    check_pem_set(quality, settings)
+    # The scene's PEM set: only the levels its materials' glossiness reads (no more than the whole chain).
     quality.pem = pem_settings(quality.knobs, quality.pem.filter, quality.pem.levels, materials + colourways)
     quality.info["base_level"] = quality.pem.base_level
-    check_pem_cost(quality.face_size, quality.pem, settings)
+    # The frame's memory from the settings alone: refused here, before the proxies, where no map could
+    # fit (the light plan, and so the exact number, waits for the PEM set's regions).
+    check_frame_cost(quality, casters, materials + colourways, settings)
     detail = quality.frame.caster_detail
     # The shadow pass's triangles at the main maps' detail and in full (the sharp maps'), made here, off
     # the GL thread.
@@ -278,3 +276,26 @@ def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshe
                for d in {min(detail, 1.0), 1.0}}
     return PreparedScene(built, [r for r, _ in specs], materials, camera, quality, casters, proxies, material_specs,
                          colourways)
+
+
+def check_frame_cost(quality: RequestQuality, casters: list[bool], materials: list[Material],
+                     settings: ServiceSettings, regions=None) -> FrameCost:
+    """What one frame of a scene allocates (renderer.costs.frame_cost): with its PEM set's `regions`
+    (PEMSet.regions, on the GL thread: the light plan's own layout), else from the settings alone, of
+    which only what the fewest maps would take is judged; InvalidRequestError (422) where its shadow
+    maps pass GARMENT_RENDER_MAX_SHADOW_MAP_BYTES. `materials`: every material of the scene's meshes
+    and colourways."""
+    cost = frame_cost(quality.frame, quality.pem, quality.face_size, casters, regions=regions,
+                      pbr=any(m.is_pbr for m in materials))
+    need = cost.shadow_bytes if cost.exact else cost.least_shadow_bytes
+    limit = settings.max_shadow_map_bytes
+    if need > limit:
+        raise InvalidRequestError(
+            f"quality asks for {'' if cost.exact else 'at least '}{_gib(need)} of shadow maps ({cost.describe()}), "
+            f"over the limit of {_gib(limit)} (GARMENT_RENDER_MAX_SHADOW_MAP_BYTES): use fewer lights, a smaller "
+            "shadow_size or small_light_scale, or a larger small_light_min_energy")
+    return cost
+
+
+def _gib(n: int) -> str:
+    return f"{n / 2**30:.1f} GiB" if n >= 1 << 30 else f"{n / 2**20:.0f} MiB"

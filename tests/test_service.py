@@ -811,12 +811,13 @@ def test_shadow_maps_beyond_the_memory_limit_are_refused_before_rendering(http, 
     body = scene_body(env_upload[0]["id"], mesh)
     body["quality"] = {**body["quality"], "lights": 384, "shadow_size": 2048, "small_light_scale": 2,
                        "small_light_min_energy": 0.0}
-    # 384 x 4096^2 x 32 bytes = 192 GiB, over the default 4 GiB.
-    assert_error(http.post("/render", json=body), 422, "GiB of shadow maps", "GARMENT_RENDER_MAX_SHADOW_MAP_BYTES")
-    # At most 10 lights can carry 38.4 x the mean light's energy: 10 x 4096^2 + 374 x 2048^2 (x 32
-    # bytes) is still 52 GiB, and the message counts them.
+    # Whichever lights get sharp maps, 384 x 2048^2 x 8 bytes (one shadow group) at least: 12 GiB, over the
+    # default 4 GiB, refused from the settings alone.
+    assert_error(http.post("/render", json=body), 422, "at least 12.0 GiB of shadow maps", "up to 384 of them",
+                 "GARMENT_RENDER_MAX_SHADOW_MAP_BYTES")
+    # At most 10 lights can carry 38.4 x the mean light's energy, and the message counts them.
     body["quality"] = {**body["quality"], "small_light_min_energy": 38.4}
-    assert_error(http.post("/render", json=body), 422, "10 of 384 lights")
+    assert_error(http.post("/render", json=body), 422, "up to 10 of them")
     body["quality"] = {**body["quality"], "shadow_size": 64, "small_light_scale": 1}
     assert http.post("/render", json=body, params={"format": "json"}).status_code == 200
 

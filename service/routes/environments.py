@@ -25,7 +25,7 @@ from ..errors import NotFoundError
 from ..operations import add_environment, ensure_pem_set, find_environment
 from ..previews import region_preview_png
 from ..registry import EnvironmentRecord, PemInfo
-from ..schemas import EnvironmentInfo, FilterName, LayoutName, LightInfo, PemSetInfo, Preset, QualitySpec
+from ..schemas import MAX_LEVELS, EnvironmentInfo, FilterName, LayoutName, LightInfo, PemSetInfo, Preset, QualitySpec
 
 # The registry's defaults (renderer/config.py, OPTIONS).
 DEFAULT_LAYOUT = LayoutName(config.OPTION["layout"].default)
@@ -85,13 +85,16 @@ async def upload_environment(
     preset: Preset | None = None,
     lights: Annotated[int | None, Query(ge=int(config.BY_NAME["lights"].minimum),
                                         le=int(config.BY_NAME["lights"].maximum))] = None,
-    face_size: Annotated[int | None, Query(ge=4, le=2048, json_schema_extra=_enum_of("face_size"))] = None,
+    face_size: Annotated[int | None, Query(ge=int(config.BY_NAME["face_size"].minimum),
+                                           le=int(config.BY_NAME["face_size"].maximum),
+                                           json_schema_extra=_enum_of("face_size"))] = None,
     filter: FilterName = DEFAULT_FILTER,
-    levels: Annotated[int | None, Query(ge=1, le=12)] = None,
+    levels: Annotated[int | None, Query(ge=1, le=MAX_LEVELS)] = None,
 ) -> EnvironmentInfo:
     """The body is the file's bytes as they are (Content-Type application/octet-stream, image/x-exr or
     image/vnd.radiance). The query's quality knobs choose the PEM set built now (default: the service's
-    default preset); scenes may ask for other sets later."""
+    default preset); scenes may ask for other sets later. Judged by that set's cost alone, as a scene's
+    set is (one answer for a face size); an upload makes no frame."""
     data = await raw_body(request, ENV_MEDIA_TYPES, "an environment map")
     try:
         spec = QualitySpec(preset=preset, lights=lights, face_size=face_size, filter=filter, levels=levels)

@@ -353,6 +353,7 @@ async def render_once(
     def job(gl: GLResources):
         pems, source = gl.pem_set(env.content_hash, cube, pem)
         env.note_pem_set(key, q.face_size, pem, pems, source)
+        prepared.exact_frame_cost(pems.regions, settings)   # the frame's memory on this set's light plan
         scene = gl.renderer.create_scene(prepared.meshes, prepared.materials, casters=prepared.casters,
                                          proxies=prepared.proxies)
         try:

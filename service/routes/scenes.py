@@ -31,7 +31,8 @@ def scene_info(rec: SceneRecord) -> SceneInfo:
                              frame_bytes=12 * m.n_vertices) for m in rec.meshes],
         quality=rec.quality, output=rec.output, camera=camera_dict(rec.camera),
         pem_set=pem_set_info(rec.environment, pem, with_lights=False) if pem else None,
-        frames_rendered=rec.count_frames(0), created=rec.created)
+        frames_rendered=rec.count_frames(0), created=rec.created,
+        frame_memory=rec.frame_cost.as_dict() if rec.frame_cost is not None else None)
 
 
 @router.post("", response_model=SceneInfo, status_code=status.HTTP_201_CREATED,
