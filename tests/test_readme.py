@@ -8,11 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import trimesh
 from service_server import ServiceProcess
-
-from renderer.envmap.io import write_exr
-from renderer.envmap.procedural import studio_environment
 
 ROOT = Path(__file__).resolve().parents[1]
 BLOCKS = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
@@ -24,16 +20,15 @@ def _block(marker: str) -> str:
 
 
 def write_example_files(folder: Path) -> list[np.ndarray]:
-    """studio.exr, shirt.obj (a sphere in centimetres) and drape.npz (two frames of it in metres, Z up,
-    in the layout of the shared simulation: positions and triangles) in `folder`; returns the
-    `simulation` the library example iterates."""
-    write_exr(folder / "studio.exr", studio_environment(128))
-    shirt = trimesh.creation.icosphere(subdivisions=3, radius=30.0)
-    shirt.export(folder / "shirt.obj")
-    positions = np.asarray(shirt.vertices, np.float32)
-    np.savez(folder / "drape.npz", positions=np.stack([positions, positions * np.float32(1.02)]) * np.float32(0.01),
-             triangles=np.asarray(shirt.faces, np.int32))
-    return [positions, positions * np.float32(1.02)]
+    """The examples' files as the README makes them (`python -m simulation.examples`: the bundled
+    studio, dress and mannequin, and two frames of the dress's simulation) in `folder`; returns the
+    `simulation` the library example iterates: those frames in shirt.obj's own units and axes
+    (centimetres, Y up), the same topology."""
+    from simulation.examples import write_examples
+
+    write_examples(folder, frames=2)
+    with np.load(folder / "drape.npz") as z:   # metres, Z up: back to the mesh file's frame
+        return [np.stack([p[:, 0], p[:, 2], -p[:, 1]], axis=1) * np.float32(100.0) for p in z["positions"]]
 
 
 @pytest.fixture
@@ -41,6 +36,27 @@ def files(tmp_path, monkeypatch):
     """The examples' files where they look for them (write_example_files)."""
     monkeypatch.chdir(tmp_path)
     return {"simulation": write_example_files(tmp_path)}
+
+
+def test_the_readme_makes_the_files_its_examples_name(files, tmp_path):
+    """The first command of the README's render example writes every file the page's examples read,
+    and the render command runs on them as written."""
+    import shlex
+    import subprocess
+    import sys
+
+    (sh,) = [b for b in re.findall(r"```sh\n(.*?)```", (ROOT / "README.md").read_text(), re.S) if "simulation.examples" in b]
+    lines = sh.replace("\\\n", " ").splitlines()
+    assert "python -m simulation.examples" in lines[0]
+    for name in ("studio.exr", "shirt.obj", "body.obj", "drape.npz"):
+        assert (tmp_path / name).stat().st_size > 1000, name
+    render = shlex.split(lines[1].split("#")[0])
+    assert render[0].endswith("garment-render") and render[1] == "render"
+    render[render.index("--size") + 1] = "96x96"   # as written, smaller
+    done = subprocess.run([sys.executable, "-m", "renderer.cli", *render[1:]], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0 and "warning" not in done.stderr, done.stderr
+    assert (tmp_path / "frame.png").stat().st_size > 1000 and (tmp_path / "frame.exr").exists()
 
 
 def test_the_readme_client_example_drives_a_real_service(files, tmp_path):
