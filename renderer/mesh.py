@@ -256,8 +256,36 @@ def _finite_float32(a: np.ndarray, name: str, what: str) -> np.ndarray:
         raise MeshError(
             f"mesh '{name}': {what}: all {p.shape[0]} vertices coincide at {tuple(float(v) for v in p[0])}, so "
             "there is no surface to render (a collapsed or zeroed simulation frame?)")
+    _check_strays(p, name, what)
     p.setflags(write=False)
     return p
+
+
+# A vertex this many times farther from the mesh's middle than 99 % of its vertices is a stray (a
+# solver's blow-up, a zeroed index): framed, it would shrink the garment to a dot.
+STRAY_RATIO = 1000.0
+_STRAY_SAMPLE = 4096   # vertices the 99 % reach is taken from (a large mesh's frame stays cheap)
+
+
+def _check_strays(p: np.ndarray, name: str, what: str) -> None:
+    """MeshError naming the first stray vertex (STRAY_RATIO) and how far it lies, else nothing."""
+    if p.shape[0] < 16:
+        return
+    sample = p[:: max(1, p.shape[0] // _STRAY_SAMPLE)].astype(np.float64)
+    middle = np.median(sample, axis=0)
+    reach = float(np.percentile(np.linalg.norm(sample - middle, axis=1), 99.0))
+    lo, hi = p.min(axis=0).astype(np.float64), p.max(axis=0).astype(np.float64)
+    if reach <= 0.0 or float(np.linalg.norm(hi - lo)) <= STRAY_RATIO * reach:
+        return
+    far = np.linalg.norm(p.astype(np.float64) - middle, axis=1) > STRAY_RATIO * reach
+    if not far.any():
+        return
+    first = int(np.flatnonzero(far)[0])
+    raise MeshError(
+        f"mesh '{name}': {what}: {int(far.sum())} of {p.shape[0]} vertices lie more than {STRAY_RATIO:g} times "
+        f"farther from the mesh's middle than 99 % of the others (first: vertex {first} at "
+        f"{tuple(round(float(v), 3) for v in p[first])}, {float(np.linalg.norm(p[first] - middle)):.4g} from the "
+        f"middle, the rest within {reach:.3g}): stray vertices from the simulation? fix or drop them")
 
 
 def _faces_array(x: object, n_vertices: int, name: str) -> np.ndarray:

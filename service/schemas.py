@@ -142,7 +142,8 @@ class OutputSpec(_Strict):
     width: int = Field(512, ge=1)
     height: int = Field(512, ge=1)
     background: Literal["env", "black"] = "env"
-    exposure_ev: float | None = Field(None, description="fixed exposure in stops; null: automatic per frame")
+    exposure_ev: float | None = Field(None, ge=-64, le=64,
+                                      description="fixed exposure in stops (-64..64); null: automatic per frame")
     tone: ToneName = Field(DEFAULT_CURVE.value, description="tone curve of PNG images (pbr-neutral: a base colour "
                            "under white light of radiance 1 shows as itself)")
 

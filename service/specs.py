@@ -9,11 +9,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from renderer import config
-from renderer.camera import Camera, frame_meshes
+from renderer.camera import Camera, bounds_sphere, frame_meshes
 from renderer.costs import FrameCost, frame_cost
 from renderer.errors import MeshError
 from renderer.lighting.pem import PEMSettings, pem_cost
-from renderer.mesh import Mesh, z_up_to_y_up
+from renderer.mesh import Mesh, bounds, z_up_to_y_up
 from renderer.presets import pem_settings, resolve
 from renderer.renderer import Background, FrameSettings, ShadingMode
 from renderer.shading.material import Material, TextureSet
@@ -218,6 +218,21 @@ def build_camera(spec: CameraSpec | None, up: str, meshes: list[Mesh], aspect: f
     return Camera(*(tuple(float(c) for c in v) for v in vecs), fov_y_deg=spec.fov_y_deg)
 
 
+def check_camera_sees(camera: Camera, meshes: list[Mesh], width: int, height: int) -> None:
+    """Refused at registration, not frame after frame: a camera the frame's projection cannot hold
+    (the renderer's own check, Camera.view_proj, on the scene's bounds), or one from which the whole
+    scene would be less than a pixel across (an eye a thousand kilometres off)."""
+    centre, radius = bounds_sphere(*bounds(meshes))
+    camera.view_proj(width / height, centre, radius)
+    distance = float(np.linalg.norm(np.asarray(camera.eye, np.float64) - centre))
+    across_px = 2.0 * np.arctan2(radius, distance) / np.radians(camera.fov_y_deg) * height
+    if across_px < 1.0:
+        raise InvalidRequestError(
+            f"from this camera (eye {distance:.4g} m from the scene, {camera.fov_y_deg:g} degrees) the scene, "
+            f"{2 * radius:.3g} m across, would be {across_px:.2g} pixels across at {height} pixels high: bring the "
+            "eye closer or leave the camera out (one is framed on the meshes)")
+
+
 def camera_dict(camera: Camera) -> dict:
     return {"eye": [float(c) for c in camera.eye], "target": [float(c) for c in camera.target],
             "up": [float(c) for c in camera.up], "fov_y_deg": camera.fov_y_deg, "space": "world, Y-up"}
@@ -257,6 +272,7 @@ def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshe
     # The default camera frames what casts (a floor that only receives would push it far back).
     framed = [m for m, c in zip(built, casters) if c] or built
     camera = build_camera(body.camera, body.up, framed, body.output.width / body.output.height)
+    check_camera_sees(camera, built, body.output.width, body.output.height)
     if not any(casters):
         raise InvalidRequestError("cast_shadows is false on every mesh, so nothing would cast a shadow: set "
                                   "cast_shadows: true on the garment (a floor alone may be false)")

@@ -476,3 +476,22 @@ def test_newton_sim_frames_convert_from_z_up_and_match_the_rest_mesh():
     # Streaming the raw bytes of a Z-up frame gives the same result as the array path.
     streamed = rest.with_positions(z_up_to_y_up(frames[-1]).astype("<f4").tobytes())
     np.testing.assert_array_equal(streamed.positions, m.positions)
+
+
+def test_a_stray_vertex_is_named_and_a_wide_mesh_is_not_one():
+    """One vertex of a frame 30 km off the rest (a solver's blow-up) is refused with its index and
+    distance; a mesh whose far vertices are many (a floor with a figure on it) is not."""
+    import trimesh
+
+    from renderer.errors import MeshError
+    from renderer.mesh import Mesh
+
+    s = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
+    mesh = Mesh.from_arrays(np.asarray(s.vertices), np.asarray(s.faces), name="ball")
+    stray = mesh.positions.copy()
+    stray[11] = (30_000.0, 0.0, 0.0)
+    with pytest.raises(MeshError, match=r"1 of 642 vertices .* vertex 11 at \(30000\.0, 0\.0, 0\.0\)"):
+        mesh.with_positions(stray)
+    wide = np.concatenate([mesh.positions, mesh.positions * 2000.0])
+    faces = np.concatenate([mesh.faces, mesh.faces + len(mesh.positions)])
+    assert Mesh.from_arrays(wide, faces, name="figure-and-floor").n_vertices == 2 * 642

@@ -61,6 +61,25 @@ def test_a_frame_whose_vertices_all_coincide_is_a_422_naming_it(http, scene_id, 
     assert post_frame(http, scene_id, mesh.positions).status_code == 200
 
 
+def test_inputs_that_could_never_render_are_refused_when_given_naming_the_problem(http, env_id, mesh, scene_id):
+    """Issue 60, item 4: one vertex 30 km off (the camera would frame it and shrink the garment to a
+    dot), a camera eye a thousand kilometres off (every frame a 422) and an exposure beyond any display
+    are refused where they are given, with what and the limit; the scene renders its next good frame."""
+    stray = mesh.positions.copy()
+    stray[7] = (30_000.0, 0.0, 0.0)
+    assert_error(post_frame(http, scene_id, stray), 422, "vertex 7", "more than 1000 times farther")
+    assert post_frame(http, scene_id, mesh.positions).status_code == 200
+    body = scene_body(env_id, mesh)
+    body["garment"]["positions"] = stray.tolist()
+    assert_error(http.post("/scenes", json=body), 422, "vertex 7")
+    far = scene_body(env_id, mesh, camera={"eye": [1e6, 0.0, 0.0], "target": [0.0, 0.0, 0.0]})
+    assert_error(http.post("/scenes", json=far), 422, "pixels across", "bring the eye closer")
+    beyond = scene_body(env_id, mesh, camera={"eye": [1e30, 0.0, 0.0], "target": [0.0, 0.0, 0.0]})
+    assert_error(http.post("/scenes", json=beyond), 422, "pixels across")
+    bright = scene_body(env_id, mesh, output={"width": 64, "height": 64, "exposure_ev": 1e308})
+    assert_error(http.post("/scenes", json=bright), 422, "exposure_ev")
+
+
 @pytest.mark.parametrize("scale", [1e-30, 1e-40, 1e17])
 def test_a_scene_at_the_edge_of_float32_renders_or_is_a_422_never_a_500(http, env_id, mesh, scale):
     # Attometres, below float32's normal range, and 10^17 m across: answered either way, never a 5xx.
