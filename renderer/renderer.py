@@ -907,7 +907,9 @@ class Renderer:
             resolve, vao = self._edge_program("resolve", targets.samples)
             inv = np.linalg.inv(np.frombuffer(depth_vp, np.float32).reshape(4, 4).T.astype(np.float64))
             set_uniform(resolve, "u_inv_view_proj", inv.T.astype(np.float32).tobytes())
-            set_uniform(resolve, "u_sample_positions", targets.sample_positions.tobytes())
+            if "u_sample_positions" in resolve:   # the compiler keeps the entries the program reads
+                n_kept = resolve["u_sample_positions"].array_length
+                resolve["u_sample_positions"].write(targets.sample_positions[:n_kept].tobytes())
             set_uniform(resolve, "u_camera_pos", tuple(float(x) for x in camera.eye))
             set_uniform(resolve, "u_footprint_per_distance", 2.0 * float(np.tan(np.radians(camera.fov_y_deg) / 2.0)) / h)
             set_uniform(resolve, "u_plane_tolerance_px", EDGE_PLANE_TOLERANCE_PX)
