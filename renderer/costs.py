@@ -56,8 +56,18 @@ def _array_bytes(size: int, layers: int, groups: int, blur: bool, mipmapped: boo
 
 def plan_maps(regions: RegionSet, settings: FrameSettings) -> LayerPlan:
     """Which of the PEM set's lights get a main map and which a sharp one, and which sharp lights share
-    a map: the light plan's rule (renderer.py Renderer._plan_lights) on `regions` for FrameSettings
-    `settings`, without the projections. tests/test_costs.py holds it to the frames' own counts."""
+    a map: the light plan's rule (`light_maps`) without the maps' directions. tests/test_costs.py
+    holds it to the frames' own counts."""
+    return light_maps(regions, settings)[0]
+
+
+def light_maps(regions: RegionSet, settings: FrameSettings) -> tuple[LayerPlan, np.ndarray]:
+    """The light plan's rule, written once (Renderer._plan_lights plans with it, the costs count with
+    it): every light has a map (none in the no-occlusion mode); the small lights (angular radius under
+    ~6 degrees) carrying at least small_light_min_energy x the mean light's energy, and with
+    sharp_large_lights the large ones that bright too, get sharp maps; sharp lights within
+    sharp_share_deg of a brighter one whose disc theirs overlaps share its map. Returns the plan and
+    each light's shadow direction (a shared map's, its group's energy-weighted direction)."""
     n = regions.n_regions
     shadowed = settings.mode != "none"   # ShadingMode.NO_OCCLUSION: no light has a map
     layers = np.arange(n, dtype=np.int32) if shadowed else np.full(n, -1, np.int32)
@@ -68,7 +78,7 @@ def plan_maps(regions: RegionSet, settings: FrameSettings) -> LayerPlan:
     sharp = (small | settings.sharp_large_lights) & bright if settings.small_light_min_energy > 0 else small
     plan = plan_layers(layers, sharp, settings.small_light_scale)
     return share_sharp_maps(plan, regions.directions, regions.energy_luminance,
-                            np.radians(settings.sharp_share_deg), disc_radius)[0]
+                            np.radians(settings.sharp_share_deg), disc_radius)
 
 
 @dataclass(frozen=True)

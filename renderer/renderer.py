@@ -21,6 +21,7 @@ import numpy as np
 from . import config
 from .camera import Camera, bounds_sphere, default_camera
 from .config import MAX_LIGHTS
+from .costs import light_maps
 from .errors import InvalidInputError
 from .gpu import rawgl
 from .gpu.context import GLContext, StageTimer
@@ -47,9 +48,6 @@ from .shadows.lights import (
     blur_sigma_texels,
     fit_light_view_projs,
     pack_lights,
-    plan_layers,
-    share_sharp_maps,
-    small_lights,
     texel_sizes,
 )
 from .shadows.vsm import LAYERS_PER_DRAW, ShadowMaps
@@ -719,19 +717,14 @@ class Renderer:
                      fit_receivers: tuple[np.ndarray, np.ndarray] | None, unit: float) -> _LightPlan:
         """_light_plan's lights and maps from the snapped boxes (the contact search's distance 0)."""
         regions = pems.regions
+        # Which lights get which maps (renderer/costs.py, light_maps: the rule the costs count with).
+        plan, shadow_dirs = light_maps(regions, settings)
         n = regions.n_regions
-        shadowed = settings.mode is not ShadingMode.NO_OCCLUSION
         # Every light has a map (none in the no-occlusion mode).
+        shadowed = settings.mode is not ShadingMode.NO_OCCLUSION
         layers = np.arange(n, dtype=np.int32) if shadowed else np.full(n, -1, np.int32)
         disc_radius = regions.disc_radius_rad()
-        small = small_lights(disc_radius)
-        relative = regions.energy_luminance / max(float(regions.energy_luminance.mean()), 1e-300)
         k = settings.small_light_scale
-        bright = relative >= settings.small_light_min_energy
-        sharp = (small | settings.sharp_large_lights) & bright if settings.small_light_min_energy > 0 else small
-        plan = plan_layers(layers, sharp, k)
-        plan, shadow_dirs = share_sharp_maps(plan, regions.directions, regions.energy_luminance,
-                                             np.radians(settings.sharp_share_deg), disc_radius)
         # Each light's map size; blur widths are in the light's own texels.
         sizes = np.where(plan.sharp, settings.shadow_size * k, settings.shadow_size)
         sigma = blur_sigma_texels(regions.light_radius_rad(), sizes, settings.blur_scale)
