@@ -81,12 +81,17 @@ class Background(str, Enum):
 
 # Screen lines (slices) and steps per side of the contact-shadow search (lighting.frag).
 CONTACT_SLICES, CONTACT_STEPS = 4, 8
-# Two samples of a pixel show one surface when each lies within this many pixel footprints of the
-# other's plane (shaders/edges/surfaces.glsl): a sheet's neighbouring triangles, not a garment over
-# the body a centimetre behind it at 256 x 256.
+# How far behind what the camera sees the contact search takes it to be solid, in units of its radius:
+# a garment's near layer at a silhouette does not shadow the far layer from a light behind both
+# (docs/sweep.md).
+CONTACT_THICKNESS = 0.5
+
+# A sample shows the surface a pixel's centre shaded when it lies within this many pixel footprints
+# of that surface's plane (shaders/edges/resolve.frag): a sheet's neighbouring triangles do, a
+# garment over the body a centimetre behind it at 256 x 256 does not.
 EDGE_PLANE_TOLERANCE_PX = 1.0
 # A pixel's samples lie in one plane when opposite samples' window depths sum alike within this
-# (edges/classify.frag): float32 rounding of depths in [0, 1] is ~6e-8.
+# (edges/classify.frag): a 24-bit depth buffer's step is ~6e-8.
 PLANE_DEPTH_TOLERANCE = 1e-6
 
 
@@ -97,10 +102,6 @@ def _plane_depth_tolerance(sample_positions: np.ndarray) -> float:
     n = len(sample_positions)
     symmetric = n >= 4 and np.allclose(sample_positions + sample_positions[::-1], 1.0, atol=1e-4)
     return PLANE_DEPTH_TOLERANCE if symmetric else -1.0
-# How far behind what the camera sees the contact search takes it to be solid, in units of its radius:
-# a garment's near layer at a silhouette does not shadow the far layer from a light behind both
-# (docs/sweep.md).
-CONTACT_THICKNESS = 0.5
 
 
 class _FrameChecks:
@@ -804,7 +805,9 @@ class Renderer:
             g = self._programs["gbuffer_pbr"] if scene.has_pbr else self.gbuffer_prog
             g["u_view_proj"].write(vp_bytes)
             set_uniform(g, "u_camera_pos", tuple(float(x) for x in camera.eye))
-            draw = lambda fbo, meshes, clear=True: self._draw_geometry(g, fbo, meshes, w, h, variant, clear)  # noqa: E731
+            def draw(fbo, meshes, clear=True):
+                self._draw_geometry(g, fbo, meshes, w, h, variant, clear)
+
             # The camera is in vp_bytes (its view and its depth range, fitted to the snapped box).
             self._with_still_meshes(scene, variant, (vp_bytes, g.glo), targets.gbuf_fbo, (targets.gbuf, targets.depth), draw,
                                     lambda: self._still_target_for("geometry", w, h, scene.has_pbr))

@@ -22,6 +22,7 @@ turns frame by frame in one process, so that their times share the machine's sta
 from __future__ import annotations
 
 import json
+import os
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -78,7 +79,7 @@ def run(out_dir: Path, quick: bool = False, frames: int = 5, log=print) -> dict:
     todo = edge_scenes(quick)
     cache = ReferenceCache(Path(cfg.cache) if cfg.cache else default_cache_dir(), pixel_samples=cfg.pixel_samples)
     t_start = time.perf_counter()
-    ensure_references(todo, cfg.spp_of, cache, cfg.workers or 2, log)
+    ensure_references(todo, cfg.spp_of, cache, max(1, cfg.workers or len(os.sched_getaffinity(0))), log)
     rows = []
     with Renderer() as r:
         for scene in todo:
