@@ -23,3 +23,8 @@ class GLContextError(RenderError, RuntimeError):
 
 class ShaderError(RenderError, RuntimeError):
     """A shader failed to compile or link; the message names the file and line."""
+
+
+class RenderStoppedError(RenderError):
+    """A render of several images stopped between two of them because its caller asked it to
+    (`Renderer.render_views`' `stop`): the request they were for is over."""

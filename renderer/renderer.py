@@ -22,7 +22,7 @@ from . import config
 from .camera import Camera, bounds_sphere, default_camera
 from .config import MAX_LIGHTS
 from .costs import light_maps
-from .errors import InvalidInputError
+from .errors import InvalidInputError, RenderStoppedError
 from .gpu import rawgl
 from .gpu.context import GLContext, StageTimer
 from .gpu.contract import (
@@ -571,7 +571,8 @@ class Renderer:
     def render_views(self, scene: Scene, pems: PEMSet, settings: FrameSettings = PAPER_FRAME,
                      cameras: list[Camera | None] = (None,), positions: list[np.ndarray | None] | None = None,
                      normals: list[np.ndarray | None] | None = None, background: BackgroundMap | None = None,
-                     variants: list[int] = (0,), visibility: VisibilityOracle | None = None) -> list[Frame]:
+                     variants: list[int] = (0,), visibility: VisibilityOracle | None = None,
+                     stop: Callable[[], bool] | None = None) -> list[Frame]:
         """One frame of the scene seen from several cameras (a turntable, named views) in several
         material variants (colourways, `Scene.add_variant`): the positions are uploaded, the lights
         planned and the shadow maps drawn once (they are in light space, fitted to what any camera
@@ -584,7 +585,10 @@ class Renderer:
         function of the geometry pass's surface points and geometric normals (float32 (H, W, 3) each,
         row 0 at the bottom) and their coverage (bool (H, W)) that gives every light's VIS_i there
         (float32 (n_lights, H, W)); the lighting pass reads it instead of the shadow maps and the
-        contact search, and shades as ever."""
+        contact search, and shades as ever.
+
+        `stop`: asked before every image but the first; when it answers True the render ends there
+        with `RenderStoppedError` (a service's request that timed out or whose client left)."""
         gl = self.gl
         gl.check_thread()
         cameras = list(cameras) or [None]
@@ -638,6 +642,8 @@ class Renderer:
         for camera, view_proj, depth_vp in zip(cameras, view_projs, depth_vps):
             vp_bytes = view_proj.T.astype(np.float32).tobytes()
             for variant in variants:
+                if frames and stop is not None and stop():
+                    raise RenderStoppedError(f"stopped after {len(frames)} of {len(cameras) * len(variants)} images")
                 timer = shared if not frames else StageTimer()
                 t_view = time.perf_counter()
                 self._geometry_pass(scene, camera, depth_vp, targets, w, h, timer, variant)

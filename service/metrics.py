@@ -33,6 +33,7 @@ class _WorkerCollector:
         c.add_metric(["done"], w.stats.jobs_done)
         c.add_metric(["failed"], w.stats.jobs_failed)
         c.add_metric(["rejected"], w.stats.jobs_rejected)
+        c.add_metric(["stopped"], w.stats.jobs_stopped)
         yield c
         c = CounterMetricFamily("garment_render_gl_busy_seconds", "Time the GL thread spent running jobs")
         c.add_metric([], w.stats.busy_ms_total / 1e3)

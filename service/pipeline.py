@@ -75,7 +75,7 @@ def views_job(scene: SceneRecord, arrays: FrameArrays | None, cameras: list, var
         frames = gl.renderer.render_views(scene.gpu, pems, scene.frame_settings, cameras,
                                           positions=arrays.positions if arrays else None,
                                           normals=arrays.normals if arrays else None, background=background,
-                                          variants=variants)
+                                          variants=variants, stop=gl.stop_requested)
         return frames, source
     return job
 

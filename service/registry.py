@@ -297,6 +297,8 @@ class SceneRecord:
     gpu: Scene | None = None
     released: bool = False
     frames_rendered: int = 0
+    # The GL time (ms) of one image of this scene in its latest frames (budgets.FrameRates).
+    gl_ms_recent: deque = field(default_factory=lambda: deque(maxlen=8), repr=False)
     # The count of every process that renders this scene (StateDir.count_frames), where there is one.
     frame_counter: Callable[[int], int] | None = field(default=None, repr=False)
     created: float = field(default_factory=time.time)

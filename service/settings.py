@@ -44,6 +44,15 @@ class ServiceSettings(BaseSettings):
     max_batch_frames: int = Field(1000, ge=1, description="most frames in one POST .../frames/batch")
     max_views: int = Field(64, ge=1, le=1024, description="most images one POST .../frames/views renders: "
                            "views x colourways (each is a geometry pass, a lighting pass and an image)")
+    max_request_bytes: int = Field(2 << 30, ge=1 << 20, description="host memory one request of several images (a "
+                                   "batch, a frame's views) may hold at once, estimated from its images' count "
+                                   "and size before its body is decoded (service/budgets.py); beyond it: 413")
+    max_request_s: float = Field(300.0, gt=0, description="longest estimated render-thread time of one request of "
+                                 "several images: their count x the measured time of one of the scene's (else "
+                                 "of this process's frames by pixels, else frame_ns_per_pixel); beyond it: 413")
+    frame_ns_per_pixel: float = Field(2000.0, gt=0, description="a frame's render-thread time a pixel, assumed for "
+                                      "that estimate before this process has timed a frame (a CPU rasteriser's "
+                                      "order; a GPU's is far less, and measured from its first frame)")
     max_scenes: int = Field(64, ge=1, description="scenes held by one process (idle ones give way, see below)")
     scene_idle_timeout_s: float = Field(600.0, gt=0, description="a scene with no frame nor lookup for this long "
                                         "is released when a new scene needs its slot (with a state directory it "

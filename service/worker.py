@@ -10,28 +10,36 @@ and reads back.
 A full queue raises `QueueFullError` (503 + Retry-After) instead of waiting: a simulator retries, and
 the service never holds an unbounded backlog. Scale by processes (uvicorn --workers N), each with its
 own worker.
+
+A long job (a batch) is a generator: the GL thread runs it a step (a frame) at a time and, between two
+steps, the job queued next, so that one scene's long job does not starve another's frames (turns
+alternate between the jobs in steps and those waiting to start). A job asked to stop (`Job.stop`: its
+request timed out or its client left) stops at its next step, or, for one that checks
+`GLResources.stop_requested` itself (the views of a frame), at its next image.
 """
 
 from __future__ import annotations
 
 import asyncio
+import inspect
 import logging
 import math
 import queue
 import threading
 import time
-from collections import OrderedDict
-from collections.abc import Callable
+from collections import OrderedDict, deque
+from collections.abc import Callable, Generator
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 from renderer.cache import CacheStats, PEMCache
-from renderer.errors import GLContextError
+from renderer.errors import GLContextError, RenderStoppedError
 from renderer.lighting.pem import PEMSet, PEMSettings, pem_cost
 from renderer.renderer import Renderer
 from renderer.shading.background import BackgroundMap
 
+from .budgets import FrameRates
 from .errors import ClientGoneError, NotReadyError, QueueFullError, RenderTimeoutError
 from .settings import ServiceSettings
 
@@ -55,6 +63,9 @@ class GLResources:
     # over builds of 10^6 texel-lights and more (None: none yet): what GARMENT_RENDER_PEM_BUILD_NS_PER_TEXEL_LIGHT
     # estimates.
     pem_build_ns_per_texel_light: float | None = None
+    # Whether the job now running was asked to stop (`Job.stop`): a job that takes long checks it
+    # between its parts and raises `JobStoppedError`.
+    stop_requested: Callable[[], bool] = field(default=lambda: False)
 
     def background(self, content_hash: str, source) -> BackgroundMap:
         """The background map of an environment (`renderer.shading.background`), made on first use
@@ -92,6 +103,10 @@ class GLResources:
         return pems, "built"
 
 
+class JobStoppedError(RenderTimeoutError):
+    """A job stopped before its end because its request was over (timed out, or its client gone)."""
+
+
 @dataclass
 class Job:
     """A submitted job: its future and when it was queued, started and finished (perf_counter s)."""
@@ -102,6 +117,9 @@ class Job:
     what: str = "job"   # what it does, for readiness and logs ("frame of scene_...", "PEM set ...")
     started: float = 0.0
     finished: float = 0.0
+    # Set when the request is over: the job stops at its next step (or part, `stop_requested`).
+    stop: threading.Event = field(default_factory=threading.Event)
+    steps: Generator | None = None   # a job in steps, once started: its generator
 
     @property
     def queue_ms(self) -> float:
@@ -121,6 +139,7 @@ class WorkerStats:
     jobs_failed: int = 0
     jobs_rejected: int = 0
     jobs_abandoned: int = 0   # dropped from the queue because their client went away
+    jobs_stopped: int = 0     # stopped before their end: their request timed out or its client went away
     busy_ms_total: float = 0.0
     run_ms_ema: float = 0.0  # exponential moving average of a job's run time (Retry-After estimate)
     cache: dict = field(default_factory=dict)
@@ -142,8 +161,10 @@ class RenderWorker:
         # when it has one (a GPU), else by numpy with the decoding, off the GL thread.
         self.normals_on_gpu = False
         self.stats = WorkerStats()
+        self.rates = FrameRates()   # the GL time of frames, for requests' estimates (budgets.py)
         self._running_since: float | None = None
         self._running: Job | None = None
+        self._stepping: deque[Job] = deque()   # jobs in steps between two of their steps (GL thread only)
         self._cleanup: list[Callable[[GLResources], None]] = []
 
     # -- lifecycle (called from the app's lifespan) ---------------------------------------------
@@ -254,7 +275,8 @@ class RenderWorker:
         waits = {result} | ({abandoned} if abandoned is not None else set())
         done, _ = await asyncio.wait(waits, timeout=timeout, return_when=asyncio.FIRST_COMPLETED)
         if result not in done:
-            fut.cancel()  # only succeeds while queued; a running job finishes and is discarded
+            if not fut.cancel():   # running: it stops at its next step or part (a single frame finishes)
+                job.stop.set()
             if abandoned is not None and abandoned in done:
                 self.stats.jobs_abandoned += 1
                 raise ClientGoneError(f"the client went away before its {what} ran; dropped")
@@ -279,30 +301,18 @@ class RenderWorker:
         self.normals_on_gpu = renderer.normals == "gpu"
         self._ready.set()
         try:
+            new_first = True
             while True:
-                job = self._queue.get()
-                if job is None:
-                    break
-                if not job.future.set_running_or_notify_cancel():
-                    continue  # timed out while queued
-                job.started = time.perf_counter()
-                self._running, self._running_since = job, job.started
-                try:
-                    result = job.fn(self._gl)
-                except BaseException as exc:  # noqa: BLE001 - every failure goes back to its request
-                    job.finished = time.perf_counter()
-                    self.stats.jobs_failed += 1
-                    job.future.set_exception(exc)
+                # Turns alternate between a job waiting to start and the next step of one in steps.
+                if self._stepping and (not new_first or self._queue.empty()):
+                    job, new_first = self._stepping.popleft(), True
                 else:
-                    job.finished = time.perf_counter()
-                    self.stats.jobs_done += 1
-                    job.future.set_result(result)
-                finally:
-                    self._running, self._running_since = None, None
-                run_ms = (job.finished - job.started) * 1e3
-                self.stats.busy_ms_total += run_ms
-                ema = self.stats.run_ms_ema
-                self.stats.run_ms_ema = run_ms if ema == 0.0 else 0.8 * ema + 0.2 * run_ms
+                    job, new_first = self._queue.get(), False
+                if job is None:
+                    while self._stepping:   # shutting down: the jobs in steps finish (a batch is answered whole)
+                        self._turn(self._stepping.popleft())
+                    break
+                self._turn(job)
         finally:
             for fn in self._cleanup:
                 try:
@@ -313,3 +323,54 @@ class RenderWorker:
             self._gl.release_backgrounds()
             renderer.release()
             self._gl = None
+
+    def _turn(self, job: Job) -> None:
+        """Run `job` (or its next step) on the GL thread; a job in steps that has more goes back in line."""
+        if job.steps is None:
+            if not job.future.set_running_or_notify_cancel():
+                return  # timed out, or its client left, while queued
+            job.started = time.perf_counter()
+        t0 = time.perf_counter()
+        self._running, self._running_since = job, job.started
+        self._gl.stop_requested = job.stop.is_set
+        done, result = True, None
+        try:
+            if job.stop.is_set():
+                raise JobStoppedError(f"{job.what} stopped: its request is over")
+            if job.steps is None:
+                result = job.fn(self._gl)
+                if inspect.isgenerator(result):
+                    job.steps, result = result, None
+            if job.steps is not None:
+                try:
+                    next(job.steps)
+                    done = False
+                except StopIteration as end:
+                    result = end.value
+        except BaseException as exc:  # noqa: BLE001 - every failure goes back to its request
+            if job.steps is not None:
+                job.steps.close()
+            job.finished = time.perf_counter()
+            if isinstance(exc, (JobStoppedError, RenderStoppedError)):
+                self.stats.jobs_stopped += 1
+            else:
+                self.stats.jobs_failed += 1
+            job.future.set_exception(exc)
+        else:
+            if done:
+                job.finished = time.perf_counter()
+                self.stats.jobs_done += 1
+                job.future.set_result(result)
+            else:
+                self._stepping.append(job)
+        finally:
+            self._running, self._running_since = None, None
+            self._gl.stop_requested = _never
+        run_ms = (time.perf_counter() - t0) * 1e3
+        self.stats.busy_ms_total += run_ms
+        ema = self.stats.run_ms_ema
+        self.stats.run_ms_ema = run_ms if ema == 0.0 else 0.8 * ema + 0.2 * run_ms
+
+
+def _never() -> bool:
+    return False

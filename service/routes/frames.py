@@ -38,6 +38,7 @@ from renderer.shading.tonemap import DEFAULT_CURVE
 from renderer.views import MAX_VIEWS, VIEW_NAMES, contact_sheet, label_tiles, named_views, sheet_columns, view_labels
 from renderer.views import turntable as turntable_cameras
 
+from ..budgets import batch_cost, views_cost
 from ..codecs import (
     FrameArrays,
     check_frame_size,
@@ -108,6 +109,7 @@ async def post_frame(
     async with client_gone(request) as gone:
         result = await worker.call(render_job(scene, arrays), what=f"a frame of {scene.id}", abandoned=gone)
     frame, source = result.value
+    worker.rates.note(scene, result.run_ms, 1)
     sequence = scene.count_frames()
     enc = await encode_async(frame, fmt, scene.output, exposure, settings.png_compress_level, json_image)
     timings = frame_timings(frame, arrays.decode_ms, arrays.normals_ms, result.queue_ms, result.run_ms,
@@ -152,6 +154,7 @@ async def post_batch(
     if n_frames > settings.max_batch_frames:
         raise PayloadTooLargeError(f"batch of {n_frames} frames exceeds the limit {settings.max_batch_frames} "
                                    "(GARMENT_RENDER_MAX_BATCH_FRAMES); split it")
+    batch_cost(scene, n_frames, format.value, json_image.value, BATCH_FRAMES_AHEAD, worker.rates, settings).check(settings)
     view = memoryview(body)
 
     def decode_all() -> list[FrameArrays]:
@@ -167,22 +170,21 @@ async def post_batch(
 
     frames_in = await anyio.to_thread.run_sync(decode_all)
 
-    # One GL job renders every frame; each finished frame is handed to the event loop and encoded in
-    # a worker thread while the GL thread renders the next.
+    # One GL job renders every frame, a frame a step (the GL thread serves other jobs between two
+    # steps: worker.py); each finished frame is handed to the event loop and encoded in a worker thread
+    # while the GL thread renders the next.
     loop = asyncio.get_running_loop()
     ready: asyncio.Queue = asyncio.Queue()
-    stop = False
     # The GL thread renders at most BATCH_FRAMES_AHEAD frames ahead of their encoding, so that a batch
     # holds a few images at a time, not all of them (a slow encoder, a slow client).
     credits = threading.Semaphore(BATCH_FRAMES_AHEAD)
 
-    def job(gl: GLResources) -> None:
+    def job(gl: GLResources):
         for i, arrays in enumerate(frames_in):
+            if i:
+                yield   # between two frames: another job's turn, if one waits
             while not credits.acquire(timeout=0.05):
-                if stop:
-                    return
-            if stop:
-                return
+                yield   # the encoder is behind: the turn goes to another job, if one waits
             t0 = time.perf_counter()
             try:
                 out = render_job(scene, arrays)(gl)
@@ -196,8 +198,8 @@ async def post_batch(
     zip_buf = io.BytesIO()
     zf = zipfile.ZipFile(zip_buf, "w", zipfile.ZIP_STORED) if format is BatchFormat.ZIP else None
     totals: dict[str, float] = {}
-    # A client that leaves stops the batch between two frames (the GL job checks `stop`), or drops
-    # it while queued: no frame nobody receives is rendered, and no sequence number is spent on one.
+    # A client that leaves stops the batch between two frames (the worker checks the job's `stop`), or
+    # drops it while queued: no frame nobody receives is rendered, and no sequence number is spent on one.
     try:
         async with client_gone(request) as gone:
             for k in range(n_frames):
@@ -214,6 +216,7 @@ async def post_batch(
                 i, out, job_ms = getter.result()
                 if isinstance(out, BaseException):
                     raise out
+                worker.rates.note(scene, job_ms, 1)
                 frame, source = out
                 queue_ms = submitted.queue_ms if k == 0 else 0.0
                 t_frame = time.perf_counter()
@@ -237,7 +240,7 @@ async def post_batch(
                 frames_in[i] = None  # free the decoded arrays as we go
                 credits.release()
     finally:
-        stop = True
+        submitted.stop.set()
     totals["total"] = (time.perf_counter() - t_start) * 1e3
     totals = {k: round(v, 3) for k, v in totals.items()}
     headers = {"Server-Timing": server_timing(totals), "X-Frame-Count": str(n_frames), "Cache-Control": "no-store"}
@@ -279,6 +282,7 @@ async def post_views(
     if len(cameras) * n_variants > settings.max_views:
         raise PayloadTooLargeError(f"{len(cameras)} views x {n_variants} colourways = {len(cameras) * n_variants} "
                                    f"images exceeds the limit {settings.max_views} (GARMENT_RENDER_MAX_VIEWS)")
+    views_cost(scene, len(cameras), n_variants, format is ViewsFormat.SHEET, worker.rates, settings).check(settings)
     blocks = parse_layout(x_frame_layout or layout, scene)
     body = await raw_body(request, (OCTET_STREAM,), "a frame of vertex positions")
     arrays = await anyio.to_thread.run_sync(decode_frame, body, blocks, scene, not worker.normals_on_gpu)
@@ -286,6 +290,7 @@ async def post_views(
         result = await worker.call(views_job(scene, arrays, cameras, list(range(n_variants))),
                                    what=f"{len(cameras)} views of {scene.id}", abandoned=gone)
     frames, source = result.value
+    worker.rates.note(scene, result.run_ms, len(frames))
     sequence = scene.count_frames()
 
     columns = sheet_columns(len(frames), n_variants)
