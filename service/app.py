@@ -12,6 +12,7 @@ with GARMENT_RENDER_STATE_DIR so are environments and scenes (a process restores
 from __future__ import annotations
 
 import ctypes
+import logging
 import os
 from contextlib import asynccontextmanager
 
@@ -23,6 +24,7 @@ from renderer.presets.budget import load_table
 
 from .errors import install_error_handlers
 from .limits import RequestGate
+from .logs import process_label
 from .metrics import ServiceMetrics
 from .openapi import install_openapi
 from .operations import Services
@@ -74,6 +76,8 @@ async def lifespan(app: FastAPI):
     app.state.services = Services(settings, worker, app.state.environments, app.state.scenes, app.state.meshes,
                                   app.state.presets, measured, state)
     await anyio.to_thread.run_sync(worker.start)  # not ready (503s) rather than dead when GL fails
+    # Answers name this process by its label alone (X-Render-Process): the log ties it to the host's id.
+    logging.getLogger("service").info("process %s is pid %d", process_label(), os.getpid())
     try:
         yield
     finally:

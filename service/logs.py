@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import re
 import secrets
 from contextvars import ContextVar
@@ -18,6 +19,19 @@ REQUEST_ID: ContextVar[str] = ContextVar("request_id", default="-")
 # `serve --ray`'s start-up line names its Ray instance (service/ray_serve.py, run), which another
 # process on the machine reads back to reach that instance and no other (service/load.py, serve_ray).
 RAY_ADDRESS_IN_LOG = re.compile(r"\(Ray at ([^)\s]+)\)")
+
+
+_PROCESS: tuple[int, str] | None = None
+
+
+def process_label() -> str:
+    """This process's name in answers (`X-Render-Process`, /stats) and its log's start: 8 random hex
+    digits made once a process (again in a forked child), so that a client can tell which process
+    answered without learning its id on the host."""
+    global _PROCESS
+    if _PROCESS is None or _PROCESS[0] != os.getpid():
+        _PROCESS = (os.getpid(), secrets.token_hex(4))
+    return _PROCESS[1]
 
 
 def ray_address_note(address: str) -> str:

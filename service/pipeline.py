@@ -12,7 +12,6 @@ time), gl_job (the whole job on the GL thread), encode, and total (handler start
 from __future__ import annotations
 
 import base64
-import os
 import time
 from dataclasses import dataclass
 
@@ -25,6 +24,7 @@ from renderer.shading.tonemap import DEFAULT_CURVE
 
 from .codecs import FrameArrays, encode_exr, encode_png
 from .errors import NotAcceptableError, NotFoundError
+from .logs import process_label
 from .registry import LatestFrame, SceneRecord
 from .schemas import ImageFormat
 from .worker import GLResources
@@ -151,7 +151,7 @@ def frame_response(fmt: ImageFormat, scene_id: str | None, index: int | None, fr
     """The frame as an image (settings in headers) or as JSON; `quality` is the scene's resolved quality
     (the knobs and where they came from: a preset or a budget), reported with every frame."""
     headers = {"Server-Timing": server_timing(timings), "X-Render-Lights": str(frame.timings["n_lights"]),
-               "X-PEM-Source": source, "X-Render-Process": str(os.getpid()), "Cache-Control": "no-store"}
+               "X-PEM-Source": source, "X-Render-Process": process_label(), "Cache-Control": "no-store"}
     if quality is not None and quality.get("source"):
         headers["X-Quality-Source"] = quality["source"]
     if index is not None:

@@ -52,12 +52,15 @@ def test_two_processes_share_scenes_through_the_state_dir(tmp_path):
                          params={"name": name, "lights": 12, "face_size": 32}, timeout=60).json()
         sid = httpx.post(a.url + "/scenes", json=scene_body(env["id"], mesh), timeout=60).json()["id"]
         frames = [np.asarray(mesh.positions) + np.float32(0.01 * k) for k in range(4)]
+        labels = {s.url: httpx.get(s.url + "/stats").json()["process"]["label"] for s in (a, b)}
+        assert len(set(labels.values())) == 2
         for k, p in enumerate(frames):  # alternate between the processes, as a load balancer would
             srv = (a, b)[k % 2]
             r = httpx.post(f"{srv.url}/scenes/{sid}/frames", content=p.astype("<f4").tobytes(), headers=OCTET,
                            timeout=60)
             assert r.status_code == 200, r.text
-            assert r.headers["x-render-process"] == str(srv.proc.pid)
+            # Each process names itself by a label of its own, not by its id on the host.
+            assert r.headers["x-render-process"] == labels[srv.url] != str(srv.proc.pid)
             # One sequence for the scene, whichever process renders it (the state dir's counter).
             assert r.headers["x-frame-sequence"] == str(k + 1)
         assert [httpx.get(f"{s.url}/scenes/{sid}").json()["frames_rendered"] for s in (a, b)] == [4, 4]
@@ -167,3 +170,21 @@ def test_the_frame_count_is_one_sequence_over_processes(tmp_path):
     assert (state.count_frames("scn_0a", 0), state.count_frames("scn_0b", 2)) == (400, 2)
     state.delete_scene("scn_0a")
     assert state.count_frames("scn_0a", 0) == 0
+
+
+def test_the_hosts_paths_and_process_id_are_shown_only_behind_a_token(tmp_path):
+    settings = {"state_dir": tmp_path / "state", "pem_cache_dir": tmp_path / "cache"}
+    open_srv = ServiceProcess(tmp_path, **settings)
+    try:
+        r = httpx.get(open_srv.url + "/stats")
+    finally:
+        open_srv.stop()
+    assert str(tmp_path) not in r.text and "pid" not in r.json()["process"], r.text
+    token = "s3cret-token"
+    closed = ServiceProcess(tmp_path, token=token, **settings)
+    try:
+        stats = httpx.get(closed.url + "/stats", headers={"Authorization": f"Bearer {token}"}).json()
+    finally:
+        closed.stop()
+    assert stats["state"]["dir"] == str(tmp_path / "state") and stats["pem_cache"]["disk_dir"] == str(tmp_path / "cache")
+    assert stats["process"]["pid"] == closed.proc.pid and len(stats["process"]["label"]) == 8

@@ -19,6 +19,7 @@ from ..deps import (
     WorkerDep,
     require_token,
 )
+from ..logs import process_label
 
 router = APIRouter(tags=["health"])
 stats_router = APIRouter(tags=["health"], dependencies=[Depends(require_token)])
@@ -57,11 +58,18 @@ async def metrics(m: MetricsDep) -> Response:
 async def stats(worker: WorkerDep, settings: SettingsDep, envs: EnvironmentsDep, scenes: ScenesDep,
                 meshes: MeshesDep, svc: ServicesDep) -> dict:
     w = worker.stats
+    # Where this host keeps things, and the process's id on it, only to a caller with the service's
+    # token: without one, anyone may ask (the label names the process: X-Render-Process).
+    private = settings.token is not None
+
+    def where(path) -> str | None:
+        return None if path is None else str(path) if private else "(set; shown where the service has a token)"
+
     return {
         "state": None if svc.state is None else {
-            "dir": str(svc.state.root), "stored_scenes": len(svc.state.scene_ids()),
+            "dir": where(svc.state.root), "stored_scenes": len(svc.state.scene_ids()),
             "restorations_pending": svc.restorations_pending, "temporaries_removed": svc.state.temporaries_removed},
-        "ready": worker.ready, "gl": worker.gl_info, "process": {"pid": os.getpid()},
+        "ready": worker.ready, "gl": worker.gl_info, "process": {"label": process_label(), **({"pid": os.getpid()} if private else {})},
         "queue": {"depth": worker.queue_depth, "capacity": settings.queue_size, "busy": worker.busy,
                   "current_job": worker.current_job()},
         "jobs": {"done": w.jobs_done, "failed": w.jobs_failed, "rejected": w.jobs_rejected,
@@ -71,7 +79,7 @@ async def stats(worker: WorkerDep, settings: SettingsDep, envs: EnvironmentsDep,
                        "ns_per_texel_light_assumed": settings.pem_build_ns_per_texel_light,
                        "max_build_s": settings.max_pem_build_s, "max_build_bytes": settings.max_pem_build_bytes},
         "pem_cache": {"name": "pem-sets", "max_bytes": settings.pem_cache_bytes,
-                      "disk_dir": str(settings.pem_cache_dir) if settings.pem_cache_dir else None,
+                      "disk_dir": where(settings.pem_cache_dir),
                       **worker.cache_stats().as_dict()},
         "counts": {"environments": len(envs), "scenes": len(scenes), "meshes": len(meshes.list())},
         "environments": {"bytes": envs.nbytes, "max_bytes": settings.max_environment_bytes},
