@@ -35,8 +35,8 @@ ASSETS = ROOT.parent / "shared" / "assets"
 SIM = ASSETS / "sim" / "newton_shirt_drape_60f.npz"
 ENV = ASSETS / "hdri" / "pisa.hdr"
 
+from garment_render_client import RenderClient  # noqa: E402
 from renderer.presets import PRESET_NAMES  # noqa: E402
-from service.client import RenderClient  # noqa: E402
 
 
 def free_port() -> int:

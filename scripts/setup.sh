@@ -43,7 +43,7 @@ fi
 stamp=.venv/.installed-$(sha256sum pyproject.toml | cut -c1-16)
 if [ ! -f "$stamp" ]; then
     .venv/bin/python -m pip install -q --upgrade pip
-    .venv/bin/python -m pip install -q -e '.[test,ray,lab,client]'
+    .venv/bin/python -m pip install -q -e '.[test,ray,lab]'
     rm -f .venv/.installed-*
     touch "$stamp"
 fi

@@ -12,7 +12,7 @@ if [[ "${1:-}" == "--system" ]]; then
     shift
 fi
 bash scripts/setup.sh
-.venv/bin/ruff check renderer service simulation tests scripts
+.venv/bin/ruff check renderer service simulation tests scripts client
 # In parallel processes (pytest-xdist; GARMENT_RENDER_TEST_WORKERS, default 3): much of the suite waits
 # on servers, subprocesses and one-thread stages, so three processes on two cores finish sooner.
 exec .venv/bin/python -m pytest -q -n "${GARMENT_RENDER_TEST_WORKERS:-3}" --dist worksteal -m "$selection" "$@"

@@ -4,8 +4,8 @@
     python -m service.load --ray 1,2 --out docs/scale-out.md      (starts `serve --ray` with each count)
 
 Each run uploads a small procedural studio map, registers `scenes` scenes of a procedural garment, and
-then `clients` threads send `frames` frames each, scene by scene in turn, through service.client (which
-retries a 503 after its Retry-After). Reported: frames a second over the whole run, the median and 99th
+then `clients` threads send `frames` frames each, scene by scene in turn, through the client
+(garment_render_client, which retries a 503 after its Retry-After). Reported: frames a second over the whole run, the median and 99th
 percentile of a frame's round trip, the retries, and which replicas answered.
 """
 
@@ -30,10 +30,9 @@ from .logs import RAY_ADDRESS_IN_LOG
 
 def run_load(url: str, scenes: int = 4, frames: int = 16, clients: int = 4, size: int = 128,
              resolution: int = 32) -> dict:
+    from garment_render_client import RenderClient
     from renderer.envmap import studio_environment, write_exr
     from renderer.procedural import procedural_garment
-
-    from .client import RenderClient
 
     mesh = procedural_garment(resolution)
     with tempfile.TemporaryDirectory() as tmp:

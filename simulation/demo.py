@@ -22,8 +22,8 @@ from dataclasses import replace
 import httpx
 import numpy as np
 
+from garment_render_client import RenderClient
 from renderer.presets import PRESET_NAMES
-from service.client import RenderClient
 
 from .dress import DRESS_SETTINGS, SETTLE_FRAMES
 from .feed import FRONT, THREE_QUARTER, DrapeFeed, upload_studio_environment

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.client import FrameResult, RenderClient
+from garment_render_client import FrameResult, RenderClient
 
 from .panels import Garment
 from .solver import ClothSim

@@ -24,6 +24,7 @@ import signal
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import httpx
@@ -176,9 +177,17 @@ def test_every_copy_source_exists_and_is_in_the_build_context(flavor):
                         break
                 else:
                     pytest.fail(f"every file of {src} is excluded by .dockerignore")
-    # The editable install reads pyproject.toml and its readme; the renderer reads shaders/.
+    # The editable install reads pyproject.toml, its readme and every package's folder (package-dir maps
+    # renderer.shaders to shaders/ and the client to client/).
     copied = {s for sources, _ in found for s in sources}
-    assert {"pyproject.toml", "README.md", "renderer", "shaders", "service", "docker/install.sh"} <= copied
+    assert {"pyproject.toml", "README.md", "docker/install.sh", *_package_folders()} <= copied
+
+
+def _package_folders() -> set[str]:
+    """The top-level folder each of pyproject.toml's packages comes from."""
+    setup = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    mapped = setup["package-dir"]
+    return {mapped[p].split("/")[0] if p in mapped else p.split(".")[0] for p in setup["packages"]}
 
 
 @pytest.mark.parametrize("flavor", sorted(DOCKERFILES))

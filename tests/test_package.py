@@ -1,6 +1,7 @@
-"""The package as a user installs it: a wheel built from the checkout, installed into a fresh virtual
-environment, renders a frame from outside the checkout (its shaders and data are in the wheel); with
-the `client` extra's dependencies alone (no GL, no server), the client sends frames to a real service."""
+"""The packages as a user installs them: the server's wheel built from the checkout, installed into a
+fresh virtual environment, renders a frame from outside the checkout (its shaders and data are in the
+wheel); the client's own wheel (client/), installed with numpy, httpx and Pillow alone (no GL, no
+server), sends frames to a real service."""
 
 from __future__ import annotations
 
@@ -22,20 +23,43 @@ import pytest
 from PIL import Image
 
 ROOT = Path(__file__).resolve().parents[1]
+CLIENT = ROOT / "client"
 SHADER_SUFFIXES = {".glsl", ".vert", ".frag", ".comp"}
+# What a simulator's machine must not get with the client: GL, the server's libraries, our other packages.
+NOT_THE_CLIENT_S = ("moderngl", "fastapi", "uvicorn", "trimesh", "OpenEXR", "scipy", "pxr", "renderer", "service",
+                    "simulation")
 
 
 def _packages() -> list[str]:
     return tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
 
 
+def _client_project() -> dict:
+    return tomllib.loads((CLIENT / "pyproject.toml").read_text())
+
+
+def _folders(root: Path, top: str) -> set[str]:
+    """The dotted names of the folders under root/top that hold Python modules."""
+    return {p.parent.relative_to(root).as_posix().replace("/", ".") for p in (root / top).rglob("*.py")}
+
+
 def test_the_package_list_names_every_folder_of_code_and_shaders():
-    on_disk = {p.parent.relative_to(ROOT).as_posix().replace("/", ".")
-               for top in ("renderer", "service", "simulation") for p in (ROOT / top).rglob("*.py")}
+    on_disk = {name for top in ("renderer", "service", "simulation") for name in _folders(ROOT, top)}
     on_disk |= {p.parent.relative_to(ROOT).as_posix().replace("/", ".") for p in (ROOT / "renderer").rglob("*.npz")}
     on_disk |= {"renderer." + p.relative_to(ROOT).as_posix().replace("/", ".")
                 for p in [ROOT / "shaders", *(d for d in (ROOT / "shaders").rglob("*") if d.is_dir())]}
-    assert sorted(_packages()) == sorted(on_disk)
+    client = _folders(CLIENT, "garment_render_client")   # the client's own distribution, carried by the server's
+    assert client == {"garment_render_client"}
+    assert sorted(_packages()) == sorted(on_disk | client)
+    assert sorted(_client_project()["tool"]["setuptools"]["packages"]) == sorted(client)
+
+
+def test_the_client_is_released_with_the_server_and_needs_numpy_and_httpx_alone():
+    client, server = _client_project()["project"], _project()
+    assert (client["version"], client["requires-python"]) == (server["version"], server["requires-python"])
+    assert sorted(_requirement_names(client["dependencies"])) == ["httpx", "numpy"]
+    # The same lower bounds as the server's, which carries the same code.
+    assert set(client["dependencies"]) <= set(server["dependencies"])
 
 
 @pytest.fixture(scope="module")
@@ -63,6 +87,8 @@ def test_the_wheel_carries_every_shader_and_data_file(wheel):
     assert "renderer/data/default_scene.npz" in names   # the bundled default scene
     modules = {p.relative_to(ROOT).as_posix() for top in ("renderer", "service", "simulation")
                for p in (ROOT / top).rglob("*.py")}
+    modules |= {p.relative_to(CLIENT).as_posix() for p in (CLIENT / "garment_render_client").rglob("*.py")}
+    assert "garment_render_client/__init__.py" in modules   # the server's install includes the client
     assert modules <= names, sorted(modules - names)
 
 
@@ -92,10 +118,10 @@ def _project() -> dict:
     return tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
 
 
-def _fresh_env(wheel: Path, folder: Path, requirements: list[str]) -> tuple[Path, dict]:
-    """A new virtual environment in `folder` that holds the wheel and the installed distributions
-    `requirements` need (linked from this environment: no network), nothing else; returns its
-    python and an environment for its processes."""
+def _fresh_env(folder: Path, requirements: list[str]) -> tuple[Path, dict]:
+    """A new virtual environment in `folder` that holds the installed distributions `requirements`
+    need (linked from this environment: no network), nothing else; returns its python and an
+    environment for its processes."""
     env_dir = folder / "env"
     venv.EnvBuilder(with_pip=True).create(env_dir)
     python = env_dir / "bin" / "python"
@@ -111,9 +137,17 @@ def _fresh_env(wheel: Path, folder: Path, requirements: list[str]) -> tuple[Path
     # Searched after the fresh site-packages; the checkout's own .pth files (its editable install) are
     # not among them.
     (purelib / "deps.pth").write_text(str(deps) + "\n")
-    subprocess.run([str(python), "-m", "pip", "install", "-q", "--no-deps", "--no-index", str(wheel)], check=True,
-                   timeout=300)
     return python, {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+
+
+def _install(python: Path, wheel: Path | str, resolve: bool = False) -> float:
+    """pip installs `wheel` (a path, or a path with extras: "x.whl[pil]") into the environment of
+    `python`, without an index; returns the seconds it took. With `resolve`, pip checks the wheel's
+    requirements against what the environment holds, so one that _fresh_env did not link fails."""
+    t0 = time.monotonic()
+    subprocess.run([str(python), "-m", "pip", "install", "-q", "--no-index", "--disable-pip-version-check",
+                    *([] if resolve else ["--no-deps"]), str(wheel)], check=True, timeout=300)
+    return time.monotonic() - t0
 
 
 def _absent(python: Path, env: dict, cwd: Path, modules: tuple[str, ...]) -> list[str]:
@@ -128,10 +162,12 @@ def _absent(python: Path, env: dict, cwd: Path, modules: tuple[str, ...]) -> lis
 def test_the_wheel_without_extras_renders_and_serves_outside_the_checkout(wheel, tmp_path):
     """A fresh environment with the wheel and its dependencies alone (no extra: no plotting, no FLIP,
     no Ray): a frame renders from outside the checkout, and the service starts and answers."""
-    python, env = _fresh_env(wheel, tmp_path, _project()["dependencies"])
+    python, env = _fresh_env(tmp_path, _project()["dependencies"])
+    _install(python, wheel)
     work = tmp_path / "elsewhere"
     work.mkdir()
-    assert _absent(python, env, work, ("matplotlib", "flip_evaluator", "ray", "httpx", "pytest")) == []
+    assert _absent(python, env, work, ("matplotlib", "flip_evaluator", "ray", "pytest")) == []
+    assert _absent(python, env, work, ("garment_render_client",)) == ["garment_render_client"]   # the client too
     where = subprocess.run([str(python), "-c", "import renderer, renderer.gpu.shaders as s; print(renderer.__file__); "
                             "print(s.SHADER_DIR)"], check=True, capture_output=True, text=True, cwd=work,
                            env=env).stdout.split()
@@ -166,26 +202,50 @@ def test_the_wheel_without_extras_renders_and_serves_outside_the_checkout(wheel,
         server.wait(timeout=30)
 
 
+@pytest.fixture(scope="module")
+def client_wheel(tmp_path_factory) -> Path:
+    """The client's own wheel, built from a copy of client/ (as `wheel` is)."""
+    src = tmp_path_factory.mktemp("client-src") / "client"
+    shutil.copytree(CLIENT, src, ignore=shutil.ignore_patterns("build", "dist", "__pycache__", "*.egg-info"))
+    out = tmp_path_factory.mktemp("client-wheel")
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(out),
+                    str(src)], check=True, cwd=out, timeout=300)
+    (whl,) = out.glob("garment_render_client-*.whl")
+    return whl
+
+
 @pytest.mark.system
-def test_the_client_extra_sends_frames_without_gl_or_the_server(wheel, tmp_path):
-    """A simulator's machine: a fresh environment that holds the wheel and the client extra's
-    dependencies (httpx, numpy, Pillow for `Frame.pil`) and nothing else, so that an import of GL,
-    of the renderer or of the server's libraries fails there; the README's client example runs in it,
-    as written, against a real service."""
-    python, env = _fresh_env(wheel, tmp_path / "client", _project()["optional-dependencies"]["client"])
-    assert _absent(python, env, tmp_path, ("moderngl", "fastapi", "trimesh", "OpenEXR")) == []
+def test_the_client_installs_alone_in_seconds_and_sends_frames_to_a_real_service(client_wheel, tmp_path):
+    """A simulator's machine: a fresh environment that gets the client's wheel with its `pil` extra, pip
+    resolving its requirements against numpy, httpx and Pillow alone (no index), so that a requirement
+    of anything else fails the install; GL, the server's libraries and our other packages cannot be
+    imported there, the wheel puts one top-level package into site-packages, and the README's client
+    example runs in it, as written, against a real service."""
+    tops = {name.split("/")[0] for name in zipfile.ZipFile(client_wheel).namelist()}
+    assert {t for t in tops if not t.endswith(".dist-info")} == {"garment_render_client"}, tops
+
+    python, env = _fresh_env(tmp_path / "client", ["numpy", "httpx", "pillow"])
+    install_s = _install(python, f"{client_wheel}[pil]", resolve=True)
+    assert install_s < 30, f"pip took {install_s:.0f} s to install the client"
+    assert _absent(python, env, tmp_path, NOT_THE_CLIENT_S) == []
+    installed = subprocess.run([str(python), "-c", "import importlib.metadata as m; print(sorted({f.parts[0] for f in "
+                                "m.distribution('garment-render-client').files}))"], check=True, capture_output=True,
+                               text=True, cwd=tmp_path, env=env).stdout
+    assert [t for t in json.loads(installed.replace("'", '"')) if not t.endswith(".dist-info")] == \
+        ["garment_render_client"]
 
     from service_server import ServiceProcess
     from test_readme import _block, write_example_files
 
+    code = _block("RenderClient")
+    assert code == re.findall(r"```python\n(.*?)```", (CLIENT / "README.md").read_text(), re.S)[0]   # one example
     work = tmp_path / "simulator"
     work.mkdir()
     write_example_files(work)
     server = ServiceProcess(tmp_path)
     try:
-        code = _block("RenderClient").replace("http://127.0.0.1:8000", server.url)
-        done = subprocess.run([str(python), "-c", code], capture_output=True, text=True, cwd=work, env=env,
-                              timeout=300)
+        done = subprocess.run([str(python), "-c", code.replace("http://127.0.0.1:8000", server.url)],
+                              capture_output=True, text=True, cwd=work, env=env, timeout=300)
     finally:
         server.stop()
     assert done.returncode == 0, done.stderr[-2000:]

@@ -22,7 +22,7 @@ from service_server import ServiceProcess, garment, scene_body, upload_environme
 
 ray = pytest.importorskip("ray", reason="Ray is an optional extra (pip install .[ray]; scripts/setup.sh installs it)")
 
-from service.client import RenderClient  # noqa: E402
+from garment_render_client import RenderClient  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -591,7 +591,7 @@ def test_metrics_expose_frames_stages_queue_and_cache(http, scene, mesh):
 
 
 def test_python_client(server, env_upload, mesh):
-    from service.client import RenderClient, ServiceError
+    from garment_render_client import RenderClient, ServiceError
 
     with RenderClient(server.url) as c:
         sc = c.create_scene(env_upload[0]["id"], positions=mesh.positions, faces=mesh.faces,
@@ -667,7 +667,7 @@ def test_full_queue_answers_503_with_retry_after(tmp_path):
         assert busy.json()["code"] == "queue_full" and "queue is full" in busy.json()["detail"]
 
         # A client that retries on 503 gets every frame exactly once.
-        from service.client import RenderClient
+        from garment_render_client import RenderClient
 
         got: dict[int, int] = {}
 

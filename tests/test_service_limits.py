@@ -226,7 +226,7 @@ def test_the_client_sends_again_a_request_whose_connection_failed_before_an_answ
     import socket
     import threading
 
-    from service.client import RenderClient
+    from garment_render_client import RenderClient
 
     listener = socket.create_server(("127.0.0.1", 0))
     port = listener.getsockname()[1]
@@ -281,7 +281,7 @@ def test_the_client_sends_again_a_proxys_own_error_but_not_a_lost_registration()
     """A 5xx whose body is not the service's JSON (a proxy in front of it, e.g. Ray Serve's when its
     ingress went) is as if no answer came: sent again. A scale-out replica lost while it held a scene's
     registration (503 replica_lost) is not sent again: it may have been stored."""
-    from service.client import RenderClient, ServiceError
+    from garment_render_client import RenderClient, ServiceError
 
     port, seen, thread = _answering([("500 Internal Server Error", "text/plain", b"Internal Server Error"),
                                      ("200 OK", "application/json", b'{"status": "ok"}')])

@@ -10,8 +10,8 @@ import pytest
 from conftest import asset
 from service_server import FAST_QUALITY, ServiceProcess
 
+from garment_render_client import RenderClient
 from renderer.camera import Camera
-from service.client import RenderClient
 from simulation import BodyProxy, ClothSettings, ClothSim, mannequin, sheet, sphere
 from simulation.feed import FRONT, DrapeFeed, View, upload_studio_environment
 

@@ -174,9 +174,9 @@ def _stream(tmp_path, path, **kw):
     preset): each frame's (scene id, index, answer), and the scene's details."""
     from service_server import ServiceProcess
 
+    from garment_render_client import RenderClient
     from renderer.envmap.io import write_exr
     from renderer.envmap.procedural import studio_environment
-    from service.client import RenderClient
 
     write_exr(tmp_path / "studio.exr", studio_environment(64))
     server = ServiceProcess(tmp_path)

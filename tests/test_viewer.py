@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from service_server import FAST_QUALITY, ROOT, ServiceProcess, free_port
 
-from service.client import RenderClient, ServiceError
+from garment_render_client import RenderClient, ServiceError
 from simulation import ClothSettings, ClothSim, mannequin, sheet
 from simulation.feed import DrapeFeed, upload_studio_environment
 

@@ -1,7 +1,7 @@
 """A Python client for simulators: upload an environment map, register a scene, then send each
 simulation frame's positions (numpy in) and get the image (numpy or PIL out) with its timings.
 
-    from service.client import RenderClient
+    from garment_render_client import RenderClient
     with RenderClient("http://127.0.0.1:8000", token=None) as c:
         env = c.upload_environment("studio.exr")
         scene = c.create_scene(env["id"], faces=faces, positions=p0, up="z",
@@ -18,6 +18,10 @@ reset), or answered by a proxy in front of the service (a 5xx that is not the se
 retried up to `max_transport_retries` times for every request but a scene's registration,
 which is not idempotent (a retry could register it twice). Other errors raise `ServiceError` with the
 service's message.
+
+It needs numpy and httpx alone; `FrameResult.pil()` needs Pillow (the `pil` extra), `.array()` of an EXR
+frame OpenEXR (the `exr` extra), and `stream_usd` the renderer's USD reader (the server's package,
+garment-render, which includes this client).
 """
 
 from __future__ import annotations
@@ -75,8 +79,10 @@ class FrameResult:
 
     def pil(self):
         """A PIL image (PNG frames only)."""
-        from PIL import Image
-
+        try:
+            from PIL import Image
+        except ImportError as e:
+            raise ImportError('FrameResult.pil() needs Pillow: pip install "garment-render-client[pil]"') from e
         if self.media_type != "image/png":
             raise ValueError(f"pil() needs a PNG frame, this one is {self.media_type}")
         return Image.open(io.BytesIO(self.content))
@@ -84,8 +90,11 @@ class FrameResult:
     def array(self) -> np.ndarray:
         """PNG: uint8 (H, W, 3) sRGB, or (H, W, 4) with coverage alpha. EXR: float32 (H, W, 4) linear RGBA."""
         if self.media_type == "image/x-exr":
-            import OpenEXR
-
+            try:
+                import OpenEXR
+            except ImportError as e:
+                raise ImportError('FrameResult.array() of an EXR frame needs OpenEXR: '
+                                  'pip install "garment-render-client[exr]"') from e
             f = OpenEXR.File(io.BytesIO(self.content))
             ch = f.channels()
             if "RGBA" in ch:
@@ -303,8 +312,13 @@ class RenderClient:
         they have frames (renderer/usd.py reads them in Y-up metres from the stage's metadata, times
         `scale`). Registers the scene with the first frame, then sends every frame; yields (scene id,
         frame index, FrameResult). kw: camera, quality, output, name (`scene_spec`)."""
-        from renderer.mesh import concatenate
-        from renderer.sequence import read_usd_sequence
+        try:
+            from renderer.mesh import concatenate
+            from renderer.sequence import read_usd_sequence
+        except ImportError as e:
+            raise ImportError("stream_usd reads the stage with the renderer's USD reader, which comes with the "
+                              "server's package (garment-render); without it, read the stage yourself and send "
+                              "each frame with send_frame") from e
 
         seq = read_usd_sequence(path, scale, garment)
         body, body_frames = None, None
