@@ -4,13 +4,15 @@ the limit (GARMENT_RENDER_MAX_REQUEST_BYTES, GARMENT_RENDER_MAX_REQUEST_S), the 
 was made.
 
 Memory, bytes a pixel of each image (the renderer's readback is float32 RGBA: `READBACK_BPP`):
-- views as a sheet: every image's readback, the sheet made of them (as much again), its 8-bit pixels
-  and the PNG (at most as many bytes as the pixels): 16 + 16 + 4 + 4;
-- views as a zip: the readbacks and the PNGs: 16 + 4;
+- views: every image's readback, which the encoding lets go one by one, making an 8-bit tile of each
+  (a sheet: the tiles, the sheet of them, its labelled copy and its PNG's rows, 4 bytes a pixel each
+  at most) or a PNG (a zip: at most 4): `SHEET_BPP`, `ZIP_VIEWS_BPP`;
 - a batch: `BATCH_FRAMES_AHEAD` readbacks at a time (each with the tone-mapped copy its encoding
-  makes), and every frame's encoded image kept for the answer: an uncompressed PNG's 4 bytes a pixel
-  or an EXR's 16 at most, held twice in a zip (the archive and its bytes), in JSON three times over
-  as base64 (the frames' payloads, the JSON text and its bytes).
+  makes), and every frame's encoded image kept for the answer, held twice in a zip (the archive and
+  its bytes), in JSON three times over as base64 (the frames' payloads, the JSON text and its bytes).
+  An encoded image's size is the scene's own: `ENCODED_MARGIN` x the median of its latest frames'
+  bytes a pixel in that format; before it has any, the most it could be (an uncompressed PNG's 4 bytes
+  a pixel, an EXR's 16).
 Time: the images x the GL time of one image of this scene (the median of its latest frames), else
 of this process's frames by their pixels, else GARMENT_RENDER_FRAME_NS_PER_PIXEL before it has timed
 any (the worker's steps let other scenes' frames through meanwhile: a long request is bounded, not
@@ -29,9 +31,10 @@ from .registry import SceneRecord
 from .settings import ServiceSettings
 
 READBACK_BPP = 16          # float32 RGBA
-SHEET_BPP = 16 + 16 + 4 + 4
-ZIP_VIEWS_BPP = 16 + 4
-ENCODED_BPP = {"png": 4, "exr": 16}
+SHEET_BPP = READBACK_BPP + 4 * 4
+ZIP_VIEWS_BPP = READBACK_BPP + 4
+ENCODED_BPP = {"png": 4, "exr": 16}   # the most an encoded image takes, a pixel
+ENCODED_MARGIN = 1.25                  # over a scene's measured size: frames of a sequence differ a little
 KEPT_COPIES = {"zip": 2, "json": 3 * 4 / 3}
 
 
@@ -42,6 +45,10 @@ class RequestCost:
     held_bytes: int      # host memory held at once, at most
     gl_s: float          # the GL thread's time, estimated
     rate_from: str       # where the time a pixel came from
+
+    def header(self) -> str:
+        """What the answer says of the estimate it was admitted on (`X-Request-Estimate`)."""
+        return f"held_bytes={self.held_bytes}; gl_s={self.gl_s:.3f}"
 
     def check(self, settings: ServiceSettings) -> None:
         """413 naming the limit when this request is over one, before any of its work."""
@@ -76,6 +83,17 @@ class FrameRates:
         with self._lock:
             scene.gl_ms_recent.append(per_image)
             self._ns_per_pixel.append(per_image * 1e6 / _pixels(scene))
+
+    def note_encoded(self, scene: SceneRecord, nbytes: int, kind: str) -> None:
+        """A frame of `scene` encoded as `kind` ("png" or "exr") took `nbytes`."""
+        with self._lock:
+            scene.encoded_bpp_recent.setdefault(kind, deque(maxlen=8)).append(nbytes / _pixels(scene))
+
+    def encoded_bpp(self, scene: SceneRecord, kind: str) -> float:
+        """The bytes a pixel an encoded frame of `scene` is estimated to take (module doc)."""
+        with self._lock:
+            seen = list(scene.encoded_bpp_recent.get(kind, ()))
+        return min(ENCODED_BPP[kind], ENCODED_MARGIN * statistics.median(seen)) if seen else ENCODED_BPP[kind]
 
     def image_s(self, scene: SceneRecord, settings: ServiceSettings) -> tuple[float, str]:
         """The GL seconds one image of `scene` takes and where that figure came from."""
@@ -113,7 +131,7 @@ def batch_cost(scene: SceneRecord, n_frames: int, answer: str, image: str, frame
                settings: ServiceSettings) -> RequestCost:
     """answer: "zip" or "json"; image: "png" or "exr"."""
     px = _pixels(scene)
-    kept = n_frames * px * ENCODED_BPP[image] * KEPT_COPIES[answer]
+    kept = n_frames * px * rates.encoded_bpp(scene, image) * KEPT_COPIES[answer]
     in_flight = min(frames_ahead, n_frames) * px * 2 * READBACK_BPP
     each_s, rate_from = rates.image_s(scene, settings)
     return RequestCost(f"a batch of {n_frames} frames of {_size(scene)}", n_frames, int(kept + in_flight),

@@ -264,16 +264,24 @@ class LatestFrame:
     """The last frame of a scene, kept for the viewer (GET /scenes/{id}/latest.png, /view).
 
     image: the linear render, float32 (H, W, 4), not copied (a frame's array is not written after
-    it is rendered); png: its PNG when the frame was asked for as PNG, else made on the first request
-    for it and kept, so a frame is encoded for the viewer at most once, and only when someone looks."""
+    it is rendered), or None where its PNG is all there is (a sheet of views); png: its PNG when the
+    frame was asked for as PNG, else made on the first request for it and kept, so a frame is encoded
+    for the viewer at most once, and only when someone looks. size: (height, width)."""
 
     frame_index: int
     sequence: int
-    image: np.ndarray
+    image: np.ndarray | None
     timings_ms: dict
     exposure_ev: float | None
     received: float = field(default_factory=time.time)
     png: bytes | None = None
+    size: tuple[int, int] = (0, 0)
+
+    def __post_init__(self):
+        if self.image is not None:
+            self.size = tuple(self.image.shape[:2])
+        elif self.png is None:
+            raise ValueError("a latest frame needs its image or its PNG")
 
 
 @dataclass
@@ -299,6 +307,8 @@ class SceneRecord:
     frames_rendered: int = 0
     # The GL time (ms) of one image of this scene in its latest frames (budgets.FrameRates).
     gl_ms_recent: deque = field(default_factory=lambda: deque(maxlen=8), repr=False)
+    # The bytes a pixel of its latest encoded frames, by format ("png", "exr"; budgets.FrameRates).
+    encoded_bpp_recent: dict = field(default_factory=dict, repr=False)
     # The count of every process that renders this scene (StateDir.count_frames), where there is one.
     frame_counter: Callable[[int], int] | None = field(default=None, repr=False)
     created: float = field(default_factory=time.time)

@@ -566,9 +566,10 @@ def test_service_and_cache_survive_bad_input(http, server, scene, mesh):
     assert post_frame(http, scene["id"], mesh.positions).status_code == 200
     stats = http.get("/stats").json()
     assert stats["pem_cache"]["disk_errors"] == 0
-    cache_dir = stats["pem_cache"]["disk_dir"]
     from pathlib import Path
 
+    cache_dir = server.log_path.parent / "pem-cache"   # the fixture's (/stats names it only behind a token)
+    assert stats["pem_cache"]["disk_dir"] != str(cache_dir)
     files = sorted(p.name for p in Path(cache_dir).iterdir())
     assert files and all(f.endswith(".npz") for f in files)  # no half-written entries
     for f in Path(cache_dir).iterdir():

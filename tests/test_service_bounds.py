@@ -156,7 +156,7 @@ def bounded_http(bounded):
 
 
 @pytest.mark.parametrize("size, route, params, words", [
-    (1024, "views", {"turntable": 64}, ["64 views x 1 colourways of 1024 x 1024", "GARMENT_RENDER_MAX_REQUEST_BYTES"]),
+    (2048, "views", {"turntable": 64}, ["64 views x 1 colourways of 2048 x 2048", "GARMENT_RENDER_MAX_REQUEST_BYTES"]),
     (4096, "views", {"views": "front,back,left,right,front,back,left,right"},
      ["8 views", "4096 x 4096", "GARMENT_RENDER_MAX_REQUEST_BYTES"]),
     (4096, "batch", {"frames": 20}, ["batch of 20 frames of 4096 x 4096", "GARMENT_RENDER_MAX_REQUEST_BYTES"]),

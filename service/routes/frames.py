@@ -54,7 +54,6 @@ from ..deps import OCTET_STREAM, MetricsDep, ServicesDep, SettingsDep, WorkerDep
 from ..errors import ClientGoneError, InvalidRequestError, PayloadTooLargeError, RenderTimeoutError
 from ..operations import find_environment, find_scene
 from ..pipeline import (
-    Encoded,
     encode_async,
     frame_payload,
     frame_response,
@@ -65,6 +64,7 @@ from ..pipeline import (
     server_timing,
     views_job,
 )
+from ..registry import LatestFrame
 from ..schemas import BatchFormat, EmbeddedImageFormat, ImageFormat, SceneCreate, ViewsFormat
 from ..specs import prepare_scene
 from ..worker import GLResources
@@ -112,6 +112,7 @@ async def post_frame(
     worker.rates.note(scene, result.run_ms, 1)
     sequence = scene.count_frames()
     enc = await encode_async(frame, fmt, scene.output, exposure, settings.png_compress_level, json_image)
+    worker.rates.note_encoded(scene, len(enc.content), "exr" if enc.media_type == "image/x-exr" else "png")
     timings = frame_timings(frame, arrays.decode_ms, arrays.normals_ms, result.queue_ms, result.run_ms,
                             enc.encode_ms, t_start)
     metrics.observe_frame("frames", fmt.value, timings)
@@ -154,7 +155,8 @@ async def post_batch(
     if n_frames > settings.max_batch_frames:
         raise PayloadTooLargeError(f"batch of {n_frames} frames exceeds the limit {settings.max_batch_frames} "
                                    "(GARMENT_RENDER_MAX_BATCH_FRAMES); split it")
-    batch_cost(scene, n_frames, format.value, json_image.value, BATCH_FRAMES_AHEAD, worker.rates, settings).check(settings)
+    cost = batch_cost(scene, n_frames, format.value, json_image.value, BATCH_FRAMES_AHEAD, worker.rates, settings)
+    cost.check(settings)
     view = memoryview(body)
 
     def decode_all() -> list[FrameArrays]:
@@ -222,6 +224,7 @@ async def post_batch(
                 t_frame = time.perf_counter()
                 enc = await encode_async(frame, ImageFormat.JSON if zf is None else json_image, scene.output,
                                          exposure, settings.png_compress_level, json_image)
+                worker.rates.note_encoded(scene, len(enc.content), "exr" if enc.media_type == "image/x-exr" else "png")
                 arrays = frames_in[i]
                 timings = frame_timings(frame, arrays.decode_ms, arrays.normals_ms, max(queue_ms, 0.0), job_ms,
                                         enc.encode_ms, t_frame)
@@ -243,7 +246,8 @@ async def post_batch(
         submitted.stop.set()
     totals["total"] = (time.perf_counter() - t_start) * 1e3
     totals = {k: round(v, 3) for k, v in totals.items()}
-    headers = {"Server-Timing": server_timing(totals), "X-Frame-Count": str(n_frames), "Cache-Control": "no-store"}
+    headers = {"Server-Timing": server_timing(totals), "X-Frame-Count": str(n_frames), "Cache-Control": "no-store",
+               "X-Request-Estimate": cost.header()}
     if zf is not None:
         zf.writestr("timings.json", json.dumps({"scene_id": scene.id, "frames": results, "timings_ms": totals}))
         zf.close()
@@ -282,7 +286,8 @@ async def post_views(
     if len(cameras) * n_variants > settings.max_views:
         raise PayloadTooLargeError(f"{len(cameras)} views x {n_variants} colourways = {len(cameras) * n_variants} "
                                    f"images exceeds the limit {settings.max_views} (GARMENT_RENDER_MAX_VIEWS)")
-    views_cost(scene, len(cameras), n_variants, format is ViewsFormat.SHEET, worker.rates, settings).check(settings)
+    cost = views_cost(scene, len(cameras), n_variants, format is ViewsFormat.SHEET, worker.rates, settings)
+    cost.check(settings)
     blocks = parse_layout(x_frame_layout or layout, scene)
     body = await raw_body(request, (OCTET_STREAM,), "a frame of vertex positions")
     arrays = await anyio.to_thread.run_sync(decode_frame, body, blocks, scene, not worker.normals_on_gpu)
@@ -292,33 +297,45 @@ async def post_views(
     frames, source = result.value
     worker.rates.note(scene, result.run_ms, len(frames))
     sequence = scene.count_frames()
+    # Each image is let go once encoded (encode_all): a request holds its readbacks, not copies of them.
+    images: list[np.ndarray | None] = [f.image for f in frames]
+    tile_hw = images[0].shape[:2]
+    frames = [Frame(None, f.timings, f.settings) for f in frames]
 
     columns = sheet_columns(len(frames), n_variants)
     opaque = scene.output.get("background", "env") == "env"
     tone = scene.output.get("tone", DEFAULT_CURVE.value)
 
-    def encode_all() -> tuple[bytes, np.ndarray | None, float]:
+    def encoded_one_by_one(ev: float, encode):
+        for k in range(len(images)):
+            image, images[k] = images[k], None
+            yield encode(image, ev)
+
+    def encode_all() -> tuple[bytes, float, tuple[int, int] | None]:
         # One exposure for every image (the first view's, when the scene names none): views compare.
         ev = exposure if exposure is not None else scene.output.get("exposure_ev")
-        ev = frame_exposure_ev(frames[0].image) if ev is None else float(ev)
+        ev = frame_exposure_ev(images[0]) if ev is None else float(ev)
         meta = [{"view": k // n_variants, "colourway": k % n_variants, "camera": f.settings["camera"],
                  "timings_ms": {k2: round(float(v), 3) for k2, v in f.timings["wall_ms"].items()}}
                 for k, f in enumerate(frames)]
-        if format is ViewsFormat.SHEET:
-            sheet = contact_sheet([f.image for f in frames], columns)
+        if format is ViewsFormat.SHEET:   # 8-bit tiles into an 8-bit sheet: no sheet of floats
+            tiles = list(encoded_one_by_one(ev, lambda im, ev: encode_pixels(im, ev, tone, opaque)))
+            sheet = contact_sheet(tiles, columns)
+            del tiles
             labels = view_labels(len(cameras), names, ["garment"] + [f"colourway {k}" for k in range(1, n_variants)])
-            pixels = label_tiles(encode_pixels(sheet, ev, tone, opaque), labels, frames[0].image.shape[:2], columns)
-            return png_bytes(pixels, settings.png_compress_level), sheet, ev
+            pixels = label_tiles(sheet, labels, tile_hw, columns)
+            del sheet
+            return png_bytes(pixels, settings.png_compress_level), ev, pixels.shape[:2]
         buf = io.BytesIO()
         with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as zf:
-            for m, f in zip(meta, frames):
-                png, _ = encode_png(f.image, ev, tone, opaque, settings.png_compress_level)
+            pngs = encoded_one_by_one(ev, lambda im, ev: encode_png(im, ev, tone, opaque, settings.png_compress_level)[0])
+            for m, png in zip(meta, pngs):
                 zf.writestr(f"view_{m['view']:02d}_c{m['colourway']}.png", png)
             zf.writestr("timings.json", json.dumps({"scene_id": scene.id, "exposure_ev": ev, "images": meta}))
-        return buf.getvalue(), None, ev
+        return buf.getvalue(), ev, None
 
     t_enc = time.perf_counter()
-    content, sheet, ev = await anyio.to_thread.run_sync(encode_all)
+    content, ev, sheet_size = await anyio.to_thread.run_sync(encode_all)
     encode_ms = (time.perf_counter() - t_enc) * 1e3
     timings = frame_timings(frames[0], arrays.decode_ms, arrays.normals_ms, result.queue_ms, result.run_ms,
                             encode_ms, t_start)
@@ -326,11 +343,11 @@ async def post_views(
     metrics.observe_frame("views", format.value, timings)
     index = x_frame_index if x_frame_index is not None else sequence - 1
     media = "image/png" if format is ViewsFormat.SHEET else "application/zip"
-    if sheet is not None:   # the viewer shows the sheet: the views side by side
-        keep_latest(scene, index, sequence, Frame(sheet, frames[0].timings, frames[0].settings),
-                    Encoded(content, media, ev, encode_ms), timings)
+    if sheet_size is not None:   # the viewer shows the sheet (its PNG: the views side by side)
+        scene.keep_latest(LatestFrame(index, sequence, None, timings, ev, png=content, size=sheet_size))
     headers = {"Server-Timing": server_timing(timings), "X-Frame-Index": str(index), "X-Frame-Sequence": str(sequence),
                "X-Views": str(len(cameras)), "X-Colourways": str(n_variants), "X-PEM-Source": source,
+               "X-Request-Estimate": cost.header(),
                "Cache-Control": "no-store"}
     return Response(content, media_type=media, headers=headers)
 

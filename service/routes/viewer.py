@@ -43,7 +43,7 @@ def latest_info(rec: SceneRecord) -> dict:
     frame = rec.latest
     info: dict = {"scene_id": rec.id, "name": rec.name, "frames_rendered": rec.count_frames(0), "frame": None}
     if frame is not None:
-        h, w = frame.image.shape[:2]
+        h, w = frame.size
         rate = rec.frame_rate_hz()
         info["frame"] = {
             "frame_index": frame.frame_index, "sequence": frame.sequence, "width": w, "height": h,
