@@ -27,11 +27,17 @@ sends it on to a render replica through a handle. What Ray adds:
   named Ray actor (MetricsBoard) every REPORT_EVERY_S, and `/metrics`, on whichever replica answers
   it, is every live replica's series, labelled `replica`, plus `garment_render_replicas_reporting`.
   A replica silent for STALE_AFTER_S has gone and drops out.
+- **Two ingress replicas** (INGRESS_REPLICAS): Serve's proxy sends new requests to the one left when
+  the other dies, so losing one costs the requests it held (Serve's proxy answers them with its own
+  plain-text 500, which the client sends again: `garment_render_client`), not an outage while Serve
+  starts another.
 - **A local instance keeps to the loopback.** `garment-render serve --ray` without an address starts
   Ray with the node's address at 127.0.0.1 (RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0, set before Ray is
   imported), so the GCS, the raylet, the workers and the agents listen there alone. Serve's proxy
-  binds `--host`; each Serve replica's inter-deployment gRPC server binds every interface (Ray Serve
-  names no setting for it) behind Ray's token authentication.
+  binds `--host`. Each Serve replica's inter-deployment gRPC server, which Ray Serve binds to every
+  interface with no setting for it, binds the node's address instead, as Ray's own servers do
+  (`_bind_replica_grpc_to_node`: the loopback for a local instance, the node's one address on a
+  cluster).
 - **GPUs**: with `--gpus-per-replica 1` each replica gets one GPU from Ray (GARMENT_RENDER_GPU), and
   renders on the EGL device that reports that GPU's CUDA ordinal (renderer/gpu/egl_devices.py), not on
   the first device nor on the EGL device of the GPU's number: EGL's order need not be CUDA's.
@@ -66,12 +72,14 @@ from .logs import ray_address_note
 
 # /scenes/{id}... : the scene a request is for.
 SCENE_PATH = re.compile(r"^/scenes/(scn_[0-9a-f]+)(?:/|$)")
-# The client's header naming the scene a request is for (service.client sends it; Serve's routing key).
+# The client's header naming the scene a request is for (garment_render_client sends it; Serve's routing key).
 MODEL_ID_HEADER = "serve_multiplexed_model_id"
 # How long the ingress keeps sending a request whose replica went, and how many requests the ingress and
 # a replica hold at once (a replica's own bounded queue answers 503 before Serve's limit is reached: the
 # ring's strict affinity never sends a scene's request to another replica for being busy).
 RETRY_FOR_S, INGRESS_MAX_ONGOING, REPLICA_MAX_ONGOING = 60.0, 1000, 256
+# Ingress replicas: one left to take the requests while Serve replaces one that died.
+INGRESS_REPLICAS = 2
 # Scenes a replica holds for the router (each keeps its GPU buffers); the least recently used go first.
 SCENES_PER_REPLICA = 16
 # The replicas' metrics: one named actor they report to, how often, and when a silent one has gone.
@@ -80,6 +88,38 @@ REPORT_EVERY_S, STALE_AFTER_S = 1.0, 5.0
 
 # Ray Serve's wait for its HTTP proxy to be ready (seconds, its default 5), for a local instance.
 PROXY_READY_SWITCH, PROXY_READY_S = "RAY_SERVE_PROXY_READY_CHECK_TIMEOUT_S", 30.0
+
+
+def _bind_replica_grpc_to_node() -> None:
+    """Make each Serve replica of this process bind its inter-deployment gRPC server to the node's
+    address, not to every interface: Ray Serve binds it to "[::]:0" (serve/_private/replica.py) with
+    no setting for it. Runs where this module is imported, which a replica of this deployment does
+    before Serve starts that server. A Ray without that helper is left as it is."""
+    from ray.serve._private import replica as serve_replica
+
+    bind = getattr(serve_replica, "add_port_to_grpc_server", None)
+    if bind is None or getattr(bind, "binds_node_address", False):
+        return
+
+    def bind_node_address(server, address: str):
+        if address.startswith("[::]:"):
+            node = _node_address()
+            address = (f"[{node}]" if ":" in node else node) + address[4:]
+        return bind(server, address)
+
+    bind_node_address.binds_node_address = True
+    serve_replica.add_port_to_grpc_server = bind_node_address
+
+
+def _node_address() -> str:
+    """The address Ray knows this worker's node by (its raylet's), else the one Ray would pick."""
+    try:
+        return ray._private.worker.global_worker.node_ip_address
+    except Exception:   # not connected to Ray (yet)
+        return ray.util.get_node_ip_address()
+
+
+_bind_replica_grpc_to_node()
 
 
 @ray.remote(num_cpus=0)
@@ -328,7 +368,7 @@ def _replica_name() -> str:
 def application(replicas: int = 2, settings: dict | None = None, gpus_per_replica: float = 0.0):
     """The Serve application: `replicas` copies of the service (settings: ServiceSettings fields)."""
     options = {"num_replicas": replicas, "ray_actor_options": {"num_cpus": 0, "num_gpus": gpus_per_replica}}
-    return Ingress.bind(RenderReplica.options(**options).bind(settings))
+    return Ingress.options(num_replicas=INGRESS_REPLICAS).bind(RenderReplica.options(**options).bind(settings))
 
 
 def app_builder(args: dict):

@@ -117,11 +117,87 @@ def test_a_local_instance_listens_on_the_loopback_alone(cluster):
     port = int(cluster["url"].rsplit(":", 1)[1])
     assert any(p == port for _, p, _ in listening), listening   # the proxy's port is seen: the check reads
     assert len({pid for _, _, pid in listening}) >= 4, listening   # GCS, raylet, workers, not the driver alone
-    # What listens beyond the loopback is Serve's own: each replica's inter-deployment gRPC server, which
-    # Ray Serve binds to [::] with no setting (serve/_private/replica.py) and guards with Ray's token.
+    # Each Serve replica's inter-deployment gRPC server too, which Ray Serve binds to [::] with no
+    # setting for it (service/ray_serve.py binds it to the node's address: here the loopback).
+    replicas = [(a, p) for a, p, pid in listening if Path(f"/proc/{pid}/comm").read_text().startswith("ray::ServeRepl")]
+    assert len(replicas) >= 4, listening   # two ingress and two render replicas
     wide = [(a, p, Path(f"/proc/{pid}/comm").read_text().strip()) for a, p, pid in listening if not _loopback(a)]
-    assert {name for _, _, name in wide} <= {"ray::ServeRepli"}, wide
-    assert len(wide) <= 3, wide   # one a replica: the ingress and the two render replicas
+    assert wide == [], wide
+
+
+def _readme_block(path: Path, marker: str) -> str:
+    text = path.read_text()
+    start = text.index("```sh\n", text.index(marker)) + len("```sh\n")
+    return text[start:text.index("```", start)]
+
+
+@pytest.mark.system
+def test_the_service_readmes_recipe_reaches_this_ray_instance(cluster):
+    """service/README.md's lines for reaching the instance `serve --ray` started, run as written (its
+    address put in), from an environment that names no Ray variable of its own."""
+    block = _readme_block(ROOT / "service" / "README.md", "another process on the")
+    command = block.replace("HOST:PORT", cluster["env"]["RAY_ADDRESS"]).replace(".venv/bin/python", sys.executable)
+    env = {k: v for k, v in cluster["env"].items() if not k.startswith("RAY_") or k == "RAY_TMPDIR"}
+    r = subprocess.run(["bash", "-c", command], env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    names = r.stdout.split()
+    assert sum(n.startswith("SERVE_REPLICA::garment-render#garment-render#") for n in names) == 2, names
+    assert sum(n.startswith("SERVE_REPLICA::garment-render#garment-render-ingress#") for n in names) == 2, names
+
+
+@pytest.mark.system
+def test_an_ingress_replica_killed_costs_no_outage(cluster, tmp_path):
+    """One of the two ingress replicas killed while a simulator sends frames: every frame is answered
+    200 (the client sends again the one Serve's proxy answered with its own 500, if any), and none waits
+    for Serve to bring the ingress back; a plain request right after the kill is answered at once."""
+    mesh = garment(16)
+    names = []
+    deadline = time.monotonic() + 120
+    while len(names) != 2:   # both ingress replicas up (an earlier test's kill may be coming back)
+        code = ("import ray; ray.init(address='auto', logging_level='ERROR'); "
+                "print(*[a['name'] for a in ray.util.list_named_actors(True) "
+                "if a['name'].startswith('SERVE_REPLICA::garment-render#garment-render-ingress#')])")
+        r = subprocess.run([sys.executable, "-c", code], env=cluster["env"], capture_output=True, text=True,
+                           timeout=120)
+        names = r.stdout.split()
+        assert time.monotonic() < deadline, (names, r.stderr[-1000:])
+    with httpx.Client(base_url=cluster["url"], timeout=120) as http:
+        env, _, _ = upload_environment(http, tmp_path, known=True)
+    killer = _Killer(cluster["env"], names[0])
+    gaps, failures, statuses, stop = [], [], [], threading.Event()
+    with RenderClient(cluster["url"], max_retries=50, max_retry_wait_s=0.5) as c:
+        s = c.create_scene(env["id"], positions=mesh.positions, faces=mesh.faces,
+                           **{k: v for k, v in scene_body(env["id"], mesh).items() if k in ("quality", "output")})
+        c.send_frame(s["id"], mesh.positions)
+
+        def simulator():
+            k = 0
+            while not stop.is_set():
+                t0 = time.perf_counter()
+                try:
+                    c.send_frame(s["id"], np.asarray(mesh.positions) + np.float32(0.001 * (k % 50)))
+                except Exception as exc:   # noqa: BLE001 - the test reports it
+                    failures.append(repr(exc))
+                    return
+                gaps.append(time.perf_counter() - t0)
+                k += 1
+
+        thread = threading.Thread(target=simulator)
+        thread.start()
+        try:
+            time.sleep(1.0)
+            killer.kill()
+            t0 = time.perf_counter()
+            with httpx.Client(base_url=cluster["url"], timeout=60) as http:
+                statuses = [http.get("/health/live").status_code for _ in range(5)]
+            first_s = time.perf_counter() - t0
+            time.sleep(3.0)
+        finally:
+            stop.set()
+            killer.close()
+            thread.join(timeout=120)
+    assert failures == [] and statuses == [200] * 5 and first_s < 2.0, (failures, statuses, first_s)
+    assert len(gaps) > 5 and max(gaps) < 3.0, f"a frame waited {max(gaps):.1f} s: {[round(g, 2) for g in gaps]}"
 
 
 @pytest.mark.system
