@@ -28,3 +28,14 @@ class ShaderError(RenderError, RuntimeError):
 class RenderStoppedError(RenderError):
     """A render of several images stopped between two of them because its caller asked it to
     (`Renderer.render_views`' `stop`): the request they were for is over."""
+
+
+class MaterialError(InvalidInputError):
+    """A material (a U3M fabric: its document, its archive or one of its images) cannot be read.
+    `file` names the file (a member of an archive as `archive.u3ma:member`), `field` the JSON path of
+    the field (`material.front.basecolor.texture.image.path`), `reason` what was wrong; the message
+    joins them."""
+
+    def __init__(self, reason: str, *, file: str | None = None, field: str | None = None):
+        self.reason, self.file, self.field = reason, file, field
+        super().__init__(": ".join(part for part in (file, field, reason) if part))
