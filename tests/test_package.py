@@ -85,6 +85,8 @@ def test_the_wheel_carries_every_shader_and_data_file(wheel):
     presets = {p.relative_to(ROOT).as_posix() for p in (ROOT / "renderer" / "presets").glob("*.toml")}
     assert len(presets) == 4 and presets <= names
     assert "renderer/data/default_scene.npz" in names   # the bundled default scene
+    u3m = {f"renderer/u3m/schema/{n}" for n in ("u3m_schema.json", "u3m_schema_version1.json", "LICENSE")}
+    assert u3m <= names, sorted(u3m - names)   # the U3M spec's schemas, with their licence (BSD-3)
     modules = {p.relative_to(ROOT).as_posix() for top in ("renderer", "service", "simulation")
                for p in (ROOT / top).rglob("*.py")}
     modules |= {p.relative_to(CLIENT).as_posix() for p in (CLIENT / "garment_render_client").rglob("*.py")}
