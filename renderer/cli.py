@@ -117,8 +117,13 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--sheen-roughness", type=float, default=0.5, help="pbr: sheen roughness in [0,1]")
     g.add_argument("--material", type=Path,
                    help="garment material from a TOML or JSON file of Material fields (model, albedo, metallic, "
-                        "roughness, sheen_colour, sheen_roughness, specular, glossiness), or a glTF/GLB file's "
-                        "material (metallic-roughness, its textures, KHR_materials_sheen); replaces the flags above")
+                        "roughness, sheen_colour, sheen_roughness, specular, glossiness), a glTF/GLB file's "
+                        "material (metallic-roughness, its textures, KHR_materials_sheen), or a U3M fabric (.u3m "
+                        "with its images, .u3ma; its textures at their physical size: docs/u3m.md); replaces the "
+                        "flags above")
+    g.add_argument("--uv-scale", type=_floats(2), metavar="SU,SV",
+                   help="metres of the garment a unit of its u and v span, for a U3M fabric's textures (default: "
+                        "measured on the mesh, its triangles' 3D size against their UV size)")
     g.add_argument("--body-albedo", type=_floats(3), default=(0.55, 0.5, 0.45), help="body diffuse reflectance r,g,b")
     g.add_argument("--camera-eye", type=_floats(3), help="camera position x,y,z (default: framing the scene from +Z)")
     g.add_argument("--camera-target", type=_floats(3), help="point the camera looks at x,y,z")
@@ -199,8 +204,9 @@ MATERIAL_FIELDS = ("model", "albedo", "specular", "glossiness", "metallic", "rou
                    "sheen_roughness")
 
 
-def garment_material(args):
-    """The garment's Material: from --material (a TOML or JSON table of MATERIAL_FIELDS) or the flags."""
+def garment_material(args, garment=None):
+    """The garment's Material: from --material (a TOML or JSON table of MATERIAL_FIELDS, a glTF file's,
+    a U3M fabric's on `garment`, the garment's Mesh) or the flags."""
     from .shading.gltf import material_from_gltf
     from .shading.material import Material
 
@@ -215,14 +221,35 @@ def garment_material(args):
             return Material(args.albedo, model="pbr", metallic=args.metallic, roughness=args.roughness,
                             sheen_colour=args.sheen_colour, sheen_roughness=args.sheen_roughness)
         return Material(args.albedo, args.specular, args.glossiness)
-    return material_file(path)
+    return material_file(path, garment, getattr(args, "uv_scale", None))
 
 
-def material_file(path: Path):
-    """A Material from a TOML or JSON table of MATERIAL_FIELDS, or from a glTF/GLB file's material."""
+def is_u3m(path: Path) -> bool:
+    """A U3M fabric: named so, or a zip archive (a .u3ma under another name)."""
+    if path.suffix.lower() in (".u3m", ".u3ma"):
+        return True
+    try:
+        with open(path, "rb") as f:
+            return f.read(4) == b"PK\x03\x04"
+    except OSError:
+        return False
+
+
+def material_file(path: Path, garment=None, uv_scale=None):
+    """A Material from a TOML or JSON table of MATERIAL_FIELDS, from a glTF/GLB file's material, or from
+    a U3M fabric on `garment` (its Mesh: the textures' physical size is measured on it, or `uv_scale`)."""
     from .shading.gltf import material_from_gltf
     from .shading.material import Material
 
+    if is_u3m(path):
+        from .u3m import load_u3m, material_from_u3m
+
+        if garment is None:   # pragma: no cover - every caller has the garment
+            raise InvalidInputError(f"'{path}': a U3M fabric needs the garment's mesh to place its textures")
+        material, warnings = material_from_u3m(load_u3m(path), garment, uv_scale=uv_scale)
+        for line in warnings:
+            print(f"garment-render: warning: {path.name}: {line}", file=sys.stderr)
+        return material
     if path.suffix.lower() in (".glb", ".gltf"):
         material = material_from_gltf(path)
         if material is None:
@@ -339,7 +366,6 @@ def load_scene_inputs(args, face_size: int):
     else:
         env = environment_from_array(_source_image(None), "latlong", face_size, name="studio (bundled)",
                                      cube_cache=cache_folder(args, "cubes"))
-    garment = garment_material(args)
     body = Material(args.body_albedo, 0.1, 0.3)
     if args.mesh:
         ups, scales = per_mesh(args.up, len(args.mesh), "--up"), per_mesh(args.mesh_scale, len(args.mesh), "--mesh-scale")
@@ -347,9 +373,10 @@ def load_scene_inputs(args, face_size: int):
                   for p, up, scale in zip(args.mesh, ups, scales)]
         for line in mesh_warnings(meshes, [Path(p).name for p in args.mesh]):
             print(f"garment-render: warning: {line}", file=sys.stderr)
+        garment = garment_material(args, meshes[0])
         return env, meshes, [garment] + [body] * (len(meshes) - 1), [True] * len(meshes)
     meshes, casters = default_scene()
-    return env, meshes, [garment, body, Material(*FLOOR_MATERIAL)], casters
+    return env, meshes, [garment_material(args, meshes[0]), body, Material(*FLOOR_MATERIAL)], casters
 
 
 def background_source(args, env):
@@ -467,7 +494,7 @@ def cmd_render(args) -> int:
     settings = frame_settings(args, q)
     camera = camera_from_args(args, [m for m, c in zip(meshes, casters) if c], w / h)   # a floor is not framed
     cameras = view_cameras(args, camera)
-    colourways = [material_file(path) for path in args.colourway]
+    colourways = [material_file(path, meshes[0], args.uv_scale) for path in args.colourway]
     bg_source = background_source(args, env)
     with Renderer() as r:
         check_budget_device(q, r)

@@ -15,7 +15,7 @@ from .gpu.context import GLContext
 from .gpu.contract import GeometryTexture, NormalsBuffer
 from .gpu.shaders import set_uniform
 from .mesh import FALLBACK_NORMAL, Mesh, box, box_corners, vertex_normals
-from .shading.material import Material, TextureSet
+from .shading.material import MAP_NAMES, Material, TextureSet
 from .shadows.proxy import shadow_faces
 
 # Shadow groups (Scene): each caster's moments go to its group's pair of the shadow maps; a receiver
@@ -369,6 +369,8 @@ class TexturePart:
         self.use_maps = (albedo_map is not None, gloss_map is not None, sheen_map is not None)
         # The normal map's scale of x and y; 0: no normal map.
         self.normal_scale = float(textures.normal_scale) if normal_map is not None else 0.0
+        # Each map's placement as gbuffer.frag's mat3x2 (column-major: the affine map's columns).
+        self.placements = {name: textures.placement(name).T.astype(np.float32).tobytes() for name in MAP_NAMES}
         self.ibo = ibo   # owned here unless it is the mesh's own (one part)
         self.n_faces = n_faces
         self.vao = ctx.vertex_array(program, attributes, index_buffer=ibo, index_element_size=4, skip_errors=True)
@@ -394,6 +396,9 @@ class TexturePart:
         set_uniform(program, "u_use_albedo_map", self.use_maps[0])
         set_uniform(program, "u_use_gloss_map", self.use_maps[1])
         set_uniform(program, "u_use_sheen_map", self.use_maps[2])
+        for name, placement in self.placements.items():
+            if f"u_{name}_placement" in program:
+                program[f"u_{name}_placement"].write(placement)
 
     def release(self, own_ibo: bool) -> None:
         for obj in (self.vao, *self.textures, *((self.ibo,) if own_ibo else ())):

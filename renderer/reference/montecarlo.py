@@ -79,7 +79,7 @@ from ..camera import Camera, bounds_sphere
 from ..errors import InvalidInputError, MeshError
 from ..mesh import FALLBACK_NORMAL, Mesh, bounds, vertex_normals
 from ..shading import brdf
-from ..shading.material import Material
+from ..shading.material import MAP_NAMES, Material
 from .envsampling import EnvironmentSampler
 from .strata import MAX_PIXEL_SAMPLES, EdgeTest, sample_counts, stratum_positions, stratum_slots
 
@@ -242,6 +242,7 @@ class _SceneArrays:
     pbr_parts: tuple = ()   # per texture part: its material is "pbr"
     normal_maps: tuple = ()  # per texture part: (normal map or None, its scale)
     face_part: np.ndarray | None = None   # int64 (T,) the texture part of each triangle (a mesh's texture set)
+    placements: tuple = ()  # per texture part: {map name: its (2, 3) placement} (TextureSet.placement)
 
     @classmethod
     def build(cls, meshes: list[Mesh], materials: list[Material]) -> _SceneArrays:
@@ -252,7 +253,7 @@ class _SceneArrays:
         if not meshes or len(meshes) != len(materials):
             raise InvalidInputError(f"need one material per mesh; got {len(meshes)} meshes, {len(materials)} materials")
         pos, faces, nrm, alb, mat, uvs, face_mesh, maps, pbr, sheen = [], [], [], [], [], [], [], [], [], []
-        normal_maps, face_part, pbr_parts = [], [], []
+        normal_maps, face_part, pbr_parts, placements = [], [], [], []
         offset = 0
         for i, (mesh, material) in enumerate(zip(meshes, materials)):
             if not isinstance(mesh, Mesh) or not isinstance(material, Material):
@@ -268,6 +269,7 @@ class _SceneArrays:
                 maps.append((*ts.maps(material.is_pbr), ts.sheen_texture()))
                 normal_maps.append((ts.normal_texture(), float(ts.normal_scale)))
                 pbr_parts.append(material.is_pbr)
+                placements.append({name: ts.placement(name) for name in MAP_NAMES})
             if material.has_textures() and mesh.uvs is None:
                 raise MeshError(f"mesh {mesh.name!r} has material maps but no UVs")
             pos.append(mesh.positions)
@@ -286,7 +288,7 @@ class _SceneArrays:
 
         return cls(positions, faces, cat(nrm), cat(alb), cat(mat), cat(pbr), cat(sheen), cat(uvs),
                    np.concatenate(face_mesh), tuple(maps), RayMeshIntersector(tm),
-                   tuple(pbr_parts), tuple(normal_maps), np.concatenate(face_part))
+                   tuple(pbr_parts), tuple(normal_maps), np.concatenate(face_part), tuple(placements))
 
 
 @dataclass
@@ -331,7 +333,8 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
     for i, (normal_map, scale) in enumerate(scene.normal_maps):
         sel = np.flatnonzero(part_of == i) if normal_map is not None else ()
         if len(sel):
-            n[sel] = _normal_mapped(n[sel], n_geom[sel], e1[sel], e2[sel], scene.uvs[f[sel]], bary[sel], normal_map,
+            n[sel] = _normal_mapped(n[sel], n_geom[sel], e1[sel], e2[sel],
+                                    _placed(scene.placements[i]["normal"], scene.uvs[f[sel]]), bary[sel], normal_map,
                                     scale)
     r = dirs - 2.0 * _dot(dirs, n)[:, None] * n
 
@@ -345,19 +348,24 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
         sel = np.flatnonzero(part_of == i)
         if sel.size == 0 or (albedo_map is None and gloss_map is None and sheen_map is None):
             continue
-        uv = uv_all[sel]
+        uv, placed = uv_all[sel], scene.placements[i]
         if albedo_map is not None:
-            albedo[sel] *= _texture_bilinear(albedo_map, uv)
-        if gloss_map is not None and pbr_of[i]:
-            pbr[sel, :2] *= _texture_bilinear(gloss_map, uv)   # glTF's metallic-roughness texture
+            albedo[sel] *= _texture_bilinear(albedo_map, _placed(placed["albedo"], uv))
+        if gloss_map is not None and pbr_of[i]:   # glTF's metallic-roughness texture
+            pbr[sel, :2] *= _texture_bilinear(gloss_map, _placed(placed["second"], uv))
         elif gloss_map is not None:
-            material[sel] = _texture_bilinear(gloss_map, uv)
+            material[sel] = _texture_bilinear(gloss_map, _placed(placed["second"], uv))
         if sheen_map is not None:   # KHR_materials_sheen's colour and roughness textures
-            texel = _texture_bilinear(sheen_map, uv)
+            texel = _texture_bilinear(sheen_map, _placed(placed["sheen"], uv))
             sheen[sel] *= texel[:, :3]
             pbr[sel, 2] *= texel[:, 3]
     return _Surface(x, n, n_geom, r, albedo, material[:, 0], np.clip(material[:, 1], 0.0, 1.0), -dirs,
                     pbr, sheen)
+
+
+def _placed(placement: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """UVs (..., 2) in a map's own (TextureSet.placement), as gbuffer.frag places them."""
+    return uv @ placement[:, :2].T + placement[:, 2]
 
 
 def _normal_mapped(n, n_geom, e1, e2, uv_corners, bary, normal_map, scale) -> np.ndarray:

@@ -52,11 +52,34 @@ def _texture(name: str, value, channels: int, meaning: str = "") -> np.ndarray |
     return _finite(name, tex, 0.0, 1.0)
 
 
+# A texture's placement: the affine map from a mesh's UVs to the texture's own (2, 3): texture uv =
+# A[:, :2] @ uv + A[:, 2], repeating; the identity reads the texture once over the UV square.
+IDENTITY_PLACEMENT = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+# The maps of a set, each with its placement (TextureSet.placement): the second is the gloss or the
+# metallic-roughness map.
+MAP_NAMES = ("albedo", "second", "normal", "sheen")
+
+
+def _placement(name: str, value) -> np.ndarray:
+    if value is None:
+        return IDENTITY_PLACEMENT.copy()
+    a = np.asarray(value, np.float64)
+    if a.shape != (2, 3) or not np.all(np.isfinite(a)):
+        raise InvalidInputError(f"{name}_placement must be a finite (2, 3) affine map of UVs, got {a.shape}")
+    if abs(np.linalg.det(a[:, :2])) < 1e-12:
+        raise InvalidInputError(f"{name}_placement maps the UV plane onto a line (its 2 x 2 part is singular)")
+    return a
+
+
 @dataclass(frozen=True, eq=False)
 class TextureSet:
     """One set of a material's textures (the fields of Material of the same names): what the
     triangles of one part of a mesh read, where the parts of a garment use different textures (a
-    shirt's fabric and its buttons, each material of a glTF file with its own images)."""
+    shirt's fabric and its buttons, each material of a glTF file with its own images).
+
+    albedo_placement, second_placement (the gloss or metallic-roughness map's), normal_placement,
+    sheen_placement: each map's affine map from the mesh's UVs to the texture's (2, 3), None for the
+    identity; a fabric's textures each at their own physical size and rotation (renderer/u3m/place.py)."""
 
     albedo_map: np.ndarray | None = None
     gloss_map: np.ndarray | None = None
@@ -64,6 +87,16 @@ class TextureSet:
     normal_map: np.ndarray | None = None
     normal_scale: float = 1.0
     sheen_map: np.ndarray | None = None
+    albedo_placement: np.ndarray | None = None
+    second_placement: np.ndarray | None = None
+    normal_placement: np.ndarray | None = None
+    sheen_placement: np.ndarray | None = None
+
+    def placement(self, name: str) -> np.ndarray:
+        """The (2, 3) affine map of one of MAP_NAMES, validated (the identity when none is given)."""
+        if name not in MAP_NAMES:
+            raise ValueError(f"no map {name!r}: the maps are {', '.join(MAP_NAMES)}")
+        return _placement(name, getattr(self, f"{name}_placement"))
 
     def check(self, model: str) -> None:
         if model == "pbr" and self.gloss_map is not None:
@@ -74,6 +107,8 @@ class TextureSet:
             raise InvalidInputError("a sheen_map belongs to the pbr model, not phong")
         if not (np.isfinite(self.normal_scale) and 0.0 <= self.normal_scale <= 10.0):
             raise InvalidInputError(f"normal_scale must lie in [0, 10], got {self.normal_scale}")
+        for name in MAP_NAMES:
+            self.placement(name)
 
     def maps(self, is_pbr: bool) -> tuple[np.ndarray | None, np.ndarray | None]:
         """(albedo map, second map): the gloss map of a Phong material, the metallic-roughness map of

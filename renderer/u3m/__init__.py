@@ -27,9 +27,11 @@ from .material import (
     U3MMaterial,
     Visualisation,
 )
+from .place import material_from_u3m, uv_metres
 from .reader import load_u3m
 from .sources import path_problem
 
 __all__ = ["DEFAULT_LIMITS", "FIELDS", "IMAGE_FORMATS", "BlendMode", "ColorConstant", "ColorTexture", "Constant",
            "Face", "ImageKind", "NormalConstant", "NormalTexture", "Preview", "RepeatMode", "ScalarConstant",
-           "ScalarTexture", "Texture", "U3MLimits", "U3MMaterial", "Visualisation", "load_u3m", "path_problem"]
+           "ScalarTexture", "Texture", "U3MLimits", "U3MMaterial", "Visualisation", "load_u3m", "material_from_u3m",
+           "path_problem", "uv_metres"]

@@ -15,12 +15,18 @@ in vec3 v_sheen;
 layout(location = 4) out vec4 o_pbr;        // metallic, roughness, sheen roughness, 1 (0: Phong)
 layout(binding = TEX_SHEEN_MAP) uniform sampler2D u_sheen_map;    // rgb multiplies the sheen colour, a its roughness
 uniform bool u_use_sheen_map;
+uniform mat3x2 u_sheen_placement;
 #endif
 
 layout(binding = TEX_ALBEDO_MAP) uniform sampler2D u_albedo_map;   // multiplies the vertex albedo
 layout(binding = TEX_GLOSS_MAP) uniform sampler2D u_gloss_map;    // (specular, glossiness), replaces the vertex values
 layout(binding = TEX_NORMAL_MAP) uniform sampler2D u_normal_map;   // tangent-space normals (Material.normal_map)
 uniform float u_normal_scale;                          // its x and y scale; 0: no normal map
+// Each map's placement: the affine map from the mesh's UVs to its own (TextureSet.placement: a
+// fabric's textures at their physical size and rotation); the identity for a glTF file's.
+uniform mat3x2 u_albedo_placement;
+uniform mat3x2 u_second_placement;
+uniform mat3x2 u_normal_placement;
 uniform bool u_use_albedo_map;
 uniform bool u_use_gloss_map;
 uniform vec3 u_camera_pos;
@@ -49,8 +55,10 @@ void main() {
         // The tangent frame from the surface gradients of u and v (Schüler, "Normal Mapping Without
         // Precomputed Tangents", 2013): T = grad u, B = grad v in the plane of n, scaled by the larger;
         // renderer/reference/montecarlo.py builds the same frame from the triangle's edges.
+        // The map's own UVs: its frame follows them (a rotated or mirrored placement turns it too).
+        vec2 uv_n = u_normal_placement * vec3(v_uv, 1.0);
         vec3 dp1 = dFdx(v_ws_position), dp2 = dFdy(v_ws_position);
-        vec2 duv1 = dFdx(v_uv), duv2 = dFdy(v_uv);
+        vec2 duv1 = dFdx(uv_n), duv2 = dFdy(uv_n);
         vec3 dp2perp = cross(dp2, n), dp1perp = cross(n, dp1);
         vec3 t = dp2perp * duv1.x + dp1perp * duv2.x;
         vec3 b = dp2perp * duv1.y + dp1perp * duv2.y;
@@ -58,22 +66,24 @@ void main() {
         float m = max(dot(t, t), dot(b, b));
         if (m > 1e-30) {
             float s = (det < 0.0 ? -1.0 : 1.0) * inversesqrt(m);
-            vec3 tn = texture(u_normal_map, v_uv).rgb * 2.0 - 1.0;
+            vec3 tn = texture(u_normal_map, uv_n).rgb * 2.0 - 1.0;
             vec3 mapped = normalize(s * (t * (tn.x * u_normal_scale) + b * (tn.y * u_normal_scale)) + n * tn.z);
             n = dot(mapped, geometric) < 0.0 ? -mapped : mapped;
         }
     }
-    vec3 albedo = u_use_albedo_map ? v_albedo * texture(u_albedo_map, v_uv).rgb : v_albedo;
-    vec2 material = u_use_gloss_map ? texture(u_gloss_map, v_uv).rg : v_material;
+    vec2 uv_second = u_second_placement * vec3(v_uv, 1.0);
+    vec3 albedo = u_use_albedo_map ? v_albedo * texture(u_albedo_map, u_albedo_placement * vec3(v_uv, 1.0)).rgb
+                                   : v_albedo;
+    vec2 material = u_use_gloss_map ? texture(u_gloss_map, uv_second).rg : v_material;
     o_position = vec4(v_ws_position, material.x);
     o_normal = vec4(n, material.y);
     o_geometric = vec4(geometric, u_shadow_group + (u_convex_surface ? float(CONVEX_SURFACE) : 0.0));
     o_albedo = vec4(albedo, 1.0);
 #ifdef PBR
     // A pbr mesh's second map is glTF's metallic-roughness texture: it multiplies the two values.
-    vec2 mr = u_use_gloss_map ? texture(u_gloss_map, v_uv).rg : vec2(1.0);
+    vec2 mr = u_use_gloss_map ? texture(u_gloss_map, uv_second).rg : vec2(1.0);
     // KHR_materials_sheen's textures multiply the sheen colour and roughness.
-    vec4 sheen = u_use_sheen_map ? texture(u_sheen_map, v_uv) : vec4(1.0);
+    vec4 sheen = u_use_sheen_map ? texture(u_sheen_map, u_sheen_placement * vec3(v_uv, 1.0)) : vec4(1.0);
     o_pbr = v_pbr.w > 0.5 ? vec4(v_pbr.xy * mr, v_pbr.z * sheen.a, 1.0) : vec4(0.0);
     if (v_pbr.w > 0.5) {
         vec3 sheen_colour = v_sheen * sheen.rgb;
