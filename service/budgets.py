@@ -7,9 +7,10 @@ Memory, bytes a pixel of each image (the renderer's readback is float32 RGBA: `R
 - views: every image's readback, which the encoding lets go one by one, making an 8-bit tile of each
   (a sheet: the tiles, the sheet of them, its labelled copy and its PNG's rows, 4 bytes a pixel each
   at most) or a PNG (a zip: at most 4): `SHEET_BPP`, `ZIP_VIEWS_BPP`;
-- a batch: `BATCH_FRAMES_AHEAD` readbacks at a time (each with the tone-mapped copy its encoding
-  makes), and every frame's encoded image kept for the answer, held twice in a zip (the archive and
-  its bytes), in JSON three times over as base64 (the frames' payloads, the JSON text and its bytes).
+- a batch: `BATCH_FRAMES_AHEAD` frames at a time, each its readback and the float temporaries its
+  tone mapping makes (`ENCODING_BPP`), and every frame's encoded image kept for the answer, held twice
+  in a zip (the archive and its bytes), in JSON three times over as base64 (the frames' payloads, the
+  JSON text and its bytes).
   An encoded image's size is the scene's own: `ENCODED_MARGIN` x the median of its latest frames'
   bytes a pixel in that format; before it has any, the most it could be (an uncompressed PNG's 4 bytes
   a pixel, an EXR's 16).
@@ -31,6 +32,7 @@ from .registry import SceneRecord
 from .settings import ServiceSettings
 
 READBACK_BPP = 16          # float32 RGBA
+ENCODING_BPP = 32          # a frame's tone mapping: float32 RGB temporaries, measured (scripts/bench_service_bounds.py)
 SHEET_BPP = READBACK_BPP + 4 * 4
 ZIP_VIEWS_BPP = READBACK_BPP + 4
 ENCODED_BPP = {"png": 4, "exr": 16}   # the most an encoded image takes, a pixel
@@ -132,7 +134,7 @@ def batch_cost(scene: SceneRecord, n_frames: int, answer: str, image: str, frame
     """answer: "zip" or "json"; image: "png" or "exr"."""
     px = _pixels(scene)
     kept = n_frames * px * rates.encoded_bpp(scene, image) * KEPT_COPIES[answer]
-    in_flight = min(frames_ahead, n_frames) * px * 2 * READBACK_BPP
+    in_flight = min(frames_ahead, n_frames) * px * (READBACK_BPP + ENCODING_BPP)
     each_s, rate_from = rates.image_s(scene, settings)
     return RequestCost(f"a batch of {n_frames} frames of {_size(scene)}", n_frames, int(kept + in_flight),
                        n_frames * each_s, rate_from)
