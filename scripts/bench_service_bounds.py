@@ -1,6 +1,8 @@
 #!/usr/bin/env python
 """The largest request of many images each route accepts under the service's default limits, sent to
-a real server: its peak memory and time against the estimate it was admitted on (service/budgets.py).
+a real server: its peak memory and time against the estimate it was admitted on (service/budgets.py);
+and each preset's scene through the service: its frame's memory against the estimate it was
+registered on (renderer.costs.frame_cost, the answer's `frame_memory`) and its frame time.
 
 For each route and image size: a scene of the procedural garment under the bundled studio (the
 service's default preset), two frames to time it, then the largest request the limits admit (views
@@ -8,7 +10,10 @@ of a turntable as one sheet; a batch answered as JSON with PNG images), computed
 estimate the service makes (the scene's median GL time an image; the memory model), and one image
 more. The server's resident set is sampled every 20 ms during each request: its peak above the set
 before the request is the request's memory (llvmpipe's render targets are host memory too; they are
-the scene's, allocated by its first frame, before the baseline).
+the scene's, allocated by its first frame, before the baseline). A preset's row: the resident set's
+peak above the set before its scene was registered (the environment uploaded with the preset's PEM
+settings: its PEM set built before), over the registration and five frames, against the frame's own
+memory in `frame_memory` (its total less the PEM set's). Every row is a fresh service process.
 
     .venv/bin/python scripts/bench_service_bounds.py            # ~6 min on 2 cores
     .venv/bin/python scripts/bench_service_bounds.py --quick    # the smaller sizes only
@@ -38,6 +43,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from renderer.envmap import studio_environment, write_exr  # noqa: E402
+from renderer.presets import PRESET_NAMES, presets_digest  # noqa: E402
 from renderer.procedural import procedural_garment  # noqa: E402
 from service import budgets  # noqa: E402
 from service.routes.frames import BATCH_FRAMES_AHEAD  # noqa: E402
@@ -46,6 +52,7 @@ from service.settings import ServiceSettings  # noqa: E402
 OCTET = {"Content-Type": "application/octet-stream"}
 CASES = [("views", 1024), ("batch", 1024), ("views", 4096), ("batch", 4096)]
 QUICK_CASES = [("views", 512), ("batch", 512)]
+PRESET_SIZES, QUICK_PRESET_SIZES = (256, 512), (256,)
 
 
 def free_port() -> int:
@@ -122,6 +129,97 @@ def send(http: httpx.Client, route: str, scene_id: str, positions: np.ndarray, n
     return http.post(f"/scenes/{scene_id}/frames/batch", content=body, headers=OCTET)
 
 
+class Server:
+    """A fresh service process (every measurement has its own: memory a process freed is kept by its
+    allocator and reused, which would hide the next request's), the studio uploaded with `preset`'s
+    PEM settings before the measurement starts."""
+
+    def __init__(self, tmp: Path, env_path: Path, preset: str | None = None):
+        self.tmp, self.env_path, self.preset = tmp, env_path, preset
+
+    def __enter__(self):
+        port = free_port()
+        env = {k: v for k, v in os.environ.items() if not k.startswith("GARMENT_RENDER_")}
+        env["GARMENT_RENDER_PEM_CACHE_DIR"] = str(self.tmp / "pem")
+        self.proc = subprocess.Popen([sys.executable, "-m", "service.main", "--port", str(port), "--log-level",
+                                      "warning"], cwd=ROOT, env=env)
+        self.http = httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=900)
+        deadline = time.monotonic() + 120
+        while True:
+            try:
+                if self.http.get("/health/ready").status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            if time.monotonic() > deadline or self.proc.poll() is not None:
+                raise SystemExit("the service did not start")
+            time.sleep(0.1)
+        params = {"name": "studio.exr", **({"preset": self.preset} if self.preset else {})}
+        r = self.http.post("/environments", content=self.env_path.read_bytes(), headers=OCTET, params=params)
+        r.raise_for_status()
+        self.env_id = r.json()["id"]
+        return self
+
+    def __exit__(self, *exc):
+        self.http.close()
+        self.proc.terminate()
+        self.proc.wait(60)
+
+
+def measure_preset(server: Server, preset: str, size: int, mesh, positions: np.ndarray) -> dict:
+    http = server.http
+    body = {"environment_id": server.env_id, "quality": {"preset": preset},
+            "garment": {"positions": mesh.positions.tolist(), "faces": mesh.faces.tolist()},
+            "output": {"width": size, "height": size}}
+    with PeakRSS(server.proc.pid) as rss:
+        t0 = time.perf_counter()
+        r = http.post("/scenes", json=body)
+        register_s = time.perf_counter() - t0
+        r.raise_for_status()
+        scene = r.json()
+        frames = [http.post(f"/scenes/{scene['id']}/frames", content=positions.tobytes(), headers=OCTET)
+                  for _ in range(5)]
+    assert all(f.status_code == 200 for f in frames), frames[-1].text
+    memory = scene["frame_memory"]
+    return {"preset": preset, "size": size, "register_s": round(register_s, 2),
+            "first_frame_gl_ms": round(gl_job_ms(frames[0]), 1),
+            "frame_gl_ms": round(statistics.median(gl_job_ms(f) for f in frames[1:]), 1),
+            "estimated_mib": round((memory["total_bytes"] - memory["pem_set_bytes"]) / 2**20, 1),
+            "peak_rss_above_mib": round((rss.peak - rss.base) / 2**20, 1)}
+
+
+def measure_route(server: Server, route: str, size: int, mesh, positions: np.ndarray,
+                  settings: ServiceSettings) -> dict:
+    http = server.http
+    body = {"environment_id": server.env_id, "garment": {"positions": mesh.positions.tolist(),
+                                                         "faces": mesh.faces.tolist()},
+            "output": {"width": size, "height": size}}
+    r = http.post("/scenes", json=body)
+    r.raise_for_status()
+    scene_id = r.json()["id"]
+    preset = r.json().get("quality", {}).get("preset")
+    answers = [http.post(f"/scenes/{scene_id}/frames", content=positions.tobytes(), headers=OCTET)
+               for _ in range(3)]
+    timed = [gl_job_ms(r) for r in answers]
+    n = largest(route, size, timed, [len(r.content) for r in answers], settings)
+    with PeakRSS(server.proc.pid) as rss:
+        t0 = time.perf_counter()
+        r = send(http, route, scene_id, positions, n)
+        wall = time.perf_counter() - t0
+    estimate = dict(kv.split("=") for kv in r.headers.get("X-Request-Estimate", "").split("; ") if kv)
+    t0 = time.perf_counter()
+    over = send(http, route, scene_id, positions, n + 1)
+    refused_s = time.perf_counter() - t0
+    return {"route": route, "size": size, "preset": preset, "images": n, "status": r.status_code,
+            "wall_s": round(wall, 2), "frame_ms": [round(t, 1) for t in timed],
+            "estimated_held_mib": round(int(estimate.get("held_bytes", 0)) / 2**20, 1),
+            "estimated_gl_s": float(estimate.get("gl_s", "nan")),
+            "peak_rss_above_mib": round((rss.peak - rss.base) / 2**20, 1),
+            "peak_rss_mib": round(rss.peak / 2**20, 1),
+            "one_more": {"status": over.status_code, "answered_s": round(refused_s, 3),
+                         "detail": over.json().get("detail") if over.status_code != 200 else None}}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true")
@@ -133,63 +231,22 @@ def main() -> int:
     write_exr(env_path, studio_environment(256))
     mesh = procedural_garment(48)
     positions = np.ascontiguousarray(mesh.positions, "<f4")
-    port = free_port()
-    env = {k: v for k, v in os.environ.items() if not k.startswith("GARMENT_RENDER_")}
-    env["GARMENT_RENDER_PEM_CACHE_DIR"] = str(tmp / "pem")
-    server = subprocess.Popen([sys.executable, "-m", "service.main", "--port", str(port), "--log-level", "warning"],
-                              cwd=ROOT, env=env)
-    url = f"http://127.0.0.1:{port}"
-    rows = []
-    try:
-        with httpx.Client(base_url=url, timeout=900) as http:
-            for _ in range(600):
-                try:
-                    if http.get("/health/ready").status_code == 200:
-                        break
-                except httpx.TransportError:
-                    pass
-                time.sleep(0.1)
-            gl = http.get("/stats").json()["gl"]
-            env_id = http.post("/environments", content=env_path.read_bytes(), headers=OCTET,
-                               params={"name": "studio.exr"}).json()["id"]
-            for route, size in QUICK_CASES if a.quick else CASES:
-                body = {"environment_id": env_id, "garment": {"positions": mesh.positions.tolist(),
-                                                              "faces": mesh.faces.tolist()},
-                        "output": {"width": size, "height": size}}
-                r = http.post("/scenes", json=body)
-                r.raise_for_status()
-                scene_id = r.json()["id"]
-                preset = r.json().get("quality", {}).get("preset")
-                answers = [http.post(f"/scenes/{scene_id}/frames", content=positions.tobytes(), headers=OCTET)
-                           for _ in range(3)]
-                timed = [gl_job_ms(r) for r in answers]
-                n = largest(route, size, timed, [len(r.content) for r in answers], settings)
-                with PeakRSS(server.pid) as rss:
-                    t0 = time.perf_counter()
-                    r = send(http, route, scene_id, positions, n)
-                    wall = time.perf_counter() - t0
-                estimate = dict(kv.split("=") for kv in r.headers.get("X-Request-Estimate", "").split("; ") if kv)
-                t0 = time.perf_counter()
-                over = send(http, route, scene_id, positions, n + 1)
-                refused_s = time.perf_counter() - t0
-                row = {"route": route, "size": size, "preset": preset, "images": n, "status": r.status_code,
-                       "wall_s": round(wall, 2), "frame_ms": [round(t, 1) for t in timed],
-                       "estimated_held_mib": round(int(estimate.get("held_bytes", 0)) / 2**20, 1),
-                       "estimated_gl_s": float(estimate.get("gl_s", "nan")),
-                       "peak_rss_above_mib": round((rss.peak - rss.base) / 2**20, 1),
-                       "peak_rss_mib": round(rss.peak / 2**20, 1),
-                       "one_more": {"status": over.status_code, "answered_s": round(refused_s, 3),
-                                    "detail": over.json().get("detail") if over.status_code != 200 else None}}
-                rows.append(row)
-                print(json.dumps(row), flush=True)
-                http.delete(f"/scenes/{scene_id}")
-    finally:
-        server.terminate()
-        server.wait(60)
+    rows, preset_rows = [], []
+    for preset in PRESET_NAMES:
+        for size in QUICK_PRESET_SIZES if a.quick else PRESET_SIZES:
+            with Server(tmp, env_path, preset) as server:
+                gl = server.http.get("/stats").json()["gl"]
+                preset_rows.append(measure_preset(server, preset, size, mesh, positions))
+            print(json.dumps(preset_rows[-1]), flush=True)
+    for route, size in QUICK_CASES if a.quick else CASES:
+        with Server(tmp, env_path) as server:
+            rows.append(measure_route(server, route, size, mesh, positions, settings))
+        print(json.dumps(rows[-1]), flush=True)
     data = {"command": "python scripts/bench_service_bounds.py" + (" --quick" if a.quick else ""),
+            "presets_digest": presets_digest(),
             "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "gl": gl},
             "limits": {"max_request_bytes": settings.max_request_bytes, "max_request_s": settings.max_request_s},
-            "rows": rows}
+            "presets": preset_rows, "rows": rows}
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "service-bounds.json").write_text(json.dumps(data, indent=1) + "\n")
     (a.out / "service-bounds.md").write_text(report(data))
@@ -216,6 +273,17 @@ def report(data: dict) -> str:
     if ratios:
         lines += ["", f"Measured peak over the estimate: median {statistics.median(ratios):.2f}, "
                       f"range {min(ratios):.2f}-{max(ratios):.2f}."]
+    lines += ["", "## Each preset through the service", "",
+              "A scene of each preset registered and five frames sent, in a fresh service whose environment was "
+              "uploaded with the preset's PEM settings: the registration's time, the first frame's and the "
+              "median of the next four frames' render-thread time, the frame's memory the scene was registered "
+              "on (`frame_memory`: shadow maps and render targets, its PEM set apart) and the server's "
+              "resident set's peak above its set before the registration.", "",
+              "| preset | size | register s | first frame ms | frame ms | est. MiB | peak RSS above MiB |",
+              "|---|---|---|---|---|---|---|"]
+    for r in data.get("presets", []):
+        lines.append(f"| {r['preset']} | {r['size']} | {r['register_s']} | {r['first_frame_gl_ms']} | "
+                     f"{r['frame_gl_ms']} | {r['estimated_mib']} | {r['peak_rss_above_mib']} |")
     return "\n".join(lines) + "\n"
 
 

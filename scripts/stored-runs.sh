@@ -16,6 +16,7 @@
 #   edges       garment-render bench --edges              (docs/edges-bench.json and .md; ~10 min warm, the broad
 #               run's reference cache shared)
 #   scale-out   python -m service.load --ray 1,2 --frames 32 --scenes 8   (docs/scale-out.json and .md; ~3 min)
+#   service-bounds  python scripts/bench_service_bounds.py   (docs/service-bounds.json and .md; ~25 min)
 # and, named only (never by default), the broad runs retimed: their stored errors kept, every frame and
 # the tracer's rate timed again (`bench --broad --retime`), for a change that leaves every image as it
 # was (a faster shader that draws the same pixels, the machine's timings on another day):
@@ -24,7 +25,8 @@
 # run this on a quiet machine, nothing else at work, and give each run the whole machine.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-all=(broad-256 broad-512 error-split energy materials one-shot sweep views area shadow-maps edges scale-out)
+all=(broad-256 broad-512 error-split energy materials one-shot sweep views area shadow-maps edges scale-out
+     service-bounds)
 named=("${all[@]}" broad-256-retime broad-512-retime)
 runs=("$@")
 if [[ ${#runs[@]} -eq 0 ]]; then
@@ -92,5 +94,6 @@ for run in "${runs[@]}"; do
         area) side area area docs/area-bench.json ;;
         shadow-maps) side shadow-maps shadow_maps docs/shadow-maps-bench.json ;;
         scale-out) "$py" -m service.load --ray 1,2 --frames 32 --scenes 8 --out docs/scale-out.md ;;
+        service-bounds) "$py" scripts/bench_service_bounds.py --out docs ;;   # docs/service-bounds.json
     esac
 done
