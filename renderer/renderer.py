@@ -951,9 +951,18 @@ class Renderer:
         for sm in meshes:
             set_uniform(g, "u_shadow_group", float(sm.group))
             set_uniform(g, "u_convex_surface", sm.convex)
-            for part in sm.variants[variant].parts:   # one draw per texture set
-                part.bind(g)
-                part.vao.render(moderngl.TRIANGLES)
+            buffers = sm.variants[variant]
+            # A material with a back (Material.back): its front where the camera sees a triangle's
+            # front (counter-clockwise as seen), its back elsewhere, each drawn with the other culled.
+            sides = [(buffers, None)] if buffers.back is None else [(buffers, "back"), (buffers.back, "front")]
+            for side, culled in sides:
+                if culled is not None:
+                    ctx.enable(moderngl.CULL_FACE)
+                    ctx.front_face, ctx.cull_face = "ccw", culled
+                for part in side.parts:   # one draw per texture set
+                    part.bind(g)
+                    part.vao.render(moderngl.TRIANGLES)
+            ctx.disable(moderngl.CULL_FACE)
 
     def _still_target_for(self, which: str, w: int, h: int, pbr: bool, samples: int = 0) -> _StillTarget:
         """The still meshes' targets of a pass ("geometry" or "coverage") for an image size (made anew,

@@ -437,12 +437,16 @@ class MaterialBuffers:
                     continue   # a set no triangle reads
                 ibo, n_faces = ctx.buffer(np.ascontiguousarray(faces, np.int32).tobytes()), len(faces)
             self.parts.append(TexturePart(ctx, textures, material.is_pbr, program, attributes, ibo, n_faces))
+        # The cloth's other side (Material.back): drawn where the camera sees a triangle's back.
+        self.back = MaterialBuffers(sm, material.back) if material.back is not None else None
 
     def release(self) -> None:
         for part in self.parts:
             part.release(self._own_ibos)
         for obj in self.buffers:
             obj.release()
+        if self.back is not None:
+            self.back.release()
 
 
 class Scene:

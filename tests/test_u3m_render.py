@@ -167,10 +167,47 @@ def test_what_the_material_does_not_carry_is_said(tmp_path):
     path = write_u3ma(tmp_path / "voile.u3ma", document(version, front, back), {})
     material, warnings = material_from_u3m(load_u3m(path), quad(0.4, 0.4, (1.0, 1.0)), Face.FRONT)
     said = "\n".join(warnings)
-    for word in ("alpha", "transmission", "anisotropy_value", "back"):
+    for word in ("alpha", "transmission", "anisotropy_value"):
         assert word in said, said
+    assert "back" not in said   # the back is drawn: Material.back
     # The document's colours are sRGB-encoded; the material's are linear.
     assert material.is_pbr and material.albedo == pytest.approx((0.2140, 0.0331, 0.0331), abs=1e-4)
+    assert material.back.albedo == pytest.approx((0.0100,) * 3, abs=1e-4)
+
+
+@pytest.mark.parametrize("has_back", [True, False])
+def test_each_side_of_the_cloth_shows_its_own_visualisation(renderer, white, tmp_path, has_back):
+    """A sheet seen from its front and from behind: the front's red and the back's checker (the front's
+    red on both sides where the back is null, as the spec says), in the renderer as in the reference."""
+    version = "1.1"
+    front = visualisation(version, basecolor=color((0.8, 0.1, 0.1)))
+    back = visualisation(version, basecolor=color(texture=color_texture(image("check.png", version, 200.0, 200.0))))
+    path = write_u3ma(tmp_path / "two.u3ma", document(version, front, back if has_back else None),
+                      {"check.png": encode(checker(64, 2))})
+    sheet = quad(0.4, 0.4, (1.0, 1.0))
+    material, _ = material_from_u3m(load_u3m(path), sheet)
+    assert (material.back is not None) == has_back
+    cube, pems = white
+    behind = Camera((0.0, 0.0, -2.0), (0.0, 0.0, 0.0), fov_y_deg=30.0)
+    scene = renderer.create_scene([sheet], [material])
+    try:
+        seen = {name: renderer.render(scene, pems, UNSHADOWED, cam).image for name, cam in (("front", CAM),
+                                                                                               ("back", behind))}
+    finally:
+        scene.release()
+    for name, cam in (("front", CAM), ("back", behind)):
+        img = seen[name]
+        inside = img[..., 3] > 0.99
+        rgb = img[inside, :3]
+        if name == "front" or not has_back:
+            assert rgb[:, 0].mean() > 3 * rgb[:, 1].mean()   # red
+        else:
+            assert rgb[:, 0].mean() == pytest.approx(rgb[:, 1].mean(), rel=0.05)   # grey checker
+            assert rgb[:, 1].std() > 0.2 * rgb[:, 1].mean()
+        ref = render_reference([sheet], [material], cube, cam, SIZE, SIZE, spp=16, occlusion=False,
+                               pixel_samples=4).image
+        both = inside & (ref[..., 3] > 0.99)
+        assert np.abs(img[both, :3] - ref[both, :3]).mean() / ref[both, :3].mean() < 0.05
 
 
 def test_render_takes_a_u3m_fabric_and_says_what_it_leaves_out(tmp_path):

@@ -243,6 +243,10 @@ class _SceneArrays:
     normal_maps: tuple = ()  # per texture part: (normal map or None, its scale)
     face_part: np.ndarray | None = None   # int64 (T,) the texture part of each triangle (a mesh's texture set)
     placements: tuple = ()  # per texture part: {map name: its (2, 3) placement} (TextureSet.placement)
+    # Where a triangle's back is seen (Material.back): each triangle's texture part, and the per-vertex
+    # arrays (albedo, material, pbr, sheen), of the side behind its winding (the front's without a back).
+    face_part_back: np.ndarray | None = None
+    back: tuple = ()
 
     @classmethod
     def build(cls, meshes: list[Mesh], materials: list[Material]) -> _SceneArrays:
@@ -254,6 +258,7 @@ class _SceneArrays:
             raise InvalidInputError(f"need one material per mesh; got {len(meshes)} meshes, {len(materials)} materials")
         pos, faces, nrm, alb, mat, uvs, face_mesh, maps, pbr, sheen = [], [], [], [], [], [], [], [], [], []
         normal_maps, face_part, pbr_parts, placements = [], [], [], []
+        face_part_back, back_arrays = [], []
         offset = 0
         for i, (mesh, material) in enumerate(zip(meshes, materials)):
             if not isinstance(mesh, Mesh) or not isinstance(material, Material):
@@ -263,13 +268,19 @@ class _SceneArrays:
             p, sh = material.pbr_arrays(n)
             pbr.append(p)
             sheen.append(sh)
-            sets = material.face_texture_sets(mesh.faces, n)
-            face_part.append(sets.astype(np.int64) + len(maps))
-            for ts in material.texture_groups():   # as the geometry pass draws them: one part per set
-                maps.append((*ts.maps(material.is_pbr), ts.sheen_texture()))
-                normal_maps.append((ts.normal_texture(), float(ts.normal_scale)))
-                pbr_parts.append(material.is_pbr)
-                placements.append({name: ts.placement(name) for name in MAP_NAMES})
+            for side in material.sides():   # the front, then the back's own parts where it has one
+                sets = side.face_texture_sets(mesh.faces, n)
+                (face_part if side is material else face_part_back).append(sets.astype(np.int64) + len(maps))
+                for ts in side.texture_groups():   # as the geometry pass draws them: one part per set
+                    maps.append((*ts.maps(side.is_pbr), ts.sheen_texture()))
+                    normal_maps.append((ts.normal_texture(), float(ts.normal_scale)))
+                    pbr_parts.append(side.is_pbr)
+                    placements.append({name: ts.placement(name) for name in MAP_NAMES})
+            if material.back is None:
+                face_part_back.append(face_part[-1])
+                back_arrays.append((a, m, p, sh))
+            else:
+                back_arrays.append((*material.back.vertex_arrays(n), *material.back.pbr_arrays(n)))
             if material.has_textures() and mesh.uvs is None:
                 raise MeshError(f"mesh {mesh.name!r} has material maps but no UVs")
             pos.append(mesh.positions)
@@ -288,7 +299,8 @@ class _SceneArrays:
 
         return cls(positions, faces, cat(nrm), cat(alb), cat(mat), cat(pbr), cat(sheen), cat(uvs),
                    np.concatenate(face_mesh), tuple(maps), RayMeshIntersector(tm),
-                   tuple(pbr_parts), tuple(normal_maps), np.concatenate(face_part), tuple(placements))
+                   tuple(pbr_parts), tuple(normal_maps), np.concatenate(face_part), tuple(placements),
+                   np.concatenate(face_part_back), tuple(cat([b[k] for b in back_arrays]) for k in range(4)))
 
 
 @dataclass
@@ -327,9 +339,12 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
     x = bary[:, 0:1] * p0 + bary[:, 1:2] * p1 + bary[:, 2:3] * p2
     n_geom = _normalize(np.cross(e1, e2), fallback=None)
     n = _normalize(mix(scene.normals), fallback=n_geom)
-    n_geom = np.where(_dot(n_geom, -dirs)[:, None] < 0.0, -n_geom, n_geom)  # the side the camera sees
+    # The triangle's back is seen where the ray runs along its winding's normal (the geometry pass's
+    # culling of a two-sided material: renderer._draw_geometry).
+    back_seen = _dot(n_geom, -dirs) < 0.0
+    n_geom = np.where(back_seen[:, None], -n_geom, n_geom)  # the side the camera sees
     n = np.where(_dot(n, n_geom)[:, None] < 0.0, -n, n)  # two-sided: turned to the seen side, as in gbuffer.frag
-    part_of = scene.face_part[tri]
+    part_of = np.where(back_seen, scene.face_part_back[tri], scene.face_part[tri])
     for i, (normal_map, scale) in enumerate(scene.normal_maps):
         sel = np.flatnonzero(part_of == i) if normal_map is not None else ()
         if len(sel):
@@ -338,11 +353,15 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
                                     scale)
     r = dirs - 2.0 * _dot(dirs, n)[:, None] * n
 
-    albedo = mix(scene.albedo)
-    material = mix(scene.material)
-    pbr = mix(scene.pbr)
+    def sided(front: np.ndarray, back: np.ndarray) -> np.ndarray:
+        return np.where(back_seen[:, None], mix(back), mix(front))
+
+    albedo_b, material_b, pbr_b, sheen_b = scene.back
+    albedo = sided(scene.albedo, albedo_b)
+    material = sided(scene.material, material_b)
+    pbr = sided(scene.pbr, pbr_b)
     pbr_of = scene.pbr_parts
-    sheen = mix(scene.sheen)
+    sheen = sided(scene.sheen, sheen_b)
     uv_all = mix(scene.uvs) if any(m is not None for maps in scene.maps for m in maps) else None
     for i, (albedo_map, gloss_map, sheen_map) in enumerate(scene.maps):
         sel = np.flatnonzero(part_of == i)

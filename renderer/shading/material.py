@@ -156,6 +156,10 @@ class Material:
     texture_sets, texture_set: several sets of the five textures above (TextureSet, at most
     MAX_TEXTURE_SETS) and, per vertex (V,), the one its triangles read (a triangle's three corners
     read the same); the fields above then name no texture.
+    back: the material of the cloth's other side (a fabric's back, U3M's back visualisation), of the
+    same model, itself without a back; None: both sides alike. The front is the side a triangle's
+    winding faces (counter-clockwise as seen, the side its normal points to): each pixel takes the
+    material of the side the camera sees there.
     """
 
     albedo: tuple | np.ndarray = (0.8, 0.8, 0.8)
@@ -174,8 +178,16 @@ class Material:
     sheen_map: np.ndarray | None = None
     texture_sets: tuple[TextureSet, ...] = ()
     texture_set: np.ndarray | None = None
+    back: Material | None = None
 
     def __post_init__(self):
+        if self.back is not None:
+            if not isinstance(self.back, Material):
+                raise InvalidInputError(f"back must be a Material, got {type(self.back).__name__}")
+            if self.back.back is not None:
+                raise InvalidInputError("a material's back has no back of its own")
+            if self.back.model != self.model:
+                raise InvalidInputError(f"a material's back has its model: {self.model}, got {self.back.model}")
         if self.model not in MODELS:
             raise InvalidInputError(f"material model must be one of {', '.join(MODELS)}, got {self.model!r}")
         own = self._own_set()
@@ -230,8 +242,12 @@ class Material:
     def is_pbr(self) -> bool:
         return self.model == "pbr"
 
+    def sides(self) -> tuple[Material, ...]:
+        """The material of each side it draws: itself, and its back when it has one."""
+        return (self,) if self.back is None else (self, self.back)
+
     def has_sheen(self) -> bool:
-        return self.is_pbr and bool((np.asarray(self.sheen_colour, np.float64) > 0).any())
+        return any(m.is_pbr and bool((np.asarray(m.sheen_colour, np.float64) > 0).any()) for m in self.sides())
 
     def pbr_arrays(self, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
         """(pbr (V, 4) = (metallic, roughness, sheen roughness, 1), sheen colour (V, 3)) float32,
@@ -244,8 +260,13 @@ class Material:
         return out, _per_vertex_rgb("sheen_colour", self.sheen_colour, n_vertices)
 
     def has_glossy_lobe(self) -> bool:
-        """Whether any fragment can have a specular weight above 0 (from the values or the gloss map;
-        always for "pbr": a dielectric reflects at least 4 % head-on)."""
+        """Whether any fragment of either side can have a specular weight above 0 (from the values or
+        the gloss map; always for "pbr": a dielectric reflects at least 4 % head-on)."""
+        if self.back is not None and self.back._own_glossy_lobe():
+            return True
+        return self._own_glossy_lobe()
+
+    def _own_glossy_lobe(self) -> bool:
         if self.is_pbr:
             return True
         maps = [ts.gloss_map for ts in self.texture_groups() if ts.gloss_map is not None]
@@ -259,7 +280,12 @@ class Material:
         decides the finest PEM level a scene needs. Specular and glossiness are interpolated (between
         vertices, between texels), so a fragment can pair any g with a nonzero specular weight: the
         maximum is over all of g as soon as any specular weight is positive."""
-        if not self.has_glossy_lobe():
+        if self.back is not None:
+            return max(self.back._own_max_glossiness(), self._own_max_glossiness())
+        return self._own_max_glossiness()
+
+    def _own_max_glossiness(self) -> float:
+        if not self._own_glossy_lobe():
             return 0.0
         if self.is_pbr:
             return 1.0   # the fitted lobes reach the finest levels (a smooth metal's)
@@ -293,4 +319,4 @@ class Material:
 
     def has_textures(self) -> bool:
         """Whether any texture is read (then the mesh needs UVs); validates every set's maps."""
-        return any([ts.has_textures(self.is_pbr) for ts in self.texture_groups()])
+        return any([ts.has_textures(m.is_pbr) for m in self.sides() for ts in m.texture_groups()])

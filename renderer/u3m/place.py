@@ -19,13 +19,16 @@ normal map as a tangent-space map, its U3M scale applied; sheen_value s and shee
 colour s ((1 - t) white + t tint), the tint the base colour's hue at unit luminance (the mean colour of
 a texture), with a sheen roughness of SHEEN_ROUGHNESS (U3M names none). What the model does not carry
 yet (alpha, transmission, anisotropy, clearcoat, displacement, subsurface, a specular level other than
-glTF's 4 %, a textured sheen, the back and side visualisations) is named in the warnings that come
-with the material, never dropped silently.
+glTF's 4 %, a textured sheen, the cut edge's visualisation) is named in the warnings that come with
+the material, never dropped silently. Front and back: the front's visualisation on the side the
+mesh's winding faces (its normals' side), the back's behind it (Material.back, chosen per pixel by
+the side the camera sees), the front's on both where the back is null.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -117,14 +120,28 @@ def _scalar(field) -> float | None:
 
 def material_from_u3m(u3m: U3MMaterial, mesh: Mesh, face: Face | str = Face.FRONT,
                       uv_scale: tuple[float, float] | None = None) -> tuple[Material, list[str]]:
-    """The renderer's Material for `mesh` in `u3m`'s visualisation of `face` (the spec's fallbacks),
-    its textures at their physical size, and what it does not carry (module doc), one line each."""
+    """The renderer's Material for `mesh` in `u3m` (module doc): the visualisation of `face` on the
+    side the mesh's winding faces and, where the document has its own, the other one's behind it
+    (Material.back: the front's visualisation is the back's too when the back is null, as the spec
+    says), each texture at its physical size; and what it does not carry, one line each."""
     face = Face(face)
-    vis: Visualisation = u3m.visualisation(face)
     scale = uv_scale if uv_scale is not None else uv_metres(mesh)
     if not all(np.isfinite(scale)) or min(scale) <= 0:
         raise MaterialError(f"{u3m.file}: the UV scale must be positive metres a UV unit, got {scale}")
-    warnings = _not_carried(u3m, vis, face)
+    other = Face.BACK if face is not Face.BACK else Face.FRONT
+    warnings = _not_carried(u3m, u3m.visualisation(face), face)
+    outside = _side_material(u3m, face, mesh, scale, warnings)
+    if getattr(u3m, other.value) is None:
+        return outside, warnings
+    for line in _not_carried(u3m, u3m.visualisation(other), other, others=False):
+        warnings.append(f"{other.value}: {line}")
+    return replace(outside, back=_side_material(u3m, other, mesh, scale, warnings)), warnings
+
+
+def _side_material(u3m: U3MMaterial, face: Face, mesh: Mesh, scale: tuple[float, float],
+                   warnings: list[str]) -> Material:
+    """One side's Material: the visualisation of `face` (module doc)."""
+    vis: Visualisation = u3m.visualisation(face)
     where = f"{u3m.file}: {face.value}"
 
     sets: dict = {}
@@ -173,16 +190,15 @@ def material_from_u3m(u3m: U3MMaterial, mesh: Mesh, face: Face | str = Face.FRON
         hue = mean_colour / lum if lum > 1e-6 else np.ones(3)
         sheen_colour = tuple(float(c) for c in np.clip(s * ((1.0 - tint) + tint * hue), 0.0, 1.0))
 
-    texture_set = TextureSet(**sets)
-    material = Material(albedo, model="pbr", metallic=float(np.clip(metallic, 0, 1)),
-                        roughness=float(np.clip(roughness, 0, 1)), sheen_colour=sheen_colour,
-                        sheen_roughness=SHEEN_ROUGHNESS, texture_sets=(texture_set,),
-                        texture_set=np.zeros(mesh.n_vertices, np.int32))
-    return material, warnings
+    return Material(albedo, model="pbr", metallic=float(np.clip(metallic, 0, 1)),
+                    roughness=float(np.clip(roughness, 0, 1)), sheen_colour=sheen_colour,
+                    sheen_roughness=SHEEN_ROUGHNESS, texture_sets=(TextureSet(**sets),),
+                    texture_set=np.zeros(mesh.n_vertices, np.int32))
 
 
-def _not_carried(u3m: U3MMaterial, vis: Visualisation, face) -> list[str]:
-    """The fields of `vis` (and the other faces) the renderer's material does not carry yet."""
+def _not_carried(u3m: U3MMaterial, vis: Visualisation, face, others: bool = True) -> list[str]:
+    """The fields of `vis` (and, with `others`, the cut edge's visualisation) the renderer's material
+    does not carry yet."""
     out = []
 
     def off(name: str, default: float) -> bool:
@@ -201,9 +217,6 @@ def _not_carried(u3m: U3MMaterial, vis: Visualisation, face) -> list[str]:
         out.append("displacement: not carried (the surface is the mesh's)")
     if not isinstance(vis.basecolor, (ColorConstant, ColorTexture)):   # pragma: no cover - the reader's types
         out.append("basecolor: unreadable")
-    seen = Face(face)
-    for other in (Face.BACK, Face.SIDE):
-        if other is not seen and getattr(u3m, other.value, None) is not None:
-            out.append(f"{other.value}: its own visualisation is not rendered yet (the {seen.value}'s is, on both "
-                       "sides of the cloth)")
+    if others and u3m.side is not None:
+        out.append("side: the cut edge's visualisation is not drawn (a garment's mesh is a sheet, without one)")
     return out
