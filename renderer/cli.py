@@ -712,7 +712,7 @@ def cmd_bench(args) -> int:
     # The side benchmarks: flag -> extra keyword arguments of renderer.bench.<flag>.run, which writes
     # <flag>.json and <flag>.md.
     side = {"area": {}, "shadow_maps": {"preset_name": args.preset}, "sizes": {}, "views": {}, "materials": {},
-            "energy": {}, "edges": {}}
+            "energy": {}, "edges": {}, "fabrics": {}}
     for name, extra in side.items():
         if getattr(args, name):
             importlib.import_module(f"renderer.bench.{name}").run(args.out, quick=args.quick, **extra)
@@ -912,6 +912,10 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
                    help="the ways to anti-alias (none, the renderer's 4 samples a pixel, 2 x 2 supersampling) at fast "
                         "and balanced: silhouette and interior error against references that integrate each pixel's "
                         "area, and frame time, on the held-out maps (renderer/bench/edges.py)")
+    b.add_argument("--fabrics", action="store_true",
+                   help="five U3M fabrics of our making (print, denim twill, satin, voile, velvet) on the draped dress "
+                        "under held-out maps, against the reference and against each one's plain twin: error and "
+                        "frame time (renderer/bench/fabrics.py)")
     b.add_argument("--materials", action="store_true",
                    help="the physically based fabrics (1 and 2 fitted lobes) against the reference beside the Phong "
                         "fabric, on tuning and held-out maps apart (renderer/bench/materials.py)")

@@ -222,3 +222,50 @@ def test_render_takes_a_u3m_fabric_and_says_what_it_leaves_out(tmp_path):
     from PIL import Image
 
     assert np.asarray(Image.open(out)).std() > 1.0
+
+
+def test_the_fabric_benchs_fabrics_load_as_a_users_would_and_say_what_is_not_carried():
+    """renderer/bench/fabrics.py writes its fabrics with renderer/u3m/write.py: each reads back through
+    load_u3m (the schema, the images), on a sheet with UVs, with the fields the renderer leaves out named."""
+    from renderer.bench.fabrics import FABRIC_NAMES, fabric_archive
+
+    expected = {"satin": {"anisotropy_value"}, "voile": {"alpha", "transmission"}}
+    sheet = quad(0.5, 0.5, (1.0, 1.0))
+    for name in FABRIC_NAMES:
+        fabric = load_u3m(fabric_archive(name), name=f"{name}.u3ma")
+        material, warnings = material_from_u3m(fabric, sheet)
+        assert {w.split(":")[0] for w in warnings} == expected.get(name, set()), (name, warnings)
+        assert material.is_pbr
+    denim = load_u3m(fabric_archive("denim"), name="denim.u3ma").front
+    assert denim.basecolor.width_mm == 8.0 and denim.normal.rotation_deg == 20.0
+
+
+def test_the_writer_writes_linear_colours_as_the_spec_stores_them(tmp_path):
+    from renderer.u3m import ColorConstant
+    from renderer.u3m.write import document, u3ma_bytes, visualisation
+
+    fabric = load_u3m(u3ma_bytes(document("Red", visualisation(basecolor=(0.2140, 0.0331, 0.0331))), {}),
+                      name="red.u3ma")
+    assert isinstance(fabric.front.basecolor, ColorConstant)
+    assert fabric.front.basecolor.rgb == pytest.approx((0.2140, 0.0331, 0.0331), abs=2e-4)
+    with pytest.raises(ValueError, match="no U3M field shine"):
+        visualisation(shine=1.0)
+
+
+@pytest.mark.system
+def test_the_fabric_bench_runs_and_reports_textured_against_plain(tmp_path):
+    from renderer.bench.scenes import shared_assets
+
+    if not (shared_assets() / "hdri").is_dir():
+        pytest.skip(f"the fabric bench needs the shared assets ({shared_assets()})")
+    done = subprocess.run([sys.executable, "-m", "renderer.cli", "bench", "--fabrics", "--quick", "--out",
+                           str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=1200)
+    assert done.returncode == 0, done.stderr[-2000:]
+    import json
+
+    data = json.loads((tmp_path / "fabrics.json").read_text())
+    rows = data["rows"]
+    assert {(r["fabric"], r["textured"], r["preset"]) for r in rows} == {
+        (f, t, p) for f in ("print", "denim") for t in (True, False) for p in ("fast", "balanced")}
+    assert all(np.isfinite(r["rel_rmse"]) and r["frame_ms"] > 0 for r in rows)
+    assert "| balanced | denim |" in (tmp_path / "fabrics.md").read_text()
