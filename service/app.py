@@ -23,13 +23,14 @@ from renderer.presets import presets as renderer_presets
 from renderer.presets.budget import load_table
 
 from .errors import install_error_handlers
+from .fabrics import FabricStore
 from .limits import RequestGate
 from .logs import process_label
 from .metrics import ServiceMetrics
 from .openapi import install_openapi
 from .operations import Services
 from .registry import EnvironmentStore, MeshStore, SceneStore
-from .routes import environments, frames, health, meshes, scenes, viewer
+from .routes import environments, fabrics, frames, health, meshes, scenes, viewer
 from .settings import ServiceSettings
 from .state import StateDir
 from .worker import GLResources, RenderWorker
@@ -60,6 +61,7 @@ async def lifespan(app: FastAPI):
     app.state.environments = EnvironmentStore(settings.max_environments, settings.max_environment_bytes)
     app.state.scenes = SceneStore(settings.max_scenes)
     app.state.meshes = MeshStore(settings.max_meshes)
+    app.state.fabrics = FabricStore(settings.max_fabrics, settings.max_fabric_bytes)
     worker = RenderWorker(settings)
     app.state.worker = worker
 
@@ -71,10 +73,10 @@ async def lifespan(app: FastAPI):
     worker.on_shutdown(release_scenes)
     app.state.metrics = ServiceMetrics(worker, lambda: {
         "scenes": len(app.state.scenes), "environments": len(app.state.environments),
-        "meshes": len(app.state.meshes.list())})
+        "meshes": len(app.state.meshes.list()), "fabrics": len(app.state.fabrics)})
     state = StateDir(settings.state_dir) if settings.state_dir else None
     app.state.services = Services(settings, worker, app.state.environments, app.state.scenes, app.state.meshes,
-                                  app.state.presets, measured, state)
+                                  app.state.presets, measured, state, app.state.fabrics)
     await anyio.to_thread.run_sync(worker.start)  # not ready (503s) rather than dead when GL fails
     # Answers name this process by its label alone (X-Render-Process): the log ties it to the host's id.
     logging.getLogger("service").info("process %s is pid %d", process_label(), os.getpid())
@@ -98,12 +100,14 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     install_error_handlers(app)
     install_openapi(app, token_set=settings.token is not None)
     token = settings.token.get_secret_value() if settings.token is not None else None
-    media_types = (*environments.ENV_MEDIA_TYPES, *meshes.MESH_MEDIA_TYPES, "application/json")
+    media_types = (*environments.ENV_MEDIA_TYPES, *meshes.MESH_MEDIA_TYPES, *fabrics.FABRIC_MEDIA_TYPES,
+                   "application/json")
     app.add_middleware(RequestGate, max_bytes=settings.max_upload_bytes, token=token, media_types=media_types)
     app.include_router(health.router)
     app.include_router(health.stats_router)
     app.include_router(environments.router)
     app.include_router(meshes.router)
+    app.include_router(fabrics.router)
     app.include_router(scenes.router)
     app.include_router(frames.router)
     app.include_router(viewer.router)

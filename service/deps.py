@@ -11,6 +11,7 @@ from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from .errors import InvalidRequestError, UnsupportedMediaTypeError
+from .fabrics import FabricStore
 from .limits import bearer_refusal
 from .metrics import ServiceMetrics
 from .operations import Services
@@ -39,6 +40,10 @@ def get_meshes(request: Request) -> MeshStore:
     return request.app.state.meshes
 
 
+def get_fabrics(request: Request) -> FabricStore:
+    return request.app.state.fabrics
+
+
 def get_metrics(request: Request) -> ServiceMetrics:
     return request.app.state.metrics
 
@@ -52,6 +57,7 @@ WorkerDep = Annotated[RenderWorker, Depends(get_worker)]
 EnvironmentsDep = Annotated[EnvironmentStore, Depends(get_environments)]
 ScenesDep = Annotated[SceneStore, Depends(get_scenes)]
 MeshesDep = Annotated[MeshStore, Depends(get_meshes)]
+FabricsDep = Annotated[FabricStore, Depends(get_fabrics)]
 MetricsDep = Annotated[ServiceMetrics, Depends(get_metrics)]
 ServicesDep = Annotated[Services, Depends(get_services)]
 

@@ -21,6 +21,7 @@ from renderer.errors import (
     EnvironmentMapError,
     GLContextError,
     InvalidInputError,
+    MaterialError,
     MeshError,
     RenderError,
     ShaderError,
@@ -118,6 +119,8 @@ def _renderer_status(exc: RenderError) -> tuple[int, str]:
         return 422, "invalid_environment"
     if isinstance(exc, MeshError):
         return 422, "invalid_mesh"
+    if isinstance(exc, MaterialError):   # a U3M fabric: its message names the file and the field
+        return 422, "invalid_material"
     if isinstance(exc, InvalidInputError):
         return 422, "invalid_input"
     if isinstance(exc, GLContextError):

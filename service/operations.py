@@ -1,5 +1,5 @@
 """What the routes do, without HTTP: add an environment map, make sure a PEM set exists, register a
-scene, and find an environment or a scene by id (in memory, else restored from the state directory,
+scene, and find an environment or a scene by id (fabrics: service/fabrics.py) (in memory, else restored from the state directory,
 which is how several worker processes, or a restarted service, share them)."""
 
 from __future__ import annotations
@@ -8,6 +8,7 @@ import asyncio
 import contextlib
 import functools
 import hashlib
+import logging
 import re
 import time
 from dataclasses import dataclass, field
@@ -22,12 +23,15 @@ from renderer.renderer import Background
 
 from .codecs import decode_hdr, sniff_hdr_kind
 from .errors import ConflictError, InvalidRequestError, NotFoundError, PayloadTooLargeError, QueueFullError
+from .fabrics import FabricStore, scene_fabrics
 from .registry import EnvironmentRecord, EnvironmentStore, MeshStore, PemInfo, SceneMeshInfo, SceneRecord, SceneStore
 from .schemas import MeshSpec, QualitySpec, SceneCreate
 from .settings import ServiceSettings
 from .specs import RequestQuality, check_pem_set, prepare_scene, resolve_quality
 from .state import StateDir
 from .worker import GLResources, RenderWorker
+
+log = logging.getLogger("service.scenes")
 
 
 @dataclass
@@ -42,6 +46,7 @@ class Services:
     presets: dict
     measured: dict | None   # the measured table read at start-up (None: none stored)
     state: StateDir | None = None
+    fabrics: FabricStore | None = None
     _restoring: dict[str, tuple[asyncio.Lock, int]] = field(default_factory=dict)
 
     def quality(self, spec: QualitySpec) -> RequestQuality:
@@ -221,8 +226,9 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
         await release_idle_scenes(svc)
     svc.scenes.check_room()
     env = await find_environment(svc, body.environment_id)
+    fabrics = await scene_fabrics(svc, body)
     prepared = await anyio.to_thread.run_sync(prepare_scene, body, svc.presets, svc.measured, svc.meshes,
-                                              svc.settings, svc.device)
+                                              svc.settings, svc.device, fabrics)
     q = prepared.quality
     pem = q.pem
     cube = await anyio.to_thread.run_sync(env.cube, q.face_size)
@@ -234,7 +240,11 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
         pem_settings=pem, frame_settings=q.frame, camera=prepared.camera, up=body.up,
         meshes=[SceneMeshInfo(role, m.name, m.n_vertices, m.n_faces, m.uvs is not None, m.faces)
                 for role, m in zip(prepared.roles, prepared.meshes)],
-        quality=q.info, output=body.output.model_dump(), pem_key=key)
+        quality=q.info, output=body.output.model_dump(), pem_key=key, fabric_ids=list(fabrics),
+        material_notes=prepared.material_notes)
+    if record.material_notes:
+        log.warning("scene %s: what the renderer does not carry of its fabrics: %s", record.id,
+                    "; ".join(record.material_notes))
     if svc.state is not None:   # one frame sequence for every process that renders the scene
         record.frame_counter = functools.partial(svc.state.count_frames, record.id)
 
@@ -256,9 +266,12 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
         for role, mesh, material in zip(prepared.roles, prepared.meshes, prepared.material_specs):
             spec: MeshSpec = getattr(body, role)
             if spec.mesh_id is not None:
+                # A fabric stays named by its id: its bytes are in the state directory (add_fabric).
+                shading = {"material": material} if material is not None else {"fabric_id": spec.fabric_id,
+                                                                                "uv_scale": spec.uv_scale}
                 inline[role] = MeshSpec(name=mesh.name, positions=_to_scene_up(mesh.positions, body.up),
                                         faces=mesh.faces.tolist(),
-                                        uvs=None if mesh.uvs is None else mesh.uvs.tolist(), material=material,
+                                        uvs=None if mesh.uvs is None else mesh.uvs.tolist(), **shading,
                                         **{k: spec.cast_shadows for k in ("cast_shadows",)
                                            if k in spec.model_fields_set})
         stored = body.model_copy(update=inline)

@@ -1,6 +1,7 @@
 """What the service holds between requests: uploaded environment maps, uploaded mesh files and
-registered scenes. Plain Python objects guarded by locks, readable from any thread; the GPU side of a
-scene (`SceneRecord.gpu`) is only touched by jobs on the GL thread."""
+registered scenes (uploaded fabrics: service/fabrics.py). Plain Python objects guarded by locks,
+readable from any thread; the GPU side of a scene (`SceneRecord.gpu`) is only touched by jobs on the
+GL thread."""
 
 from __future__ import annotations
 
@@ -314,6 +315,8 @@ class SceneRecord:
     created: float = field(default_factory=time.time)
     last_used: float = field(default_factory=time.monotonic)   # its last frame or lookup (monotonic s)
     latest: LatestFrame | None = None
+    fabric_ids: list[str] = field(default_factory=list)        # the fabrics its meshes and colourways name
+    material_notes: list[str] = field(default_factory=list)    # what of them the renderer does not carry
     _arrivals: deque = field(default_factory=lambda: deque(maxlen=30), repr=False)  # time.monotonic() of frames
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
@@ -414,6 +417,10 @@ class SceneStore:
     def using_environment(self, env_id: str) -> list[str]:
         with self._lock:
             return [s.id for s in self._by_id.values() if s.environment.id == env_id]
+
+    def using_fabric(self, fabric_id: str) -> list[str]:
+        with self._lock:
+            return [s.id for s in self._by_id.values() if fabric_id in s.fabric_ids]
 
     def __len__(self) -> int:
         return len(self._by_id)

@@ -200,6 +200,28 @@ class MaterialSpec(_Strict):
                                           "triangle's three corners read the same)")
 
 
+# A U3M fabric's physical scale on a mesh: the metres a unit of u and a unit of v span.
+UVScale = Annotated[list[Annotated[float, Field(gt=0.0, le=1000.0)]], Field(min_length=2, max_length=2)]
+_FABRIC_ID = "a fabric uploaded with POST /fabrics (fab_...): its front on the side the mesh's winding faces, its " \
+             "back behind it, each texture at its physical size"
+_UV_SCALE = "the metres a unit of u and of v span on the mesh, [su, sv]; default: measured on the mesh (its " \
+            "triangles' size against their UVs' size)"
+
+
+class FabricRef(_Strict):
+    """A U3M fabric (POST /fabrics) in place of a material: a colourway, or a mesh's `fabric_id`."""
+
+    fabric_id: str = Field(description=_FABRIC_ID)
+    uv_scale: UVScale | None = Field(None, description=_UV_SCALE)
+
+
+# The rule of MeshSpec._one_material in the schema: neither fabric_id nor uv_scale (absent or null),
+# or no material. A uv_scale with neither a fabric_id nor a material is refused by the validator alone:
+# the exact rule's case split puts a fabric first among a generator's simplest meshes, where the mesh
+# with the default material belongs.
+_ONE_MATERIAL = {"anyOf": [{"properties": {"fabric_id": {"type": "null"}, "uv_scale": {"type": "null"}}},
+                           {"properties": {"material": {"not": {}}}}]}
+
 # The rule of MeshSpec._one_source in the schema: a mesh_id and no inline arrays, or both arrays and
 # no mesh_id (an absent field or null counts as not given).
 _ONE_SOURCE = {"oneOf": [
@@ -211,9 +233,10 @@ _ONE_SOURCE = {"oneOf": [
 
 
 class MeshSpec(_Strict):
-    """Either `mesh_id` (a file uploaded with POST /meshes) or inline `positions` + `faces`."""
+    """Either `mesh_id` (a file uploaded with POST /meshes) or inline `positions` + `faces`; either a
+    `material` or a `fabric_id` (with an optional `uv_scale`)."""
 
-    model_config = ConfigDict(extra="forbid", json_schema_extra=_ONE_SOURCE)
+    model_config = ConfigDict(extra="forbid", json_schema_extra={**_ONE_SOURCE, **_ONE_MATERIAL})
 
     mesh_id: str | None = None
     name: str | None = None
@@ -222,6 +245,8 @@ class MeshSpec(_Strict):
     faces: list[Face] | None = Field(None, min_length=1, description="(F, 3) 0-based vertex indices, counter-clockwise")
     uvs: list[UV] | None = Field(None, description="(V, 2) per-vertex texture coordinates")
     material: MaterialSpec = Field(default_factory=MaterialSpec)
+    fabric_id: str | None = Field(None, description="instead of material: " + _FABRIC_ID + "; needs mesh UVs")
+    uv_scale: UVScale | None = Field(None, description="with fabric_id: " + _UV_SCALE)
     cast_shadows: bool = Field(True, description="false: the mesh receives shadows but casts none (a floor): "
                                "the shadow maps then fit the other meshes, so their texels are finer")
 
@@ -233,6 +258,18 @@ class MeshSpec(_Strict):
         if self.mesh_id is None and (self.positions is None or self.faces is None):
             raise ValueError("a mesh needs mesh_id, or both positions and faces")
         return self
+
+    @model_validator(mode="after")
+    def _one_material(self) -> MeshSpec:
+        if self.fabric_id is not None and "material" in self.model_fields_set:
+            raise ValueError("give either material or fabric_id, not both")
+        if self.uv_scale is not None and self.fabric_id is None:
+            raise ValueError("uv_scale places a fabric's textures: it needs fabric_id")
+        return self
+
+    def fabric(self) -> FabricRef | None:
+        """The fabric this mesh names, or None (it has a material)."""
+        return None if self.fabric_id is None else FabricRef(fabric_id=self.fabric_id, uv_scale=self.uv_scale)
 
 
 class SceneCreate(_Strict):
@@ -249,10 +286,16 @@ class SceneCreate(_Strict):
     camera: CameraSpec | None = Field(None, description="default: frames the initial meshes from +Z (fixed)")
     quality: QualitySpec = Field(default_factory=QualitySpec)
     output: OutputSpec = Field(default_factory=OutputSpec)
-    colourways: list[MaterialSpec] = Field(default_factory=list, max_length=MAX_COLOURWAYS,
-                                           description="more garment materials, rendered from the same frame by "
-                                           "POST .../frames/views (sharing everything but shading); a physically "
-                                           "based one makes the scene's shading physically based")
+    colourways: list[MaterialSpec | FabricRef] = Field(
+        default_factory=list, max_length=MAX_COLOURWAYS, description="more garment materials or fabrics "
+        "({fabric_id, uv_scale}), rendered from the same frame by POST .../frames/views (sharing everything but "
+        "shading); a physically based one (every fabric is) makes the scene's shading physically based")
+
+    def fabric_ids(self) -> list[str]:
+        """Every fabric the scene names (its meshes' and its colourways'), each once, in order."""
+        meshes = [getattr(self, role) for role in ("garment", "body", "floor")]
+        ids = [m.fabric_id for m in meshes if m is not None and m.fabric_id is not None]
+        return list(dict.fromkeys(ids + [c.fabric_id for c in self.colourways if isinstance(c, FabricRef)]))
 
 
 class ViewsFormat(str, Enum):
@@ -325,6 +368,47 @@ class MeshInfo(BaseModel):
                                  "names this mesh and no material; what of it was not read")
 
 
+class FabricTextureOut(BaseModel):
+    path: str = Field(description="the image, as the document names it")
+    width_mm: float = Field(description="the fabric one image covers")
+    height_mm: float
+    width_px: int
+    height_px: int
+    rotation_deg: float
+    repeat: str = Field(description="normal, mirror_x, mirror_y or mirror_xy")
+
+
+class FabricFieldOut(BaseModel):
+    name: str = Field(description="the U3M field (basecolor, normal, roughness, ...)")
+    kind: Literal["constant", "texture"]
+    value: float | list[float] = Field(description="the constant (a texture's fallback constant): a number, a "
+                                       "linear RGB colour or a tangent-space normal")
+    texture: FabricTextureOut | None = None
+
+
+class FabricFaceOut(BaseModel):
+    face: Literal["front", "back", "side"]
+    fields: list[FabricFieldOut]
+
+
+class FabricInfo(BaseModel):
+    id: str
+    name: str = Field(description="the upload's ?name=, else the document's material name")
+    material_name: str = Field(description="the document's material name")
+    version: str = Field(description="U3M schema version: 1.0 or 1.1")
+    file_sha256: str
+    archive_bytes: int = Field(description="bytes of the file as uploaded")
+    bytes: int = Field(description="memory its decoded images keep (GARMENT_RENDER_MAX_FABRIC_BYTES counts it)")
+    decode_ms: float
+    created: float
+    faces: list[FabricFaceOut] = Field(description="the visualisations the document gives (a null back renders "
+                                       "with the front's, as the spec says)")
+    thickness_mm: float | None = None
+    weight_g_m2: float | None = None
+    scenes: list[str] = []
+    cached: bool = Field(False, description="true when this upload matched an earlier one (nothing decoded)")
+
+
 class SceneMeshOut(BaseModel):
     role: str
     name: str
@@ -351,6 +435,9 @@ class SceneInfo(BaseModel):
         None, description="what one frame allocates on the GL device, in bytes, estimated at registration from the "
                           "PEM set's light plan (renderer.costs.frame_cost): the shadow maps (judged against "
                           "GARMENT_RENDER_MAX_SHADOW_MAP_BYTES), the render targets and the PEM set")
+    fabrics: list[str] = Field([], description="the fabrics its meshes and colourways name")
+    material_notes: list[str] = Field([], description="what of its fabrics the renderer does not carry yet "
+                                      "(alpha, transmission, anisotropy, ...), each naming its mesh or colourway")
 
 
 class FrameImage(BaseModel):

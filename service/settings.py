@@ -59,6 +59,13 @@ class ServiceSettings(BaseSettings):
                                         "is restored on its next use; without one its id answers 404 saying so)")
     max_environments: int = Field(32, ge=1, description="environment maps held by one process")
     max_meshes: int = Field(32, ge=1, description="uploaded mesh files kept for scene registration")
+    max_fabrics: int = Field(32, ge=1, description="U3M fabrics held by one process (POST /fabrics); beyond it: 409")
+    max_fabric_pixels: int = Field(4 * 4096 * 4096, ge=64, description="pixels of one fabric's images together "
+                                   "(each image once a use; one image at most this and 8192^2), read from their "
+                                   "headers before any is decoded (renderer.u3m.U3MLimits); beyond it: 422")
+    max_fabric_bytes: int = Field(1 << 30, ge=1 << 20, description="memory the fabrics may keep together (their "
+                                  "decoded images, float32); an upload is judged before it is decoded at 12 bytes "
+                                  "a pixel of its images' headers, and refused (409) where that would pass it")
 
     queue_size: int = Field(8, ge=1, description="jobs waiting for the GL thread; beyond it: 503 + Retry-After")
     request_timeout_s: float = Field(120.0, gt=0, description="wait for the GL thread (queue + render), then 504")

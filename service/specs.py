@@ -20,8 +20,18 @@ from renderer.shading.material import Material, TextureSet
 from renderer.shadows.proxy import shadow_faces_isolated
 
 from .errors import InvalidRequestError, PayloadTooLargeError
+from .fabrics import FabricRecord, fabric_material
 from .registry import MeshStore
-from .schemas import CameraSpec, MaterialSpec, MeshSpec, OutputSpec, QualitySpec, SceneCreate, TextureSetSpec
+from .schemas import (
+    CameraSpec,
+    FabricRef,
+    MaterialSpec,
+    MeshSpec,
+    OutputSpec,
+    QualitySpec,
+    SceneCreate,
+    TextureSetSpec,
+)
 from .settings import ServiceSettings
 
 _KNOBS = config.NAMES
@@ -159,9 +169,11 @@ def material_spec_of(m: Material) -> MaterialSpec:
                         **({} if m.texture_sets else maps(m)), **sets)
 
 
-def file_material(spec: MeshSpec, meshes: MeshStore) -> MaterialSpec:
-    """A mesh's material: the one its spec names, else (an uploaded glTF/GLB that carries one) the
-    file's own, else the default."""
+def file_material(spec: MeshSpec, meshes: MeshStore) -> MaterialSpec | None:
+    """A mesh's material: None where its spec names a fabric, else the one its spec names, else (an
+    uploaded glTF/GLB that carries one) the file's own, else the default."""
+    if spec.fabric_id is not None:
+        return None
     if spec.mesh_id is not None and "material" not in spec.model_fields_set:
         rec = meshes.get(spec.mesh_id)
         if rec.material is not None:
@@ -247,8 +259,9 @@ class PreparedScene:
     quality: RequestQuality
     casters: list[bool]
     proxies: dict | None = None   # the casters' shadow proxies at the quality's detail, made here (off the GL thread)
-    material_specs: list | None = None   # each mesh's MaterialSpec as used (a glTF file's own, where it applied)
+    material_specs: list | None = None   # each mesh's MaterialSpec as used (a glTF file's own; None: a fabric)
     colourways: list[Material] = field(default_factory=list)   # more garment materials (SceneCreate.colourways)
+    material_notes: list[str] = field(default_factory=list)    # what of the fabrics the renderer does not carry
 
     def exact_frame_cost(self, regions, settings: ServiceSettings) -> FrameCost:
         """`check_frame_cost` with the scene's PEM set's regions (on the GL thread, before the scene's
@@ -257,15 +270,27 @@ class PreparedScene:
 
 
 def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshes: MeshStore,
-                  settings: ServiceSettings, device: str | None = None) -> PreparedScene:
+                  settings: ServiceSettings, device: str | None = None,
+                  fabrics: dict[str, FabricRecord] | None = None) -> PreparedScene:
+    """`fabrics`: every fabric the scene names, by id (fabrics.scene_fabrics)."""
     quality = resolve_quality(body.quality, body.output, presets, measured, settings, device)
     specs = [("garment", body.garment)] + [(role, getattr(body, role)) for role in ("body", "floor")
                                            if getattr(body, role) is not None]
     built = [build_mesh(spec, role, body.up, meshes, settings) for role, spec in specs]
     material_specs = [file_material(spec, meshes) for _, spec in specs]
-    materials = [build_material(m, mesh, role) for (role, _), m, mesh in zip(specs, material_specs, built)]
+    notes: list[str] = []
+
+    def material(given: MaterialSpec | FabricRef | None, mesh: Mesh, role: str) -> Material:
+        if isinstance(given, FabricRef):
+            made, lines = fabric_material(fabrics or {}, given.fabric_id, given.uv_scale, mesh, role)
+            notes.extend(lines)
+            return made
+        return build_material(given, mesh, role)
+
+    materials = [material(m if m is not None else spec.fabric(), mesh, role)
+                 for (role, spec), m, mesh in zip(specs, material_specs, built)]
     # Numbered as the views answer labels them: the garment's own material is 0.
-    colourways = [build_material(m, built[0], f"colourway {k}") for k, m in enumerate(body.colourways, 1)]
+    colourways = [material(m, built[0], f"colourway {k}") for k, m in enumerate(body.colourways, 1)]
     # A floor casts nothing unless its spec says so.
     casters = [spec.cast_shadows if role != "floor" or "cast_shadows" in spec.model_fields_set else False
                for role, spec in specs]
@@ -291,7 +316,7 @@ def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshe
     proxies = {d: [shadow_faces_isolated(m.positions, m.faces, d) if c else None for m, c in zip(built, casters)]
                for d in {min(detail, 1.0), 1.0}}
     return PreparedScene(built, [r for r, _ in specs], materials, camera, quality, casters, proxies, material_specs,
-                         colourways)
+                         colourways, notes)
 
 
 def check_frame_cost(quality: RequestQuality, casters: list[bool], materials: list[Material],

@@ -1,10 +1,11 @@
-"""Environment maps and scenes written to a state directory (GARMENT_RENDER_STATE_DIR), so that any
-process of the service (uvicorn --workers N, each with its own GL context and memory) and a
+"""Environment maps, fabrics and scenes written to a state directory (GARMENT_RENDER_STATE_DIR), so
+that any process of the service (uvicorn --workers N, each with its own GL context and memory) and a
 restarted one can restore them on first use, by id. Without a state directory they live in the
 memory of the process that made them.
 
 Layout: environments/<id>.json (how it was uploaded) + environments/<id>.<exr|hdr> (the bytes as
-uploaded); scenes/<id>.json (the SceneCreate body, meshes inline); scenes/<id>.frames (the frames
+uploaded); fabrics/<id>.json (its name) + fabrics/<id>.u3m (the U3M or U3MA bytes as uploaded);
+scenes/<id>.json (the SceneCreate body, meshes inline, fabrics by id); scenes/<id>.frames (the frames
 rendered of the scene by every process, one counter under a file lock: the service's frame sequence
 is one for all of them). Files are written to a temporary name and renamed, so a reader never sees
 half a file.
@@ -35,11 +36,13 @@ class StateDir:
     def __init__(self, root: Path):
         self.root = Path(root)
         self.environments = self.root / "environments"
+        self.fabrics = self.root / "fabrics"
         self.scenes = self.root / "scenes"
-        self.environments.mkdir(parents=True, exist_ok=True)
-        self.scenes.mkdir(parents=True, exist_ok=True)
+        for folder in (self.environments, self.fabrics, self.scenes):
+            folder.mkdir(parents=True, exist_ok=True)
         # What writers killed mid-write left behind (no live process holds their lock).
-        self.temporaries_removed = sum(remove_orphaned_temporaries(d)[0] for d in (self.environments, self.scenes))
+        self.temporaries_removed = sum(remove_orphaned_temporaries(d)[0]
+                                       for d in (self.environments, self.fabrics, self.scenes))
 
     def scene_ids(self) -> list[str]:
         """The ids of the stored scenes (any process may restore them)."""
@@ -61,6 +64,24 @@ class StateDir:
 
     def delete_environment(self, env_id: str) -> None:
         for p in self.environments.glob(f"{_safe_id(env_id)}.*"):
+            p.unlink(missing_ok=True)
+
+    # -- fabrics -----------------------------------------------------------------------------------
+    def save_fabric(self, fabric_id: str, data: bytes, meta: dict) -> None:
+        fabric_id = _safe_id(fabric_id)
+        _atomic_write(self.fabrics / f"{fabric_id}.u3m", data)
+        _atomic_write(self.fabrics / f"{fabric_id}.json", json.dumps(meta).encode())
+
+    def load_fabric(self, fabric_id: str) -> tuple[bytes, dict] | None:
+        try:
+            fabric_id = _safe_id(fabric_id)
+            meta = json.loads((self.fabrics / f"{fabric_id}.json").read_text())
+            return (self.fabrics / f"{fabric_id}.u3m").read_bytes(), meta
+        except (OSError, ValueError):
+            return None
+
+    def delete_fabric(self, fabric_id: str) -> None:
+        for p in self.fabrics.glob(f"{_safe_id(fabric_id)}.*"):
             p.unlink(missing_ok=True)
 
     # -- scenes ----------------------------------------------------------------------------------

@@ -52,6 +52,7 @@ from ..codecs import (
 )
 from ..deps import OCTET_STREAM, MetricsDep, ServicesDep, SettingsDep, WorkerDep, client_gone, raw_body, require_token
 from ..errors import ClientGoneError, InvalidRequestError, PayloadTooLargeError, RenderTimeoutError
+from ..fabrics import scene_fabrics
 from ..operations import find_environment, find_scene
 from ..pipeline import (
     encode_async,
@@ -363,9 +364,10 @@ async def render_once(
     fmt = negotiate(format, request)
     json_image = _json_image(image)
     env = await find_environment(svc, body.environment_id)
+    fabrics = await scene_fabrics(svc, body)
     t0 = time.perf_counter()
     prepared = await anyio.to_thread.run_sync(prepare_scene, body, svc.presets, svc.measured, svc.meshes,
-                                              settings, svc.device)
+                                              settings, svc.device, fabrics)
     decode_ms = (time.perf_counter() - t0) * 1e3
     q = prepared.quality
     cube = await anyio.to_thread.run_sync(env.cube, q.face_size)

@@ -11,6 +11,7 @@ from prometheus_client import CONTENT_TYPE_LATEST
 
 from ..deps import (
     EnvironmentsDep,
+    FabricsDep,
     MeshesDep,
     MetricsDep,
     ScenesDep,
@@ -56,7 +57,7 @@ async def metrics(m: MetricsDep) -> Response:
 
 @stats_router.get("/stats", summary="Queue, GL thread, PEM cache and registry statistics as JSON")
 async def stats(worker: WorkerDep, settings: SettingsDep, envs: EnvironmentsDep, scenes: ScenesDep,
-                meshes: MeshesDep, svc: ServicesDep) -> dict:
+                meshes: MeshesDep, fabrics: FabricsDep, svc: ServicesDep) -> dict:
     w = worker.stats
     # Where this host keeps things, and the process's id on it, only to a caller with the service's
     # token: without one, anyone may ask (the label names the process: X-Render-Process).
@@ -81,6 +82,8 @@ async def stats(worker: WorkerDep, settings: SettingsDep, envs: EnvironmentsDep,
         "pem_cache": {"name": "pem-sets", "max_bytes": settings.pem_cache_bytes,
                       "disk_dir": where(settings.pem_cache_dir),
                       **worker.cache_stats().as_dict()},
-        "counts": {"environments": len(envs), "scenes": len(scenes), "meshes": len(meshes.list())},
+        "counts": {"environments": len(envs), "scenes": len(scenes), "meshes": len(meshes.list()),
+                   "fabrics": len(fabrics)},
         "environments": {"bytes": envs.nbytes, "max_bytes": settings.max_environment_bytes},
+        "fabrics": {"bytes": fabrics.nbytes, "max_bytes": settings.max_fabric_bytes},
     }

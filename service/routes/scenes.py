@@ -32,7 +32,8 @@ def scene_info(rec: SceneRecord) -> SceneInfo:
         quality=rec.quality, output=rec.output, camera=camera_dict(rec.camera),
         pem_set=pem_set_info(rec.environment, pem, with_lights=False) if pem else None,
         frames_rendered=rec.count_frames(0), created=rec.created,
-        frame_memory=rec.frame_cost.as_dict() if rec.frame_cost is not None else None)
+        frame_memory=rec.frame_cost.as_dict() if rec.frame_cost is not None else None,
+        fabrics=rec.fabric_ids, material_notes=rec.material_notes)
 
 
 @router.post("", response_model=SceneInfo, status_code=status.HTTP_201_CREATED,
