@@ -45,7 +45,7 @@ def test_schemathesis_finds_nothing(tmp_path, token):
         srv.stop()
 
 
-FILE_BODIES = {"POST /environments", "POST /meshes", "POST /scenes/{scene_id}/frames",
+FILE_BODIES = {"POST /environments", "POST /meshes", "POST /fabrics", "POST /scenes/{scene_id}/frames",
                "POST /scenes/{scene_id}/frames/batch", "POST /scenes/{scene_id}/frames/views"}
 
 
@@ -58,10 +58,11 @@ def _mismatched(report: str) -> set[str]:
 
 def _live_ids(url: str, tmp_path: Path, token: str | None) -> dict[str, str]:
     """Ids the fuzzed routes take (tests/schemathesis.toml reads them from the environment): an
-    environment, a mesh and a scene for every operation, and a spare of each that a DELETE takes."""
+    environment, a mesh, a fabric and a scene for every operation, and a spare of each that a DELETE takes."""
     import httpx
     import trimesh
     from service_server import garment, scene_body, upload_environment
+    from u3m_files import color, document, scalar, u3ma_bytes, visualisation
 
     from renderer.envmap import studio_environment, write_exr
 
@@ -82,6 +83,12 @@ def _live_ids(url: str, tmp_path: Path, token: str | None) -> dict[str, str]:
             r = http.post("/meshes", content=obj + b"\n" * len(meshes), headers=octet, params={"format": "obj"})
             assert r.status_code == 201, r.text
             meshes.append(r.json()["id"])
+        fabrics = []
+        for grey in (0.3, 0.6):   # fabrics of constants alone: their ids are their bytes'
+            fabric = document("1.1", visualisation("1.1", basecolor=color((grey, grey, grey)), roughness=scalar(0.8)))
+            r = http.post("/fabrics", content=u3ma_bytes(fabric, {}), headers=octet)
+            assert r.status_code == 201, r.text
+            fabrics.append(r.json()["id"])
         scenes = []
         for _ in range(2):
             r = http.post("/scenes", json=scene_body(env, mesh))
@@ -91,6 +98,7 @@ def _live_ids(url: str, tmp_path: Path, token: str | None) -> dict[str, str]:
         r = http.post(f"/scenes/{scenes[0]}/frames", content=np.asarray(mesh.positions, "<f4").tobytes(), headers=octet)
         assert r.status_code == 200, r.text
     ids.update(GR_FUZZ_ENV=env, GR_FUZZ_ENV_SPARE=spare_env.json()["id"], GR_FUZZ_MESH=meshes[0],
-               GR_FUZZ_MESH_SPARE=meshes[1], GR_FUZZ_SCENE=scenes[0], GR_FUZZ_SCENE_SPARE=scenes[1])
-    assert len(set(ids.values())) == 6
+               GR_FUZZ_MESH_SPARE=meshes[1], GR_FUZZ_FABRIC=fabrics[0], GR_FUZZ_FABRIC_SPARE=fabrics[1],
+               GR_FUZZ_SCENE=scenes[0], GR_FUZZ_SCENE_SPARE=scenes[1])
+    assert len(set(ids.values())) == 8
     return ids
