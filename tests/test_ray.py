@@ -146,61 +146,6 @@ def test_the_service_readmes_recipe_reaches_this_ray_instance(cluster):
 
 
 @pytest.mark.system
-def test_an_ingress_replica_killed_costs_no_outage(cluster, tmp_path):
-    """One of the two ingress replicas killed while a simulator sends frames: every frame is answered
-    200 (the client sends again the one Serve's proxy answered with its own 500, if any), and none waits
-    for Serve to bring the ingress back; a plain request right after the kill is answered at once."""
-    mesh = garment(16)
-    names = []
-    deadline = time.monotonic() + 120
-    while len(names) != 2:   # both ingress replicas up (an earlier test's kill may be coming back)
-        code = ("import ray; ray.init(address='auto', logging_level='ERROR'); "
-                "print(*[a['name'] for a in ray.util.list_named_actors(True) "
-                "if a['name'].startswith('SERVE_REPLICA::garment-render#garment-render-ingress#')])")
-        r = subprocess.run([sys.executable, "-c", code], env=cluster["env"], capture_output=True, text=True,
-                           timeout=120)
-        names = r.stdout.split()
-        assert time.monotonic() < deadline, (names, r.stderr[-1000:])
-    with httpx.Client(base_url=cluster["url"], timeout=120) as http:
-        env, _, _ = upload_environment(http, tmp_path, known=True)
-    killer = _Killer(cluster["env"], names[0])
-    gaps, failures, statuses, stop = [], [], [], threading.Event()
-    with RenderClient(cluster["url"], max_retries=50, max_retry_wait_s=0.5) as c:
-        s = c.create_scene(env["id"], positions=mesh.positions, faces=mesh.faces,
-                           **{k: v for k, v in scene_body(env["id"], mesh).items() if k in ("quality", "output")})
-        c.send_frame(s["id"], mesh.positions)
-
-        def simulator():
-            k = 0
-            while not stop.is_set():
-                t0 = time.perf_counter()
-                try:
-                    c.send_frame(s["id"], np.asarray(mesh.positions) + np.float32(0.001 * (k % 50)))
-                except Exception as exc:   # noqa: BLE001 - the test reports it
-                    failures.append(repr(exc))
-                    return
-                gaps.append(time.perf_counter() - t0)
-                k += 1
-
-        thread = threading.Thread(target=simulator)
-        thread.start()
-        try:
-            time.sleep(1.0)
-            killer.kill()
-            t0 = time.perf_counter()
-            with httpx.Client(base_url=cluster["url"], timeout=60) as http:
-                statuses = [http.get("/health/live").status_code for _ in range(5)]
-            first_s = time.perf_counter() - t0
-            time.sleep(3.0)
-        finally:
-            stop.set()
-            killer.close()
-            thread.join(timeout=120)
-    assert failures == [] and statuses == [200] * 5 and first_s < 2.0, (failures, statuses, first_s)
-    assert len(gaps) > 5 and max(gaps) < 3.0, f"a frame waited {max(gaps):.1f} s: {[round(g, 2) for g in gaps]}"
-
-
-@pytest.mark.system
 def test_a_local_instance_without_a_state_dir_shares_the_default_one(cluster):
     state = cluster["tmp"] / "xdg" / "garment-render" / "state"
     log = next(cluster["tmp"].glob("serve-*.log")).read_text()
@@ -530,3 +475,58 @@ def test_a_cluster_without_a_shared_state_dir_is_refused_before_ray_starts(monke
     monkeypatch.setenv("RAY_ADDRESS", "ray://head.example:10001")
     with pytest.raises(ValueError, match="on a cluster needs GARMENT_RENDER_STATE_DIR"):
         ray_serve.run("127.0.0.1", 0, 2)
+
+
+@pytest.mark.system
+def test_an_ingress_replica_killed_costs_no_outage(cluster, tmp_path):
+    """(Last in the module: it uploads the map the tests before it upload first.) One of the two ingress
+    replicas killed while a simulator sends frames: every frame is answered 200 (the client sends again the one Serve's proxy answered with its own 500, if any), and none waits
+    for Serve to bring the ingress back; a plain request right after the kill is answered at once."""
+    mesh = garment(16)
+    names = []
+    deadline = time.monotonic() + 120
+    while len(names) != 2:   # both ingress replicas up (an earlier test's kill may be coming back)
+        code = ("import ray; ray.init(address='auto', logging_level='ERROR'); "
+                "print(*[a['name'] for a in ray.util.list_named_actors(True) "
+                "if a['name'].startswith('SERVE_REPLICA::garment-render#garment-render-ingress#')])")
+        r = subprocess.run([sys.executable, "-c", code], env=cluster["env"], capture_output=True, text=True,
+                           timeout=120)
+        names = r.stdout.split()
+        assert time.monotonic() < deadline, (names, r.stderr[-1000:])
+    with httpx.Client(base_url=cluster["url"], timeout=120) as http:
+        env, _, _ = upload_environment(http, tmp_path, known=True)
+    killer = _Killer(cluster["env"], names[0])
+    gaps, failures, statuses, stop = [], [], [], threading.Event()
+    with RenderClient(cluster["url"], max_retries=50, max_retry_wait_s=0.5) as c:
+        s = c.create_scene(env["id"], positions=mesh.positions, faces=mesh.faces,
+                           **{k: v for k, v in scene_body(env["id"], mesh).items() if k in ("quality", "output")})
+        c.send_frame(s["id"], mesh.positions)
+
+        def simulator():
+            k = 0
+            while not stop.is_set():
+                t0 = time.perf_counter()
+                try:
+                    c.send_frame(s["id"], np.asarray(mesh.positions) + np.float32(0.001 * (k % 50)))
+                except Exception as exc:   # noqa: BLE001 - the test reports it
+                    failures.append(repr(exc))
+                    return
+                gaps.append(time.perf_counter() - t0)
+                k += 1
+
+        thread = threading.Thread(target=simulator)
+        thread.start()
+        try:
+            time.sleep(1.0)
+            killer.kill()
+            t0 = time.perf_counter()
+            with httpx.Client(base_url=cluster["url"], timeout=60) as http:
+                statuses = [http.get("/health/live").status_code for _ in range(5)]
+            first_s = time.perf_counter() - t0
+            time.sleep(3.0)
+        finally:
+            stop.set()
+            killer.close()
+            thread.join(timeout=120)
+    assert failures == [] and statuses == [200] * 5 and first_s < 2.0, (failures, statuses, first_s)
+    assert len(gaps) > 5 and max(gaps) < 3.0, f"a frame waited {max(gaps):.1f} s: {[round(g, 2) for g in gaps]}"
