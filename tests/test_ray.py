@@ -479,9 +479,10 @@ def test_a_cluster_without_a_shared_state_dir_is_refused_before_ray_starts(monke
 
 @pytest.mark.system
 def test_an_ingress_replica_killed_costs_no_outage(cluster, tmp_path):
-    """(Last in the module: it uploads the map the tests before it upload first.) One of the two ingress
-    replicas killed while a simulator sends frames: every frame is answered 200 (the client sends again the one Serve's proxy answered with its own 500, if any), and none waits
-    for Serve to bring the ingress back; a plain request right after the kill is answered at once."""
+    """One of the two ingress replicas killed while a simulator sends frames: every frame is answered
+    200 (the client sends again the one Serve's proxy answered with its own 500, if any), and none waits
+    for Serve to bring the ingress back; a plain request right after the kill is answered at once. Last
+    in the module: it uploads the map that the tests before it upload first."""
     mesh = garment(16)
     names = []
     deadline = time.monotonic() + 120
