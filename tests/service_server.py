@@ -115,3 +115,11 @@ def scene_body(env_id: str, mesh, **extra) -> dict:
             "quality": dict(FAST_QUALITY), "output": dict(SMALL_OUTPUT)}
     body.update(extra)
     return body
+
+
+def assert_error(r: httpx.Response, status: int, *words: str) -> None:
+    """`r` is the service's error answer of `status` whose detail names every one of `words` (any case)."""
+    assert r.status_code == status, f"expected {status}, got {r.status_code}: {r.text[:2000]}"
+    detail = r.json()["detail"]
+    for w in words:
+        assert w.lower() in detail.lower(), f"{w!r} not in {detail!r}"

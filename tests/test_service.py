@@ -22,6 +22,7 @@ from service_server import (
     FAST_QUALITY,
     SMALL_OUTPUT,
     ServiceProcess,
+    assert_error,
     environment_bytes,
     garment,
     scene_body,
@@ -76,13 +77,6 @@ def server_timing(header: str) -> dict[str, float]:
         name, _, dur = part.strip().partition(";dur=")
         out[name] = float(dur)
     return out
-
-
-def assert_error(r: httpx.Response, status: int, *words: str) -> None:
-    assert r.status_code == status, f"expected {status}, got {r.status_code}: {r.text}"
-    detail = r.json()["detail"]
-    for w in words:
-        assert w.lower() in detail.lower(), f"{w!r} not in {detail!r}"
 
 
 # -- basics ----------------------------------------------------------------------------------------

@@ -8,18 +8,12 @@ from __future__ import annotations
 import httpx
 import numpy as np
 import pytest
-from service_server import PISA, ServiceProcess, environment_bytes, garment, scene_body
+from service_server import PISA, ServiceProcess, assert_error, environment_bytes, garment, scene_body
 
 from renderer.presets import PRESET_NAMES
 from renderer.procedural import procedural_body
 
 OCTET = {"Content-Type": "application/octet-stream"}
-
-
-def assert_error(r: httpx.Response, status: int, *words: str) -> None:
-    assert r.status_code == status, f"expected {status}, got {r.status_code}: {r.text}"
-    for w in words:
-        assert w.lower() in r.json()["detail"].lower(), f"{w!r} not in {r.json()['detail']!r}"
 
 
 @pytest.fixture(scope="module")

@@ -8,16 +8,9 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
-from service_server import ServiceProcess, environment_bytes, garment, scene_body, upload_environment
+from service_server import ServiceProcess, assert_error, environment_bytes, garment, scene_body, upload_environment
 
 OCTET = {"Content-Type": "application/octet-stream"}
-
-
-def assert_error(r: httpx.Response, status: int, *words: str) -> None:
-    assert r.status_code == status, f"expected {status}, got {r.status_code}: {r.text}"
-    detail = r.json()["detail"]
-    for w in words:
-        assert w.lower() in detail.lower(), f"{w!r} not in {detail!r}"
 
 
 @pytest.fixture(scope="module")
