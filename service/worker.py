@@ -48,6 +48,10 @@ log = logging.getLogger("service.worker")
 T = TypeVar("T")
 
 
+def NEVER_STOP() -> bool:   # noqa: N802 - a constant function: what no job between jobs is asked
+    return False
+
+
 # Background maps kept on the GL thread (least recently used first out): one per environment in use.
 BACKGROUND_MAPS_KEPT = 4
 
@@ -65,7 +69,7 @@ class GLResources:
     pem_build_ns_per_texel_light: float | None = None
     # Whether the job now running was asked to stop (`Job.stop`): a job that takes long checks it
     # between its parts and raises `JobStoppedError`.
-    stop_requested: Callable[[], bool] = field(default=lambda: False)
+    stop_requested: Callable[[], bool] = NEVER_STOP
 
     def background(self, content_hash: str, source) -> BackgroundMap:
         """The background map of an environment (`renderer.shading.background`), made on first use
@@ -365,12 +369,9 @@ class RenderWorker:
                 self._stepping.append(job)
         finally:
             self._running, self._running_since = None, None
-            self._gl.stop_requested = _never
+            self._gl.stop_requested = NEVER_STOP
         run_ms = (time.perf_counter() - t0) * 1e3
         self.stats.busy_ms_total += run_ms
         ema = self.stats.run_ms_ema
         self.stats.run_ms_ema = run_ms if ema == 0.0 else 0.8 * ema + 0.2 * run_ms
 
-
-def _never() -> bool:
-    return False

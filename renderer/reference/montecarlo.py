@@ -294,13 +294,18 @@ class _SceneArrays:
         positions = np.concatenate(pos).astype(np.float64)
         faces = np.concatenate(faces)
         tm = trimesh.Trimesh(vertices=positions, faces=faces, process=False)
+        fronts = (alb, mat, pbr, sheen)
         def cat(parts):
             return np.concatenate(parts).astype(np.float64)
 
-        return cls(positions, faces, cat(nrm), cat(alb), cat(mat), cat(pbr), cat(sheen), cat(uvs),
+        front_arrays = tuple(cat(a) for a in fronts)
+        # The back's arrays where some material has a back, else the front's own (sided: no second mix).
+        backs = (tuple(cat([b[k] for b in back_arrays]) for k in range(4))
+                 if any(m.back is not None for m in materials) else front_arrays)
+        return cls(positions, faces, cat(nrm), *front_arrays, cat(uvs),
                    np.concatenate(face_mesh), tuple(maps), RayMeshIntersector(tm),
                    tuple(pbr_parts), tuple(normal_maps), np.concatenate(face_part), tuple(placements),
-                   np.concatenate(face_part_back), tuple(cat([b[k] for b in back_arrays]) for k in range(4)))
+                   np.concatenate(face_part_back), backs)
 
 
 @dataclass
@@ -354,6 +359,8 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
     r = dirs - 2.0 * _dot(dirs, n)[:, None] * n
 
     def sided(front: np.ndarray, back: np.ndarray) -> np.ndarray:
+        if back is front:   # no material here has a back: one side's arrays
+            return mix(front)
         return np.where(back_seen[:, None], mix(back), mix(front))
 
     albedo_b, material_b, pbr_b, sheen_b = scene.back

@@ -36,7 +36,6 @@ from ..errors import MaterialError
 from ..mesh import Mesh
 from ..shading.material import Material, TextureSet
 from .material import (
-    ColorConstant,
     ColorTexture,
     Face,
     NormalConstant,
@@ -215,8 +214,6 @@ def _not_carried(u3m: U3MMaterial, vis: Visualisation, face, others: bool = True
             out.append(f"{name}: not carried yet ({what})")
     if isinstance(vis.displacement, ScalarTexture):
         out.append("displacement: not carried (the surface is the mesh's)")
-    if not isinstance(vis.basecolor, (ColorConstant, ColorTexture)):   # pragma: no cover - the reader's types
-        out.append("basecolor: unreadable")
     if others and u3m.side is not None:
         out.append("side: the cut edge's visualisation is not drawn (a garment's mesh is a sheet, without one)")
     return out
