@@ -480,9 +480,11 @@ def test_a_cluster_without_a_shared_state_dir_is_refused_before_ray_starts(monke
 @pytest.mark.system
 def test_an_ingress_replica_killed_costs_no_outage(cluster, tmp_path):
     """One of the two ingress replicas killed while a simulator sends frames: every frame is answered
-    200 (the client sends again the one Serve's proxy answered with its own 500, if any), and none waits
-    for Serve to bring the ingress back; a plain request right after the kill is answered at once. Last
-    in the module: it uploads the map that the tests before it upload first."""
+    200 (the client sends again the one Serve's proxy answered with its own 500, if any), and none sent
+    after the kill waits for Serve to bring the ingress back; a plain request right after the kill is
+    answered at once. The frame in flight on the killed replica waits until Serve's proxy notices the
+    death (seconds, Ray's own), so it is held to a looser bound. Last in the module: it uploads the map
+    that the tests before it upload first."""
     mesh = garment(16)
     names = []
     deadline = time.monotonic() + 120
@@ -497,7 +499,7 @@ def test_an_ingress_replica_killed_costs_no_outage(cluster, tmp_path):
     with httpx.Client(base_url=cluster["url"], timeout=120) as http:
         env, _, _ = upload_environment(http, tmp_path, known=True)
     killer = _Killer(cluster["env"], names[0])
-    gaps, failures, statuses, stop = [], [], [], threading.Event()
+    spans, failures, statuses, stop = [], [], [], threading.Event()
     with RenderClient(cluster["url"], max_retries=50, max_retry_wait_s=0.5) as c:
         s = c.create_scene(env["id"], positions=mesh.positions, faces=mesh.faces,
                            **{k: v for k, v in scene_body(env["id"], mesh).items() if k in ("quality", "output")})
@@ -512,13 +514,14 @@ def test_an_ingress_replica_killed_costs_no_outage(cluster, tmp_path):
                 except Exception as exc:   # noqa: BLE001 - the test reports it
                     failures.append(repr(exc))
                     return
-                gaps.append(time.perf_counter() - t0)
+                spans.append((t0, time.perf_counter()))
                 k += 1
 
         thread = threading.Thread(target=simulator)
         thread.start()
         try:
             time.sleep(1.0)
+            killed_at = time.perf_counter()
             killer.kill()
             t0 = time.perf_counter()
             with httpx.Client(base_url=cluster["url"], timeout=60) as http:
@@ -530,4 +533,8 @@ def test_an_ingress_replica_killed_costs_no_outage(cluster, tmp_path):
             killer.close()
             thread.join(timeout=120)
     assert failures == [] and statuses == [200] * 5 and first_s < 2.0, (failures, statuses, first_s)
-    assert len(gaps) > 5 and max(gaps) < 3.0, f"a frame waited {max(gaps):.1f} s: {[round(g, 2) for g in gaps]}"
+    in_flight = [b - a for a, b in spans if a <= killed_at < b]
+    after = [b - a for a, b in spans if a > killed_at]
+    report = [(round(a - killed_at, 2), round(b - a, 2)) for a, b in spans]
+    assert len(after) > 5 and max(after) < 3.0, f"a frame sent after the kill waited: {report}"
+    assert all(w < 15.0 for w in in_flight), f"the frame in flight at the kill waited: {report}"
