@@ -15,7 +15,7 @@ import httpx
 import numpy as np
 import pytest
 from PIL import Image
-from service_server import ServiceProcess, garment, scene_body, upload_environment
+from service_server import FAST_QUALITY, ServiceProcess, garment, scene_body, upload_environment
 from u3m_files import (
     color,
     color_texture,
@@ -27,6 +27,8 @@ from u3m_files import (
     u3ma_bytes,
     visualisation,
 )
+
+from garment_render_client import RenderClient, ServiceError
 
 OCTET = {"Content-Type": "application/octet-stream"}
 ZIP = {"Content-Type": "application/zip"}
@@ -191,6 +193,42 @@ def test_colourways_of_two_fabrics_in_one_sheet(http, env_id, mesh):
     assert first[..., 0].mean() - first[..., 2].mean() > 10 and second[..., 2].mean() - second[..., 0].mean() > 10
     assert http.delete(f"/fabrics/{blue}").status_code == 409   # a colourway uses it too
     assert http.delete(f"/scenes/{sid}").status_code == 204
+
+
+def test_the_client_uploads_names_and_forgets_a_fabric(server, env_id, mesh, tmp_path):
+    """garment_render_client as a simulator uses it: a .u3ma uploaded from its path, found again by its
+    bytes, named by a scene's garment (with a scale) and by a colourway, rendered as a sheet of views,
+    kept while the scene lives and forgotten after."""
+    path = tmp_path / "red-check.u3ma"
+    path.write_bytes(checker_fabric((230, 30, 30), (200, 20, 20), name="red check"))
+    with RenderClient(server.url) as c:
+        red = c.upload_fabric(path)
+        assert red["name"] == "red-check.u3ma" and red["material_name"] == "red check" and not red["cached"]
+        assert c.upload_fabric(path.read_bytes())["id"] == red["id"]   # the same bytes: found, not read again
+        blue = c.upload_fabric(checker_fabric((30, 30, 230), (20, 20, 200)), name="blue")
+        assert {red["id"], blue["id"]} <= {f["id"] for f in c.fabrics()}
+        fields = {f["name"]: f for f in c.fabric(red["id"])["faces"][0]["fields"]}
+        assert fields["basecolor"]["kind"] == "texture" and fields["basecolor"]["texture"]["width_mm"] == 200.0
+        with pytest.raises(ValueError, match="not both"):
+            c.mesh_spec(mesh.positions, mesh.faces, mesh.uvs, material={"albedo": [1, 0, 0]}, fabric_id=red["id"])
+        scene = c.create_scene(env_id, positions=mesh.positions, faces=mesh.faces, uvs=mesh.uvs, fabric_id=red["id"],
+                               uv_scale=(1.0, 1.0), colourways=[{"fabric_id": blue["id"]}], quality=dict(FAST_QUALITY),
+                               output={"width": 64, "height": 64})
+        assert scene["fabrics"] == [red["id"], blue["id"]]
+        sheet = c.send_views(scene["id"], mesh.positions, turntable=1)
+        assert sheet.headers["x-colourways"] == "2"
+        rgb = sheet.array()[..., :3].astype(float)
+        assert rgb.shape[:2] == (64, 2 * 64 + 2)
+        garment_red, colourway_blue = rgb[16:64, :64], rgb[16:64, 66:130]   # below the tiles' labels
+        assert garment_red[..., 0].mean() - garment_red[..., 2].mean() > 10
+        assert colourway_blue[..., 2].mean() - colourway_blue[..., 0].mean() > 10
+        with pytest.raises(ServiceError) as refused:
+            c.delete_fabric(blue["id"])
+        assert refused.value.status == 409
+        c.delete_scene(scene["id"])
+        c.delete_fabric(red["id"])
+        c.delete_fabric(blue["id"])
+        assert not {red["id"], blue["id"]} & {f["id"] for f in c.fabrics()}
 
 
 def test_a_fabric_needs_uvs_and_the_rules_of_the_schema(http, env_id, mesh):

@@ -238,10 +238,40 @@ class RenderClient:
         return self._json("POST", "/meshes", params={"format": format, "up": up, "scale": scale}, content=data,
                           headers={"Content-Type": OCTET})
 
+    def upload_fabric(self, source: str | Path | bytes, name: str | None = None) -> dict:
+        """source: a U3M archive (.u3ma), a path or its bytes. Returns the fabric's details (its `id`
+        for `fabric_id` and colourways); the same file uploaded again is found, not read again."""
+        data = Path(source).read_bytes() if isinstance(source, (str, Path)) else bytes(source)
+        if name is None and isinstance(source, (str, Path)):
+            name = Path(source).name
+        return self._json("POST", "/fabrics", params={"name": name} if name else {}, content=data,
+                          headers={"Content-Type": "application/zip"})
+
+    def fabric(self, fabric_id: str) -> dict:
+        """Every field of every face of an uploaded fabric: a constant, or a texture with its size."""
+        return self._json("GET", f"/fabrics/{fabric_id}")
+
+    def fabrics(self) -> list[dict]:
+        return self._json("GET", "/fabrics")
+
+    def delete_fabric(self, fabric_id: str) -> None:
+        """Refused (ServiceError 409) while a scene uses the fabric."""
+        self._request("DELETE", f"/fabrics/{fabric_id}")
+
     @staticmethod
     def mesh_spec(positions=None, faces=None, uvs=None, material: dict | None = None, mesh_id: str | None = None,
-                  name: str | None = None) -> dict:
-        spec: dict = {"material": material or {}}
+                  name: str | None = None, fabric_id: str | None = None,
+                  uv_scale: tuple[float, float] | None = None) -> dict:
+        """A mesh of a scene: its vertices (or an uploaded `mesh_id`) and either a `material` or an
+        uploaded fabric's `fabric_id` (the mesh needs UVs; `uv_scale`, the metres a UV unit spans,
+        measured on the mesh when not given)."""
+        if fabric_id is not None and material is not None:
+            raise ValueError("give either material or fabric_id, not both")
+        if uv_scale is not None and fabric_id is None:
+            raise ValueError("uv_scale places a fabric's textures: it needs fabric_id")
+        spec: dict = {"fabric_id": fabric_id} if fabric_id is not None else {"material": material or {}}
+        if uv_scale is not None:
+            spec["uv_scale"] = [float(uv_scale[0]), float(uv_scale[1])]
         if mesh_id is not None:
             spec["mesh_id"] = mesh_id
         else:
@@ -256,10 +286,16 @@ class RenderClient:
     def scene_spec(self, environment_id: str, positions=None, faces=None, uvs=None, material: dict | None = None,
                    mesh_id: str | None = None, body: dict | None = None, camera: dict | None = None,
                    quality: dict | None = None, output: dict | None = None, up: str = "y",
-                   name: str = "scene", floor: dict | None = None) -> dict:
+                   name: str = "scene", floor: dict | None = None, fabric_id: str | None = None,
+                   uv_scale: tuple[float, float] | None = None, colourways: list | None = None) -> dict:
+        """colourways: materials (dicts) or fabrics ({"fabric_id": ..., "uv_scale": ...}) the views
+        route renders from the same frame."""
         spec = {"name": name, "environment_id": environment_id, "up": up,
-                "garment": self.mesh_spec(positions, faces, uvs, material, mesh_id, name="garment"),
+                "garment": self.mesh_spec(positions, faces, uvs, material, mesh_id, name="garment",
+                                          fabric_id=fabric_id, uv_scale=uv_scale),
                 "quality": quality or {}, "output": output or {}}
+        if colourways is not None:
+            spec["colourways"] = list(colourways)
         if body is not None:
             spec["body"] = body
         if floor is not None:
@@ -269,8 +305,8 @@ class RenderClient:
         return spec
 
     def create_scene(self, environment_id: str, **kw) -> dict:
-        """kw: positions, faces, uvs, material, mesh_id, body and floor (mesh_spec dicts), camera, quality,
-        output, up, name."""
+        """kw: positions, faces, uvs, material or fabric_id (and uv_scale), mesh_id, body and floor
+        (mesh_spec dicts), camera, quality, output, up, name, colourways."""
         return self._json("POST", "/scenes", idempotent=False, json=self.scene_spec(environment_id, **kw))
 
     def delete_scene(self, scene_id: str) -> None:
@@ -293,6 +329,24 @@ class RenderClient:
             params["exposure"] = exposure
         r, retries = self._request("POST", f"/scenes/{scene_id}/frames", content=b"".join(parts), headers=headers,
                                    params=params)
+        return self._frame(r, retries)
+
+    def send_views(self, scene_id: str, positions, turntable: int | None = None, views: list[str] | None = None,
+                   colourways: bool = True, exposure: float | None = None) -> FrameResult:
+        """One frame's positions seen from several cameras (`turntable` N steps about the target, or
+        named `views`: front, back, left, right, ...) and, with `colourways`, in every colourway the
+        scene was registered with: one PNG sheet, a row per view and a column per colourway."""
+        if (turntable is None) == (views is None):
+            raise ValueError("give turntable=N or views=[...]: one of the two")
+        params: dict = {"colourways": str(colourways).lower(), "format": "sheet"}
+        if turntable is not None:
+            params["turntable"] = int(turntable)
+        else:
+            params["views"] = ",".join(views)
+        if exposure is not None:
+            params["exposure"] = exposure
+        r, retries = self._request("POST", f"/scenes/{scene_id}/frames/views", content=_as_f32(positions, "positions"),
+                                   headers={"Content-Type": OCTET, "X-Frame-Layout": "positions"}, params=params)
         return self._frame(r, retries)
 
     def send_batch(self, scene_id: str, frames, image: str = "png") -> list[FrameResult]:
