@@ -115,9 +115,14 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--sheen-colour", type=_floats(3), default=(0.0, 0.0, 0.0),
                    help="pbr: KHR_materials_sheen colour r,g,b (0,0,0: no sheen)")
     g.add_argument("--sheen-roughness", type=float, default=0.5, help="pbr: sheen roughness in [0,1]")
+    g.add_argument("--anisotropy", type=float, default=0.0,
+                   help="pbr: GGX anisotropy in [0,1] (a satin's highlight stretched along one direction; 0: none)")
+    g.add_argument("--anisotropy-rotation", type=float, default=0.0,
+                   help="pbr: that direction in turns, counter-clockwise from the garment's u towards its v")
     g.add_argument("--material", type=Path,
                    help="garment material from a TOML or JSON file of Material fields (model, albedo, metallic, "
-                        "roughness, sheen_colour, sheen_roughness, specular, glossiness), a glTF/GLB file's "
+                        "roughness, sheen_colour, sheen_roughness, anisotropy, anisotropy_rotation, specular, "
+                        "glossiness), a glTF/GLB file's "
                         "material (metallic-roughness, its textures, KHR_materials_sheen), or a U3M fabric (.u3m "
                         "with its images, .u3ma; its textures at their physical size: docs/u3m.md); replaces the "
                         "flags above")
@@ -201,7 +206,7 @@ FLOOR_MATERIAL = (0.45, 0.45, 0.45), 0.0, 0.3
 
 
 MATERIAL_FIELDS = ("model", "albedo", "specular", "glossiness", "metallic", "roughness", "sheen_colour",
-                   "sheen_roughness")
+                   "sheen_roughness", "anisotropy", "anisotropy_rotation")
 
 
 def garment_material(args, garment=None):
@@ -219,7 +224,8 @@ def garment_material(args, garment=None):
     if path is None:
         if args.model == "pbr":
             return Material(args.albedo, model="pbr", metallic=args.metallic, roughness=args.roughness,
-                            sheen_colour=args.sheen_colour, sheen_roughness=args.sheen_roughness)
+                            sheen_colour=args.sheen_colour, sheen_roughness=args.sheen_roughness,
+                            anisotropy=args.anisotropy, anisotropy_rotation=args.anisotropy_rotation)
         return Material(args.albedo, args.specular, args.glossiness)
     return material_file(path, garment, getattr(args, "uv_scale", None))
 

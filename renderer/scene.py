@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import itertools
+import math
 
 import moderngl
 import numpy as np
@@ -357,8 +358,11 @@ class TexturePart:
     textures and the geometry pass's vertex array over them (all of the mesh's triangles when the
     material has one set)."""
 
-    def __init__(self, ctx, textures: TextureSet, is_pbr: bool, program, attributes, ibo, n_faces: int):
+    def __init__(self, ctx, textures: TextureSet, is_pbr: bool, program, attributes, ibo, n_faces: int,
+                 anisotropy_rotation: float = 0.0):
         self.textures = []
+        # The material's anisotropy direction, radians from growing u (Material.anisotropy_rotation).
+        self.anisotropy_rotation = 2.0 * math.pi * float(anisotropy_rotation)
         albedo_map, gloss_map = textures.maps(is_pbr)
         normal_map = textures.normal_texture()
         sheen_map = textures.sheen_texture()
@@ -396,6 +400,7 @@ class TexturePart:
         set_uniform(program, "u_use_albedo_map", self.use_maps[0])
         set_uniform(program, "u_use_gloss_map", self.use_maps[1])
         set_uniform(program, "u_use_sheen_map", self.use_maps[2])
+        set_uniform(program, "u_anisotropy_rotation", self.anisotropy_rotation)
         for name, placement in self.placements.items():
             if f"u_{name}_placement" in program:
                 program[f"u_{name}_placement"].write(placement)
@@ -436,7 +441,8 @@ class MaterialBuffers:
                 if not len(faces):
                     continue   # a set no triangle reads
                 ibo, n_faces = ctx.buffer(np.ascontiguousarray(faces, np.int32).tobytes()), len(faces)
-            self.parts.append(TexturePart(ctx, textures, material.is_pbr, program, attributes, ibo, n_faces))
+            self.parts.append(TexturePart(ctx, textures, material.is_pbr, program, attributes, ibo, n_faces,
+                                          material.anisotropy_rotation))
         # The cloth's other side (Material.back): drawn where the camera sees a triangle's back.
         self.back = MaterialBuffers(sm, material.back) if material.back is not None else None
 

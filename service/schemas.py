@@ -185,6 +185,10 @@ class MaterialSpec(_Strict):
     sheen_colour: list[float] | list[list[float]] = Field([0.0, 0.0, 0.0], description="pbr: sheen colour, linear "
                                                           "RGB (3,) or (V, 3); black: no sheen")
     sheen_roughness: float | list[float] = Field(0.5, description="pbr: sheen roughness in [0, 1], scalar or (V,)")
+    anisotropy: float = Field(0.0, ge=0.0, le=1.0, description="pbr: GGX's anisotropy (a satin's, a silk's "
+                              "highlight stretched along one direction of the cloth); 0: isotropic")
+    anisotropy_rotation: float = Field(0.0, ge=-1.0, le=1.0, description="pbr: that direction in turns, counter-"
+                                       "clockwise from growing u towards growing v (without UVs: from the up axis)")
     metallic_roughness_map: list[list[list[float]]] | None = Field(
         None, description="pbr: (H, W, 2) texture of (metallic, roughness) multiplying the two; needs mesh UVs")
     normal_map: list[list[list[float]]] | None = Field(

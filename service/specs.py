@@ -166,6 +166,7 @@ def material_spec_of(m: Material) -> MaterialSpec:
         "texture_set": np.asarray(m.texture_set, np.int64).tolist()}
     return MaterialSpec(model=m.model, albedo=listed(m.albedo), metallic=value(m.metallic), roughness=value(m.roughness),
                         sheen_colour=listed(m.sheen_colour), sheen_roughness=value(m.sheen_roughness),
+                        anisotropy=float(m.anisotropy), anisotropy_rotation=float(m.anisotropy_rotation),
                         **({} if m.texture_sets else maps(m)), **sets)
 
 
@@ -194,7 +195,8 @@ def build_material(spec: MaterialSpec, mesh: Mesh, role: str) -> Material:
     try:
         mat = Material(albedo=arr(spec.albedo), specular=arr(spec.specular), glossiness=arr(spec.glossiness),
                        model=spec.model, metallic=arr(spec.metallic), roughness=arr(spec.roughness),
-                       sheen_colour=arr(spec.sheen_colour), sheen_roughness=arr(spec.sheen_roughness), **maps(spec),
+                       sheen_colour=arr(spec.sheen_colour), sheen_roughness=arr(spec.sheen_roughness),
+                       anisotropy=spec.anisotropy, anisotropy_rotation=spec.anisotropy_rotation, **maps(spec),
                        texture_sets=tuple(TextureSet(**maps(ts)) for ts in spec.texture_sets),
                        texture_set=None if spec.texture_set is None else np.asarray(spec.texture_set, np.int64))
         mat.vertex_arrays(mesh.n_vertices)

@@ -109,3 +109,49 @@ def test_phong_is_the_lobe_of_the_renderer_and_the_reference():
     np.testing.assert_allclose(f[up], _phong_lobe(DIRS[up] @ r, np.full(up.sum(), s)), rtol=1e-12, atol=1e-300)
     # A density over the sphere: about 1 while the lobe stays above the horizon.
     assert abs(f.sum() * DOMEGA - 1.0) < 2e-2
+
+
+def _hemisphere(count: int, rng) -> np.ndarray:
+    z = rng.random(count)
+    r, phi = np.sqrt(1.0 - z * z), 2.0 * np.pi * rng.random(count)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def test_anisotropic_ggx_is_the_isotropic_one_at_zero_and_turns_with_its_direction():
+    rng = np.random.default_rng(3)
+    n, v = np.array([0.0, 0.0, 1.0]), np.array([0.3, -0.2, 0.93])
+    v = v / np.linalg.norm(v)
+    w = _hemisphere(2000, rng)
+    t, b = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    iso = brdf.ggx(n, v, w, (0.9, 0.7, 0.4), 1.0, 0.4)
+    np.testing.assert_allclose(brdf.ggx(n, v, w, (0.9, 0.7, 0.4), 1.0, 0.4, t, 0.0), iso, rtol=1e-9, atol=1e-12)
+    stretched = brdf.ggx(n, v, w, (0.9, 0.7, 0.4), 1.0, 0.4, t, 0.8)
+    assert np.abs(stretched - iso).max() > 0.2 * iso.max()
+    # The same lobe about b is the one about t mirrored across the plane x = y (v and w mirrored too).
+    swap = np.array([1, 0, 2])
+    np.testing.assert_allclose(brdf.ggx(n, v[swap], w[:, swap], (0.9, 0.7, 0.4), 1.0, 0.4, b, 0.8), stretched,
+                               rtol=1e-9, atol=1e-12)
+    # Reciprocal: f(v, w) = f(w, v) (each call is f times the cosine of its third argument).
+    np.testing.assert_allclose(brdf.ggx(n, w, v, 1.0, 1.0, 0.4, t, 0.8)[:, 0] / v[2],
+                               brdf.ggx(n, v, w, 1.0, 1.0, 0.4, t, 0.8)[:, 0] / w[:, 2], rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("roughness,anisotropy,theta", [(0.3, 0.8, 30.0), (0.5, 1.0, 60.0), (0.2, 0.6, 75.0)])
+def test_anisotropic_ggx_keeps_energy_and_its_visible_normals_sample_it(roughness, anisotropy, theta):
+    """A white metal's albedo by uniform directions and by the reference's sampling of the anisotropic
+    visible normals (its density `ggx_reflection_pdf_anisotropic`) agree, and stay below 1."""
+    rng = np.random.default_rng(5)
+    m = 200_000
+    n, t = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    v = np.array([np.sin(np.radians(theta)) * np.cos(0.7), np.sin(np.radians(theta)) * np.sin(0.7),
+                  np.cos(np.radians(theta))])
+    uniform = brdf.ggx(n, v, _hemisphere(m, rng), 1.0, 1.0, roughness, t, anisotropy)[:, 0].mean() * 2.0 * np.pi
+    at, ab = brdf.anisotropic_alphas(np.full(m, roughness), np.full(m, anisotropy))
+    vl = np.broadcast_to(v, (m, 3)).copy()
+    h = brdf.sample_ggx_visible_normals(vl, at, rng.random(m), rng.random(m), ab)
+    w = 2.0 * np.sum(vl * h, axis=1)[:, None] * h - vl
+    pdf = brdf.ggx_reflection_pdf_anisotropic(vl, h, at, ab)
+    f = brdf.ggx(n, v, w, 1.0, 1.0, roughness, t, anisotropy)[:, 0]
+    sampled = np.where(pdf > 0, f / np.where(pdf > 0, pdf, 1.0), 0.0).mean()
+    assert sampled < 1.0 and uniform < 1.01
+    assert sampled == pytest.approx(uniform, rel=0.03)

@@ -223,11 +223,14 @@ def test_a_material_file_or_the_flags_make_the_garment_material(tmp_path):
     p = build_parser()
     args = p.parse_args(["render", "--model", "pbr", "--roughness", "0.3", "--sheen-colour", "0.5,0.4,0.3"])
     m = garment_material(args)
-    assert m.is_pbr and m.roughness == 0.3 and m.has_sheen()
+    assert m.is_pbr and m.roughness == 0.3 and m.has_sheen() and m.anisotropy == 0.0
+    args = p.parse_args(["render", "--model", "pbr", "--anisotropy", "0.7", "--anisotropy-rotation", "0.25"])
+    assert (garment_material(args).anisotropy, garment_material(args).anisotropy_rotation) == (0.7, 0.25)
     f = tmp_path / "velvet.toml"
-    f.write_text('model = "pbr"\nalbedo = [0.3, 0.05, 0.1]\nroughness = 0.8\nsheen_colour = [0.9, 0.5, 0.6]\n')
+    f.write_text('model = "pbr"\nalbedo = [0.3, 0.05, 0.1]\nroughness = 0.8\nsheen_colour = [0.9, 0.5, 0.6]\n'
+                 'anisotropy = 0.5\n')
     m = garment_material(p.parse_args(["render", "--material", str(f)]))
-    assert m.is_pbr and m.albedo == (0.3, 0.05, 0.1) and m.sheen_colour == (0.9, 0.5, 0.6)
+    assert m.is_pbr and m.albedo == (0.3, 0.05, 0.1) and m.sheen_colour == (0.9, 0.5, 0.6) and m.anisotropy == 0.5
     f.write_text('model = "pbr"\nshininess = 3\n')
     with pytest.raises(InvalidInputError, match="unknown field.*shininess"):
         garment_material(p.parse_args(["render", "--material", str(f)]))
@@ -592,3 +595,35 @@ def test_a_normal_map_tilts_the_shading_normal_as_the_reference_does(renderer, s
     assert err < 0.2
     assert relative_rmse(images["none"], ref.image) > 1.5 * err   # the tilt is seen, and seen alike
     assert relative_rmse(untilted.image, ref.image) > 1.5 * err
+
+
+@pytest.mark.parametrize("rotation", [0.0, 0.25])
+def test_an_anisotropic_highlight_stretches_as_the_reference_draws_it(renderer, sun, rotation):
+    """A satin-like metal (anisotropy 0.8) on a UV sphere under the sun, its direction along u or
+    turned a quarter towards v: the renderer's stretched highlight (the sun's exact anisotropic GGX,
+    the sky's lobes about a bent normal) is the reference's (measured: rel. RMSE 0.11 and 0.15, the
+    isotropic material's 0.06), and far from the isotropic picture the stretch replaces (0.57)."""
+    cube, pems = sun
+    mesh = _uv_sphere()
+    kw = dict(model="pbr", metallic=1.0, roughness=0.35)
+    material = Material((0.9, 0.7, 0.4), anisotropy=0.8, anisotropy_rotation=rotation, **kw)
+    scene = renderer.create_scene([mesh], [material])
+    try:
+        ours = renderer.render(scene, pems, balanced(96, 96), CAM).image
+    finally:
+        scene.release()
+    ref = render_reference([mesh], [material], cube, CAM, 96, 96, spp=64)
+    isotropic = render_reference([mesh], [Material((0.9, 0.7, 0.4), **kw)], cube, CAM, 96, 96, spp=64)
+    err = relative_rmse(ours, ref.image)
+    assert err < 0.2, err
+    assert relative_rmse(isotropic.image, ref.image) > 3.0 * err
+    assert ours[..., :3].sum() == pytest.approx(ref.image[..., :3].sum(), rel=0.03)
+
+
+def test_anisotropy_is_refused_outside_its_range_and_on_a_phong_material():
+    with pytest.raises(InvalidInputError, match=r"anisotropy must lie in \[0, 1\]"):
+        Material(model="pbr", anisotropy=1.5)
+    with pytest.raises(InvalidInputError, match="pbr model"):
+        Material(anisotropy=0.5)
+    with pytest.raises(InvalidInputError, match="finite"):
+        Material(model="pbr", anisotropy_rotation=float("nan"))

@@ -162,14 +162,18 @@ def test_a_fabric_renders_as_the_reference_renders_it(renderer, white, tmp_path,
 def test_what_the_material_does_not_carry_is_said(tmp_path):
     version = "1.1"
     front = visualisation(version, basecolor=color((0.5, 0.2, 0.2)), alpha=scalar(0.6), transmission=scalar(0.3),
-                          anisotropy_value=scalar(0.5))
-    back = visualisation(version, basecolor=color((0.1, 0.1, 0.1)))
+                          anisotropy_value=scalar(1.5), anisotropy_rotation=scalar(0.25))
+    back = visualisation(version, basecolor=color((0.1, 0.1, 0.1)), anisotropy_value=scalar(0.5))
     path = write_u3ma(tmp_path / "voile.u3ma", document(version, front, back), {})
     material, warnings = material_from_u3m(load_u3m(path), quad(0.4, 0.4, (1.0, 1.0)), Face.FRONT)
     said = "\n".join(warnings)
-    for word in ("alpha", "transmission", "anisotropy_value"):
+    for word in ("alpha", "transmission"):
         assert word in said, said
     assert "back" not in said   # the back is drawn: Material.back
+    # Anisotropy is carried, each side's own, beyond the renderer's range clamped and said.
+    assert "anisotropy_value: 1.5" in said and "1 is used" in said
+    assert (material.anisotropy, material.anisotropy_rotation) == (1.0, 0.25)
+    assert (material.back.anisotropy, material.back.anisotropy_rotation) == (0.5, 0.0)
     # The document's colours are sRGB-encoded; the material's are linear.
     assert material.is_pbr and material.albedo == pytest.approx((0.2140, 0.0331, 0.0331), abs=1e-4)
     assert material.back.albedo == pytest.approx((0.0100,) * 3, abs=1e-4)
@@ -229,13 +233,13 @@ def test_the_fabric_benchs_fabrics_load_as_a_users_would_and_say_what_is_not_car
     load_u3m (the schema, the images), on a sheet with UVs, with the fields the renderer leaves out named."""
     from renderer.bench.fabrics import FABRIC_NAMES, fabric_archive
 
-    expected = {"satin": {"anisotropy_value"}, "voile": {"alpha", "transmission"}}
+    expected = {"voile": {"alpha", "transmission"}}
     sheet = quad(0.5, 0.5, (1.0, 1.0))
     for name in FABRIC_NAMES:
         fabric = load_u3m(fabric_archive(name), name=f"{name}.u3ma")
         material, warnings = material_from_u3m(fabric, sheet)
         assert {w.split(":")[0] for w in warnings} == expected.get(name, set()), (name, warnings)
-        assert material.is_pbr
+        assert material.is_pbr and material.anisotropy == (0.8 if name == "satin" else 0.0)
     denim = load_u3m(fabric_archive("denim"), name="denim.u3ma").front
     assert denim.basecolor.width_mm == 8.0 and denim.normal.rotation_deg == 20.0
 

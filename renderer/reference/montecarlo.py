@@ -247,6 +247,8 @@ class _SceneArrays:
     # arrays (albedo, material, pbr, sheen), of the side behind its winding (the front's without a back).
     face_part_back: np.ndarray | None = None
     back: tuple = ()
+    # Per texture part: its material's anisotropy_rotation, in turns (Material; 0 where isotropic).
+    anisotropy_rotations: tuple = ()
 
     @classmethod
     def build(cls, meshes: list[Mesh], materials: list[Material]) -> _SceneArrays:
@@ -257,7 +259,7 @@ class _SceneArrays:
         if not meshes or len(meshes) != len(materials):
             raise InvalidInputError(f"need one material per mesh; got {len(meshes)} meshes, {len(materials)} materials")
         pos, faces, nrm, alb, mat, uvs, face_mesh, maps, pbr, sheen = [], [], [], [], [], [], [], [], [], []
-        normal_maps, face_part, pbr_parts, placements = [], [], [], []
+        normal_maps, face_part, pbr_parts, placements, rotations = [], [], [], [], []
         face_part_back, back_arrays = [], []
         offset = 0
         for i, (mesh, material) in enumerate(zip(meshes, materials)):
@@ -276,6 +278,7 @@ class _SceneArrays:
                     normal_maps.append((ts.normal_texture(), float(ts.normal_scale)))
                     pbr_parts.append(side.is_pbr)
                     placements.append({name: ts.placement(name) for name in MAP_NAMES})
+                    rotations.append(float(side.anisotropy_rotation))
             if material.back is None:
                 face_part_back.append(face_part[-1])
                 back_arrays.append((a, m, p, sh))
@@ -305,7 +308,7 @@ class _SceneArrays:
         return cls(positions, faces, cat(nrm), *front_arrays, cat(uvs),
                    np.concatenate(face_mesh), tuple(maps), RayMeshIntersector(tm),
                    tuple(pbr_parts), tuple(normal_maps), np.concatenate(face_part), tuple(placements),
-                   np.concatenate(face_part_back), backs)
+                   np.concatenate(face_part_back), backs, tuple(rotations))
 
 
 @dataclass
@@ -320,8 +323,9 @@ class _Surface:
     specular: np.ndarray   # (N,)
     glossiness: np.ndarray  # (N,)
     v: np.ndarray | None = None       # (N, 3) towards the eye
-    pbr: np.ndarray | None = None     # (N, 4) metallic, roughness, sheen roughness, flag (> 0.5: pbr)
+    pbr: np.ndarray | None = None     # (N, 4) metallic, roughness, sheen roughness, 1 + anisotropy (0: Phong)
     sheen: np.ndarray | None = None   # (N, 3) sheen colour
+    tangent: np.ndarray | None = None  # (N, 3) the anisotropy's direction (Material.anisotropy_rotation)
 
 
 def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np.ndarray) -> _Surface:
@@ -385,8 +389,35 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
             texel = _texture_bilinear(sheen_map, _placed(placed["sheen"], uv))
             sheen[sel] *= texel[:, :3]
             pbr[sel, 2] *= texel[:, 3]
+    tangent = None
+    if (pbr[:, 3] > 1.0).any():
+        turns = np.asarray(scene.anisotropy_rotations, np.float64)[part_of]
+        tangent = anisotropy_direction(n, e1, e2, scene.uvs[f], turns)
     return _Surface(x, n, n_geom, r, albedo, material[:, 0], np.clip(material[:, 1], 0.0, 1.0), -dirs,
-                    pbr, sheen)
+                    pbr, sheen, tangent)
+
+
+# Where a surface has no UV gradient (a mesh without UVs), an anisotropy's direction starts from the
+# world's up axis in the surface's plane (the x axis where the surface faces up): gbuffer.frag's rule.
+UP_AXIS, SIDE_AXIS = np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])
+
+
+def anisotropy_direction(n, e1, e2, uv_corners, turns) -> np.ndarray:
+    """The unit direction (N, 3) an anisotropic highlight stretches along: the surface gradient of u in
+    the plane of n (gbuffer.frag's frame, from the triangle's edges here), turned by `turns` (N,)
+    counter-clockwise about n, from u towards v."""
+    duv1, duv2 = uv_corners[:, 1] - uv_corners[:, 0], uv_corners[:, 2] - uv_corners[:, 0]
+    t = np.cross(e2, n) * duv1[:, :1] + np.cross(n, e1) * duv2[:, :1]
+    det = _dot(n, np.cross(e1, e2))
+    t = np.where(det[:, None] < 0.0, -t, t)
+    t = t - _dot(t, n)[:, None] * n
+    length = np.linalg.norm(t, axis=1)
+    up = np.where((np.abs(n[:, 1]) < 0.999)[:, None], UP_AXIS, SIDE_AXIS)
+    fallback = up - _dot(up, n)[:, None] * n
+    t = np.where((length > 1e-30)[:, None], t, fallback)
+    t = _normalize(t, fallback=None)
+    angle = 2.0 * np.pi * turns
+    return np.cos(angle)[:, None] * t + np.sin(angle)[:, None] * np.cross(n, t)
 
 
 def _placed(placement: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -580,7 +611,9 @@ class _PBRInputs:
     eye (`facing_normal`), base colour, metallic, roughness and sheen roughness (clamped to the lobe
     tables' first node, as the shader clamps them), sheen colour, the sheen layer's albedo at the
     view (material_lobes: the same E the renderer reads), and the share of BRDF samples drawn from
-    GGX's visible normals (the rest cosine-weighted, for the diffuse and sheen terms)."""
+    GGX's visible normals (the rest cosine-weighted, for the diffuse and sheen terms); where a
+    material is anisotropic, each pixel's anisotropy and its direction, made perpendicular to the
+    facing normal (None: every pixel isotropic)."""
 
     n: np.ndarray
     base: np.ndarray
@@ -590,6 +623,8 @@ class _PBRInputs:
     sheen_roughness: np.ndarray
     sheen_albedo: np.ndarray
     p_specular: np.ndarray
+    anisotropy: np.ndarray | None = None
+    tangent: np.ndarray | None = None
 
     @classmethod
     def of(cls, surf: _Surface) -> _PBRInputs:
@@ -600,18 +635,39 @@ class _PBRInputs:
         sheen_roughness = np.clip(surf.pbr[:, 2], material_lobes.ROUGHNESS[0], 1.0)
         n = facing_normal(surf.n, surf.v)
         e = material_lobes.load().sheen_albedo(sheen_roughness, _dot(n, surf.v))
-        return cls(n, surf.albedo, metallic, roughness, surf.sheen, sheen_roughness, e, 0.5 + 0.4 * metallic)
+        anisotropy = tangent = None
+        if surf.tangent is not None:
+            anisotropy = np.clip(surf.pbr[:, 3] - 1.0, 0.0, 1.0)
+            tangent = brdf.tangent_frame(n, surf.tangent)[0]
+        return cls(n, surf.albedo, metallic, roughness, surf.sheen, sheen_roughness, e, 0.5 + 0.4 * metallic,
+                   anisotropy, tangent)
 
     def f(self, n, v, w, pix) -> np.ndarray:
         """The exact BRDF times n.w (M, 3), brdf.pbr."""
+        tangent, anisotropy = (None, None) if self.tangent is None else (self.tangent[pix], self.anisotropy[pix])
         return brdf.pbr(n, v, w, self.base[pix], self.metallic[pix], self.roughness[pix], self.sheen[pix],
-                        self.sheen_roughness[pix], self.sheen_albedo[pix])
+                        self.sheen_roughness[pix], self.sheen_albedo[pix], tangent, anisotropy)
+
+    def frame(self, pix) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(t, b, alpha_t, alpha_b) of the pixels' GGX layer: the anisotropy's frame, or any tangent
+        frame of the normal where every pixel is isotropic (alpha_t = alpha_b = roughness^2)."""
+        if self.tangent is None:
+            t, b = _basis(self.n[pix])
+            alpha = self.roughness[pix] ** 2
+            return t, b, alpha, alpha
+        t = self.tangent[pix]
+        return (t, np.cross(self.n[pix], t), *brdf.anisotropic_alphas(self.roughness[pix], self.anisotropy[pix]))
 
     def pdf(self, n, v, w, pix) -> np.ndarray:
         """The density of the BRDF-sampling mixture at w (M,)."""
         h = brdf.half_vector(v, w)
-        alpha = self.roughness[pix] ** 2
-        spec = brdf.ggx_reflection_pdf(_dot(n, v), np.clip(_dot(n, h), 0.0, 1.0), _dot(v, h), alpha)
+        if self.tangent is None:
+            alpha = self.roughness[pix] ** 2
+            spec = brdf.ggx_reflection_pdf(_dot(n, v), np.clip(_dot(n, h), 0.0, 1.0), _dot(v, h), alpha)
+        else:
+            t, b, at, ab = self.frame(pix)
+            spec = brdf.ggx_reflection_pdf_anisotropic(np.stack([_dot(v, t), _dot(v, b), _dot(v, n)], axis=1),
+                                                       np.stack([_dot(h, t), _dot(h, b), _dot(h, n)], axis=1), at, ab)
         cosine = np.maximum(_dot(n, w), 0.0) / np.pi
         ps = self.p_specular[pix]
         return ps * spec + (1.0 - ps) * cosine
@@ -640,11 +696,11 @@ def _sample_chunk_pbr(sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: 
         w[idx] = _sample_cosine(n[idx], rng, u_lobe[idx])[0]
     idx = np.flatnonzero(specular)
     if idx.size:
-        t, b = _basis(n[idx])
+        t, b, at, ab = mat.frame(pix[idx])
         vi = v[idx]
         v_local = np.stack([_dot(vi, t), _dot(vi, b), np.maximum(_dot(vi, n[idx]), 1e-6)], axis=1)
         v_local /= np.linalg.norm(v_local, axis=1, keepdims=True)
-        h_local = brdf.sample_ggx_visible_normals(v_local, mat.roughness[pix[idx]] ** 2, u_lobe[idx], rng.random(idx.size))
+        h_local = brdf.sample_ggx_visible_normals(v_local, at, u_lobe[idx], rng.random(idx.size), ab)
         h = t * h_local[:, :1] + b * h_local[:, 1:2] + n[idx] * h_local[:, 2:]
         w[idx] = 2.0 * _dot(vi, h)[:, None] * h - vi
     f = mat.f(n, v, w, pix)

@@ -5,6 +5,7 @@ Kautz and McCool's fitted lobes, renderer/lighting/material_lobes.py)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -156,6 +157,11 @@ class Material:
     texture_sets, texture_set: several sets of the five textures above (TextureSet, at most
     MAX_TEXTURE_SETS) and, per vertex (V,), the one its triangles read (a triangle's three corners
     read the same); the fields above then name no texture.
+    anisotropy: GGX's anisotropy in [0, 1] ("pbr"; 0: isotropic), a satin's or a silk's highlight
+    stretched along one direction of the cloth (renderer/shading/brdf.py: alpha_t = alpha /
+    sqrt(1 - 0.9 a), alpha_b = alpha sqrt(1 - 0.9 a)); anisotropy_rotation: that direction, in turns
+    (1 = 360 degrees, U3M's unit) counter-clockwise from the direction of growing u towards growing v
+    (the mesh's own UVs; a mesh without UVs: from the world's up axis projected onto the surface).
     back: the material of the cloth's other side (a fabric's back, U3M's back visualisation), of the
     same model, itself without a back; None: both sides alike. The front is the side a triangle's
     winding faces (counter-clockwise as seen, the side its normal points to): each pixel takes the
@@ -178,9 +184,20 @@ class Material:
     sheen_map: np.ndarray | None = None
     texture_sets: tuple[TextureSet, ...] = ()
     texture_set: np.ndarray | None = None
+    anisotropy: float = 0.0
+    anisotropy_rotation: float = 0.0
     back: Material | None = None
 
     def __post_init__(self):
+        for name in ("anisotropy", "anisotropy_rotation"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
+                    or not math.isfinite(float(value)):
+                raise InvalidInputError(f"{name} must be a finite number, got {value!r}")
+        if not 0.0 <= float(self.anisotropy) <= 1.0:
+            raise InvalidInputError(f"anisotropy must lie in [0, 1], got {self.anisotropy}")
+        if float(self.anisotropy) > 0.0 and self.model != "pbr":
+            raise InvalidInputError("anisotropy belongs to the pbr model's GGX layer, not phong")
         if self.back is not None:
             if not isinstance(self.back, Material):
                 raise InvalidInputError(f"back must be a Material, got {type(self.back).__name__}")
@@ -250,11 +267,11 @@ class Material:
         return any(m.is_pbr and bool((np.asarray(m.sheen_colour, np.float64) > 0).any()) for m in self.sides())
 
     def pbr_arrays(self, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
-        """(pbr (V, 4) = (metallic, roughness, sheen roughness, 1), sheen colour (V, 3)) float32,
-        validated; zeros for a Phong material (its pixels' flag is 0)."""
+        """(pbr (V, 4) = (metallic, roughness, sheen roughness, 1 + anisotropy), sheen colour (V, 3))
+        float32, validated; zeros for a Phong material (its pixels' flag is 0)."""
         if not self.is_pbr:
             return np.zeros((n_vertices, 4), np.float32), np.zeros((n_vertices, 3), np.float32)
-        out = np.ones((n_vertices, 4), np.float32)
+        out = np.full((n_vertices, 4), 1.0 + float(self.anisotropy), np.float32)
         for k, name in enumerate(("metallic", "roughness", "sheen_roughness")):
             out[:, k] = _per_vertex(name, getattr(self, name), n_vertices)
         return out, _per_vertex_rgb("sheen_colour", self.sheen_colour, n_vertices)

@@ -17,9 +17,11 @@ basecolor (texture or constant, linear) is the base colour; metalness and roughn
 roughness map's two channels (textures of one size and rotation, or a texture and a constant); the
 normal map as a tangent-space map, its U3M scale applied; sheen_value s and sheen_tint t the sheen
 colour s ((1 - t) white + t tint), the tint the base colour's hue at unit luminance (the mean colour of
-a texture), with a sheen roughness of SHEEN_ROUGHNESS (U3M names none). What the model does not carry
-yet (alpha, transmission, anisotropy, clearcoat, displacement, subsurface, a specular level other than
-glTF's 4 %, a textured sheen, the cut edge's visualisation) is named in the warnings that come with
+a texture), with a sheen roughness of SHEEN_ROUGHNESS (U3M names none); anisotropy_value and
+anisotropy_rotation GGX's anisotropy and its direction (Material.anisotropy: turns from the UVs' u, as
+U3M 1.1 measures them). What the model does not carry
+yet (alpha, transmission, clearcoat, displacement, subsurface, a specular level other than glTF's 4 %,
+a textured sheen or anisotropy, the cut edge's visualisation) is named in the warnings that come with
 the material, never dropped silently. Front and back: the front's visualisation on the side the
 mesh's winding faces (its normals' side), the back's behind it (Material.back, chosen per pixel by
 the side the camera sees), the front's on both where the back is null.
@@ -189,9 +191,18 @@ def _side_material(u3m: U3MMaterial, face: Face, mesh: Mesh, scale: tuple[float,
         hue = mean_colour / lum if lum > 1e-6 else np.ones(3)
         sheen_colour = tuple(float(c) for c in np.clip(s * ((1.0 - tint) + tint * hue), 0.0, 1.0))
 
+    anisotropy, rotation = _scalar(vis.anisotropy_value), _scalar(vis.anisotropy_rotation)
+    if anisotropy is None or rotation is None:
+        warnings.append("anisotropy_value / anisotropy_rotation: textures are not carried; their mean is used")
+        anisotropy = float(np.mean(vis.anisotropy_value.values())) if anisotropy is None else anisotropy
+        rotation = float(np.mean(vis.anisotropy_rotation.values())) if rotation is None else rotation
+    if anisotropy > 1.0:
+        warnings.append(f"anisotropy_value: {anisotropy:g} is beyond the renderer's 1 (the most stretched "
+                        "highlight); 1 is used")
     return Material(albedo, model="pbr", metallic=float(np.clip(metallic, 0, 1)),
                     roughness=float(np.clip(roughness, 0, 1)), sheen_colour=sheen_colour,
-                    sheen_roughness=SHEEN_ROUGHNESS, texture_sets=(TextureSet(**sets),),
+                    sheen_roughness=SHEEN_ROUGHNESS, anisotropy=float(np.clip(anisotropy, 0.0, 1.0)),
+                    anisotropy_rotation=float(rotation), texture_sets=(TextureSet(**sets),),
                     texture_set=np.zeros(mesh.n_vertices, np.int32))
 
 
@@ -206,7 +217,6 @@ def _not_carried(u3m: U3MMaterial, vis: Visualisation, face, others: bool = True
 
     for name, default, what in (("alpha", 1.0, "the fabric is drawn opaque"),
                                 ("transmission", 0.0, "no light passes through"),
-                                ("anisotropy_value", 0.0, "the highlight is isotropic"),
                                 ("clearcoat_value", 0.0, "no clear coat"),
                                 ("subsurface_value", 0.0, "no subsurface scattering"),
                                 ("specular_value", GLTF_SPECULAR_VALUE, "glTF's 4 % reflectance is used")):

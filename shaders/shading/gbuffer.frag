@@ -12,10 +12,14 @@ in vec2 v_uv;
 // its sheen colour in the spare channels of the others (lighting.frag reads them back).
 in vec4 v_pbr;
 in vec3 v_sheen;
-layout(location = 4) out vec4 o_pbr;        // metallic, roughness, sheen roughness, 1 (0: Phong)
+// metallic, roughness, sheen roughness, and in w: 0 Phong, 1 isotropic, or an anisotropic GGX's
+// strength and direction packed as 2 + q_a + 256 q_phi (anisotropy_code; lobes.glsl unpacks it)
+layout(location = 4) out vec4 o_pbr;
 layout(binding = TEX_SHEEN_MAP) uniform sampler2D u_sheen_map;    // rgb multiplies the sheen colour, a its roughness
 uniform bool u_use_sheen_map;
 uniform mat3x2 u_sheen_placement;
+uniform float u_anisotropy_rotation;   // radians, counter-clockwise about n from growing u towards growing v
+#include "shading/anisotropy.glsl"
 #endif
 
 layout(binding = TEX_ALBEDO_MAP) uniform sampler2D u_albedo_map;   // multiplies the vertex albedo
@@ -42,8 +46,12 @@ layout(location = 3) out vec4 o_albedo;     // rgb: diffuse reflectance; a: 1 (c
 void main() {
     vec3 n = normalize(v_ws_normal);
     vec3 to_eye = normalize(u_camera_pos - v_ws_position);
+    // Screen derivatives outside the branches that depend on the pixel (they are undefined in
+    // non-uniform control flow).
+    vec3 dp1 = dFdx(v_ws_position), dp2 = dFdy(v_ws_position);
+    vec2 duv1_mesh = dFdx(v_uv), duv2_mesh = dFdy(v_uv);
     // Degenerate derivatives (a triangle seen edge-on, underflow): fall back to the shading normal.
-    vec3 c = cross(dFdx(v_ws_position), dFdy(v_ws_position));
+    vec3 c = cross(dp1, dp2);
     float c2 = dot(c, c);
     vec3 geometric = c2 > 1e-30 ? c * inversesqrt(c2) : n;
     if (dot(geometric, to_eye) < 0.0) geometric = -geometric;
@@ -57,7 +65,6 @@ void main() {
         // renderer/reference/montecarlo.py builds the same frame from the triangle's edges.
         // The map's own UVs: its frame follows them (a rotated or mirrored placement turns it too).
         vec2 uv_n = u_normal_placement * vec3(v_uv, 1.0);
-        vec3 dp1 = dFdx(v_ws_position), dp2 = dFdy(v_ws_position);
         vec2 duv1 = dFdx(uv_n), duv2 = dFdy(uv_n);
         vec3 dp2perp = cross(dp2, n), dp1perp = cross(n, dp1);
         vec3 t = dp2perp * duv1.x + dp1perp * duv2.x;
@@ -84,7 +91,12 @@ void main() {
     vec2 mr = u_use_gloss_map ? texture(u_gloss_map, uv_second).rg : vec2(1.0);
     // KHR_materials_sheen's textures multiply the sheen colour and roughness.
     vec4 sheen = u_use_sheen_map ? texture(u_sheen_map, u_sheen_placement * vec3(v_uv, 1.0)) : vec4(1.0);
-    o_pbr = v_pbr.w > 0.5 ? vec4(v_pbr.xy * mr, v_pbr.z * sheen.a, 1.0) : vec4(0.0);
+    float kind = 1.0;
+    float anisotropy = clamp(v_pbr.w - 1.0, 0.0, 1.0);
+    if (anisotropy > 0.5 / 255.0)
+        kind = anisotropy_code(anisotropy, anisotropy_direction(n, dp1, dp2, duv1_mesh, duv2_mesh,
+                                                                 u_anisotropy_rotation), n);
+    o_pbr = v_pbr.w > 0.5 ? vec4(v_pbr.xy * mr, v_pbr.z * sheen.a, kind) : vec4(0.0);
     if (v_pbr.w > 0.5) {
         vec3 sheen_colour = v_sheen * sheen.rgb;
         o_position.w = sheen_colour.r;   // >= 0, so "covered" still reads from w (-1: no surface)

@@ -64,7 +64,8 @@ layout(binding = TEX_G_NORMAL) uniform sampler2D u_g_normal;
 layout(binding = TEX_G_GEOMETRIC) uniform sampler2D u_g_geometric;
 layout(binding = TEX_G_ALBEDO) uniform sampler2D u_g_albedo;
 #ifdef PBR
-layout(binding = TEX_G_PBR) uniform sampler2D u_g_pbr;             // metallic, roughness, sheen roughness, 1 (0: Phong)
+layout(binding = TEX_G_PBR) uniform sampler2D u_g_pbr;             // metallic, roughness, sheen roughness, kind
+                                                                    // (0: Phong; 1: isotropic; anisotropy.glsl)
 #define N_LOBES (LOBES_GGX + LOBES_SHEEN)
 #else
 #define N_LOBES 1
@@ -278,6 +279,7 @@ void main() {
         // glTF metallic-roughness with sheen: albedo is the base colour; the sheen colour rides in the
         // targets' spare channels (gbuffer.frag). The normal faces the eye (lobes.glsl).
         n = facing_normal(n, to_eye);
+        pbr_anisotropy(pbr.w, g_nrm.xyz, n);
         diffuse_weight = pbr_lobes(n, to_eye, albedo, pbr.x, pbr.y, vec3(material, g_alb.a), pbr.z);
         glossy = true;
         g_clip_lobes = true;

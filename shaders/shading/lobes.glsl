@@ -48,8 +48,18 @@ void table_lobes(int base, int count, TableAt t, vec3 n, vec3 tangent, vec3 ener
     }
 }
 
+#include "shading/anisotropy.glsl"
+
 // The pixel's material, for the exact terms of the lights no wider than its lobe (pbr_from_light_above).
 vec3 g_pbr_n = vec3(0.0, 0.0, 1.0);
+// An anisotropic pixel's GGX (brdf.py): its frame (t along the stretch, b = n x t, both perpendicular
+// to the facing normal) and widths alpha_t = alpha / k, alpha_b = alpha k, k = sqrt(1 - 0.9 a).
+bool g_pbr_anisotropic = false;
+float g_pbr_anisotropy = 0.0;
+vec3 g_pbr_t = vec3(1.0, 0.0, 0.0);
+vec3 g_pbr_b = vec3(0.0, 1.0, 0.0);
+float g_pbr_at = 0.25;
+float g_pbr_ab = 0.25;
 vec3 g_pbr_f0 = vec3(0.04);
 float g_pbr_alpha = 0.25;
 vec3 g_pbr_sheen = vec3(0.0);
@@ -70,10 +80,25 @@ vec3 pbr_disc(vec3 l, float sin_a, vec3 energy) {
     float nv = max(dot(n, v), 1e-4);
     vec3 h = normalize(v + l);
     float nh = clamp(dot(n, h), 0.0, 1.0), vh = clamp(dot(v, h), 0.0, 1.0);
-    float a2 = g_pbr_alpha * g_pbr_alpha + 0.125 * sin_a * sin_a;
-    float d = nh * nh * (a2 - 1.0) + 1.0;
-    float dist = a2 / (PI * d * d);
-    float vis = 0.5 / max(nl * sqrt(nv * nv * (1.0 - a2) + a2) + nv * sqrt(nl * nl * (1.0 - a2) + a2), 1e-30);
+    float widen = 0.125 * sin_a * sin_a;
+    float dist, vis;
+    if (g_pbr_anisotropic) {
+        // The anisotropic GGX (brdf.py), each width widened by the disc as alpha is below.
+        float at = sqrt(g_pbr_at * g_pbr_at + widen), ab = sqrt(g_pbr_ab * g_pbr_ab + widen);
+        float ht = dot(h, g_pbr_t) / at, hb = dot(h, g_pbr_b) / ab;
+        float d = ht * ht + hb * hb + nh * nh;
+        dist = 1.0 / (PI * at * ab * d * d);
+        float vt = at * dot(v, g_pbr_t), vb = ab * dot(v, g_pbr_b);
+        float lt = at * dot(l, g_pbr_t), lb = ab * dot(l, g_pbr_b);
+        float lambda_v = 0.5 * (sqrt(1.0 + (vt * vt + vb * vb) / (nv * nv)) - 1.0);
+        float lambda_l = 0.5 * (sqrt(1.0 + (lt * lt + lb * lb) / (nl * nl)) - 1.0);
+        vis = 1.0 / (4.0 * nv * nl * (1.0 + lambda_v + lambda_l));
+    } else {
+        float a2 = g_pbr_alpha * g_pbr_alpha + widen;
+        float d = nh * nh * (a2 - 1.0) + 1.0;
+        dist = a2 / (PI * d * d);
+        vis = 0.5 / max(nl * sqrt(nv * nv * (1.0 - a2) + a2) + nv * sqrt(nl * nl * (1.0 - a2) + a2), 1e-30);
+    }
     vec3 fresnel = g_pbr_f0 + (1.0 - g_pbr_f0) * pow(1.0 - vh, 5.0);
     vec3 f = g_pbr_below * fresnel * (dist * vis);
 #if LOBES_SHEEN > 0
@@ -140,6 +165,35 @@ vec3 facing_normal(vec3 n, vec3 v) {
     return sqrt(1.0 - MIN_N_DOT_V * MIN_N_DOT_V) * p / len + MIN_N_DOT_V * v;
 }
 
+// An anisotropic pixel's frame from its target's code (anisotropy.glsl), packed against the normal
+// the geometry pass wrote (`stored`), made perpendicular to the facing normal n.
+void pbr_anisotropy(float code, vec3 stored, vec3 n) {
+    vec3 t;
+    g_pbr_anisotropic = anisotropy_unpack(code, stored, g_pbr_anisotropy, t);
+    if (!g_pbr_anisotropic) return;
+    t -= dot(t, n) * n;
+    float len = length(t);
+    if (len < 1e-6) {   // the facing normal turned onto the direction: isotropic here
+        g_pbr_anisotropic = false;
+        return;
+    }
+    g_pbr_t = t / len;
+    g_pbr_b = cross(n, g_pbr_t);
+}
+
+// The normal whose fitted GGX lobes stand for an anisotropic pixel's (lobes of one width cannot
+// stretch): the shading normal bent towards the one that faces the view across the stretch (the
+// view's part perpendicular to b), by the widths' contrast, as Filament bends its image-based
+// lighting's (after McAuley and Hill; fading for smooth surfaces, whose stretch is a hair's width).
+// docs/materials.md measures what it misses against the reference's exact anisotropic GGX.
+vec3 anisotropic_lobe_normal(vec3 n, vec3 to_eye, float roughness) {
+    vec3 across = cross(cross(g_pbr_b, to_eye), g_pbr_b);
+    float len = length(across);
+    if (len < 1e-6) return n;
+    float bend = (g_pbr_at - g_pbr_ab) / (g_pbr_at + g_pbr_ab) * clamp(5.0 * roughness, 0.0, 1.0);
+    return normalize(mix(n, across / len, bend));
+}
+
 // glTF metallic-roughness (base colour, metallic, roughness) under a Charlie sheen layer (colour,
 // roughness): sets the pixel's lobes and returns the weight of its diffuse term. n: the facing normal.
 vec3 pbr_lobes(vec3 n, vec3 to_eye, vec3 base, float metallic, float roughness, vec3 sheen, float sheen_roughness) {
@@ -160,6 +214,11 @@ vec3 pbr_lobes(vec3 n, vec3 to_eye, vec3 base, float metallic, float roughness, 
     g_pbr_n = n;
     g_pbr_f0 = f0;
     g_pbr_alpha = roughness * roughness;
+    if (g_pbr_anisotropic) {
+        float k = sqrt(1.0 - 0.9 * g_pbr_anisotropy);
+        g_pbr_at = g_pbr_alpha / k;
+        g_pbr_ab = g_pbr_alpha * k;
+    }
     g_pbr_sheen = sheen;
     g_pbr_sheen_alpha = sheen_roughness * sheen_roughness;
 #if LOBES_SHEEN > 0
@@ -172,6 +231,15 @@ vec3 pbr_lobes(vec3 n, vec3 to_eye, vec3 base, float metallic, float roughness, 
     g_pbr_below = below;
     table_lobes(u_sheen_offset, LOBES_SHEEN, ts, n, tangent, sheen * e_sheen, LOBES_GGX);
 #endif
+    if (g_pbr_anisotropic) {
+        // The GGX lobes about the bent normal, at its own view angle; their energy is the pixel's.
+        vec3 nb = anisotropic_lobe_normal(n, to_eye, roughness);
+        float nvb = clamp(dot(nb, to_eye), 0.0, 1.0);
+        vec3 tb = to_eye - nvb * nb;
+        float lb = length(tb);
+        table_lobes(0, LOBES_GGX, table_at(roughness, acos(nvb)), nb, lb > 1e-6 ? tb / lb : tangent, specular, 0);
+        return diffuse;
+    }
     table_lobes(0, LOBES_GGX, t, n, tangent, specular, 0);
     return diffuse;
 }
