@@ -19,6 +19,9 @@ from .errors import InvalidInputError, RenderError
 from .presets import PRESET_NAMES, resolve
 from .presets import frame_settings as presets_frame_settings
 from .presets import pem_settings as presets_pem_settings
+from .shading.fields import FIELDS as GARMENT_FIELDS
+from .shading.fields import MODEL_DOC, fields_of
+from .shading.fields import MODELS as MATERIAL_MODELS
 from .shading.tonemap import DEFAULT_CURVE, ToneCurve
 from .views import VIEW_NAMES
 
@@ -58,7 +61,7 @@ class _Retired(argparse.Action):
 
 # The flags `--help` lists (the scripts' contract and the few a user reasons about); `--help-all`
 # lists the rest too (docs/cli.md is generated from it).
-COMMON_FLAGS = {"--env", "--mesh", "--up", "--mesh-scale", "--albedo", "--specular", "--glossiness", "--body-albedo",
+COMMON_FLAGS = {"--env", "--env-rotation", "--mesh", "--up", "--mesh-scale", "--albedo", "--specular", "--glossiness", "--body-albedo",
                 "--camera-eye", "--camera-target", "--fov", "--preset", "--frame-budget-ms", "--error-budget",
                 "--lights", "--shadow-size", "--contact-shadow-texels", "--size", "--out", "--exr", "--timings",
                 "--background", "--frames", "--topology", "--body", "--spp", "--seed", "--help", "--help-all"}
@@ -96,6 +99,8 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--env", type=Path, help="environment map (.exr or .hdr); default: bundled procedural studio")
     _option_flag(g, "layout")
     g.add_argument("--repair", action="store_true", help="replace NaN/Inf/negative texels instead of failing")
+    g.add_argument("--env-rotation", type=float, default=0.0, metavar="DEG",
+                   help="the map turned about the up axis, counter-clockwise")
     g.add_argument("--mesh", type=Path, action="append", default=[],
                    help="mesh file (PLY/OBJ/GLB); the first is the garment, others (e.g. the body) follow; "
                         "default: the bundled dress, draped on a mannequin over a floor")
@@ -103,26 +108,14 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
                    metavar="y|z", help="mesh files' up axis, or one a mesh: y,z")
     g.add_argument("--mesh-scale", type=_per_mesh(float, "a positive number"), default=(1.0,),
                    metavar="S", help="mesh files' scale (0.01: cm), or one a mesh")
-    g.add_argument("--albedo", type=_floats(3), default=(0.8, 0.2, 0.2), help="garment diffuse reflectance r,g,b")
-    g.add_argument("--specular", type=float, default=0.5, help="garment weight of the glossy lobe")
-    g.add_argument("--glossiness", type=float, default=0.8, help="garment glossiness g in [0,1] (paper Eq. 3)")
-    g.add_argument("--model", choices=["phong", "pbr"],
-                   help="garment material model: phong (albedo, specular, glossiness: the paper's) or pbr (glTF "
-                        "metallic-roughness with sheen; --albedo is the base colour); default: a glTF garment's "
-                        "own material, else phong")
-    g.add_argument("--metallic", type=float, default=0.0, help="pbr: glTF metallic in [0,1]")
-    g.add_argument("--roughness", type=float, default=0.5, help="pbr: glTF roughness in [0,1]")
-    g.add_argument("--sheen-colour", type=_floats(3), default=(0.0, 0.0, 0.0),
-                   help="pbr: KHR_materials_sheen colour r,g,b (0,0,0: no sheen)")
-    g.add_argument("--sheen-roughness", type=float, default=0.5, help="pbr: sheen roughness in [0,1]")
-    g.add_argument("--anisotropy", type=float, default=0.0,
-                   help="pbr: GGX anisotropy in [0,1] (a satin's highlight stretched along one direction; 0: none)")
-    g.add_argument("--anisotropy-rotation", type=float, default=0.0,
-                   help="pbr: that direction in turns, counter-clockwise from the garment's u towards its v")
+    g.add_argument("--model", choices=list(MATERIAL_MODELS),
+                   help="garment material model: " + MODEL_DOC + "; default: a glTF garment's own material, else phong")
+    for f in GARMENT_FIELDS:   # the material registry's values (renderer/shading/fields.py)
+        g.add_argument(f.flag, type=_floats(3) if f.kind == "colour" else float, default=f.garment_default,
+                       help=f"garment, {'/'.join(f.models)}: {f.limits().removesuffix(', or one per vertex')}")
     g.add_argument("--material", type=Path,
-                   help="garment material from a TOML or JSON file of Material fields (model, albedo, metallic, "
-                        "roughness, sheen_colour, sheen_roughness, anisotropy, anisotropy_rotation, specular, "
-                        "glossiness), a glTF/GLB file's "
+                   help="garment material from a TOML or JSON file of Material fields (model and the flags' "
+                        "values above, e.g. sheen_colour), a glTF/GLB file's "
                         "material (metallic-roughness, its textures, KHR_materials_sheen), or a U3M fabric (.u3m "
                         "with its images, .u3ma; its textures at their physical size: docs/u3m.md); replaces the "
                         "flags above")
@@ -193,7 +186,8 @@ def frame_settings(args, q: dict):
 
     w, h = args.size
     return presets_frame_settings(q, w, h, bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
-                                  background=Background(args.background))
+                                  background=Background(args.background),
+                                  environment_rotation_deg=getattr(args, "env_rotation", 0.0))
 
 
 def pem_settings(args, q: dict, materials):
@@ -205,8 +199,7 @@ def pem_settings(args, q: dict, materials):
 FLOOR_MATERIAL = (0.45, 0.45, 0.45), 0.0, 0.3
 
 
-MATERIAL_FIELDS = ("model", "albedo", "specular", "glossiness", "metallic", "roughness", "sheen_colour",
-                   "sheen_roughness", "anisotropy", "anisotropy_rotation")
+MATERIAL_FIELDS = ("model",) + tuple(f.name for f in GARMENT_FIELDS)
 
 
 def garment_material(args, garment=None):
@@ -222,11 +215,8 @@ def garment_material(args, garment=None):
         if material is not None:
             return material
     if path is None:
-        if args.model == "pbr":
-            return Material(args.albedo, model="pbr", metallic=args.metallic, roughness=args.roughness,
-                            sheen_colour=args.sheen_colour, sheen_roughness=args.sheen_roughness,
-                            anisotropy=args.anisotropy, anisotropy_rotation=args.anisotropy_rotation)
-        return Material(args.albedo, args.specular, args.glossiness)
+        model = args.model or "phong"
+        return Material(model=model, **{f.name: getattr(args, f.name) for f in fields_of(model)})
     return material_file(path, garment, getattr(args, "uv_scale", None))
 
 

@@ -8,6 +8,7 @@ the driver's are meaningful).
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections.abc import Callable
@@ -95,6 +96,11 @@ EDGE_PLANE_TOLERANCE_PX = 1.0
 PLANE_DEPTH_TOLERANCE = 1e-6
 
 
+def _mat3_bytes(m: np.ndarray) -> bytes:
+    """A 3 x 3 matrix as a GLSL mat3 uniform (column-major)."""
+    return np.ascontiguousarray(np.asarray(m, np.float32).T).tobytes()
+
+
 def _plane_depth_tolerance(sample_positions: np.ndarray) -> float:
     """classify.frag's tolerance: PLANE_DEPTH_TOLERANCE where sample s and n - 1 - s of the driver's
     pattern lie opposite each other about the pixel's centre (the pattern has pairs to test a plane
@@ -115,6 +121,12 @@ class _FrameChecks:
             object.__setattr__(self, name, config.check(name, getattr(self, name)))
         if (why := config.shadow_side_error(self.shadow_size, self.small_light_scale)) is not None:
             raise InvalidInputError(why)
+        turn = self.environment_rotation_deg
+        if isinstance(turn, bool) or not isinstance(turn, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(float(turn)):
+            raise InvalidInputError(f"environment rotation must be a finite number of degrees, got {turn!r}")
+        # One angle, one plan: 360 is 0 and -90 is 270 (renderer/lighting/pem.py, PEMSet.turned).
+        object.__setattr__(self, "environment_rotation_deg", float(turn) % 360.0)
 
     def as_dict(self) -> dict:
         d = asdict(self)
@@ -128,11 +140,14 @@ FrameSettings = make_dataclass(
      *config.fields(config.FRAME_SETTINGS),
      ("bleed_reduction", float, field(default=config.OPTION["bleed_reduction"].default)),
      ("mode", ShadingMode, field(default=ShadingMode.FULL)),
-     ("background", Background, field(default=Background.ENVIRONMENT))],
+     ("background", Background, field(default=Background.ENVIRONMENT)),
+     ("environment_rotation_deg", float, field(default=0.0))],
     bases=(_FrameChecks,), frozen=True, namespace={"__module__": __name__, "__doc__": (
         "Per-frame quality and output settings (the PEM set's are PEMSettings): the image's size, every frame "
         "setting of the registry (renderer/config.py: each one's type, limits, default and what it does), "
-        "bleed_reduction, the shading mode and the background. FrameSettings() is the paper's method; a preset's "
+        "bleed_reduction, the shading mode, the background and the environment's rotation about the up axis "
+        "(degrees, counter-clockwise seen from above: a light at direction d is lit from R d; the PEM set is not "
+        "made again). FrameSettings() is the paper's method; a preset's "
         "settings come from presets.resolve(...).frame(width, height).")})
 PAPER_FRAME = FrameSettings()   # render()'s default settings: the paper's method at 512 x 512
 
@@ -618,6 +633,8 @@ class Renderer:
         # What any camera sees (a camera that sees nothing adds nothing; none seeing anything: the casters).
         seen = [b for b in (scene.visible_bounds(vp) for vp in view_projs) if b is not None]
         receivers = (np.min([b[0] for b in seen], axis=0), np.max([b[1] for b in seen], axis=0)) if seen else None
+        # A turned environment: the set's view whose lights are turned (the same textures).
+        pems = pems.turned(settings.environment_rotation_deg)
         lp = self._light_plan(scene, pems, settings, receivers)
         # One buffer for the storage-buffer readers and, where it fits, the lighting pass's uniform block
         # (then the block's whole declared size).
@@ -934,6 +951,7 @@ class Renderer:
         (background if background is not None else inputs.pems.env_texture).use(location=LightingTexture.ENVIRONMENT)
         bg_prog, bg_vao = self._background_program(background is not None and background.latlong)
         bg_prog["u_inv_view_proj"].write(np.linalg.inv(view_proj).T.astype(np.float32).tobytes())
+        set_uniform(bg_prog, "u_env_from_world", _mat3_bytes(inputs.pems.env_from_world))
         bg_vao.render(moderngl.TRIANGLES, vertices=3)
 
     def _draw_geometry(self, g: moderngl.Program, fbo, meshes: list, w: int, h: int, variant: int,
@@ -1051,6 +1069,7 @@ class Renderer:
             if "u_kind_end" in p:   # the compiler keeps the entries up to the last kind this variant loops over
                 p["u_kind_end"].write(kind_end[:p["u_kind_end"].array_length].tobytes())
             set_uniform(p, "u_camera_pos", tuple(float(x) for x in camera.eye))
+            set_uniform(p, "u_env_from_world", _mat3_bytes(pems.env_from_world))
             set_uniform(p, "u_n_lights", n)
             set_uniform(p, "u_diffuse_level", pems.lookup_level(pems.diffuse_level()))
             set_uniform(p, "u_min_sigma_texels", settings.min_sigma_texels)

@@ -11,6 +11,10 @@ from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Fie
 from renderer import config
 from renderer.lighting.pem_reference import mip_levels
 from renderer.presets import PRESET_NAMES
+from renderer.shading.fields import FIELDS as MATERIAL_FIELDS
+from renderer.shading.fields import MODEL_DOC as MATERIAL_MODEL_DOC
+from renderer.shading.fields import MODELS as MATERIAL_MODELS
+from renderer.shading.fields import MaterialField
 from renderer.shading.material import MAX_TEXTURE_SETS
 from renderer.shading.tonemap import DEFAULT_CURVE, ToneCurve
 
@@ -169,26 +173,11 @@ class TextureSetSpec(_Strict):
     sheen_map: list[list[list[float]]] | None = None
 
 
-class MaterialSpec(_Strict):
-    """Scalars or per-vertex lists; maps are (H, W, 3) / (H, W, 2) nested lists and need mesh UVs."""
+class _MaterialBase(_Strict):
+    """A material's textures and texture sets; MaterialSpec adds its values (the registry's)."""
 
-    albedo: list[float] | list[list[float]] = Field([0.8, 0.8, 0.8], description="linear RGB (3,) or (V, 3)")
-    specular: float | list[float] = Field(0.0, description="glossy lobe weight, scalar or (V,)")
-    glossiness: float | list[float] = Field(0.5, description="paper's g in [0, 1], scalar or (V,)")
     albedo_map: list[list[list[float]]] | None = None
     gloss_map: list[list[list[float]]] | None = None
-    model: Literal["phong", "pbr"] = Field("phong", description="phong (albedo, specular, glossiness: the paper's) "
-                                           "or pbr (glTF metallic-roughness with KHR_materials_sheen; albedo is the "
-                                           "base colour)")
-    metallic: float | list[float] = Field(0.0, description="pbr: glTF metallic in [0, 1], scalar or (V,)")
-    roughness: float | list[float] = Field(0.5, description="pbr: glTF roughness in [0, 1], scalar or (V,)")
-    sheen_colour: list[float] | list[list[float]] = Field([0.0, 0.0, 0.0], description="pbr: sheen colour, linear "
-                                                          "RGB (3,) or (V, 3); black: no sheen")
-    sheen_roughness: float | list[float] = Field(0.5, description="pbr: sheen roughness in [0, 1], scalar or (V,)")
-    anisotropy: float = Field(0.0, ge=0.0, le=1.0, description="pbr: GGX's anisotropy (a satin's, a silk's "
-                              "highlight stretched along one direction of the cloth); 0: isotropic")
-    anisotropy_rotation: float = Field(0.0, ge=-1.0, le=1.0, description="pbr: that direction in turns, counter-"
-                                       "clockwise from growing u towards growing v (without UVs: from the up axis)")
     metallic_roughness_map: list[list[list[float]]] | None = Field(
         None, description="pbr: (H, W, 2) texture of (metallic, roughness) multiplying the two; needs mesh UVs")
     normal_map: list[list[list[float]]] | None = Field(
@@ -202,6 +191,26 @@ class MaterialSpec(_Strict):
         "part of the mesh (a shirt's fabric, its buttons); the maps above then stay empty")
     texture_set: list[int] | None = Field(None, description="(V,) the texture set each vertex reads (a "
                                           "triangle's three corners read the same)")
+
+
+def _material_field(f: MaterialField):
+    """A request field of a material value of renderer/shading/fields.py. Per-vertex values are typed
+    only (a mesh's thousands of numbers are checked by Material, with its message); a scalar-only one
+    carries its range."""
+    doc = f"{' and '.join(f.models)}: {f.doc}; {f.limits()}"
+    if f.kind == "colour":
+        kind = list[float] | list[list[float]] if f.per_vertex else list[float]
+        return kind, Field(list(f.default), description=doc)
+    if f.per_vertex:
+        return float | list[float], Field(f.default, description=doc)
+    return float, Field(f.default, ge=f.lo, le=f.hi, description=doc)
+
+
+# Scalars or per-vertex lists; maps are (H, W, 3) / (H, W, 2) nested lists and need mesh UVs.
+MaterialSpec = create_model("MaterialSpec", __base__=_MaterialBase, __module__=__name__,
+                            __doc__="A material: its model, its values (renderer/shading/fields.py) and textures.",
+                            model=(Literal[MATERIAL_MODELS], Field("phong", description=MATERIAL_MODEL_DOC)),
+                            **{f.name: _material_field(f) for f in MATERIAL_FIELDS})
 
 
 # A U3M fabric's physical scale on a mesh: the metres a unit of u and a unit of v span.

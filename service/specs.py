@@ -16,6 +16,7 @@ from renderer.lighting.pem import PEMSettings, pem_cost
 from renderer.mesh import Mesh, bounds, z_up_to_y_up
 from renderer.presets import pem_settings, resolve
 from renderer.renderer import Background, FrameSettings, ShadingMode
+from renderer.shading.fields import FIELDS as MATERIAL_FIELDS
 from renderer.shading.material import Material, TextureSet
 from renderer.shadows.proxy import shadow_faces_isolated
 
@@ -164,10 +165,9 @@ def material_spec_of(m: Material) -> MaterialSpec:
     sets = {} if not m.texture_sets else {
         "texture_sets": [TextureSetSpec(**maps(ts)) for ts in m.texture_sets],
         "texture_set": np.asarray(m.texture_set, np.int64).tolist()}
-    return MaterialSpec(model=m.model, albedo=listed(m.albedo), metallic=value(m.metallic), roughness=value(m.roughness),
-                        sheen_colour=listed(m.sheen_colour), sheen_roughness=value(m.sheen_roughness),
-                        anisotropy=float(m.anisotropy), anisotropy_rotation=float(m.anisotropy_rotation),
-                        **({} if m.texture_sets else maps(m)), **sets)
+    values = {f.name: listed(getattr(m, f.name)) if f.kind == "colour" else value(getattr(m, f.name))
+              for f in MATERIAL_FIELDS}
+    return MaterialSpec(model=m.model, **values, **({} if m.texture_sets else maps(m)), **sets)
 
 
 def file_material(spec: MeshSpec, meshes: MeshStore) -> MaterialSpec | None:
@@ -193,10 +193,9 @@ def build_material(spec: MaterialSpec, mesh: Mesh, role: str) -> Material:
                 "normal_scale": ts.normal_scale, "sheen_map": arr(ts.sheen_map)}
 
     try:
-        mat = Material(albedo=arr(spec.albedo), specular=arr(spec.specular), glossiness=arr(spec.glossiness),
-                       model=spec.model, metallic=arr(spec.metallic), roughness=arr(spec.roughness),
-                       sheen_colour=arr(spec.sheen_colour), sheen_roughness=arr(spec.sheen_roughness),
-                       anisotropy=spec.anisotropy, anisotropy_rotation=spec.anisotropy_rotation, **maps(spec),
+        values = {f.name: arr(getattr(spec, f.name)) if f.per_vertex else getattr(spec, f.name)
+                  for f in MATERIAL_FIELDS}
+        mat = Material(model=spec.model, **values, **maps(spec),
                        texture_sets=tuple(TextureSet(**maps(ts)) for ts in spec.texture_sets),
                        texture_set=None if spec.texture_set is None else np.asarray(spec.texture_set, np.int64))
         mat.vertex_arrays(mesh.n_vertices)

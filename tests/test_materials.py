@@ -88,3 +88,28 @@ def test_bad_materials_are_rejected_with_a_reason():
 def test_material_maps_need_uvs(renderer):
     with pytest.raises(MeshError, match="UVs"):
         renderer.create_scene([Mesh.from_arrays(QUAD_P, QUAD_F)], [Material(albedo_map=np.ones((2, 2, 3)))])
+
+
+def test_the_material_fields_are_declared_once_and_every_interface_takes_them():
+    """The registry (renderer/shading/fields.py) makes the command line's flags, the material files'
+    fields, the service's MaterialSpec and docs/materials.md's table; Material takes each field and
+    refuses a scalar field's value outside its range with the registry's words."""
+    from pathlib import Path
+
+    from renderer.cli import MATERIAL_FIELDS, build_parser
+    from renderer.shading import fields
+    from service.schemas import MaterialSpec
+
+    names = [f.name for f in fields.FIELDS]
+    assert list(MATERIAL_FIELDS) == ["model", *names]
+    render = build_parser()._subparsers._group_actions[0].choices["render"]
+    flags = {opt for action in render._actions for opt in action.option_strings}
+    assert {f.flag for f in fields.FIELDS} <= flags
+    assert set(names) | {"model"} <= set(MaterialSpec.model_fields)
+    for f in fields.FIELDS:
+        assert MaterialSpec.model_fields[f.name].default == (list(f.default) if f.kind == "colour" else f.default)
+        assert f.name in Material.__dataclass_fields__
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "materials.md").read_text()
+    assert fields.reference_table() in doc, "docs/materials.md's table is stale: renderer.shading.fields.reference_table()"
+    with pytest.raises(InvalidInputError, match=r"anisotropy_rotation must lie in \[-1, 1\]"):
+        Material(model="pbr", anisotropy_rotation=2.0)

@@ -601,8 +601,9 @@ def test_a_normal_map_tilts_the_shading_normal_as_the_reference_does(renderer, s
 def test_an_anisotropic_highlight_stretches_as_the_reference_draws_it(renderer, sun, rotation):
     """A satin-like metal (anisotropy 0.8) on a UV sphere under the sun, its direction along u or
     turned a quarter towards v: the renderer's stretched highlight (the sun's exact anisotropic GGX,
-    the sky's lobes about a bent normal) is the reference's (measured: rel. RMSE 0.11 and 0.15, the
-    isotropic material's 0.06), and far from the isotropic picture the stretch replaces (0.57)."""
+    the sky's round lobes of the same mean square width) is the reference's (measured: rel. RMSE 0.12
+    and 0.09, the isotropic material's 0.06), and far from the isotropic picture the stretch
+    replaces (0.57)."""
     cube, pems = sun
     mesh = _uv_sphere()
     kw = dict(model="pbr", metallic=1.0, roughness=0.35)

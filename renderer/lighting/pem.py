@@ -12,6 +12,7 @@ buffers stay bounded whatever the region count.
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import KW_ONLY, dataclass, field, make_dataclass, replace
 from functools import cache
@@ -266,6 +267,11 @@ class PEMSet:
         self.median_cut_ms = (time.perf_counter() - t0) * 1e3
         self._cube = cube  # float32, kept for the SH9 coefficients, computed on first use
         self._sub_lights: dict[int, bytes] = {}
+        # The map's frame in the world's: a set turned about the up axis (`turned`) reads its textures
+        # through the inverse turn (lighting.frag, background.frag: u_env_from_world).
+        self.rotation_deg = 0.0
+        self.env_from_world = np.eye(3)
+        self._turned: dict[float, PEMSet] = {}
         n_regions = self.regions.n_regions
 
         if n_regions > REGIONS_PER_TEXTURE * MAX_TEXTURES:
@@ -416,6 +422,10 @@ class PEMSet:
         """Every region cut into `per_region` discs for the closed-form terms (median_cut.SubLights)
         as the shading pass reads them: per disc (unit direction, sine of its radius; rgb energy, 0),
         float32; computed once per count."""
+        if per_region not in self._sub_lights and self.rotation_deg != 0.0:
+            out = np.frombuffer(self._base.sub_lights_bytes(per_region), np.float32).reshape(-1, 2, 4).copy()
+            out[:, 0, :3] = out[:, 0, :3] @ self.env_from_world.astype(np.float32)   # world = env_from_world^T env
+            self._sub_lights[per_region] = out.tobytes()
         if per_region not in self._sub_lights:
             sub = sub_lights(self._cube[..., :3], self.regions, per_region, self.settings.whole_sources)
             out = np.zeros((len(sub.energy_rgb), 2, 4), np.float32)
@@ -424,6 +434,29 @@ class PEMSet:
             out[:, 1, :3] = sub.energy_rgb
             self._sub_lights[per_region] = out.tobytes()
         return self._sub_lights[per_region]
+
+    def turned(self, degrees: float) -> PEMSet:
+        """This set with its map turned `degrees` about the up axis (+Y; counter-clockwise seen from
+        above: light from direction d comes from R d): its lights' directions and sub-lights turned,
+        the same textures read through the inverse turn. Nothing is built again; one view per angle is
+        kept (a frame's light plan is kept while its set is the same object). Not to be released: the
+        set it views owns the textures."""
+        degrees = float(degrees) % 360.0
+        if degrees == self.rotation_deg:
+            return self
+        base = self if self.rotation_deg == 0.0 else self._base
+        if degrees == 0.0:
+            return base
+        if degrees not in base._turned:
+            a = np.radians(degrees)
+            turn = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+            view = copy.copy(base)
+            view._base, view.rotation_deg, view.env_from_world = base, degrees, turn.T
+            view.regions = replace(base.regions, directions=base.regions.directions @ turn.T)
+            view._sub_lights = {}
+            view._turned = {}
+            base._turned[degrees] = view
+        return base._turned[degrees]
 
     @property
     def n_regions(self) -> int:
@@ -482,7 +515,10 @@ class PEMSet:
                 "diffuse_level": round(self.diffuse_level(), 3)}
 
     def release(self) -> None:
+        if self.rotation_deg != 0.0:
+            raise InvalidInputError("a turned view of a PEM set is released with the set it views")
         for t in self.textures:
             t.release()
         self.norm_texture.release()
         self.env_texture.release()
+        self._turned.clear()

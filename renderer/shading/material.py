@@ -5,12 +5,12 @@ Kautz and McCool's fitted lobes, renderer/lighting/material_lobes.py)."""
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import InvalidInputError
+from . import fields
 
 
 def _finite(name: str, a: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -21,7 +21,7 @@ def _finite(name: str, a: np.ndarray, lo: float, hi: float) -> np.ndarray:
     return a
 
 
-MODELS = ("phong", "pbr")
+MODELS = fields.MODELS
 
 
 def _per_vertex(name: str, value, n_vertices: int, hi: float = 1.0) -> np.ndarray:
@@ -189,13 +189,8 @@ class Material:
     back: Material | None = None
 
     def __post_init__(self):
-        for name in ("anisotropy", "anisotropy_rotation"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
-                    or not math.isfinite(float(value)):
-                raise InvalidInputError(f"{name} must be a finite number, got {value!r}")
-        if not 0.0 <= float(self.anisotropy) <= 1.0:
-            raise InvalidInputError(f"anisotropy must lie in [0, 1], got {self.anisotropy}")
+        for name in ("anisotropy", "anisotropy_rotation"):   # the registry's scalar-only fields
+            fields.BY_NAME[name].check(getattr(self, name))
         if float(self.anisotropy) > 0.0 and self.model != "pbr":
             raise InvalidInputError("anisotropy belongs to the pbr model's GGX layer, not phong")
         if self.back is not None:
@@ -316,8 +311,8 @@ class Material:
         """(albedo (V, 3), material (V, 2) = (specular, glossiness)) float32, validated."""
         albedo = _per_vertex_rgb("albedo", self.albedo, n_vertices)
         out = np.empty((n_vertices, 2), np.float32)
-        for k, (name, value, hi) in enumerate((("specular", self.specular, 1e3), ("glossiness", self.glossiness, 1.0))):
-            out[:, k] = _per_vertex(name, value, n_vertices, hi)
+        for k, name in enumerate(("specular", "glossiness")):
+            out[:, k] = _per_vertex(name, getattr(self, name), n_vertices, fields.BY_NAME[name].hi)
         if self.is_pbr:
             out[:] = 0.0   # the pbr model's pixels read their lobes from the tables
         return albedo, out

@@ -10,13 +10,15 @@ layout(binding = TEX_ENVIRONMENT) uniform samplerCube u_env;
 #endif
 
 uniform mat4 u_inv_view_proj;
+uniform mat3 u_env_from_world;   // a turned environment is read through the inverse turn (PEMSet.turned)
 in vec2 v_ndc;
 out vec4 o_color;
 
+// The view ray through a point of the screen, in the map's own frame.
 vec3 view_ray(vec2 ndc) {
     vec4 a = u_inv_view_proj * vec4(ndc, -1.0, 1.0);
     vec4 b = u_inv_view_proj * vec4(ndc, 1.0, 1.0);
-    return normalize(b.xyz / b.w - a.xyz / a.w);
+    return u_env_from_world * normalize(b.xyz / b.w - a.xyz / a.w);
 }
 
 #ifdef BACKGROUND_LATLONG

@@ -109,6 +109,12 @@ vec3 g_diffuse = vec3(0.0);
 // The pixel's lobes: axis, PEM level, 1 / exponent (the closed forms' width) and weight (rgb), set by
 // main() before the lights; their PEM terms and closed-form terms, summed over the lights.
 vec3 g_lobe_axis[N_LOBES];
+// The PEMs are in the map's own frame: a turned environment (FrameSettings.environment_rotation_deg)
+// reads them through the inverse turn (renderer/lighting/pem.py, PEMSet.turned), the lights' directions
+// being turned already. The pixel's lookup directions in that frame, made once before the light loops.
+uniform mat3 u_env_from_world;
+vec3 g_n_env;
+vec3 g_lobe_axis_env[N_LOBES];
 float g_lobe_level[N_LOBES];
 float g_lobe_inv_s[N_LOBES];
 vec3 g_lobe_weight[N_LOBES];
@@ -219,13 +225,13 @@ void shade_light(int i, bool pem_diffuse, bool pem_glossy, bool sharp, bool in_p
 #endif
     if (in_pem1) {
         float layer = float(i - REGIONS_PER_TEXTURE);
-        if (pem_diffuse) pem_d = textureLod(u_pem1, vec4(n, layer), u_diffuse_level).rgb;
+        if (pem_diffuse) pem_d = textureLod(u_pem1, vec4(g_n_env, layer), u_diffuse_level).rgb;
         if (pem_glossy && glossy)
-            for (int k = 0; k < N_LOBES; ++k) pem_g[k] = textureLod(u_pem1, vec4(g_lobe_axis[k], layer), g_lobe_level[k]).rgb;
+            for (int k = 0; k < N_LOBES; ++k) pem_g[k] = textureLod(u_pem1, vec4(g_lobe_axis_env[k], layer), g_lobe_level[k]).rgb;
     } else {
-        if (pem_diffuse) pem_d = textureLod(u_pem0, vec4(n, float(i)), u_diffuse_level).rgb;
+        if (pem_diffuse) pem_d = textureLod(u_pem0, vec4(g_n_env, float(i)), u_diffuse_level).rgb;
         if (pem_glossy && glossy)
-            for (int k = 0; k < N_LOBES; ++k) pem_g[k] = textureLod(u_pem0, vec4(g_lobe_axis[k], float(i)), g_lobe_level[k]).rgb;
+            for (int k = 0; k < N_LOBES; ++k) pem_g[k] = textureLod(u_pem0, vec4(g_lobe_axis_env[k], float(i)), g_lobe_level[k]).rgb;
     }
     add_light(i, pem_d, pem_g, n, ws_position, pem_diffuse, pem_glossy, sharp);
 }
@@ -286,6 +292,9 @@ void main() {
     }
 #endif
 
+    g_n_env = u_env_from_world * n;
+    for (int k = 0; k < N_LOBES; ++k) g_lobe_axis_env[k] = u_env_from_world * g_lobe_axis[k];
+
 #if MODE == MODE_MANY_LIGHTS
     shade_many_lights(n, ws_position);   // research.glsl
 #else
@@ -311,11 +320,11 @@ void main() {
 #endif
 #endif
 #ifndef DIFFUSE_LIGHTS
-    g_diffuse /= textureLod(u_pem_norm, vec4(n, 0.0), u_diffuse_level).r;
+    g_diffuse /= textureLod(u_pem_norm, vec4(g_n_env, 0.0), u_diffuse_level).r;
 #endif
     g_diffuse += max(g_diffuse_exact, vec3(0.0));
     for (int k = 0; k < N_LOBES; ++k) {
-        if (glossy) g_glossy[k] /= textureLod(u_pem_norm, vec4(g_lobe_axis[k], 0.0), g_lobe_level[k]).r;
+        if (glossy) g_glossy[k] /= textureLod(u_pem_norm, vec4(g_lobe_axis_env[k], 0.0), g_lobe_level[k]).r;
         g_glossy[k] += g_glossy_exact[k];
     }
 #endif
