@@ -18,6 +18,7 @@
 #   scale-out   python -m service.load --ray 1,2 --frames 32 --scenes 8   (docs/scale-out.json and .md; ~3 min)
 #   service-bounds  python scripts/bench_service_bounds.py   (docs/service-bounds.json and .md; ~25 min)
 #   fabrics     garment-render bench --fabrics               (docs/fabrics-bench.json and .md; ~10 min)
+#   rotation    python scripts/bench_env_rotation.py         (docs/env-rotation.json and .md; ~1 min)
 # and, named only (never by default), the broad runs retimed: their stored errors kept, every frame and
 # the tracer's rate timed again (`bench --broad --retime`), for a change that leaves every image as it
 # was (a faster shader that draws the same pixels, the machine's timings on another day):
@@ -27,7 +28,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 all=(broad-256 broad-512 error-split energy materials one-shot sweep views area shadow-maps edges scale-out
-     service-bounds fabrics)
+     service-bounds fabrics rotation)
 named=("${all[@]}" broad-256-retime broad-512-retime)
 runs=("$@")
 if [[ ${#runs[@]} -eq 0 ]]; then
@@ -97,5 +98,6 @@ for run in "${runs[@]}"; do
         shadow-maps) side shadow-maps shadow_maps docs/shadow-maps-bench.json ;;
         scale-out) "$py" -m service.load --ray 1,2 --frames 32 --scenes 8 --out docs/scale-out.md ;;
         service-bounds) "$py" scripts/bench_service_bounds.py --out docs ;;   # docs/service-bounds.json
+        rotation) "$py" scripts/bench_env_rotation.py --out docs ;;   # docs/env-rotation.json
     esac
 done

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import base64
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import anyio
 from fastapi import Request
@@ -51,9 +51,10 @@ def negotiate(fmt: ImageFormat | None, request: Request) -> ImageFormat:
                              "application/json (or choose with ?format=png|exr|json)")
 
 
-def render_job(scene: SceneRecord, arrays: FrameArrays | None):
-    """The GL-thread part of one frame of a registered scene."""
-    views = views_job(scene, arrays, [scene.camera], [0])
+def render_job(scene: SceneRecord, arrays: FrameArrays | None, rotation: float | None = None):
+    """The GL-thread part of one frame of a registered scene (`rotation`: its environment's turn in
+    degrees, None: the scene's)."""
+    views = views_job(scene, arrays, [scene.camera], [0], rotation)
 
     def job(gl: GLResources) -> tuple[Frame, str]:
         frames, source = views(gl)
@@ -61,18 +62,22 @@ def render_job(scene: SceneRecord, arrays: FrameArrays | None):
     return job
 
 
-def views_job(scene: SceneRecord, arrays: FrameArrays | None, cameras: list, variants: list[int]):
+def views_job(scene: SceneRecord, arrays: FrameArrays | None, cameras: list, variants: list[int],
+              rotation: float | None = None):
     """The GL-thread part of one frame of a registered scene seen from several cameras in several
     colourways (Renderer.render_views: one upload and shadow pass for all)."""
+    settings = scene.frame_settings if rotation is None else \
+        replace(scene.frame_settings, environment_rotation_deg=float(rotation))
+
     def job(gl: GLResources) -> tuple[list[Frame], str]:
         if scene.released or scene.gpu is None:
             raise NotFoundError(f"scene {scene.id} was deleted while this frame waited")
         env = scene.environment
         pems, source = gl.pem_set(env.content_hash, env.cubes[scene.face_size], scene.pem_settings)
         background = None
-        if scene.frame_settings.background is Background.ENVIRONMENT:
+        if settings.background is Background.ENVIRONMENT:
             background = gl.background(env.content_hash, env.background_source())
-        frames = gl.renderer.render_views(scene.gpu, pems, scene.frame_settings, cameras,
+        frames = gl.renderer.render_views(scene.gpu, pems, settings, cameras,
                                           positions=arrays.positions if arrays else None,
                                           normals=arrays.normals if arrays else None, background=background,
                                           variants=variants, stop=gl.stop_requested)

@@ -150,6 +150,10 @@ class OutputSpec(_Strict):
                                       description="fixed exposure in stops (-64..64); null: automatic per frame")
     tone: ToneName = Field(DEFAULT_CURVE.value, description="tone curve of PNG images (pbr-neutral: a base colour "
                            "under white light of radiance 1 shows as itself)")
+    environment_rotation: float = Field(0.0, ge=-360.0, le=360.0, description="the environment turned about the up "
+                                        "axis, degrees counter-clockwise seen from above (90: a light from the "
+                                        "camera's right comes from behind); a frame's ?environment_rotation= "
+                                        "overrides it; nothing is built again")
 
 
 class CameraSpec(_Strict):

@@ -302,6 +302,35 @@ def test_an_uploaded_glb_brings_its_material_unless_the_scene_names_one(http, en
     assert not np.array_equal(images[0], images[1])   # the file's velvet, then the named Phong material
 
 
+def test_the_environment_turns_per_frame_and_per_scene_alike(http, server, env_upload, mesh):
+    """A frame's ?environment_rotation= turns the map (another picture, the same as a scene registered
+    turned, and one turn is none), through the client too; an angle past a turn is a 422 naming it."""
+    from garment_render_client import RenderClient
+
+    body = scene_body(env_upload[0]["id"], mesh)
+    plain = http.post("/scenes", json=body).json()["id"]
+    body["output"] = {**body["output"], "environment_rotation": 90.0}
+    turned_scene = http.post("/scenes", json=body).json()["id"]
+    images = {}
+    for label, sid, params in (("still", plain, {}), ("turned", plain, {"environment_rotation": 90}),
+                               ("registered", turned_scene, {}), ("back", turned_scene, {"environment_rotation": 360}),
+                               ("again", plain, {})):
+        r = post_frame(http, sid, mesh.positions, params={"exposure": 0, **params})
+        assert r.status_code == 200, r.text
+        images[label] = png_array(r.content).astype(float)
+    assert np.abs(images["turned"] - images["still"]).mean() > 1.0
+    np.testing.assert_array_equal(images["turned"], images["registered"])
+    np.testing.assert_array_equal(images["back"], images["still"])
+    np.testing.assert_array_equal(images["again"], images["still"])
+    with RenderClient(server.url) as c:
+        viewed = c.send_frame(plain, mesh.positions, exposure=0, environment_rotation=90).array().astype(float)
+    np.testing.assert_array_equal(viewed, images["turned"])
+    assert_error(post_frame(http, plain, mesh.positions, params={"environment_rotation": 400}), 422,
+                 "environment_rotation")
+    for sid in (plain, turned_scene):
+        assert http.delete(f"/scenes/{sid}").status_code == 204
+
+
 def test_an_anisotropic_material_renders_its_stretch_and_a_bad_one_is_refused(http, env_upload, mesh):
     """A satin's anisotropy through the service: the same pbr garment with anisotropy 0.9 renders
     another picture (its direction shows under small lights: tests/test_pbr.py); a value beyond 1 is a

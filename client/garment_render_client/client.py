@@ -313,8 +313,10 @@ class RenderClient:
         self._request("DELETE", f"/scenes/{scene_id}")
 
     def send_frame(self, scene_id: str, positions, normals=None, body_positions=None, body_normals=None,
-                   format: str = "png", exposure: float | None = None, frame_index: int | None = None) -> FrameResult:
-        """positions: (V, 3) in the scene's up axis; the optional blocks follow the layout in codecs.py."""
+                   format: str = "png", exposure: float | None = None, frame_index: int | None = None,
+                   environment_rotation: float | None = None) -> FrameResult:
+        """positions: (V, 3) in the scene's up axis; the optional blocks follow the layout in codecs.py.
+        environment_rotation: degrees the map turns about the up axis for this frame (None: the scene's)."""
         blocks, parts = [], []
         for name, a in (("positions", positions), ("normals", normals), ("body_positions", body_positions),
                         ("body_normals", body_normals)):
@@ -327,12 +329,15 @@ class RenderClient:
         params = {"format": format} if format else {}
         if exposure is not None:
             params["exposure"] = exposure
+        if environment_rotation is not None:
+            params["environment_rotation"] = environment_rotation
         r, retries = self._request("POST", f"/scenes/{scene_id}/frames", content=b"".join(parts), headers=headers,
                                    params=params)
         return self._frame(r, retries)
 
     def send_views(self, scene_id: str, positions, turntable: int | None = None, views: list[str] | None = None,
-                   colourways: bool = True, exposure: float | None = None) -> FrameResult:
+                   colourways: bool = True, exposure: float | None = None,
+                   environment_rotation: float | None = None) -> FrameResult:
         """One frame's positions seen from several cameras (`turntable` N steps about the target, or
         named `views`: front, back, left, right, ...) and, with `colourways`, in every colourway the
         scene was registered with: one PNG sheet, a row per view and a column per colourway."""
@@ -345,6 +350,8 @@ class RenderClient:
             params["views"] = ",".join(views)
         if exposure is not None:
             params["exposure"] = exposure
+        if environment_rotation is not None:
+            params["environment_rotation"] = environment_rotation
         r, retries = self._request("POST", f"/scenes/{scene_id}/frames/views", content=_as_f32(positions, "positions"),
                                    headers={"Content-Type": OCTET, "X-Frame-Layout": "positions"}, params=params)
         return self._frame(r, retries)

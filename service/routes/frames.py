@@ -80,6 +80,9 @@ _IMAGE_RESPONSES = {200: {"content": {"image/png": {}, "image/x-exr": {}, "appli
 
 FormatQuery = Annotated[ImageFormat | None, Query(description="png | exr | json (default: from Accept, else png)")]
 ExposureQuery = Annotated[float | None, Query(ge=-64, le=64, description="EV; overrides the scene's exposure")]
+RotationQuery = Annotated[float | None, Query(ge=-360, le=360, description="degrees the environment turns about "
+                                              "the up axis, counter-clockwise seen from above; overrides the "
+                                              "scene's output.environment_rotation (nothing is built again)")]
 JsonImageQuery = Annotated[EmbeddedImageFormat, Query(description="image format inside JSON answers: png | exr")]
 LayoutHeader = Annotated[str | None, Header(alias="X-Frame-Layout", description="blocks of the body")]
 LayoutQuery = Annotated[str | None, Query(description="same as X-Frame-Layout")]
@@ -96,6 +99,7 @@ async def post_frame(
     scene_id: str, request: Request, svc: ServicesDep, worker: WorkerDep, settings: SettingsDep,
     metrics: MetricsDep, format: FormatQuery = None, exposure: ExposureQuery = None,
     image: JsonImageQuery = EmbeddedImageFormat.PNG,
+    environment_rotation: RotationQuery = None,
     layout: LayoutQuery = None,
     x_frame_layout: LayoutHeader = None,
     x_frame_index: FrameIndexHeader = None,
@@ -108,7 +112,8 @@ async def post_frame(
     body = await raw_body(request, (OCTET_STREAM,), "a frame of vertex positions")
     arrays = await anyio.to_thread.run_sync(decode_frame, body, blocks, scene, not worker.normals_on_gpu)
     async with client_gone(request) as gone:
-        result = await worker.call(render_job(scene, arrays), what=f"a frame of {scene.id}", abandoned=gone)
+        result = await worker.call(render_job(scene, arrays, environment_rotation), what=f"a frame of {scene.id}",
+                                   abandoned=gone)
     frame, source = result.value
     worker.rates.note(scene, result.run_ms, 1)
     sequence = scene.count_frames()
@@ -136,6 +141,7 @@ async def post_batch(
     metrics: MetricsDep,
     format: Annotated[BatchFormat | None, Query(description="json (default) | zip")] = None,
     image: JsonImageQuery = EmbeddedImageFormat.PNG, exposure: ExposureQuery = None,
+    environment_rotation: RotationQuery = None,
     layout: LayoutQuery = None,
     x_frame_layout: LayoutHeader = None,
 ) -> Response:
@@ -190,7 +196,7 @@ async def post_batch(
                 yield   # the encoder is behind: the turn goes to another job, if one waits
             t0 = time.perf_counter()
             try:
-                out = render_job(scene, arrays)(gl)
+                out = render_job(scene, arrays, environment_rotation)(gl)
             except BaseException as exc:  # noqa: BLE001 - reported to the request
                 loop.call_soon_threadsafe(ready.put_nowait, (i, exc, 0.0))
                 return
@@ -270,6 +276,7 @@ async def post_views(
     format: Annotated[ViewsFormat, Query(description="sheet (one PNG: a row per view, a column per colourway) "
                                          "| zip (view_00_c0.png ... and timings.json)")] = ViewsFormat.SHEET,
     exposure: ExposureQuery = None,
+    environment_rotation: RotationQuery = None,
     layout: LayoutQuery = None,
     x_frame_layout: LayoutHeader = None,
     x_frame_index: FrameIndexHeader = None,
@@ -293,7 +300,7 @@ async def post_views(
     body = await raw_body(request, (OCTET_STREAM,), "a frame of vertex positions")
     arrays = await anyio.to_thread.run_sync(decode_frame, body, blocks, scene, not worker.normals_on_gpu)
     async with client_gone(request) as gone:
-        result = await worker.call(views_job(scene, arrays, cameras, list(range(n_variants))),
+        result = await worker.call(views_job(scene, arrays, cameras, list(range(n_variants)), environment_rotation),
                                    what=f"{len(cameras)} views of {scene.id}", abandoned=gone)
     frames, source = result.value
     worker.rates.note(scene, result.run_ms, len(frames))
