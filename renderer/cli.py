@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from . import config
+from .aovs import exr_channels, parse_aovs
 from .config import RETIRED
 from .errors import InvalidInputError, RenderError
 from .presets import PRESET_NAMES, resolve
@@ -150,6 +151,9 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--size", type=_size, default=(512, 512), help="image size WxH (default 512x512)")
     o.add_argument("--out", type=Path, help="tone-mapped sRGB PNG")
     o.add_argument("--exr", type=Path, help="linear HDR EXR (RGBA float32)")
+    o.add_argument("--aov", metavar="PASSES", help="passes beside the image in the EXR (render: --exr; sequence: "
+                   "--exr-frames), comma-separated: depth (Z), normal (N.X/Y/Z), albedo (albedo.R/G/B), id "
+                   "(0 background, 1 garment, 2.. the other meshes)")
     o.add_argument("--timings", type=Path, help="per-stage timings JSON")
     o.add_argument("--no-cache", action="store_true",
                    help="build the PEM set anew, and keep it out of the cache folder ($GARMENT_RENDER_CACHE_DIR, "
@@ -187,7 +191,8 @@ def frame_settings(args, q: dict):
     w, h = args.size
     return presets_frame_settings(q, w, h, bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),
                                   background=Background(args.background),
-                                  environment_rotation_deg=getattr(args, "env_rotation", 0.0))
+                                  environment_rotation_deg=getattr(args, "env_rotation", 0.0),
+                                  aovs=parse_aovs(getattr(args, "aov", None)))
 
 
 def pem_settings(args, q: dict, materials):
@@ -482,6 +487,8 @@ def cmd_render(args) -> int:
     from .shading.tonemap import auto_exposure_ev, write_png
 
     check_outputs(args)
+    if args.aov and not args.exr:
+        raise InvalidInputError("--aov writes its passes into the EXR: name --exr too")
     t_start = time.perf_counter()
     q = resolve_quality(args)
     env, meshes, materials, casters = load_scene_inputs(args, q["face_size"])
@@ -511,7 +518,7 @@ def cmd_render(args) -> int:
         _write_views(args, frames, len(variants))
     img = frame.image
     if args.exr:
-        write_exr(args.exr, img)
+        write_exr(args.exr, img, channels=exr_channels(frame.aovs))
     exposure = args.exposure
     if exposure is None:
         exposure = auto_exposure_ev(img[..., :3], img[..., 3])
@@ -544,6 +551,8 @@ def cmd_sequence(args) -> int:
 
     if args.out is None:
         raise SystemExit("error: sequence needs --out DIR (the folder for the numbered frames)")
+    if args.aov and not args.exr_frames:
+        raise InvalidInputError("--aov writes its passes into each frame's EXR: name --exr-frames too")
     q = resolve_quality(args)
     args.mesh = list(args.body or [])
     env, extra_meshes, materials, _ = load_scene_inputs(args, q["face_size"])
@@ -588,7 +597,7 @@ def cmd_sequence(args) -> int:
                 png = png_image(img, args.background == "env")
                 (args.out / f"frame_{k:04d}.png").write_bytes(to_png_bytes(png, exposure, ToneCurve(args.tone)))
                 if args.exr_frames:
-                    write_exr(args.out / f"frame_{k:04d}.exr", img)
+                    write_exr(args.out / f"frame_{k:04d}.exr", img, channels=exr_channels(frame.aovs))
                 timings.append(frame.timings)
                 previews.append(k)
                 done = int(30 * (k + 1) / seq.n_frames)
@@ -629,6 +638,8 @@ def cmd_reference(args) -> int:
     from .shading.tonemap import auto_exposure_ev, write_png
 
     check_outputs(args)
+    if getattr(args, "aov", None):
+        raise InvalidInputError("--aov: the reference writes the image alone (render writes the passes)")
     face = args.face_size or 256  # the reference reads the map itself: a fine cube by default
     env, meshes, materials, casters = load_scene_inputs(args, face)
     w, h = args.size

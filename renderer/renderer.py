@@ -20,6 +20,7 @@ import moderngl
 import numpy as np
 
 from . import config
+from .aovs import from_gbuffer, parse_aovs
 from .camera import Camera, bounds_sphere, default_camera
 from .config import MAX_LIGHTS
 from .costs import light_maps
@@ -127,10 +128,11 @@ class _FrameChecks:
             raise InvalidInputError(f"environment rotation must be a finite number of degrees, got {turn!r}")
         # One angle, one plan: 360 is 0 and -90 is 270 (renderer/lighting/pem.py, PEMSet.turned).
         object.__setattr__(self, "environment_rotation_deg", float(turn) % 360.0)
+        object.__setattr__(self, "aovs", parse_aovs(self.aovs))
 
     def as_dict(self) -> dict:
         d = asdict(self)
-        d["mode"], d["background"] = self.mode.value, self.background.value
+        d["mode"], d["background"], d["aovs"] = self.mode.value, self.background.value, list(self.aovs)
         return d
 
 
@@ -141,13 +143,15 @@ FrameSettings = make_dataclass(
      ("bleed_reduction", float, field(default=config.OPTION["bleed_reduction"].default)),
      ("mode", ShadingMode, field(default=ShadingMode.FULL)),
      ("background", Background, field(default=Background.ENVIRONMENT)),
-     ("environment_rotation_deg", float, field(default=0.0))],
+     ("environment_rotation_deg", float, field(default=0.0)),
+     ("aovs", tuple, field(default=()))],
     bases=(_FrameChecks,), frozen=True, namespace={"__module__": __name__, "__doc__": (
         "Per-frame quality and output settings (the PEM set's are PEMSettings): the image's size, every frame "
         "setting of the registry (renderer/config.py: each one's type, limits, default and what it does), "
         "bleed_reduction, the shading mode, the background and the environment's rotation about the up axis "
         "(degrees, counter-clockwise seen from above: a light at direction d is lit from R d; the PEM set is not "
-        "made again). FrameSettings() is the paper's method; a preset's "
+        "made again), and the passes beside the image (renderer/aovs.py: depth, normal, albedo, id; Frame.aovs). "
+        "FrameSettings() is the paper's method; a preset's "
         "settings come from presets.resolve(...).frame(width, height).")})
 PAPER_FRAME = FrameSettings()   # render()'s default settings: the paper's method at 512 x 512
 
@@ -175,11 +179,13 @@ class FrameTimings(TypedDict):
 
 @dataclass
 class Frame:
-    """A rendered frame. image: float32 (H, W, 4) linear HDR RGB + coverage alpha, row 0 at the top."""
+    """A rendered frame. image: float32 (H, W, 4) linear HDR RGB + coverage alpha, row 0 at the top;
+    aovs: the passes FrameSettings.aovs asked for (renderer/aovs.py), each float32 (H, W) or (H, W, 3)."""
 
     image: np.ndarray
     timings: FrameTimings
     settings: dict = field(default_factory=dict)
+    aovs: dict = field(default_factory=dict)
 
 
 # The modes whose lighting pass has closed-form terms (the others read every PEM).
@@ -671,13 +677,14 @@ class Renderer:
                 if targets.samples > 1:
                     self._edges_pass(inputs, targets, view_proj, depth_vp, camera, timer)
                 image = self._readback_image(targets.output_fbo, w, h, timer)
+                aovs = self._read_aovs(settings.aovs, gbuf, camera, timer) if settings.aovs else {}
                 timings: FrameTimings = {**timer.as_dict(), **report[0]}   # its stages, then the frame's counts
                 timings["frame_wall_ms"] = (time.perf_counter() - t_view) * 1e3 + (shared_ms if not frames else 0.0)
                 info = {**report[1], "camera": {"eye": list(camera.eye), "target": list(camera.target),
                                                 "fov_y_deg": camera.fov_y_deg},
                         # The contact search's distance in world units (0: none this frame).
                         "contact_radius": contact_radius}
-                frames.append(Frame(image, timings, info))
+                frames.append(Frame(image, timings, info, aovs))
         return frames
 
     def _frame_report(self, scene: Scene, pems: PEMSet, settings: FrameSettings, lp: _LightPlan, arrays: dict,
@@ -968,6 +975,7 @@ class Renderer:
         ctx.depth_func = "<"
         for sm in meshes:
             set_uniform(g, "u_shadow_group", float(sm.group))
+            set_uniform(g, "u_mesh_id", float(sm.index + 1))
             set_uniform(g, "u_convex_surface", sm.convex)
             buffers = sm.variants[variant]
             # A material with a back (Material.back): its front where the camera sees a triangle's
@@ -1113,6 +1121,19 @@ class Renderer:
             self._buffers[key] = self.gl.ctx.buffer(np.concatenate(parts).tobytes())
             self._sheen_offsets[key] = len(parts[0])
         return self._buffers[key], self._sheen_offsets[key]
+
+    @staticmethod
+    def _read_aovs(names: tuple[str, ...], gbuf: list, camera: Camera, timer: StageTimer) -> dict[str, np.ndarray]:
+        """The passes beside the image from the geometry pass's targets (renderer/aovs.py)."""
+        t0 = time.perf_counter()
+
+        def read(k: int) -> np.ndarray:
+            t = gbuf[k]
+            return np.frombuffer(t.read(), np.float32).reshape(t.height, t.width, 4)[::-1]
+
+        out = from_gbuffer(names, read, camera.eye)
+        timer.wall_ms["aovs"] = (time.perf_counter() - t0) * 1e3
+        return out
 
     def _readback_image(self, fbo, w: int, h: int, timer: StageTimer) -> np.ndarray:
         t0 = time.perf_counter()

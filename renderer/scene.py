@@ -211,6 +211,7 @@ class SceneMesh:
         (zeros for a Phong one) to the geometry pass's PBR variant (programs["gbuffer_pbr"])."""
         ctx = gl.ctx
         self.mesh, self.material, self.caster, self.group = mesh, material, caster, group
+        self.index = 0   # its place in its scene (Scene sets it)
         self.n_vertices = mesh.positions.shape[0]
         # Bumped by every set_positions: the shadow pass keeps the maps of casters that hold still
         # (shadows/vsm.py, the still group's layers) while their versions stay the same; the serial
@@ -485,6 +486,7 @@ class Scene:
             for k, (m, mat, c) in enumerate(zip(meshes, materials, casters)):
                 given = {d: faces[k] for d, faces in (proxies or {}).items() if faces[k] is not None}
                 self.meshes.append(SceneMesh(gl, m, mat, programs, c, given, groups[k], self.has_pbr))
+                self.meshes[-1].index = k   # its place in the scene (the id pass: renderer/aovs.py)
             # How many shadow groups cast (0-2): one casting mesh needs one pair of moments a texel.
             self.shadow_groups = len({sm.group for sm in self.meshes if sm.caster})
             self._shading_needs()

@@ -103,7 +103,7 @@ class _Scene:
     """What budgets' estimate reads of a scene: its size, its latest per-image GL times and PNG sizes."""
 
     def __init__(self, size: int, recent_ms: list[float], png_bytes: list[int]):
-        self.frame_settings = type("Size", (), {"width": size, "height": size})()
+        self.frame_settings = type("Size", (), {"width": size, "height": size, "aovs": ()})()
         self.gl_ms_recent = recent_ms
         self.encoded_bpp_recent = {"png": [n / size**2 for n in png_bytes]}
 

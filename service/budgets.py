@@ -33,6 +33,9 @@ from .settings import ServiceSettings
 
 READBACK_BPP = 16          # float32 RGBA
 ENCODING_BPP = 32          # a frame's tone mapping: float32 RGB temporaries, measured (scripts/bench_service_bounds.py)
+# The passes beside a frame (output.aovs): the geometry targets read back (four float32 RGBA) and at most
+# eight float32 channels kept.
+AOV_BPP = 4 * 16 + 8 * 4
 SHEET_BPP = READBACK_BPP + 4 * 4
 ZIP_VIEWS_BPP = READBACK_BPP + 4
 ENCODED_BPP = {"png": 4, "exr": 16}   # the most an encoded image takes, a pixel
@@ -134,7 +137,8 @@ def batch_cost(scene: SceneRecord, n_frames: int, answer: str, image: str, frame
     """answer: "zip" or "json"; image: "png" or "exr"."""
     px = _pixels(scene)
     kept = n_frames * px * rates.encoded_bpp(scene, image) * KEPT_COPIES[answer]
-    in_flight = min(frames_ahead, n_frames) * px * (READBACK_BPP + ENCODING_BPP)
+    aovs = AOV_BPP if scene.frame_settings.aovs else 0
+    in_flight = min(frames_ahead, n_frames) * px * (READBACK_BPP + ENCODING_BPP + aovs)
     each_s, rate_from = rates.image_s(scene, settings)
     return RequestCost(f"a batch of {n_frames} frames of {_size(scene)}", n_frames, int(kept + in_flight),
                        n_frames * each_s, rate_from)

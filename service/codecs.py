@@ -194,13 +194,14 @@ def png_bytes(pixels: np.ndarray, compress_level: int = 1) -> bytes:
             + chunk(b"IDAT", zlib.compress(raw.tobytes(), compress_level)) + chunk(b"IEND", b""))
 
 
-def encode_exr(image: np.ndarray) -> bytes:
+def encode_exr(image: np.ndarray, channels: dict[str, np.ndarray] | None = None) -> bytes:
     """Linear scene radiance as an RGBA float32 OpenEXR (alpha = coverage), ZIP-compressed scanlines,
-    with the renderer's header (`exr_header`: its Rec. 709 chromaticities)."""
+    with the renderer's header (`exr_header`: its Rec. 709 chromaticities); `channels`: the passes
+    beside it (renderer.aovs.exr_channels)."""
     import OpenEXR
 
     buf = io.BytesIO()
-    OpenEXR.File(exr_header(), {"RGBA": np.ascontiguousarray(image, np.float32)}).write(buf)
+    OpenEXR.File(exr_header(), {"RGBA": np.ascontiguousarray(image, np.float32), **(channels or {})}).write(buf)
     return buf.getvalue()
 
 

@@ -16,9 +16,11 @@ import time
 from dataclasses import dataclass, replace
 
 import anyio
+import numpy as np
 from fastapi import Request
 from fastapi.responses import JSONResponse, Response
 
+from renderer.aovs import exr_channels
 from renderer.renderer import Background, Frame
 from renderer.shading.tonemap import DEFAULT_CURVE
 
@@ -63,11 +65,14 @@ def render_job(scene: SceneRecord, arrays: FrameArrays | None, rotation: float |
 
 
 def views_job(scene: SceneRecord, arrays: FrameArrays | None, cameras: list, variants: list[int],
-              rotation: float | None = None):
+              rotation: float | None = None, aovs: bool = True):
     """The GL-thread part of one frame of a registered scene seen from several cameras in several
-    colourways (Renderer.render_views: one upload and shadow pass for all)."""
+    colourways (Renderer.render_views: one upload and shadow pass for all); `aovs` False: without the
+    scene's passes (a sheet of views has no place for them)."""
     settings = scene.frame_settings if rotation is None else \
         replace(scene.frame_settings, environment_rotation_deg=float(rotation))
+    if not aovs and settings.aovs:
+        settings = replace(settings, aovs=())
 
     def job(gl: GLResources) -> tuple[list[Frame], str]:
         if scene.released or scene.gpu is None:
@@ -100,7 +105,7 @@ def encode(frame: Frame, fmt: ImageFormat, output: dict, exposure_ev: float | No
     kind = json_image if fmt is ImageFormat.JSON else fmt
     ev = None
     if kind is ImageFormat.EXR:
-        content = encode_exr(frame.image)
+        content = encode_exr(frame.image, exr_channels(frame.aovs))
     else:
         ev_in = exposure_ev if exposure_ev is not None else output.get("exposure_ev")
         content, ev = encode_png(frame.image, ev_in, output.get("tone", DEFAULT_CURVE.value),
@@ -148,7 +153,11 @@ def frame_payload(scene_id: str | None, index: int | None, frame: Frame, enc: En
     return {"scene_id": scene_id, "frame_index": index, "width": w, "height": h, "exposure_ev": enc.exposure_ev,
             "timings_ms": timings, "render": {**render_info(frame, source), "quality": quality},
             "image": {"format": "exr" if enc.media_type == "image/x-exr" else "png", "media_type": enc.media_type,
-                      "base64": base64.b64encode(enc.content).decode("ascii")}}
+                      "base64": base64.b64encode(enc.content).decode("ascii")},
+            # The passes (output.aovs): little-endian float32, rows from the top.
+            "aovs": {name: {"shape": list(a.shape), "dtype": "<f4",
+                            "base64": base64.b64encode(np.ascontiguousarray(a, "<f4").tobytes()).decode("ascii")}
+                     for name, a in frame.aovs.items()}}
 
 
 def frame_response(fmt: ImageFormat, scene_id: str | None, index: int | None, frame: Frame, enc: Encoded,

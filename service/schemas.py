@@ -9,6 +9,7 @@ from typing import Annotated, Any, Literal
 from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, create_model, model_validator
 
 from renderer import config
+from renderer.aovs import AOVS
 from renderer.lighting.pem_reference import mip_levels
 from renderer.presets import PRESET_NAMES
 from renderer.shading.fields import FIELDS as MATERIAL_FIELDS
@@ -150,6 +151,10 @@ class OutputSpec(_Strict):
                                       description="fixed exposure in stops (-64..64); null: automatic per frame")
     tone: ToneName = Field(DEFAULT_CURVE.value, description="tone curve of PNG images (pbr-neutral: a base colour "
                            "under white light of radiance 1 shows as itself)")
+    aovs: list[Literal[AOVS]] = Field([], max_length=len(AOVS), description="passes beside the image, in EXR "
+                                      "answers as channels (Z; N.X, N.Y, N.Z; albedo.R, .G, .B; id) and in JSON "
+                                      "answers as float32 arrays: depth (metres from the eye), normal (world space), "
+                                      "albedo (after textures), id (0 background, 1 garment, 2 body, 3 floor)")
     environment_rotation: float = Field(0.0, ge=-360.0, le=360.0, description="the environment turned about the up "
                                         "axis, degrees counter-clockwise seen from above (90: a light from the "
                                         "camera's right comes from behind); a frame's ?environment_rotation= "

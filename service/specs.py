@@ -68,7 +68,7 @@ def resolve_quality(q: QualitySpec, out: OutputSpec, presets: dict, measured: di
                                       "(GARMENT_RENDER_MAX_IMAGE_SIDE)")
     frame = resolved.frame(out.width, out.height, bleed_reduction=q.bleed_reduction,
                            mode=ShadingMode(q.mode.value), background=Background(out.background),
-                           environment_rotation_deg=out.environment_rotation)
+                           environment_rotation_deg=out.environment_rotation, aovs=tuple(out.aovs))
     applied = frame.as_dict()   # the knobs as the frame holds them (enums as their values)
     info = {"preset": resolved.preset, "source": resolved.source, **{k: applied.get(k, knobs[k]) for k in _KNOBS},
             "filter": pem.filter.value,

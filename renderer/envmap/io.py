@@ -71,9 +71,11 @@ def exr_header() -> dict:
             "chromaticities": REC709_CHROMATICITIES}
 
 
-def write_exr(path: str | Path, rgb_or_rgba: np.ndarray, half: bool = False) -> None:
+def write_exr(path: str | Path, rgb_or_rgba: np.ndarray, half: bool = False,
+              channels: dict[str, np.ndarray] | None = None) -> None:
     """Write float (H, W, 3) or (H, W, 4) as a ZIP-compressed scanline OpenEXR, float32 or half channels,
-    with Rec. 709 chromaticities (`exr_header`).
+    with Rec. 709 chromaticities (`exr_header`); `channels`: more float32 channels beside them, name ->
+    (H, W) (renderer/aovs.py's passes: Z, N.X, ..., id).
 
     With half=True, values beyond the half range (|x| > 65504) are refused rather than written as Inf.
     """
@@ -94,8 +96,15 @@ def write_exr(path: str | Path, rgb_or_rgba: np.ndarray, half: bool = False) -> 
                 f"range ({HALF_MAX:g}); write with half=False")
     data = np.ascontiguousarray(arr, np.float16 if half else np.float32)
     name = "RGB" if data.shape[2] == 3 else "RGBA"
+    more = {}
+    for channel, values in (channels or {}).items():
+        values = np.ascontiguousarray(values, np.float32)
+        if values.shape != data.shape[:2] or channel in name:
+            raise InvalidInputError(f"write_exr({path}): channel {channel!r} must be {data.shape[:2]} and not one "
+                                    f"of {name}, got {values.shape}")
+        more[channel] = values
     try:
-        OpenEXR.File(exr_header(), {name: data}).write(str(path))
+        OpenEXR.File(exr_header(), {name: data, **more}).write(str(path))
     except Exception as exc:  # the binding raises RuntimeError/ValueError/OSError variously
         raise EnvironmentMapError(f"{path}: cannot write OpenEXR file ({exc})") from exc
 

@@ -132,6 +132,9 @@ N_LIGHT_KINDS = 16
 # The geometry pass's geometric target holds the mesh's shadow group in w, plus this where the mesh is a
 # convex surface (renderer/scene.py, SceneMesh.convex; shading/gbuffer.frag, lighting.frag).
 CONVEX_SURFACE = 4
+# ... and, in multiples of this, the mesh's place in the scene plus one (0: no surface; the `id` pass,
+# renderer/aovs.py): w = group + CONVEX_SURFACE (convex) + MESH_ID_STRIDE * (mesh + 1).
+MESH_ID_STRIDE = 8
 
 # The wide-lobe rule (shading/discs.glsl, wide_lobe; renderer.light_kinds): a lobe of variance 1 / s is
 # wider than a disc of angular radius a where 1 / s >= WIDE_LOBE_DISC_VARIANCE * a^2 (the disc's own
@@ -152,5 +155,6 @@ def glsl_defines() -> dict[str, str]:
             out[f"{prefix}_{member.name}"] = str(int(member))
     out["N_LIGHT_KINDS"] = str(N_LIGHT_KINDS)
     out["CONVEX_SURFACE"] = str(CONVEX_SURFACE)
+    out["MESH_ID_STRIDE"] = str(MESH_ID_STRIDE)
     out["WIDE_LOBE_DISC_VARIANCE"] = repr(float(WIDE_LOBE_DISC_VARIANCE))
     return out

@@ -300,7 +300,8 @@ async def post_views(
     body = await raw_body(request, (OCTET_STREAM,), "a frame of vertex positions")
     arrays = await anyio.to_thread.run_sync(decode_frame, body, blocks, scene, not worker.normals_on_gpu)
     async with client_gone(request) as gone:
-        result = await worker.call(views_job(scene, arrays, cameras, list(range(n_variants)), environment_rotation),
+        result = await worker.call(views_job(scene, arrays, cameras, list(range(n_variants)), environment_rotation,
+                                             aovs=False),
                                    what=f"{len(cameras)} views of {scene.id}", abandoned=gone)
     frames, source = result.value
     worker.rates.note(scene, result.run_ms, len(frames))

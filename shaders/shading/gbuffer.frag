@@ -35,12 +35,13 @@ uniform bool u_use_albedo_map;
 uniform bool u_use_gloss_map;
 uniform vec3 u_camera_pos;
 uniform float u_shadow_group;   // the mesh's shadow group (renderer/scene.py): 0, 1, or 2 (casts nothing)
+uniform float u_mesh_id;        // the mesh's place in the scene plus one (the id pass: renderer/aovs.py)
 uniform bool u_convex_surface;  // the mesh bounds a convex volume (renderer/scene.py, SceneMesh.convex)
 
 layout(location = 0) out vec4 o_position;   // xyz: world position; w: specular weight (>= 0; -1: no surface)
 layout(location = 1) out vec4 o_normal;     // xyz: shading normal, turned to the seen side; w: glossiness g
 layout(location = 2) out vec4 o_geometric;  // xyz: the triangle's own plane normal, facing the camera; w: shadow
-                                            // group, + CONVEX_SURFACE on a convex surface
+                                            // group, + CONVEX_SURFACE on a convex surface, + MESH_ID_STRIDE x id
 layout(location = 3) out vec4 o_albedo;     // rgb: diffuse reflectance; a: 1 (covered)
 
 void main() {
@@ -84,7 +85,8 @@ void main() {
     vec2 material = u_use_gloss_map ? texture(u_gloss_map, uv_second).rg : v_material;
     o_position = vec4(v_ws_position, material.x);
     o_normal = vec4(n, material.y);
-    o_geometric = vec4(geometric, u_shadow_group + (u_convex_surface ? float(CONVEX_SURFACE) : 0.0));
+    o_geometric = vec4(geometric, u_shadow_group + (u_convex_surface ? float(CONVEX_SURFACE) : 0.0)
+                                  + float(MESH_ID_STRIDE) * u_mesh_id);
     o_albedo = vec4(albedo, 1.0);
 #ifdef PBR
     // A pbr mesh's second map is glTF's metallic-roughness texture: it multiplies the two values.

@@ -252,7 +252,7 @@ void main() {
     vec3 n = g_nrm.xyz;
     vec4 g_geo = texelFetch(u_g_geometric, px, 0);
     g_geometric_normal = g_geo.xyz;
-    int geometric_w = int(g_geo.w + 0.5);
+    int geometric_w = int(g_geo.w + 0.5) % MESH_ID_STRIDE;   // the mesh's id above it: the id pass's
     g_convex_surface = geometric_w >= CONVEX_SURFACE;
     g_shadow_group = g_convex_surface ? geometric_w - CONVEX_SURFACE : geometric_w;
     vec4 g_alb = texelFetch(u_g_albedo, px, 0);
