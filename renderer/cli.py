@@ -97,7 +97,7 @@ def _option_flag(group, name: str, registry_default: bool = True) -> None:
 def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     """Scene, quality and output flags shared by `render` and the commands built on it."""
     g = p.add_argument_group("scene")
-    g.add_argument("--env", type=Path, help="environment map (.exr or .hdr); default: bundled procedural studio")
+    g.add_argument("--env", type=Path, help="environment map (.exr, .hdr); default: bundled studio")
     _option_flag(g, "layout")
     g.add_argument("--repair", action="store_true", help="replace NaN/Inf/negative texels instead of failing")
     g.add_argument("--env-rotation", type=float, default=0.0, metavar="DEG",
@@ -162,8 +162,8 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--exposure", type=float, help="exposure in EV (default: automatic)")
     o.add_argument("--tone", default=DEFAULT_CURVE.value, choices=[c.value for c in ToneCurve],
                    help=f"tone curve of the PNG (default {DEFAULT_CURVE.value}: it keeps base colours)")
-    o.add_argument("--background", default="env", choices=["env", "black"],
-                   help="the map behind the garment, or nothing (alpha 0)")
+    o.add_argument("--background", default="env", choices=["env", "black", "shadow-catcher"],
+                   help="the map, nothing, or the floor's shadows alone")
 
 
 def resolve_quality(args) -> dict:
@@ -193,6 +193,24 @@ def frame_settings(args, q: dict):
                                   background=Background(args.background),
                                   environment_rotation_deg=getattr(args, "env_rotation", 0.0),
                                   aovs=parse_aovs(getattr(args, "aov", None)))
+
+
+def shadow_catcher(args, meshes: list, materials: list, casters: list) -> int | None:
+    """The floor a shadow-catcher frame draws as its shadows (--background shadow-catcher): the first
+    mesh that casts nothing (a floor), else a ground plane added at the meshes' lowest point; None for
+    the other backgrounds. `meshes`, `materials` and `casters` grow by the plane."""
+    from .procedural import floor_under
+    from .shading.material import Material
+
+    if args.background != "shadow-catcher":
+        return None
+    for k, casts in enumerate(casters):
+        if k and not casts:
+            return k
+    meshes.append(floor_under(meshes))
+    materials.append(Material((0.5, 0.5, 0.5), 0.0, 0.3))
+    casters.append(False)
+    return len(meshes) - 1
 
 
 def pem_settings(args, q: dict, materials):
@@ -492,6 +510,7 @@ def cmd_render(args) -> int:
     t_start = time.perf_counter()
     q = resolve_quality(args)
     env, meshes, materials, casters = load_scene_inputs(args, q["face_size"])
+    catcher = shadow_catcher(args, meshes, materials, casters)
     t_loaded = time.perf_counter()
     w, h = args.size
     settings = frame_settings(args, q)
@@ -502,7 +521,7 @@ def cmd_render(args) -> int:
     with Renderer() as r:
         check_budget_device(q, r)
         pems, pem_source = pem_set(r, env, pem_settings(args, q, materials + colourways), args)
-        scene = r.create_scene(meshes, materials, casters=casters)
+        scene = r.create_scene(meshes, materials, casters=casters, catcher=catcher)
         background = r.background_map(bg_source) if bg_source is not None else None
         try:
             variants = [0] + [scene.add_variant([c] + [None] * (len(meshes) - 1)) for c in colourways]
@@ -575,6 +594,13 @@ def cmd_sequence(args) -> int:
     box = type(garment).from_arrays(np.array([lo, hi, hi]), np.array([[0, 1, 2]]))
     camera = camera_from_args(args, [box] + extra_meshes, w / h)
     settings = frame_settings(args, q)
+    catcher = None
+    if args.background == "shadow-catcher":   # a floor under the whole sequence catches its shadows
+        from .procedural import floor_under
+
+        meshes.append(floor_under([box] + extra_meshes))
+        materials = materials + [Material((0.5, 0.5, 0.5), 0.0, 0.3)]
+        catcher = len(meshes) - 1
     args.out.mkdir(parents=True, exist_ok=True)
     timings, previews = [], []
     exposure = args.exposure
@@ -582,15 +608,16 @@ def cmd_sequence(args) -> int:
     with Renderer() as r:
         check_budget_device(q, r)
         pems, pem_source = pem_set(r, env, pem_settings(args, q, materials), args)
-        scene = r.create_scene(meshes, materials)
+        scene = r.create_scene(meshes, materials, casters=[k != catcher for k in range(len(meshes))],
+                               catcher=catcher)
         background = r.background_map(bg_source) if bg_source is not None else None
         try:
             for k in range(seq.n_frames):
                 # The file's own other meshes move with it where they have frames (a body in a USD stage).
                 moving = [None if f is None else f[k] for f in seq.extra_frames]
                 frame = r.render(scene, pems, settings, camera,
-                                 positions=[positions[k]] + [None] * (len(extra_meshes) - len(moving)) + moving,
-                                 background=background)
+                                 positions=[positions[k]] + [None] * (len(extra_meshes) - len(moving)) + moving
+                                 + [None] * (catcher is not None), background=background)
                 img = frame.image
                 if exposure is None:  # fixed from the first frame, so the sequence does not flicker
                     exposure = auto_exposure_ev(img[..., :3], img[..., 3])

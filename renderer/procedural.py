@@ -182,6 +182,18 @@ def procedural_body(n_lat: int = 24, n_lon: int = 32) -> Mesh:
 DEFAULT_SCENE_FILE = Path(__file__).parent / "data" / "default_scene.npz"
 
 
+def floor_under(meshes: list[Mesh], margin: float = 2.0) -> Mesh:
+    """A ground plane under `meshes` (Y up): at their lowest point, centred under their box and
+    `margin` times its largest side wide (at least 1 m), for a shadow catcher where no floor is given."""
+    from .mesh import bounds
+
+    lo, hi = bounds(meshes)
+    side = max(float(np.max(hi - lo)) * margin, 1.0)
+    floor = ground_plane(side, float(lo[1]))
+    centre = np.array([(lo[0] + hi[0]) / 2, 0.0, (lo[2] + hi[2]) / 2])
+    return Mesh.from_arrays(floor.positions + centre, floor.faces, floor.uvs, name="shadow floor")
+
+
 def default_scene() -> tuple[list[Mesh], list[bool]]:
     """The meshes of the bundled default scene (garment, body, floor; metres, Y-up, the floor at
     y = 0, the figure facing +Z) and which cast shadows: the floor only receives them, so that the

@@ -77,8 +77,13 @@ VisibilityOracle = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
 
 class Background(str, Enum):
+    """What is behind the scene: the map; nothing (alpha 0); or nothing, the scene's shadow catcher
+    (Scene.catcher: a floor) drawn as the shadows on it alone, black with alpha the share of the
+    light the other meshes take from it, for product images composited over any backdrop."""
+
     ENVIRONMENT = "env"
     BLACK = "black"
+    SHADOW_CATCHER = "shadow-catcher"
 
 
 # Screen lines (slices) and steps per side of the contact-shadow search (lighting.frag).
@@ -452,7 +457,8 @@ class Renderer:
 
     def _shade_variant(self, mode: ShadingMode, diffuse: str, two_textures: bool,
                        glossy: str = "pem", contact: bool = False, sub_lights: int = 1,
-                       lobes: tuple[int, int] | None = None, blocker: bool = False, oracle: bool = False
+                       lobes: tuple[int, int] | None = None, blocker: bool = False, oracle: bool = False,
+                       catcher: bool = False
                        ) -> tuple[moderngl.Program | moderngl.ComputeShader, moderngl.VertexArray | None]:
         """The lighting program of a mode and diffuse source (a full-screen pass over the geometry
         pass's targets), compiled on first use (one variant each; the diffuse source matters to the
@@ -462,15 +468,17 @@ class Renderer:
         closed form, `_glossy_closed_form`); `lobes`: (GGX lobes, sheen lobes) of a scene with a
         physically based material (None: Phong materials only, one lobe a pixel); `blocker`: some
         light's penumbra follows the blocker's distance (FrameSettings.penumbra, area lights); `oracle`:
-        the full mode with each light's visibility read from a texture (`render_views(visibility=)`)."""
+        the full mode with each light's visibility read from a texture (`render_views(visibility=)`);
+        `catcher`: the full mode's shadow catcher (Background.SHADOW_CATCHER)."""
         closed = _no_diffuse_pems(mode, diffuse)
         wide = glossy == "wide" and mode in _CLOSED_FORM_MODES
         oracle = oracle and mode is ShadingMode.FULL
         contact = contact and mode is ShadingMode.FULL and not oracle
         blocker = blocker and not oracle
         compute = self.lighting_pass == "compute"
+        catcher = catcher and mode is ShadingMode.FULL
         key = (mode, diffuse if closed else "pem", two_textures, wide, contact, compute, sub_lights, lobes, blocker,
-               oracle)
+               oracle, catcher)
         if key not in self._shade_progs:
             defines = {**self._defines, "MODE": int(_MODE_INDEX[mode]), "TWO_PEM_TEXTURES": int(two_textures)}
             if wide:
@@ -489,6 +497,8 @@ class Renderer:
                 defines["PENUMBRA_BLOCKER"] = 1
             if oracle:
                 defines["ORACLE_VISIBILITY"] = 1
+            if catcher:
+                defines["SHADOW_CATCHER"] = 1
             if contact:
                 defines.update(CONTACT_SHADOWS=1, CONTACT_SLICES=CONTACT_SLICES, CONTACT_STEPS=CONTACT_STEPS)
             if compute:
@@ -518,16 +528,23 @@ class Renderer:
     def create_scene(self, meshes: list[Mesh], materials: list[Material] | None = None,
                      casters: list[bool] | None = None,
                      proxies: dict[float, list[np.ndarray | None]] | None = None,
-                     variants: list[list[Material | None]] | None = None) -> Scene:
+                     variants: list[list[Material | None]] | None = None, catcher: int | None = None) -> Scene:
         """`proxies`: the shadow pass's triangles (shadows/proxy.py shadow_faces) made in advance off
         the GL thread, per detail one face array per mesh (None: made on first use); a 4M-triangle mesh takes seconds.
-        `variants`: colourways, one material (or None: the mesh's own) per mesh each (Scene.add_variant)."""
+        `variants`: colourways, one material (or None: the mesh's own) per mesh each (Scene.add_variant).
+        `catcher`: the mesh (a floor, casting nothing) a shadow-catcher frame draws as its shadows alone
+        (Background.SHADOW_CATCHER; procedural.floor_under makes one)."""
+        if catcher is not None and (isinstance(catcher, bool) or not isinstance(catcher, (int, np.integer))
+                                    or not 0 <= catcher < len(meshes)):
+            raise InvalidInputError(f"catcher must name one of the {len(meshes)} meshes by its place, got {catcher!r}")
         materials = materials or [Material() for _ in meshes]
         everything = list(materials) + [m for v in variants or () for m in v if m is not None]
         if any(isinstance(m, Material) and m.is_pbr for m in everything) and "gbuffer_pbr" not in self._programs:
             self._programs["gbuffer_pbr"] = program(self.gl.ctx, "shading/surface.vert", "shading/gbuffer.frag",
                                                     {"PBR": 1})
-        return Scene(self.gl, meshes, materials, self._programs, casters, proxies, variants)
+        scene = Scene(self.gl, meshes, materials, self._programs, casters, proxies, variants)
+        scene.catcher = None if catcher is None else int(catcher)
+        return scene
 
     def _shadow_maps_for(self, which: str, size: int, n_lights: int, groups: int) -> ShadowMaps:
         """The main ("main") or small lights' ("sharp") shadow-map array, re-made only when its size,
@@ -612,6 +629,9 @@ class Renderer:
         with `RenderStoppedError` (a service's request that timed out or whose client left)."""
         gl = self.gl
         gl.check_thread()
+        if settings.background is Background.SHADOW_CATCHER and getattr(scene, "catcher", None) is None:
+            raise InvalidInputError("a shadow-catcher frame needs the scene's floor: create_scene(..., catcher=k) "
+                                    "with k its place (procedural.floor_under makes one under the meshes)")
         cameras = list(cameras) or [None]
         variants = list(variants) or [0]
         for v in variants:
@@ -1049,8 +1069,11 @@ class Renderer:
             ctx.depth_func = ">"
             contact = settings.contact_shadow_texels > 0 and n_shadowed > 0
             lobes = (settings.lobes, settings.lobes if scene.has_sheen else 0) if scene.has_pbr else None
+            catcher = settings.background is Background.SHADOW_CATCHER
             p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE, settings.glossy,
-                                         contact, discs, lobes, lp.blocker, oracle is not None)
+                                         contact, discs, lobes, lp.blocker, oracle is not None, catcher)
+            if catcher:
+                set_uniform(p, "u_catcher_id", float(scene.catcher + 1))
             if oracle is not None:
                 oracle.use(location=LightingTexture.ORACLE)
             if lobes is not None:

@@ -27,7 +27,7 @@ from .fabrics import FabricStore, scene_fabrics
 from .registry import EnvironmentRecord, EnvironmentStore, MeshStore, PemInfo, SceneMeshInfo, SceneRecord, SceneStore
 from .schemas import MeshSpec, QualitySpec, SceneCreate
 from .settings import ServiceSettings
-from .specs import RequestQuality, check_pem_set, prepare_scene, resolve_quality
+from .specs import SHADOW_FLOOR, RequestQuality, check_pem_set, prepare_scene, resolve_quality
 from .state import StateDir
 from .worker import GLResources, RenderWorker
 
@@ -256,7 +256,7 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
         record.frame_cost = prepared.exact_frame_cost(pems.regions, svc.settings)
         variants = [[c] + [None] * (len(prepared.meshes) - 1) for c in prepared.colourways]
         record.gpu = gl.renderer.create_scene(prepared.meshes, prepared.materials, casters=prepared.casters,
-                                              proxies=prepared.proxies, variants=variants)
+                                              proxies=prepared.proxies, variants=variants, catcher=prepared.catcher)
         svc.scenes.add(record)  # here, so a scene made just before a request timeout is still listed (and freed)
 
     await svc.worker.call(job, what=f"the registration of scene {record.id}")
@@ -264,6 +264,8 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
         # Stored with every mesh inline (an uploaded file may be unknown to the process that restores it).
         inline = {}
         for role, mesh, material in zip(prepared.roles, prepared.meshes, prepared.material_specs):
+            if role == SHADOW_FLOOR:
+                continue   # made again from the scene's output when it is restored
             spec: MeshSpec = getattr(body, role)
             if spec.mesh_id is not None:
                 # A fabric stays named by its id: its bytes are in the state directory (add_fabric).

@@ -146,7 +146,10 @@ UV = Annotated[list[float], Field(min_length=2, max_length=2)]
 class OutputSpec(_Strict):
     width: int = Field(512, ge=1)
     height: int = Field(512, ge=1)
-    background: Literal["env", "black"] = "env"
+    background: Literal["env", "black", "shadow-catcher"] = Field(
+        "env", description="env: the map; black: nothing (alpha 0); shadow-catcher: nothing but the shadows on the "
+        "floor (black, alpha the light the figure takes from it; without a floor mesh, a ground plane at the "
+        "meshes' lowest point), the garment and body opaque: a product image over any backdrop")
     exposure_ev: float | None = Field(None, ge=-64, le=64,
                                       description="fixed exposure in stops (-64..64); null: automatic per frame")
     tone: ToneName = Field(DEFAULT_CURVE.value, description="tone curve of PNG images (pbr-neutral: a base colour "

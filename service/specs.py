@@ -15,6 +15,7 @@ from renderer.errors import MeshError
 from renderer.lighting.pem import PEMSettings, pem_cost
 from renderer.mesh import Mesh, bounds, z_up_to_y_up
 from renderer.presets import pem_settings, resolve
+from renderer.procedural import floor_under
 from renderer.renderer import Background, FrameSettings, ShadingMode
 from renderer.shading.fields import FIELDS as MATERIAL_FIELDS
 from renderer.shading.material import Material, TextureSet
@@ -264,11 +265,16 @@ class PreparedScene:
     material_specs: list | None = None   # each mesh's MaterialSpec as used (a glTF file's own; None: a fabric)
     colourways: list[Material] = field(default_factory=list)   # more garment materials (SceneCreate.colourways)
     material_notes: list[str] = field(default_factory=list)    # what of the fabrics the renderer does not carry
+    catcher: int | None = None   # the shadow catcher's mesh (output.background "shadow-catcher")
 
     def exact_frame_cost(self, regions, settings: ServiceSettings) -> FrameCost:
         """`check_frame_cost` with the scene's PEM set's regions (on the GL thread, before the scene's
         GPU objects are made)."""
         return check_frame_cost(self.quality, self.casters, self.materials + self.colourways, settings, regions)
+
+
+# The role of the floor a shadow-catcher scene without one gets (procedural.floor_under).
+SHADOW_FLOOR = "shadow floor"
 
 
 def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshes: MeshStore,
@@ -303,6 +309,18 @@ def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshe
     if not any(casters):
         raise InvalidRequestError("cast_shadows is false on every mesh, so nothing would cast a shadow: set "
                                   "cast_shadows: true on the garment (a floor alone may be false)")
+    roles = [r for r, _ in specs]
+    catcher = None
+    if body.output.background == "shadow-catcher":   # the floor catches the shadows, or one made under the meshes
+        if "floor" in roles:
+            catcher = roles.index("floor")
+        else:
+            built.append(floor_under(built))
+            roles.append(SHADOW_FLOOR)
+            materials.append(Material((0.5, 0.5, 0.5), 0.0, 0.3))
+            casters.append(False)
+            material_specs.append(None)
+            catcher = len(built) - 1
     # Judged before the glossiness calibration the materials' levels need is made (seconds and a GB
     # at a 2048^2 face, once per process), as an upload judges its set (`check_pem_set`).
     check_pem_set(quality, settings)
@@ -317,8 +335,8 @@ def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshe
     # the GL thread.
     proxies = {d: [shadow_faces_isolated(m.positions, m.faces, d) if c else None for m, c in zip(built, casters)]
                for d in {min(detail, 1.0), 1.0}}
-    return PreparedScene(built, [r for r, _ in specs], materials, camera, quality, casters, proxies, material_specs,
-                         colourways, notes)
+    return PreparedScene(built, roles, materials, camera, quality, casters, proxies, material_specs,
+                         colourways, notes, catcher)
 
 
 def check_frame_cost(quality: RequestQuality, casters: list[bool], materials: list[Material],

@@ -28,6 +28,7 @@ void main() {
         misfit = max(misfit, abs(a + b - centre));
     }
     bool whole = covered == AA_SAMPLES && misfit <= u_plane_depth_tolerance;
-    o_color = whole ? vec4(texelFetch(u_colour, px, 0).rgb, 1.0) : vec4(0.0);
+    // The lighting pass's alpha is 1 on a surface, but a shadow catcher's share on its floor.
+    o_color = whole ? texelFetch(u_colour, px, 0) : vec4(0.0);
     gl_FragDepth = whole || covered == 0 ? 1.0 : 0.0;
 }

@@ -1,6 +1,7 @@
 // Anti-aliasing's edges pass, second half (the first, classify.frag, wrote the other pixels and marked
 // these in the depth buffer): each edge pixel as the mean of its AA_SAMPLES samples, alpha the share of
-// them a surface covers (renderer.py, _edges_pass). The geometry and lighting passes ran once a pixel,
+// them a surface covers, times the lighting pass's alpha there (1, but a shadow catcher's floor's share)
+// (renderer.py, _edges_pass). The geometry and lighting passes ran once a pixel,
 // at its centre, as without anti-aliasing; the coverage pass left the surfaces' depth at every sample.
 // A sample's surface point is its depth unprojected at its own position in the pixel. It takes the
 // colour of its own pixel where that pixel's centre shaded the same surface, else the mean colour of
@@ -37,7 +38,9 @@ void main() {
     // The 3 x 3 neighbourhood's shaded surfaces (a plane: point, normal) and colours, [4] the pixel's
     // own; outside the image or with no surface, none (`shaded` false). Straight-line code, no branch on
     // a pixel's own values: a CPU rasterizer runs a block of pixels in lock step.
-    vec3 point[9], normal[9], colour[9];
+    // colour: the lighting pass's rgba (its alpha 1 on a surface, a shadow catcher's share on its floor).
+    vec3 point[9], normal[9];
+    vec4 colour[9];
     bool shaded[9];
     for (int k = 0; k < 9; ++k) {
         ivec2 q = px + ivec2(k % 3 - 1, k / 3 - 1);
@@ -47,19 +50,18 @@ void main() {
         shaded[k] = inside && p.w >= 0.0;
         point[k] = p.xyz;
         normal[k] = texelFetch(u_geometric, q, 0).xyz;
-        colour[k] = texelFetch(u_colour, q, 0).rgb;
+        colour[k] = texelFetch(u_colour, q, 0);
     }
-    vec3 sum = vec3(0.0);
-    float covered = 0.0;
+    vec4 sum = vec4(0.0);
     for (int s = 0; s < AA_SAMPLES; ++s) {
         float depth = texelFetch(u_ms_depth, px, s).r;
         vec2 ndc = (vec2(px) + u_sample_positions[s]) / vec2(size) * 2.0 - 1.0;
         vec4 h = u_inv_view_proj * vec4(ndc, depth * 2.0 - 1.0, 1.0);
         vec3 x = h.xyz / h.w;
         float inv_tol = 1.0 / max(u_plane_tolerance_px * u_footprint_per_distance * distance(u_camera_pos, x), 1e-30);
-        vec3 found = vec3(0.0);
+        vec4 found = vec4(0.0);
         float n = 0.0, nearest = 3e38;
-        vec3 nearest_colour = colour[4];
+        vec4 nearest_colour = colour[4];
         for (int k = 0; k < 9; ++k) {
             float d = shaded[k] ? abs(dot(x - point[k], normal[k])) * inv_tol : 3e38;
             float same = d <= 1.0 ? 1.0 : 0.0;
@@ -69,10 +71,9 @@ void main() {
             nearest = min(d, nearest);
         }
         float own = shaded[4] ? abs(dot(x - point[4], normal[4])) * inv_tol : 3e38;
-        vec3 c = own <= 1.0 ? colour[4] : n > 0.0 ? found / n : nearest_colour;
+        vec4 c = own <= 1.0 ? colour[4] : n > 0.0 ? found / n : nearest_colour;
         bool hit = depth < 1.0;   // cleared: no surface at this sample
-        sum += hit ? c : vec3(0.0);
-        covered += hit ? 1.0 : 0.0;
+        sum += hit ? c : vec4(0.0);
     }
-    o_color = vec4(sum, covered) / float(AA_SAMPLES);
+    o_color = sum / float(AA_SAMPLES);
 }

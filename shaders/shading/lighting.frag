@@ -115,6 +115,16 @@ vec3 g_lobe_axis[N_LOBES];
 uniform mat3 u_env_from_world;
 vec3 g_n_env;
 vec3 g_lobe_axis_env[N_LOBES];
+#ifdef SHADOW_CATCHER
+// A shadow catcher (renderer.Background.SHADOW_CATCHER): the catcher mesh's pixels (its id) keep the
+// diffuse light they would get with nothing in the way beside what they get, and show as black with
+// alpha the share the other meshes take: 1 - shadowed / unshadowed, in luminance. What a matte floor
+// shows; its own material is not drawn.
+uniform float u_catcher_id;
+bool g_catcher = false;
+vec3 g_free_diffuse = vec3(0.0);
+vec3 g_free_diffuse_exact = vec3(0.0);
+#endif
 float g_lobe_level[N_LOBES];
 float g_lobe_inv_s[N_LOBES];
 vec3 g_lobe_weight[N_LOBES];
@@ -190,6 +200,13 @@ void add_light(int i, vec3 pem_d, vec3 pem_g[N_LOBES], vec3 n, vec3 ws_pos, bool
     float vis_d = small ? vis * above : vis;
     if (pem_diffuse) g_diffuse += vis_d * pem_d;
     else g_diffuse_exact += vis_d * diffuse_from_light(i, n);
+#ifdef SHADOW_CATCHER
+    if (g_catcher) {
+        float free_d = small ? above : 1.0;
+        if (pem_diffuse) g_free_diffuse += free_d * pem_d;
+        else g_free_diffuse_exact += free_d * diffuse_from_light(i, n);
+    }
+#endif
     // A physically based pixel's glossy terms: the light's part above both planes, the shading
     // normal's and the surface's, from the one that cuts more of its disc (add_glossy).
     if (g_clip_lobes)
@@ -253,6 +270,9 @@ void main() {
     vec4 g_geo = texelFetch(u_g_geometric, px, 0);
     g_geometric_normal = g_geo.xyz;
     int geometric_w = int(g_geo.w + 0.5) % MESH_ID_STRIDE;   // the mesh's id above it: the id pass's
+#ifdef SHADOW_CATCHER
+    g_catcher = abs(floor((g_geo.w + 0.5) / float(MESH_ID_STRIDE)) - u_catcher_id) < 0.5;
+#endif
     g_convex_surface = geometric_w >= CONVEX_SURFACE;
     g_shadow_group = g_convex_surface ? geometric_w - CONVEX_SURFACE : geometric_w;
     vec4 g_alb = texelFetch(u_g_albedo, px, 0);
@@ -320,7 +340,11 @@ void main() {
 #endif
 #endif
 #ifndef DIFFUSE_LIGHTS
-    g_diffuse /= textureLod(u_pem_norm, vec4(g_n_env, 0.0), u_diffuse_level).r;
+    float diffuse_norm = textureLod(u_pem_norm, vec4(g_n_env, 0.0), u_diffuse_level).r;
+    g_diffuse /= diffuse_norm;
+#ifdef SHADOW_CATCHER
+    g_free_diffuse /= diffuse_norm;
+#endif
 #endif
     g_diffuse += max(g_diffuse_exact, vec3(0.0));
     for (int k = 0; k < N_LOBES; ++k) {
@@ -339,6 +363,14 @@ void main() {
     glossy_sum += g_pbr_exact;
 #endif
     vec4 color = vec4(diffuse_weight * g_diffuse + glossy_sum, 1.0);
+#ifdef SHADOW_CATCHER
+    if (g_catcher) {
+        const vec3 LUMINANCE = vec3(0.2126, 0.7152, 0.0722);
+        float free_light = dot(g_free_diffuse + max(g_free_diffuse_exact, vec3(0.0)), LUMINANCE);
+        float shadowed = dot(g_diffuse, LUMINANCE);
+        color = vec4(0.0, 0.0, 0.0, free_light > 0.0 ? clamp(1.0 - shadowed / free_light, 0.0, 1.0) : 0.0);
+    }
+#endif
 #ifdef LIGHTING_COMPUTE
     imageStore(o_image, px, color);
 #else
