@@ -55,7 +55,7 @@ def test_the_frame_and_the_pems_are_made_of_the_registry_and_hold_its_defaults_t
         if name != "face_size":
             assert (frame_fields | pem_fields)[name] is config.BY_NAME[name].type, name
     assert set(frame_fields) - set(config.FRAME_SETTINGS) == {"width", "height", "bleed_reduction", "mode",
-                                                               "background"}
+                                                               "background", "environment_rotation_deg", "aovs"}
     assert set(pem_fields) - set(config.PEM_FIELDS) == {"filter", "levels", "base_level"}
     # Both check their settings against the registry's limits, naming the setting.
     with pytest.raises(InvalidInputError, match=r"lights must be a whole number in \[6, 384\]"):
