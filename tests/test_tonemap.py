@@ -312,3 +312,12 @@ def test_auto_exposure_is_always_finite():
     assert auto_exposure_ev(img) == pytest.approx(np.log2(0.18 / 0.5))
     with pytest.raises(InvalidInputError, match="alpha"):
         auto_exposure_ev(grey(0.5), np.ones((3, 3)))
+
+
+def test_auto_exposure_is_the_figures_over_a_shadow_catchers_floor():
+    """A shadow catcher's floor is black with its shadow in alpha: the figure alone sets the exposure."""
+    rgb = np.zeros((4, 4, 3), np.float32)
+    alpha = np.full((4, 4), 0.9, np.float32)   # the floor's shadow
+    rgb[:2] = 0.3   # the figure: half of the covered pixels
+    alpha[:2] = 1.0
+    assert auto_exposure_ev(rgb, alpha) == pytest.approx(np.log2(EXPOSURE_KEY / 0.3))

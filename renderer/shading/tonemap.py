@@ -292,7 +292,8 @@ def auto_exposure_ev(rgb: np.ndarray, alpha: np.ndarray | None = None) -> float:
     """Stops that map the median luminance of covered pixels to EXPOSURE_KEY (0.18, middle grey).
 
     rgb: (H, W, 3) linear (a 4th channel is used as alpha when `alpha` is None). alpha: (H, W)
-    coverage; pixels with alpha > 0.5 count (all pixels when there is no alpha). Non-finite pixels
+    coverage; pixels with alpha > 0.5 count (all pixels when there is no alpha), but those of no light at
+    all (a shadow catcher's floor, black with its shadow in alpha). Non-finite pixels
     are ignored and negative luminance counts as 0. Returns 0.0 when nothing is covered or the
     median is black, and at most +-32 stops otherwise, so the result is always finite.
     """
@@ -311,6 +312,9 @@ def auto_exposure_ev(rgb: np.ndarray, alpha: np.ndarray | None = None) -> float:
         if cov.shape != lum.shape:
             raise InvalidInputError(f"alpha must have shape {lum.shape}; got {cov.shape}")
         mask &= cov > 0.5  # NaN coverage compares False: not covered
+        # A covered pixel of no light at all is a shadow catcher's floor (its shadow is its alpha alone):
+        # the figure sets the exposure.
+        mask &= np.any(a[..., :3] != 0, axis=-1)
     if not mask.any():
         return 0.0
     with np.errstate(over="ignore"):
