@@ -8,6 +8,7 @@ import socket
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import httpx
@@ -123,3 +124,19 @@ def assert_error(r: httpx.Response, status: int, *words: str) -> None:
     detail = r.json()["detail"]
     for w in words:
         assert w.lower() in detail.lower(), f"{w!r} not in {detail!r}"
+
+
+@contextmanager
+def one_scene_service(tmp_path: Path, **output):
+    """A fresh service, the test map uploaded and a scene of the procedural garment registered with
+    `output` over SMALL_OUTPUT: (http client, the scene's answer, the garment's mesh)."""
+    srv = ServiceProcess(tmp_path)
+    try:
+        with httpx.Client(base_url=srv.url, timeout=120) as http:
+            env = upload_environment(http, tmp_path)[0]["id"]
+            mesh = garment(24)
+            r = http.post("/scenes", json=scene_body(env, mesh, output={**SMALL_OUTPUT, **output}))
+            assert r.status_code == 201, r.text
+            yield http, r.json(), mesh
+    finally:
+        srv.stop()

@@ -9,7 +9,6 @@ import io
 import subprocess
 import sys
 
-import httpx
 import numpy as np
 import pytest
 from conftest import CAM, balanced, balanced_pems, plane, sphere, sun_sky_cube
@@ -109,31 +108,24 @@ def test_the_command_line_writes_the_passes_as_exr_channels(tmp_path):
 
 def test_the_service_answers_the_passes_in_exr_and_json(tmp_path):
     import OpenEXR
-    from service_server import ServiceProcess, garment, scene_body, upload_environment
+    from service_server import one_scene_service
 
-    srv = ServiceProcess(tmp_path)
-    try:
-        with httpx.Client(base_url=srv.url, timeout=120) as http:
-            env = upload_environment(http, tmp_path)[0]["id"]
-            mesh = garment(24)
-            body = scene_body(env, mesh)
-            body["output"] = {**body["output"], "aovs": ["id", "depth"]}
-            sid = http.post("/scenes", json=body).json()["id"]
-            positions = np.ascontiguousarray(mesh.positions, "<f4").tobytes()
-            headers = {"Content-Type": "application/octet-stream"}
-            exr = http.post(f"/scenes/{sid}/frames", content=positions, headers=headers, params={"format": "exr"})
-            assert exr.status_code == 200, exr.text
-            ch = OpenEXR.File(io.BytesIO(exr.content)).channels()
-            assert {"RGBA", "Z", "id"} <= set(ch) and "N.X" not in ch
-            covered = ch["RGBA"].pixels[..., 3] > 0.999
-            assert (ch["id"].pixels[covered] == 1).all() and (ch["id"].pixels[~(ch["RGBA"].pixels[..., 3] > 0)] == 0).all()
-            js = http.post(f"/scenes/{sid}/frames", content=positions, headers=headers, params={"format": "json"})
-            aov = js.json()["aovs"]
-            assert set(aov) == {"depth", "id"}
-            ids = np.frombuffer(base64.b64decode(aov["id"]["base64"]), "<f4").reshape(aov["id"]["shape"])
-            np.testing.assert_array_equal(ids, ch["id"].pixels)
-            bad = dict(body, output={**body["output"], "aovs": ["speed"]})
-            r = http.post("/scenes", json=bad)
-            assert r.status_code == 422 and "aovs" in r.text
-    finally:
-        srv.stop()
+    with one_scene_service(tmp_path, aovs=["id", "depth"]) as (http, scene, mesh):
+        sid = scene["id"]
+        positions = np.ascontiguousarray(mesh.positions, "<f4").tobytes()
+        headers = {"Content-Type": "application/octet-stream"}
+        exr = http.post(f"/scenes/{sid}/frames", content=positions, headers=headers, params={"format": "exr"})
+        assert exr.status_code == 200, exr.text
+        ch = OpenEXR.File(io.BytesIO(exr.content)).channels()
+        assert {"RGBA", "Z", "id"} <= set(ch) and "N.X" not in ch
+        covered = ch["RGBA"].pixels[..., 3] > 0.999
+        assert (ch["id"].pixels[covered] == 1).all() and (ch["id"].pixels[~(ch["RGBA"].pixels[..., 3] > 0)] == 0).all()
+        js = http.post(f"/scenes/{sid}/frames", content=positions, headers=headers, params={"format": "json"})
+        aov = js.json()["aovs"]
+        assert set(aov) == {"depth", "id"}
+        ids = np.frombuffer(base64.b64decode(aov["id"]["base64"]), "<f4").reshape(aov["id"]["shape"])
+        np.testing.assert_array_equal(ids, ch["id"].pixels)
+        bad = {"environment_id": "env", "garment": {"positions": mesh.positions.tolist(), "faces": mesh.faces.tolist()},
+               "output": {"aovs": ["speed"]}}
+        r = http.post("/scenes", json=bad)   # refused by the schema, before any lookup
+        assert r.status_code == 422 and "aovs" in r.text

@@ -9,7 +9,6 @@ import io
 import subprocess
 import sys
 
-import httpx
 import numpy as np
 import pytest
 from conftest import CAM, balanced, balanced_pems, plane, sphere, sun_sky_cube
@@ -103,24 +102,14 @@ def test_the_command_line_makes_a_product_image_over_nothing(tmp_path):
 
 
 def test_the_service_answers_a_shadow_catcher_scene(tmp_path):
-    from service_server import ServiceProcess, garment, scene_body, upload_environment
+    from service_server import one_scene_service
 
-    srv = ServiceProcess(tmp_path)
-    try:
-        with httpx.Client(base_url=srv.url, timeout=120) as http:
-            env = upload_environment(http, tmp_path)[0]["id"]
-            mesh = garment(24)
-            body = scene_body(env, mesh)
-            body["output"] = {**body["output"], "background": "shadow-catcher"}
-            r = http.post("/scenes", json=body)
-            assert r.status_code == 201, r.text
-            assert [m["role"] for m in r.json()["meshes"]][-1] == "shadow floor"
-            frame = http.post(f"/scenes/{r.json()['id']}/frames", headers={"Content-Type": "application/octet-stream"},
-                              content=np.ascontiguousarray(mesh.positions, "<f4").tobytes())
-            assert frame.status_code == 200, frame.text
-            rgba = np.asarray(Image.open(io.BytesIO(frame.content)))
-            alpha = rgba[..., 3]
-            assert rgba.shape[2] == 4 and (alpha == 0).any() and (alpha == 255).any()
-            assert ((alpha > 0) & (alpha < 255) & (rgba[..., :3].max(axis=-1) == 0)).any()   # a shadow on the floor
-    finally:
-        srv.stop()
+    with one_scene_service(tmp_path, background="shadow-catcher") as (http, scene, mesh):
+        assert [m["role"] for m in scene["meshes"]][-1] == "shadow floor"
+        frame = http.post(f"/scenes/{scene['id']}/frames", headers={"Content-Type": "application/octet-stream"},
+                          content=np.ascontiguousarray(mesh.positions, "<f4").tobytes())
+        assert frame.status_code == 200, frame.text
+        rgba = np.asarray(Image.open(io.BytesIO(frame.content)))
+        alpha = rgba[..., 3]
+        assert rgba.shape[2] == 4 and (alpha == 0).any() and (alpha == 255).any()
+        assert ((alpha > 0) & (alpha < 255) & (rgba[..., :3].max(axis=-1) == 0)).any()   # a shadow on the floor

@@ -181,21 +181,13 @@ def _side_material(u3m: U3MMaterial, face: Face, mesh: Mesh, scale: tuple[float,
         warnings.append(f"normal: a constant normal {vis.normal.xyz} that is not (0, 0, 1) is not carried")
 
     sheen_colour = (0.0, 0.0, 0.0)
-    s, tint = _scalar(vis.sheen_value), _scalar(vis.sheen_tint)
-    if s is None or tint is None:
-        warnings.append("sheen_value / sheen_tint: textures are not carried; their mean is used")
-        s = float(np.mean(vis.sheen_value.values())) if s is None else s
-        tint = float(np.mean(vis.sheen_tint.values())) if tint is None else tint
+    s, tint = _constants(vis, ("sheen_value", "sheen_tint"), warnings)
     if s > 0:
         lum = float(np.dot(mean_colour, (0.2126, 0.7152, 0.0722)))
         hue = mean_colour / lum if lum > 1e-6 else np.ones(3)
         sheen_colour = tuple(float(c) for c in np.clip(s * ((1.0 - tint) + tint * hue), 0.0, 1.0))
 
-    anisotropy, rotation = _scalar(vis.anisotropy_value), _scalar(vis.anisotropy_rotation)
-    if anisotropy is None or rotation is None:
-        warnings.append("anisotropy_value / anisotropy_rotation: textures are not carried; their mean is used")
-        anisotropy = float(np.mean(vis.anisotropy_value.values())) if anisotropy is None else anisotropy
-        rotation = float(np.mean(vis.anisotropy_rotation.values())) if rotation is None else rotation
+    anisotropy, rotation = _constants(vis, ("anisotropy_value", "anisotropy_rotation"), warnings)
     if anisotropy > 1.0:
         warnings.append(f"anisotropy_value: {anisotropy:g} is beyond the renderer's 1 (the most stretched "
                         "highlight); 1 is used")
@@ -204,6 +196,14 @@ def _side_material(u3m: U3MMaterial, face: Face, mesh: Mesh, scale: tuple[float,
                     sheen_roughness=SHEEN_ROUGHNESS, anisotropy=float(np.clip(anisotropy, 0.0, 1.0)),
                     anisotropy_rotation=float(rotation), texture_sets=(TextureSet(**sets),),
                     texture_set=np.zeros(mesh.n_vertices, np.int32))
+
+
+def _constants(vis: Visualisation, names: tuple[str, ...], warnings: list[str]) -> list[float]:
+    """Scalar fields the material carries as constants only: a texture's mean, said in `warnings`."""
+    values = [_scalar(getattr(vis, name)) for name in names]
+    if any(v is None for v in values):
+        warnings.append(f"{' / '.join(names)}: textures are not carried; their mean is used")
+    return [float(np.mean(getattr(vis, name).values())) if v is None else v for name, v in zip(names, values)]
 
 
 def _not_carried(u3m: U3MMaterial, vis: Visualisation, face, others: bool = True) -> list[str]:
