@@ -35,6 +35,25 @@ def turntable(camera: Camera, n: int) -> list[Camera]:
     return out
 
 
+def orbit(camera: Camera, azimuth_deg: float, elevation_deg: float) -> Camera:
+    """`camera` moved on the sphere about its target: turned `azimuth_deg` about the vertical axis
+    (counter-clockwise seen from above, as a turntable's steps) and raised `elevation_deg` (-89..89 in
+    all, its height above the target's level included)."""
+    for name, value in (("azimuth", azimuth_deg), ("elevation", elevation_deg)):
+        if not np.isfinite(value):
+            raise InvalidInputError(f"orbit {name} must be a finite number of degrees, got {value!r}")
+    eye, target = np.asarray(camera.eye, np.float64), np.asarray(camera.target, np.float64)
+    d = eye - target
+    dist = float(np.linalg.norm(d))
+    horizontal = float(np.hypot(d[0], d[2]))
+    up = float(np.degrees(np.arctan2(d[1], horizontal))) + float(elevation_deg)
+    up = float(np.clip(up, -89.0, 89.0))
+    a = np.arctan2(d[0], d[2]) + np.radians(float(azimuth_deg))
+    e = np.radians(up)
+    r = dist * np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
+    return Camera(tuple(target + r), camera.target, camera.up, camera.fov_y_deg)
+
+
 def named_views(camera: Camera, names: list[str]) -> list[Camera]:
     """Cameras at `camera`'s distance from its target, from each named direction (NAMED_VIEWS)."""
     unknown = [v for v in names if v not in NAMED_VIEWS]

@@ -195,3 +195,112 @@ def test_demo_script_serves_the_page_and_stops_on_ctrl_c(tmp_path):
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+
+
+class _DevTools:
+    """Chrome's DevTools protocol over its websocket: commands answered in order, events skipped."""
+
+    def __init__(self, ws):
+        self.ws, self.next_id = ws, 0
+
+    def send(self, method: str, **params) -> dict:
+        import json
+
+        self.next_id += 1
+        self.ws.send(json.dumps({"id": self.next_id, "method": method, "params": params}))
+        while True:
+            msg = json.loads(self.ws.recv(timeout=60))
+            if msg.get("id") == self.next_id:
+                assert "error" not in msg, msg
+                return msg["result"]
+
+    def eval(self, expression: str):
+        r = self.send("Runtime.evaluate", expression=expression, returnByValue=True, awaitPromise=True)
+        assert "exceptionDetails" not in r, r
+        return r["result"].get("value")
+
+    def wait_for(self, expression: str, timeout_s: float = 60.0):
+        deadline = time.monotonic() + timeout_s
+        while True:
+            value = self.eval(expression)
+            if value:
+                return value
+            assert time.monotonic() < deadline, f"the page never had {expression}"
+            time.sleep(0.2)
+
+
+def test_the_page_driven_in_chromium_orbits_turns_the_light_switches_colourway_and_charts_timings(server, scenes,
+                                                                                                   tmp_path):
+    """A person's use of the page, in headless Chromium driven through its DevTools protocol: on a scene
+    with a colourway, the orbit, height and light sliders are moved and the colourway chosen, the render
+    button clicked with the mouse; the scene's current pose is rendered again so (its latest frame the
+    view, the sheet's one tile), shown, and its stages drawn as bars."""
+    from websockets.sync.client import connect
+
+    browser = chromium()
+    with RenderClient(server.url, token=TOKEN) as c:
+        env = c._json("GET", "/environments")[0]["id"]
+        sim = ClothSim(sheet(12), mannequin(), ClothSettings(frame_dt_s=1 / 10))
+        scene = c.create_scene(env, name="driven", positions=sim.positions, faces=sim.cloth.faces,
+                               quality=dict(FAST_QUALITY), output=OUTPUT,
+                               colourways=[{"albedo": [0.1, 0.2, 0.8], "specular": 0.3, "glossiness": 0.7}])
+        c.send_frame(scene["id"], sim.positions)
+        sid = scene["id"]
+        profile = tmp_path / "profile"
+        proc = subprocess.Popen([browser, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
+                                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                                 "--remote-debugging-port=0", f"--user-data-dir={profile}", "--window-size=1200,2400",
+                                 f"{server.url}/view#token={TOKEN}"],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            deadline = time.monotonic() + 60
+            while not (profile / "DevToolsActivePort").exists():
+                assert time.monotonic() < deadline and proc.poll() is None, "chromium did not open its DevTools port"
+                time.sleep(0.1)
+            port = int((profile / "DevToolsActivePort").read_text().split()[0])
+            pages = [t for t in httpx.get(f"http://127.0.0.1:{port}/json/list").json() if t["type"] == "page"]
+            with connect(pages[0]["webSocketDebuggerUrl"], max_size=None) as ws:
+                page = _DevTools(ws)
+                card = f'document.querySelector(\'[data-scene-id="{sid}"]\')'
+                page.wait_for(f"{card} && {card}.getAttribute('data-shown-sequence') === '1'")
+                assert page.eval(f"{card}.querySelectorAll('select[name=colourway] option').length") == 2
+                # The sliders moved and the colourway chosen as their input events say, then a mouse click.
+                x, y = page.eval(f"""(() => {{
+                    const c = {card};
+                    for (const [n, v] of [["azimuth", 90], ["elevation", 20], ["rotation", 135]]) {{
+                        const i = c.querySelector(`input[name=${{n}}]`);
+                        i.value = String(v);
+                        i.dispatchEvent(new Event("input"));
+                    }}
+                    const s = c.querySelector("select[name=colourway]");
+                    s.value = "1";
+                    s.dispatchEvent(new Event("change"));
+                    const b = c.querySelector("button.render");
+                    b.scrollIntoView();
+                    const r = b.getBoundingClientRect();
+                    return [r.x + r.width / 2, r.y + r.height / 2];
+                }})()""")
+                assert page.eval(f"{card}.querySelector('.controls .value').textContent") == "90\u00b0"
+                for kind in ("mousePressed", "mouseReleased"):
+                    page.send("Input.dispatchMouseEvent", type=kind, x=x, y=y, button="left", clickCount=1)
+                page.wait_for(f"{card}.getAttribute('data-rendered') === '90,20,135,1'")
+                # The view is the scene's latest frame, shown by the next poll, its stages as bars.
+                page.wait_for(f"{card}.getAttribute('data-shown-sequence') === {card}.getAttribute('data-rendered-sequence')")
+                bars = page.eval(f"[...{card}.querySelectorAll('.bar')].map(b => Number(b.dataset.width))")
+                assert len(bars) >= 4 and max(bars) == 120 and sum(b > 0 for b in bars) >= 3, bars
+                assert page.eval(f"{card}.querySelector('img.frame').getAttribute('data-natural-width')") == "96"
+        finally:
+            proc.terminate()
+            proc.wait(30)
+        latest = c._json("GET", f"/scenes/{sid}/latest")
+        assert latest["frame"]["sequence"] == 2 and "shading" in latest["frame"]["timings_ms"]
+        # What the page sends, refused where it is wrong, by name.
+        auth = {"Authorization": f"Bearer {TOKEN}"}
+        for params, content, words in (({"orbit": "90", "layout": "none"}, b"", "AZ,EL"),
+                                       ({"orbit": "0,0", "layout": "none", "colourway": 2}, b"", "colourway 2"),
+                                       ({"orbit": "0,0", "layout": "none"}, b"\0" * 12, "send no body"),
+                                       ({"orbit": "0,0", "turntable": 2, "layout": "none"}, b"", "one of the three")):
+            r = c.http.post(f"/scenes/{sid}/frames/views", params=params, content=content,
+                            headers={**auth, "Content-Type": "application/octet-stream"})
+            assert r.status_code == 422 and words in r.json()["detail"], (params, r.text)
+        c.delete_scene(sid)

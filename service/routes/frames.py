@@ -36,6 +36,7 @@ from renderer.errors import InvalidInputError
 from renderer.renderer import Frame
 from renderer.shading.tonemap import DEFAULT_CURVE
 from renderer.views import MAX_VIEWS, VIEW_NAMES, contact_sheet, label_tiles, named_views, sheet_columns, view_labels
+from renderer.views import orbit as orbit_camera
 from renderer.views import turntable as turntable_cameras
 
 from ..budgets import batch_cost, views_cost
@@ -272,7 +273,11 @@ async def post_views(
     turntable: Annotated[int | None, Query(ge=1, le=MAX_VIEWS, description="N views: the scene's camera turned "
                                            "about its target in equal steps")] = None,
     views: Annotated[str | None, Query(description="named views, comma-separated: " + ", ".join(VIEW_NAMES))] = None,
+    orbit: Annotated[str | None, Query(description="AZ,EL: one view, the scene's camera turned AZ degrees about the "
+                                       "up axis through its target and raised EL degrees (the viewer's orbit)")] = None,
     colourways: Annotated[bool, Query(description="also every colourway the scene was registered with")] = True,
+    colourway: Annotated[int | None, Query(ge=0, description="only this colourway (0: the garment's own "
+                                           "material)")] = None,
     format: Annotated[ViewsFormat, Query(description="sheet (one PNG: a row per view, a column per colourway) "
                                          "| zip (view_00_c0.png ... and timings.json)")] = ViewsFormat.SHEET,
     exposure: ExposureQuery = None,
@@ -283,25 +288,42 @@ async def post_views(
 ) -> Response:
     t_start = time.perf_counter()
     scene = await find_scene(svc, scene_id)
-    if (turntable is None) == (views is None):
-        raise InvalidRequestError("give ?turntable=N or ?views=front,back,...: one of the two")
+    if sum(x is not None for x in (turntable, views, orbit)) != 1:
+        raise InvalidRequestError("give ?turntable=N, ?views=front,back,... or ?orbit=AZ,EL: one of the three")
     names = [v.strip() for v in views.split(",") if v.strip()] if views is not None else None
     try:
-        cameras = turntable_cameras(scene.camera, turntable) if names is None else named_views(scene.camera, names)
-    except InvalidInputError as e:
-        raise InvalidRequestError(str(e)) from None
-    n_variants = scene.gpu.n_variants if colourways and scene.gpu is not None else 1
+        if orbit is not None:
+            angles = [float(x) for x in orbit.split(",")]
+            if len(angles) != 2:
+                raise InvalidInputError(f"orbit is AZ,EL in degrees, got {orbit!r}")
+            cameras = [orbit_camera(scene.camera, *angles)]
+            names = [f"orbit {angles[0]:g}, {angles[1]:g} deg"]
+        else:
+            cameras = turntable_cameras(scene.camera, turntable) if names is None else named_views(scene.camera, names)
+    except ValueError as e:   # InvalidInputError is a ValueError; so is float('x')
+        raise InvalidRequestError(f"orbit {orbit!r}: {e}" if orbit is not None else str(e)) from None
+    registered = scene.gpu.n_variants if scene.gpu is not None else 1
+    if colourway is not None and colourway >= registered:
+        raise InvalidRequestError(f"colourway {colourway} is not in the scene: it has {registered} (0 to "
+                                  f"{registered - 1})")
+    variants = [colourway] if colourway is not None else list(range(registered if colourways else 1))
+    n_variants = len(variants)
     if len(cameras) * n_variants > settings.max_views:
         raise PayloadTooLargeError(f"{len(cameras)} views x {n_variants} colourways = {len(cameras) * n_variants} "
                                    f"images exceeds the limit {settings.max_views} (GARMENT_RENDER_MAX_VIEWS)")
     cost = views_cost(scene, len(cameras), n_variants, format is ViewsFormat.SHEET, worker.rates, settings)
     cost.check(settings)
-    blocks = parse_layout(x_frame_layout or layout, scene)
-    body = await raw_body(request, (OCTET_STREAM,), "a frame of vertex positions")
-    arrays = await anyio.to_thread.run_sync(decode_frame, body, blocks, scene, not worker.normals_on_gpu)
+    if (x_frame_layout or layout or "").strip().lower() == "none":
+        # No positions: the scene's current pose again (the viewer's orbit and light).
+        if await request.body():
+            raise InvalidRequestError("layout none renders the scene's current pose again: send no body")
+        arrays = None
+    else:
+        blocks = parse_layout(x_frame_layout or layout, scene)
+        body = await raw_body(request, (OCTET_STREAM,), "a frame of vertex positions")
+        arrays = await anyio.to_thread.run_sync(decode_frame, body, blocks, scene, not worker.normals_on_gpu)
     async with client_gone(request) as gone:
-        result = await worker.call(views_job(scene, arrays, cameras, list(range(n_variants)), environment_rotation,
-                                             aovs=False),
+        result = await worker.call(views_job(scene, arrays, cameras, variants, environment_rotation, aovs=False),
                                    what=f"{len(cameras)} views of {scene.id}", abandoned=gone)
     frames, source = result.value
     worker.rates.note(scene, result.run_ms, len(frames))
@@ -324,14 +346,14 @@ async def post_views(
         # One exposure for every image (the first view's, when the scene names none): views compare.
         ev = exposure if exposure is not None else scene.output.get("exposure_ev")
         ev = frame_exposure_ev(images[0]) if ev is None else float(ev)
-        meta = [{"view": k // n_variants, "colourway": k % n_variants, "camera": f.settings["camera"],
+        meta = [{"view": k // n_variants, "colourway": variants[k % n_variants], "camera": f.settings["camera"],
                  "timings_ms": {k2: round(float(v), 3) for k2, v in f.timings["wall_ms"].items()}}
                 for k, f in enumerate(frames)]
         if format is ViewsFormat.SHEET:   # 8-bit tiles into an 8-bit sheet: no sheet of floats
             tiles = list(encoded_one_by_one(ev, lambda im, ev: encode_pixels(im, ev, tone, opaque)))
             sheet = contact_sheet(tiles, columns)
             del tiles
-            labels = view_labels(len(cameras), names, ["garment"] + [f"colourway {k}" for k in range(1, n_variants)])
+            labels = view_labels(len(cameras), names, [f"colourway {k}" if k else "garment" for k in variants])
             pixels = label_tiles(sheet, labels, tile_hw, columns)
             del sheet
             return png_bytes(pixels, settings.png_compress_level), ev, pixels.shape[:2]
@@ -346,8 +368,8 @@ async def post_views(
     t_enc = time.perf_counter()
     content, ev, sheet_size = await anyio.to_thread.run_sync(encode_all)
     encode_ms = (time.perf_counter() - t_enc) * 1e3
-    timings = frame_timings(frames[0], arrays.decode_ms, arrays.normals_ms, result.queue_ms, result.run_ms,
-                            encode_ms, t_start)
+    timings = frame_timings(frames[0], arrays.decode_ms if arrays else 0.0, arrays.normals_ms if arrays else 0.0,
+                            result.queue_ms, result.run_ms, encode_ms, t_start)
     timings["render"] = round(sum(float(f.timings["frame_wall_ms"]) for f in frames), 3)
     metrics.observe_frame("views", format.value, timings)
     index = x_frame_index if x_frame_index is not None else sequence - 1

@@ -41,7 +41,10 @@ def _page() -> str:
 
 def latest_info(rec: SceneRecord) -> dict:
     frame = rec.latest
-    info: dict = {"scene_id": rec.id, "name": rec.name, "frames_rendered": rec.count_frames(0), "frame": None}
+    info: dict = {"scene_id": rec.id, "name": rec.name, "frames_rendered": rec.count_frames(0), "frame": None,
+                  # What the page's controls offer: the colourways to switch between, the map's turn.
+                  "colourways": rec.gpu.n_variants if rec.gpu is not None else 1,
+                  "environment_rotation": float(rec.output.get("environment_rotation", 0.0))}
     if frame is not None:
         h, w = frame.size
         rate = rec.frame_rate_hz()
