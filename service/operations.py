@@ -330,3 +330,23 @@ async def delete_scene(svc: Services, scene_id: str) -> None:
         raise
     if svc.state is not None:
         svc.state.delete_scene(scene_id)
+
+
+async def preset_views_quality(svc: Services, scene: SceneRecord, preset: str) -> tuple:
+    """(face size, its cube, PEM settings, frame settings) of `scene` at another preset's quality, its
+    output kept (the viewer's preset switch: frames/views?preset=): judged as a registration is (the
+    frame's memory), the cube made here, off the GL thread; the PEM set is the GL thread's cache's."""
+    from renderer.presets import pem_settings
+
+    from .schemas import OutputSpec, QualitySpec
+    from .specs import check_frame_cost
+
+    q = await anyio.to_thread.run_sync(resolve_quality, QualitySpec(preset=preset), OutputSpec(**scene.output),
+                                       svc.presets, svc.measured, svc.settings, svc.device)
+    meshes = scene.gpu.meshes if scene.gpu is not None else []
+    materials = [sm.material for sm in meshes]
+    check_pem_set(q, svc.settings)
+    check_frame_cost(q, [sm.caster for sm in meshes], materials, svc.settings)
+    pem = pem_settings(q.knobs, q.pem.filter, q.pem.levels, materials)
+    cube = await anyio.to_thread.run_sync(scene.environment.cube, q.face_size)
+    return q.face_size, cube, pem, q.frame

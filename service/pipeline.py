@@ -65,12 +65,16 @@ def render_job(scene: SceneRecord, arrays: FrameArrays | None, rotation: float |
 
 
 def views_job(scene: SceneRecord, arrays: FrameArrays | None, cameras: list, variants: list[int],
-              rotation: float | None = None, aovs: bool = True):
+              rotation: float | None = None, aovs: bool = True, quality: tuple | None = None):
     """The GL-thread part of one frame of a registered scene seen from several cameras in several
     colourways (Renderer.render_views: one upload and shadow pass for all); `aovs` False: without the
-    scene's passes (a sheet of views has no place for them)."""
-    settings = scene.frame_settings if rotation is None else \
-        replace(scene.frame_settings, environment_rotation_deg=float(rotation))
+    scene's passes (a sheet of views has no place for them); `quality`: another preset's (face size,
+    cube, PEM settings, frame settings) in place of the scene's (operations.preset_views_quality)."""
+    cube, pem_settings, settings = None, scene.pem_settings, scene.frame_settings
+    if quality is not None:
+        _, cube, pem_settings, settings = quality
+    if rotation is not None:
+        settings = replace(settings, environment_rotation_deg=float(rotation))
     if not aovs and settings.aovs:
         settings = replace(settings, aovs=())
 
@@ -78,7 +82,8 @@ def views_job(scene: SceneRecord, arrays: FrameArrays | None, cameras: list, var
         if scene.released or scene.gpu is None:
             raise NotFoundError(f"scene {scene.id} was deleted while this frame waited")
         env = scene.environment
-        pems, source = gl.pem_set(env.content_hash, env.cubes[scene.face_size], scene.pem_settings)
+        pems, source = gl.pem_set(env.content_hash, env.cubes[scene.face_size] if cube is None else cube,
+                                  pem_settings)
         background = None
         if settings.background is Background.ENVIRONMENT:
             background = gl.background(env.content_hash, env.background_source())

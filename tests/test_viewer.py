@@ -232,9 +232,9 @@ class _DevTools:
 def test_the_page_driven_in_chromium_orbits_turns_the_light_switches_colourway_and_charts_timings(server, scenes,
                                                                                                    tmp_path):
     """A person's use of the page, in headless Chromium driven through its DevTools protocol: on a scene
-    with a colourway, the orbit, height and light sliders are moved and the colourway chosen, the render
-    button clicked with the mouse; the scene's current pose is rendered again so (its latest frame the
-    view, the sheet's one tile), shown, and its stages drawn as bars."""
+    with a colourway, the orbit, height and light sliders are moved, the colourway and another preset
+    chosen, the render button clicked with the mouse; the scene's current pose is rendered again so (its
+    latest frame the view, the sheet's one tile), shown, and its stages drawn as bars."""
     from websockets.sync.client import connect
 
     browser = chromium()
@@ -264,6 +264,7 @@ def test_the_page_driven_in_chromium_orbits_turns_the_light_switches_colourway_a
                 card = f'document.querySelector(\'[data-scene-id="{sid}"]\')'
                 page.wait_for(f"{card} && {card}.getAttribute('data-shown-sequence') === '1'")
                 assert page.eval(f"{card}.querySelectorAll('select[name=colourway] option').length") == 2
+                assert page.eval(f"{card}.querySelector('select[name=preset]').value") == "fast"
                 # The sliders moved and the colourway chosen as their input events say, then a mouse click.
                 x, y = page.eval(f"""(() => {{
                     const c = {card};
@@ -272,9 +273,11 @@ def test_the_page_driven_in_chromium_orbits_turns_the_light_switches_colourway_a
                         i.value = String(v);
                         i.dispatchEvent(new Event("input"));
                     }}
-                    const s = c.querySelector("select[name=colourway]");
-                    s.value = "1";
-                    s.dispatchEvent(new Event("change"));
+                    for (const [n, v] of [["colourway", "1"], ["preset", "balanced"]]) {{
+                        const s = c.querySelector(`select[name=${{n}}]`);
+                        s.value = v;
+                        s.dispatchEvent(new Event("change"));
+                    }}
                     const b = c.querySelector("button.render");
                     b.scrollIntoView();
                     const r = b.getBoundingClientRect();
@@ -283,7 +286,7 @@ def test_the_page_driven_in_chromium_orbits_turns_the_light_switches_colourway_a
                 assert page.eval(f"{card}.querySelector('.controls .value').textContent") == "90\u00b0"
                 for kind in ("mousePressed", "mouseReleased"):
                     page.send("Input.dispatchMouseEvent", type=kind, x=x, y=y, button="left", clickCount=1)
-                page.wait_for(f"{card}.getAttribute('data-rendered') === '90,20,135,1'")
+                page.wait_for(f"{card}.getAttribute('data-rendered') === '90,20,135,1,balanced'")
                 # The view is the scene's latest frame, shown by the next poll, its stages as bars.
                 page.wait_for(f"{card}.getAttribute('data-shown-sequence') === {card}.getAttribute('data-rendered-sequence')")
                 bars = page.eval(f"[...{card}.querySelectorAll('.bar')].map(b => Number(b.dataset.width))")
@@ -294,6 +297,14 @@ def test_the_page_driven_in_chromium_orbits_turns_the_light_switches_colourway_a
             proc.wait(30)
         latest = c._json("GET", f"/scenes/{sid}/latest")
         assert latest["frame"]["sequence"] == 2 and "shading" in latest["frame"]["timings_ms"]
+        # Another preset's views are another picture of the same pose (its own PEM set and maps).
+        pictures = []
+        for preset in ("fast", "accurate"):
+            r = c.http.post(f"/scenes/{sid}/frames/views", headers={"Authorization": f"Bearer {TOKEN}"},
+                            params={"orbit": "0,0", "layout": "none", "colourway": 0, "preset": preset})
+            assert r.status_code == 200, r.text
+            pictures.append(r.content)
+        assert pictures[0] != pictures[1]
         # What the page sends, refused where it is wrong, by name.
         auth = {"Authorization": f"Bearer {TOKEN}"}
         for params, content, words in (({"orbit": "90", "layout": "none"}, b"", "AZ,EL"),

@@ -54,7 +54,7 @@ from ..codecs import (
 from ..deps import OCTET_STREAM, MetricsDep, ServicesDep, SettingsDep, WorkerDep, client_gone, raw_body, require_token
 from ..errors import ClientGoneError, InvalidRequestError, PayloadTooLargeError, RenderTimeoutError
 from ..fabrics import scene_fabrics
-from ..operations import find_environment, find_scene
+from ..operations import find_environment, find_scene, preset_views_quality
 from ..pipeline import (
     encode_async,
     frame_payload,
@@ -67,7 +67,7 @@ from ..pipeline import (
     views_job,
 )
 from ..registry import LatestFrame
-from ..schemas import BatchFormat, EmbeddedImageFormat, ImageFormat, SceneCreate, ViewsFormat
+from ..schemas import BatchFormat, EmbeddedImageFormat, ImageFormat, Preset, SceneCreate, ViewsFormat
 from ..specs import prepare_scene
 from ..worker import GLResources
 
@@ -278,6 +278,8 @@ async def post_views(
     colourways: Annotated[bool, Query(description="also every colourway the scene was registered with")] = True,
     colourway: Annotated[int | None, Query(ge=0, description="only this colourway (0: the garment's own "
                                            "material)")] = None,
+    preset: Annotated[Preset | None, Query(description="another preset's quality for these views (the viewer's "
+                                           "switch); its PEM set made once and cached")] = None,
     format: Annotated[ViewsFormat, Query(description="sheet (one PNG: a row per view, a column per colourway) "
                                          "| zip (view_00_c0.png ... and timings.json)")] = ViewsFormat.SHEET,
     exposure: ExposureQuery = None,
@@ -313,6 +315,9 @@ async def post_views(
                                    f"images exceeds the limit {settings.max_views} (GARMENT_RENDER_MAX_VIEWS)")
     cost = views_cost(scene, len(cameras), n_variants, format is ViewsFormat.SHEET, worker.rates, settings)
     cost.check(settings)
+    quality = None
+    if preset is not None and preset.value != scene.quality.get("preset"):
+        quality = await preset_views_quality(svc, scene, preset.value)
     if (x_frame_layout or layout or "").strip().lower() == "none":
         # No positions: the scene's current pose again (the viewer's orbit and light).
         if await request.body():
@@ -323,7 +328,8 @@ async def post_views(
         body = await raw_body(request, (OCTET_STREAM,), "a frame of vertex positions")
         arrays = await anyio.to_thread.run_sync(decode_frame, body, blocks, scene, not worker.normals_on_gpu)
     async with client_gone(request) as gone:
-        result = await worker.call(views_job(scene, arrays, cameras, variants, environment_rotation, aovs=False),
+        result = await worker.call(views_job(scene, arrays, cameras, variants, environment_rotation, aovs=False,
+                                             quality=quality),
                                    what=f"{len(cameras)} views of {scene.id}", abandoned=gone)
     frames, source = result.value
     worker.rates.note(scene, result.run_ms, len(frames))

@@ -20,6 +20,7 @@ import anyio
 from fastapi import APIRouter, Depends
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 
+from renderer.presets import PRESET_NAMES
 from renderer.shading.tonemap import DEFAULT_CURVE
 
 from .. import operations
@@ -44,7 +45,8 @@ def latest_info(rec: SceneRecord) -> dict:
     info: dict = {"scene_id": rec.id, "name": rec.name, "frames_rendered": rec.count_frames(0), "frame": None,
                   # What the page's controls offer: the colourways to switch between, the map's turn.
                   "colourways": rec.gpu.n_variants if rec.gpu is not None else 1,
-                  "environment_rotation": float(rec.output.get("environment_rotation", 0.0))}
+                  "environment_rotation": float(rec.output.get("environment_rotation", 0.0)),
+                  "preset": rec.quality.get("preset"), "presets": list(PRESET_NAMES)}
     if frame is not None:
         h, w = frame.size
         rate = rec.frame_rate_hz()
