@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT))
 
 from bench_service_bounds import OCTET, Server  # noqa: E402
 
-from client.garment_render_client.client import parse_server_timing  # noqa: E402
+from garment_render_client import parse_server_timing  # noqa: E402
 from renderer.envmap import studio_environment, write_exr  # noqa: E402
 from renderer.presets import presets_digest  # noqa: E402
 from renderer.procedural import procedural_body, procedural_garment  # noqa: E402

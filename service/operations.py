@@ -19,15 +19,16 @@ import numpy as np
 from renderer.cache import cache_key
 from renderer.envmap import environment_from_array
 from renderer.lighting.pem import PEMSettings
+from renderer.presets import pem_settings as resolved_pem_settings
 from renderer.renderer import Background
 
 from .codecs import decode_hdr, sniff_hdr_kind
 from .errors import ConflictError, InvalidRequestError, NotFoundError, PayloadTooLargeError, QueueFullError
 from .fabrics import FabricStore, scene_fabrics
 from .registry import EnvironmentRecord, EnvironmentStore, MeshStore, PemInfo, SceneMeshInfo, SceneRecord, SceneStore
-from .schemas import MeshSpec, QualitySpec, SceneCreate
+from .schemas import MeshSpec, OutputSpec, QualitySpec, SceneCreate
 from .settings import ServiceSettings
-from .specs import SHADOW_FLOOR, RequestQuality, check_pem_set, prepare_scene, resolve_quality
+from .specs import SHADOW_FLOOR, RequestQuality, check_frame_cost, check_pem_set, prepare_scene, resolve_quality
 from .state import StateDir
 from .worker import GLResources, RenderWorker
 
@@ -333,20 +334,15 @@ async def delete_scene(svc: Services, scene_id: str) -> None:
 
 
 async def preset_views_quality(svc: Services, scene: SceneRecord, preset: str) -> tuple:
-    """(face size, its cube, PEM settings, frame settings) of `scene` at another preset's quality, its
-    output kept (the viewer's preset switch: frames/views?preset=): judged as a registration is (the
-    frame's memory), the cube made here, off the GL thread; the PEM set is the GL thread's cache's."""
-    from renderer.presets import pem_settings
-
-    from .schemas import OutputSpec, QualitySpec
-    from .specs import check_frame_cost
-
+    """(the cube, PEM settings, frame settings) of `scene` at another preset's quality, its output kept
+    (the viewer's preset switch: frames/views?preset=): judged as a registration is (the frame's
+    memory), the cube made here, off the GL thread; the PEM set is the GL thread's cache's."""
     q = await anyio.to_thread.run_sync(resolve_quality, QualitySpec(preset=preset), OutputSpec(**scene.output),
                                        svc.presets, svc.measured, svc.settings, svc.device)
     meshes = scene.gpu.meshes if scene.gpu is not None else []
     materials = [sm.material for sm in meshes]
     check_pem_set(q, svc.settings)
     check_frame_cost(q, [sm.caster for sm in meshes], materials, svc.settings)
-    pem = pem_settings(q.knobs, q.pem.filter, q.pem.levels, materials)
+    pem = resolved_pem_settings(q.knobs, q.pem.filter, q.pem.levels, materials)
     cube = await anyio.to_thread.run_sync(scene.environment.cube, q.face_size)
-    return q.face_size, cube, pem, q.frame
+    return cube, pem, q.frame

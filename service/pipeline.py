@@ -68,11 +68,9 @@ def views_job(scene: SceneRecord, arrays: FrameArrays | None, cameras: list, var
               rotation: float | None = None, aovs: bool = True, quality: tuple | None = None):
     """The GL-thread part of one frame of a registered scene seen from several cameras in several
     colourways (Renderer.render_views: one upload and shadow pass for all); `aovs` False: without the
-    scene's passes (a sheet of views has no place for them); `quality`: another preset's (face size,
-    cube, PEM settings, frame settings) in place of the scene's (operations.preset_views_quality)."""
-    cube, pem_settings, settings = None, scene.pem_settings, scene.frame_settings
-    if quality is not None:
-        _, cube, pem_settings, settings = quality
+    scene's passes (a sheet of views has no place for them); `quality`: another preset's (cube, PEM
+    settings, frame settings) in place of the scene's (operations.preset_views_quality)."""
+    cube, pem_settings, settings = quality or (None, scene.pem_settings, scene.frame_settings)
     if rotation is not None:
         settings = replace(settings, environment_rotation_deg=float(rotation))
     if not aovs and settings.aovs:
