@@ -477,14 +477,20 @@ def test_a_cluster_without_a_shared_state_dir_is_refused_before_ray_starts(monke
         ray_serve.run("127.0.0.1", 0, 2)
 
 
+# The most a request that Serve's proxy routed to a killed ingress replica waits before the proxy notices
+# the death and sends it to the other: Ray's own detection, far below an ingress's restart (~7 s).
+RAY_DETECTION_S = 5.0
+
+
 @pytest.mark.system
 def test_an_ingress_replica_killed_costs_no_outage(cluster, tmp_path):
     """One of the two ingress replicas killed while a simulator sends frames: every frame is answered
     200 (the client sends again the one Serve's proxy answered with its own 500, if any), and none sent
-    after the kill waits for Serve to bring the ingress back; a plain request right after the kill is
-    answered at once. The frame in flight on the killed replica waits until Serve's proxy notices the
-    death (seconds, Ray's own), so it is held to a looser bound. Last in the module: it uploads the map
-    that the tests before it upload first."""
+    after the kill waits for Serve to bring the ingress back (~7 s with one ingress replica); plain
+    requests right after the kill are answered within RAY_DETECTION_S, the most a request the proxy
+    routed to the dead replica waits for it to notice the death (seen: up to 2.9 s on a loaded 2-core
+    machine). The frame in flight on the killed replica waits for the same, so it is held to a looser
+    bound. Last in the module: it uploads the map that the tests before it upload first."""
     mesh = garment(16)
     names = []
     deadline = time.monotonic() + 120
@@ -532,9 +538,9 @@ def test_an_ingress_replica_killed_costs_no_outage(cluster, tmp_path):
             stop.set()
             killer.close()
             thread.join(timeout=120)
-    assert failures == [] and statuses == [200] * 5 and first_s < 2.0, (failures, statuses, first_s)
+    assert failures == [] and statuses == [200] * 5 and first_s < RAY_DETECTION_S, (failures, statuses, first_s)
     in_flight = [b - a for a, b in spans if a <= killed_at < b]
     after = [b - a for a, b in spans if a > killed_at]
     report = [(round(a - killed_at, 2), round(b - a, 2)) for a, b in spans]
-    assert len(after) > 5 and max(after) < 3.0, f"a frame sent after the kill waited: {report}"
+    assert len(after) > 5 and max(after) < RAY_DETECTION_S, f"a frame sent after the kill waited: {report}"
     assert all(w < 15.0 for w in in_flight), f"the frame in flight at the kill waited: {report}"
