@@ -30,8 +30,10 @@ from .gpu.context import GLContext, StageTimer
 from .gpu.contract import (
     G_BUFFER_UNITS,
     N_LIGHT_KINDS,
+    SHEER_LAYERS,
     WIDE_LOBE_DISC_VARIANCE,
     EdgeTexture,
+    GeometryTexture,
     Image,
     LightingBuffer,
     LightingTexture,
@@ -165,7 +167,8 @@ class FrameTimings(TypedDict):
     """What `Renderer.render` measured and did (JSON as it stands: the service and the benchmarks
     read it by these names)."""
 
-    wall_ms: dict[str, float]        # per stage: upload, shadow_maps, blur, light_tables, geometry, shading, readback
+    wall_ms: dict[str, float]        # per stage: upload, shadow_maps, blur, light_tables, geometry, shading,
+                                     # sheer_layers (the geometry and blends behind sheer cloth), readback
     gpu_ms: dict[str, float]         # the same stages' GPU time where the driver has timer queries
     total_wall_ms: float             # the stages' sum
     frame_wall_ms: float             # the whole call
@@ -322,6 +325,20 @@ class _StillTarget:
             obj.release()
 
 
+class _SheerTargets:
+    """Renderer._sheer_layers's: the last layer's depth, and a layer's lit colour over the geometry
+    pass's depth (the lighting pass's test)."""
+
+    def __init__(self, ctx: moderngl.Context, w: int, h: int, depth: moderngl.Texture):
+        self.peel_depth = ctx.depth_texture((w, h))
+        self.layer = ctx.texture((w, h), 4, dtype="f4")
+        self.layer_fbo = ctx.framebuffer([self.layer], depth)
+
+    def release(self) -> None:
+        for obj in (self.layer_fbo, self.layer, self.peel_depth):
+            obj.release()
+
+
 class _Targets:
     """A frame's render targets for one image size, material kind and sample count: the lighting pass's
     output and the geometry targets it reads (`gbuf`), which share one depth buffer; with several
@@ -338,6 +355,7 @@ class _Targets:
         self.gbuf_fbo = ctx.framebuffer(self.gbuf, self.depth)
         self.ms_depth, self.ms_fbo, self.final, self.edge_marks, self.final_fbo = None, None, None, None, None
         self.sample_positions: np.ndarray | None = None   # (samples, 2) in the pixel, set by the coverage pass
+        self._sheer: _SheerTargets | None = None
         if samples > 1:
             self.ms_depth = ctx.depth_texture((w, h), samples=samples)
             self.ms_fbo = ctx.framebuffer([], self.ms_depth)
@@ -349,7 +367,16 @@ class _Targets:
     def output_fbo(self):
         return self.final_fbo if self.samples > 1 else self.image_fbo
 
+    def sheer_targets(self, ctx: moderngl.Context) -> _SheerTargets:
+        """The layers behind sheer cloth's targets (made on first use)."""
+        if self._sheer is None:
+            w, h = self.key[:2]
+            self._sheer = _SheerTargets(ctx, w, h, self.depth)
+        return self._sheer
+
     def release(self) -> None:
+        if self._sheer is not None:
+            self._sheer.release()
         for obj in (self.final_fbo, self.edge_marks, self.final, self.ms_fbo, self.ms_depth, self.gbuf_fbo, self.image_fbo,
                     self.depth, *self.gbuf, self.color):
             if obj is not None:
@@ -458,7 +485,7 @@ class Renderer:
     def _shade_variant(self, mode: ShadingMode, diffuse: str, two_textures: bool,
                        glossy: str = "pem", contact: bool = False, sub_lights: int = 1,
                        lobes: tuple[int, int] | None = None, blocker: bool = False, oracle: bool = False,
-                       catcher: bool = False
+                       catcher: bool = False, sheets: str | bool = False
                        ) -> tuple[moderngl.Program | moderngl.ComputeShader, moderngl.VertexArray | None]:
         """The lighting program of a mode and diffuse source (a full-screen pass over the geometry
         pass's targets), compiled on first use (one variant each; the diffuse source matters to the
@@ -469,7 +496,9 @@ class Renderer:
         physically based material (None: Phong materials only, one lobe a pixel); `blocker`: some
         light's penumbra follows the blocker's distance (FrameSettings.penumbra, area lights); `oracle`:
         the full mode with each light's visibility read from a texture (`render_views(visibility=)`);
-        `catcher`: the full mode's shadow catcher (Background.SHADOW_CATCHER)."""
+        `catcher`: the full mode's shadow catcher (Background.SHADOW_CATCHER); `sheets`: "sheer" or
+        "transmission" where some mesh is sheer or some transmits (Scene.has_sheets: each mesh's pair
+        read by its id; the transmitted term compiled in for "transmission" alone)."""
         closed = _no_diffuse_pems(mode, diffuse)
         wide = glossy == "wide" and mode in _CLOSED_FORM_MODES
         oracle = oracle and mode is ShadingMode.FULL
@@ -478,7 +507,7 @@ class Renderer:
         compute = self.lighting_pass == "compute"
         catcher = catcher and mode is ShadingMode.FULL
         key = (mode, diffuse if closed else "pem", two_textures, wide, contact, compute, sub_lights, lobes, blocker,
-               oracle, catcher)
+               oracle, catcher, sheets)
         if key not in self._shade_progs:
             defines = {**self._defines, "MODE": int(_MODE_INDEX[mode]), "TWO_PEM_TEXTURES": int(two_textures)}
             if wide:
@@ -499,6 +528,10 @@ class Renderer:
                 defines["ORACLE_VISIBILITY"] = 1
             if catcher:
                 defines["SHADOW_CATCHER"] = 1
+            if sheets:
+                defines["SHEETS"] = 1
+                if sheets == "transmission":
+                    defines["TRANSMISSION"] = 1
             if contact:
                 defines.update(CONTACT_SHADOWS=1, CONTACT_SLICES=CONTACT_SLICES, CONTACT_STEPS=CONTACT_STEPS)
             if compute:
@@ -691,13 +724,18 @@ class Renderer:
                 t_view = time.perf_counter()
                 self._geometry_pass(scene, camera, depth_vp, targets, w, h, timer, variant)
                 oracle = self._oracle_texture(visibility, gbuf, lp.n, w, h) if visibility is not None else None
-                contact_radius = self._lighting_pass(inputs, camera, view_proj, vp_bytes, timer, oracle)
+                # Sheer cloth: the background goes in under the layers seen through it (_sheer_layers).
+                contact_radius = self._lighting_pass(inputs, camera, view_proj, vp_bytes, timer, oracle, variant,
+                                                     background=not scene.sheer)
                 if oracle is not None:
                     oracle.release()
                 if targets.samples > 1:
-                    self._edges_pass(inputs, targets, view_proj, depth_vp, camera, timer)
-                image = self._readback_image(targets.output_fbo, w, h, timer)
+                    self._edges_pass(inputs, targets, view_proj, depth_vp, camera, timer, background=not scene.sheer)
+                # The passes are the nearest surfaces' (read before the layers behind sheer cloth).
                 aovs = self._read_aovs(settings.aovs, gbuf, camera, timer) if settings.aovs else {}
+                if scene.sheer:
+                    self._sheer_layers(inputs, targets, camera, view_proj, vp_bytes, depth_vp, timer, variant)
+                image = self._readback_image(targets.output_fbo, w, h, timer)
                 timings: FrameTimings = {**timer.as_dict(), **report[0]}   # its stages, then the frame's counts
                 timings["frame_wall_ms"] = (time.perf_counter() - t_view) * 1e3 + (shared_ms if not frames else 0.0)
                 info = {**report[1], "camera": {"eye": list(camera.eye), "target": list(camera.target),
@@ -929,7 +967,7 @@ class Renderer:
         return self._edge_progs[name, samples]
 
     def _edges_pass(self, inputs: _FrameInputs, targets: _Targets, view_proj: np.ndarray, depth_vp: bytes,
-                    camera: Camera, timer: StageTimer) -> None:
+                    camera: Camera, timer: StageTimer, background: bool = True) -> None:
         """Each pixel from its samples: the pixels one surface covers whole and those none touches at
         once (edges/classify.frag), then the edge pixels alone (edges/resolve.frag): colour premultiplied
         by coverage and alpha the coverage; then the background blended in under it where the frame has
@@ -963,13 +1001,97 @@ class Renderer:
             vao.render(moderngl.TRIANGLES, vertices=3)
             ctx.depth_func = "<"
             ctx.disable(moderngl.DEPTH_TEST)
-            if inputs.settings.background is Background.ENVIRONMENT:
-                # Under what the surfaces cover: c = c + (1 - alpha) * background, alpha kept.
+            if background and inputs.settings.background is Background.ENVIRONMENT:
+                self._background_under(inputs, view_proj)
+
+    def _background_under(self, inputs: _FrameInputs, view_proj: np.ndarray) -> None:
+        """The background under what the surfaces cover, into the bound framebuffer: c = c + (1 -
+        alpha) * background, alpha kept."""
+        ctx = self.gl.ctx
+        ctx.enable(moderngl.BLEND)
+        ctx.blend_func = (moderngl.ONE_MINUS_DST_ALPHA, moderngl.ONE, moderngl.ZERO, moderngl.ONE)
+        self._draw_background(inputs, view_proj)
+        ctx.blend_func = moderngl.DEFAULT_BLENDING
+        ctx.disable(moderngl.BLEND)
+
+    def _sheer_layers(self, inputs: _FrameInputs, targets: _Targets, camera: Camera, view_proj: np.ndarray,
+                      vp_bytes: bytes, depth_vp: bytes, timer: StageTimer, variant: int) -> None:
+        """What sheer cloth lets through (Material.alpha < 1), by depth peeling (Everitt 2001): the
+        image so far holds the nearest surfaces' colour premultiplied by their alpha (lighting.frag);
+        each of the next SHEER_LAYERS - 1 layers is the nearest surface behind the last one's depth,
+        drawn only where the image is not yet opaque (gbuffer.frag, PEEL), lit as the first was
+        (its own sheer pixels premultiplied) and blended under the image (shading/under.frag); then the
+        background under all. The meshes that hold still are drawn with the others (no kept layer)."""
+        ctx, scene, settings = self.gl.ctx, inputs.scene, inputs.settings
+        w, h = settings.width, settings.height
+        extra = targets.sheer_targets(ctx)
+        out = targets.final if targets.samples > 1 else targets.color
+        g = self._peel_program(scene.has_pbr)
+        under, under_vao = self._under_program()
+        # Opaque meshes that hold still (a body) come from the geometry pass's kept targets, copied in
+        # under each layer's cloth (_with_still_meshes): the nearest of them lies behind every layer
+        # until it is itself a layer, and then the image is opaque there (peel_mask.frag).
+        g0 = self._programs["gbuffer_pbr"] if scene.has_pbr else self.gbuffer_prog
+        kept = all(not sm.material.is_sheer for sm in scene.meshes if sm.group != 0)
+        mask, mask_vao = self._under_program("peel_mask")
+
+        def draw(fbo, meshes, clear=True):
+            still_alone = kept and all(sm.group != 0 for sm in meshes) and len(meshes) < len(scene.meshes)
+            self._draw_geometry(g0 if still_alone else g, fbo, meshes, w, h, variant, clear)
+
+        for _ in range(1, SHEER_LAYERS):
+            with self.gl.stage(timer, "sheer_layers"):
+                rawgl.copy_image(self.gl.gl, targets.depth.glo, extra.peel_depth.glo, rawgl.GL_TEXTURE_2D, w, h)
+                for prog in (g, g0):
+                    prog["u_view_proj"].write(depth_vp)
+                    set_uniform(prog, "u_camera_pos", tuple(float(x) for x in camera.eye))
+                extra.peel_depth.use(location=GeometryTexture.PEEL_DEPTH)
+                out.use(location=GeometryTexture.PEEL_OPACITY)
+                if kept:
+                    self._with_still_meshes(scene, variant, (depth_vp, g0.glo), targets.gbuf_fbo,
+                                            (targets.gbuf, targets.depth), draw,
+                                            lambda: self._still_target_for("geometry", w, h, scene.has_pbr))
+                else:
+                    draw(targets.gbuf_fbo, scene.meshes)
+                extra.layer_fbo.use()
+                ctx.viewport = (0, 0, w, h)
+                ctx.enable(moderngl.DEPTH_TEST)
+                ctx.depth_func = "1"
+                mask_vao.render(moderngl.TRIANGLES, vertices=3)
+                ctx.depth_func = "<"
+                ctx.disable(moderngl.DEPTH_TEST)
+            layer_inputs = replace(inputs, fbo=extra.layer_fbo)
+            self._lighting_pass(layer_inputs, camera, view_proj, vp_bytes, timer, None, variant, background=False)
+            with self.gl.stage(timer, "sheer_layers"):
+                targets.output_fbo.use()
+                ctx.viewport = (0, 0, w, h)
+                ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
                 ctx.enable(moderngl.BLEND)
-                ctx.blend_func = (moderngl.ONE_MINUS_DST_ALPHA, moderngl.ONE, moderngl.ZERO, moderngl.ONE)
-                self._draw_background(inputs, view_proj)
+                ctx.blend_func = (moderngl.ONE_MINUS_DST_ALPHA, moderngl.ONE, moderngl.ONE_MINUS_DST_ALPHA, moderngl.ONE)
+                extra.layer.use(location=LightingTexture.UNDER_LAYER)
+                under_vao.render(moderngl.TRIANGLES, vertices=3)
                 ctx.blend_func = moderngl.DEFAULT_BLENDING
                 ctx.disable(moderngl.BLEND)
+        if settings.background is Background.ENVIRONMENT:
+            with self.gl.stage(timer, "sheer_layers"):
+                targets.output_fbo.use()
+                ctx.viewport = (0, 0, w, h)
+                self._background_under(inputs, view_proj)
+
+    def _peel_program(self, pbr: bool) -> moderngl.Program:
+        """The geometry pass's program for the layers behind sheer cloth (gbuffer.frag with PEEL)."""
+        name = "gbuffer_peel_pbr" if pbr else "gbuffer_peel"
+        if name not in self._programs:
+            defines = {"PEEL": 1, **({"PBR": 1} if pbr else {})}
+            self._programs[name] = program(self.gl.ctx, "shading/surface.vert", "shading/gbuffer.frag", defines)
+        return self._programs[name]
+
+    def _under_program(self, name: str = "under") -> tuple[moderngl.Program, moderngl.VertexArray]:
+        """A full-screen pass of the layers behind sheer cloth (shading/under.frag, peel_mask.frag)."""
+        if name not in self._edge_progs:
+            prog = program(self.gl.ctx, "shading/background.vert", f"shading/{name}.frag")
+            self._edge_progs[name] = (prog, self.gl.ctx.vertex_array(prog, []))
+        return self._edge_progs[name]
 
     def _draw_background(self, inputs: _FrameInputs, view_proj: np.ndarray) -> None:
         """The environment seen along each pixel's view ray (shading/background.frag), into the bound
@@ -1007,7 +1129,7 @@ class Renderer:
                     ctx.front_face, ctx.cull_face = "ccw", culled
                 for part in side.parts:   # one draw per texture set
                     part.bind(g)
-                    part.vao.render(moderngl.TRIANGLES)
+                    part.vao_for(g).render(moderngl.TRIANGLES)
             ctx.disable(moderngl.CULL_FACE)
 
     def _still_target_for(self, which: str, w: int, h: int, pbr: bool, samples: int = 0) -> _StillTarget:
@@ -1022,8 +1144,10 @@ class Renderer:
         return t
 
     def _lighting_pass(self, inputs: _FrameInputs, camera: Camera, view_proj: np.ndarray, vp_bytes: bytes,
-                       timer: StageTimer, oracle: moderngl.TextureArray | None = None) -> float:
-        """One view's background, then per covered pixel c = sum_i VIS_i * PEM_i (lighting.frag), into
+                       timer: StageTimer, oracle: moderngl.TextureArray | None = None, variant: int = 0,
+                       background: bool = True) -> float:
+        """One view's background (`background` False: none, a layer behind sheer cloth or one that
+        sheer cloth will blend under), then per covered pixel c = sum_i VIS_i * PEM_i (lighting.frag), into
         inputs.fbo. Binds what the light plan and the shadow pass made and dispatches; plans nothing.
         Returns the contact search's distance in world units (0: none)."""
         gl, ctx = self.gl, self.gl.ctx
@@ -1059,7 +1183,7 @@ class Renderer:
             arrays.get("sharp", shadow_maps).moments.use(location=LightingTexture.MOMENTS_SHARP)
             if lp.blocker:
                 shadow_maps.casters.use(location=LightingTexture.CASTERS)   # the penumbrae's blocker search (PENUMBRA_BLOCKER)
-            if settings.background is Background.ENVIRONMENT and settings.aa_samples == 1:
+            if background and settings.background is Background.ENVIRONMENT and settings.aa_samples == 1:
                 # (With several samples a pixel the background goes in after the edges: _edges_pass.)
                 ctx.disable(moderngl.DEPTH_TEST)
                 self._draw_background(inputs, view_proj)
@@ -1071,7 +1195,11 @@ class Renderer:
             lobes = (settings.lobes, settings.lobes if scene.has_sheen else 0) if scene.has_pbr else None
             catcher = settings.background is Background.SHADOW_CATCHER
             p, vao = self._shade_variant(settings.mode, settings.diffuse, n > REGIONS_PER_TEXTURE, settings.glossy,
-                                         contact, discs, lobes, lp.blocker, oracle is not None, catcher)
+                                         contact, discs, lobes, lp.blocker, oracle is not None, catcher,
+                                         scene.has_sheets and ("transmission" if scene.transmits else "sheer"))
+            if scene.has_sheets:
+                p["u_sheets"].write(scene.sheets(variant))
+                set_uniform(p, "u_group_alpha", scene.group_alpha())
             if catcher:
                 set_uniform(p, "u_catcher_id", float(scene.catcher + 1))
             if oracle is not None:

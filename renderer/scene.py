@@ -13,7 +13,7 @@ import numpy as np
 
 from .errors import MeshError
 from .gpu.context import GLContext
-from .gpu.contract import GeometryTexture, NormalsBuffer
+from .gpu.contract import MAX_SHEET_MESHES, GeometryTexture, NormalsBuffer
 from .gpu.shaders import set_uniform
 from .mesh import FALLBACK_NORMAL, Mesh, box, box_corners, vertex_normals
 from .shading.material import MAP_NAMES, Material, TextureSet
@@ -379,6 +379,17 @@ class TexturePart:
         self.ibo = ibo   # owned here unless it is the mesh's own (one part)
         self.n_faces = n_faces
         self.vao = ctx.vertex_array(program, attributes, index_buffer=ibo, index_element_size=4, skip_errors=True)
+        self._ctx, self._attributes, self._other_vaos = ctx, attributes, {}
+
+    def vao_for(self, program) -> moderngl.VertexArray:
+        """The part's vertex array for a variant of the geometry pass's program (its own, or one made
+        once for another: the layers behind sheer cloth, renderer.py _sheer_layers)."""
+        if program.glo == self.vao.program.glo:
+            return self.vao
+        if program.glo not in self._other_vaos:
+            self._other_vaos[program.glo] = self._ctx.vertex_array(program, self._attributes, index_buffer=self.ibo,
+                                                                   index_element_size=4, skip_errors=True)
+        return self._other_vaos[program.glo]
 
     def _texture(self, ctx, data, comps, default):
         if data is None:
@@ -407,8 +418,9 @@ class TexturePart:
                 program[f"u_{name}_placement"].write(placement)
 
     def release(self, own_ibo: bool) -> None:
-        for obj in (self.vao, *self.textures, *((self.ibo,) if own_ibo else ())):
+        for obj in (self.vao, *self._other_vaos.values(), *self.textures, *((self.ibo,) if own_ibo else ())):
             obj.release()
+        self._other_vaos = {}
 
 
 class MaterialBuffers:
@@ -519,6 +531,10 @@ class Scene:
         for sm, m in zip(self.meshes, materials):   # every mesh checked before any is given a variant
             if m is not None:
                 sm._check_maps(m)
+                if float(m.alpha) != float(sm.material.alpha):
+                    raise MeshError(f"a colourway keeps its fabric's open weave: mesh {sm.index}'s alpha is "
+                                    f"{float(sm.material.alpha):g}, the colourway's {float(m.alpha):g} (the shadow "
+                                    "maps, which every colourway shares, are drawn through it)")
         for sm, m in zip(self.meshes, materials):
             sm.add_variant(m)
         self._shading_needs()
@@ -539,6 +555,34 @@ class Scene:
         self.has_sheen = any(m.has_sheen() for m in materials)
         self.max_glossiness = max(m.max_glossiness() for m in materials)
         self.has_glossy_lobe = any(m.has_glossy_lobe() for m in materials)
+        # Sheer or transmitting cloth anywhere (Material.alpha, .transmission): the lighting pass's
+        # variant that reads each mesh's pair, and for sheer cloth the layers seen through it.
+        self.has_sheets = any(m.is_sheer or m.transmits for m in materials)
+        self.sheer = any(m.is_sheer for m in materials)
+        self.transmits = any(m.transmits for m in materials)
+        if self.has_sheets and any(m.is_sheer or m.transmits for sm in self.meshes[MAX_SHEET_MESHES:]
+                                   for m in (mb.material for mb in sm.variants)):
+            raise MeshError(f"sheer or transmitting materials are drawn on a scene's first {MAX_SHEET_MESHES} "
+                            "meshes; put those meshes first")
+
+    def group_alpha(self) -> tuple[float, float]:
+        """Each shadow group's casters' alpha (the largest of its casters': a group whose casters
+        differ is as opaque as its most opaque), which scales the occlusion its maps give (vsm.glsl)."""
+        out = [1.0, 1.0]
+        for g in (0, 1):
+            alphas = [float(sm.material.alpha) for sm in self.meshes if sm.caster and sm.group == g]
+            out[g] = max(alphas) if alphas else 1.0
+        return out[0], out[1]
+
+    def sheets(self, variant: int = 0) -> bytes:
+        """(alpha, transmission) of each of the first MAX_SHEET_MESHES meshes in material variant
+        `variant`, float32 pairs (the lighting pass's u_sheets; (1, 0) past the scene's meshes)."""
+        out = np.zeros((MAX_SHEET_MESHES, 2), np.float32)
+        out[:, 0] = 1.0
+        for sm in self.meshes[:MAX_SHEET_MESHES]:
+            m = sm.variants[variant].material
+            out[sm.index] = (float(m.alpha), float(m.transmission))
+        return out.tobytes()
 
     def set_positions(self, positions: list[np.ndarray | None], normals: list[np.ndarray | None] | None = None):
         self.gl.check_thread()

@@ -462,7 +462,7 @@ class SceneInfo(BaseModel):
                           "GARMENT_RENDER_MAX_SHADOW_MAP_BYTES), the render targets and the PEM set")
     fabrics: list[str] = Field([], description="the fabrics its meshes and colourways name")
     material_notes: list[str] = Field([], description="what of its fabrics the renderer does not carry yet "
-                                      "(alpha, transmission, anisotropy, ...), each naming its mesh or colourway")
+                                      "(textured alpha, clear coat, displacement, ...), each naming its mesh or colourway")
 
 
 class FrameImage(BaseModel):

@@ -37,14 +37,14 @@ SIZE = 128
 REFUSE_S = 2.0
 
 
-def checker_fabric(a=(230, 30, 30), b=(20, 20, 20), square_mm=100.0, alpha=1.0, name="check") -> bytes:
+def checker_fabric(a=(230, 30, 30), b=(20, 20, 20), square_mm=100.0, clearcoat=0.0, name="check") -> bytes:
     """A .u3ma whose front's base colour is a 2 x 2 checker of sRGB colours `a` and `b`, squares of
-    `square_mm`; `alpha` other than 1 is a field the renderer does not carry yet."""
+    `square_mm`; a `clearcoat` other than 0 is a field the renderer does not carry yet."""
     y, x = np.mgrid[:64, :64] // 32
     pixels = np.where(((x + y) % 2 == 0)[..., None], np.uint8(a), np.uint8(b)).astype(np.uint8)
     front = visualisation("1.1", basecolor=color(texture=color_texture(image("check.png", "1.1", 2 * square_mm,
                                                                                 2 * square_mm))),
-                          roughness=scalar(0.8), alpha=scalar(alpha))
+                          roughness=scalar(0.8), clearcoat_value=scalar(clearcoat))
     return u3ma_bytes(document("1.1", front, name=name), {"check.png": encode(pixels)})
 
 
@@ -139,13 +139,13 @@ def test_upload_list_describe_and_delete(http):
 
 
 def test_a_scene_with_a_fabric_shows_its_texture_and_keeps_it(http, env_id, mesh):
-    fabric = upload(http, checker_fabric(alpha=0.5)).json()["id"]
+    fabric = upload(http, checker_fabric(clearcoat=0.5)).json()["id"]
     r = http.post("/scenes", json=fabric_scene(env_id, mesh, fabric))
     assert r.status_code == 201, r.text
     scene = r.json()
     assert scene["fabrics"] == [fabric]
     # What the renderer does not carry is said, naming the mesh and the fabric.
-    assert any(n.startswith(f"garment ({fabric}): alpha") for n in scene["material_notes"]), scene["material_notes"]
+    assert any(n.startswith(f"garment ({fabric}): clearcoat_value") for n in scene["material_notes"]), scene["material_notes"]
     textured = frame(http, scene["id"], mesh)
     # The same garment in the checker's mean colour, plain: its picture has no edges of its own.
     mean = (np.array([230, 30, 30]) / 255.0) ** 2.2 * 0.5 + (20 / 255.0) ** 2.2 * 0.5

@@ -4,10 +4,10 @@ reference and against the same fabric without its textures (its plain twin).
 Five fabrics of our own making, written as U3M 1.1 archives (renderer/u3m/write.py) and read back as
 a user's would be (`load_u3m`, `material_from_u3m`): a print (a 12 cm colour repeat), a denim twill (a
 2/1 twill's indigo yarns and its relief as a normal map, on an 8 mm tile), a satin (smooth, a light
-sheen, anisotropic: its highlight stretched along the dress's u), a voile (pale, sheer in its
-document) and a velvet (a full sheen). What the renderer does not carry yet (the voile's alpha and
-transmission) is listed per fabric; the reference renders the same Material (the satin's anisotropic
-GGX exactly), so the error is the method's on what is carried. Each fabric's plain twin has its mean
+sheen, anisotropic: its highlight stretched along the dress's u), a voile (pale, sheer: alpha 0.35,
+transmission 0.5, the body seen through it) and a velvet (a full sheen). What the renderer does not
+carry is listed per fabric; the reference renders the same Material (the satin's anisotropic GGX, the
+voile's layers and transmission exactly), so the error is the method's on what is carried. Each fabric's plain twin has its mean
 colour and its constants (the satin's anisotropy among them) and no texture: the ratio of the two is
 the textures' own cost and error.
 

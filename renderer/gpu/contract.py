@@ -45,6 +45,7 @@ class LightingTexture(IntEnum):
     G_PBR = 13              # metallic, roughness, sheen roughness
     CASTERS = 14            # the main maps' caster share per group (blocker search)
     ORACLE = 15             # exact visibility per pixel and light (the error split's oracle)
+    UNDER_LAYER = 18        # a layer seen through sheer cloth, blended under the image (shading/under.frag)
 
 
 # The geometry pass's targets as LightingTexture binds them, in the order the geometry pass writes them.
@@ -59,6 +60,8 @@ class GeometryTexture(IntEnum):
     GLOSS_MAP = 4
     NORMAL_MAP = 5
     SHEEN_MAP = 6
+    PEEL_DEPTH = 16         # a layer behind sheer cloth: the last layer's depth (renderer.py, _sheer_layers)
+    PEEL_OPACITY = 17       # ... and the image so far, whose alpha says where light still comes through
 
 
 class EdgeTexture(IntEnum):
@@ -135,6 +138,14 @@ CONVEX_SURFACE = 4
 # ... and, in multiples of this, the mesh's place in the scene plus one (0: no surface; the `id` pass,
 # renderer/aovs.py): w = group + CONVEX_SURFACE (convex) + MESH_ID_STRIDE * (mesh + 1).
 MESH_ID_STRIDE = 8
+# Sheer or transmitting cloth (Material.alpha, .transmission): the lighting pass reads each mesh's pair
+# by its id, for a scene's first this many meshes (renderer.py, _sheets; a scene whose later meshes are
+# sheer is refused).
+MAX_SHEET_MESHES = 64
+# How many surfaces a pixel shows through sheer cloth: the nearest and those behind it (a skirt's front,
+# its inside at the back, what is behind the skirt); the share of light still coming through after the
+# last is the background's (renderer.py, _sheer_layers).
+SHEER_LAYERS = 3
 
 # The wide-lobe rule (shading/discs.glsl, wide_lobe; renderer.light_kinds): a lobe of variance 1 / s is
 # wider than a disc of angular radius a where 1 / s >= WIDE_LOBE_DISC_VARIANCE * a^2 (the disc's own
@@ -156,5 +167,6 @@ def glsl_defines() -> dict[str, str]:
     out["N_LIGHT_KINDS"] = str(N_LIGHT_KINDS)
     out["CONVEX_SURFACE"] = str(CONVEX_SURFACE)
     out["MESH_ID_STRIDE"] = str(MESH_ID_STRIDE)
+    out["MAX_SHEET_MESHES"] = str(MAX_SHEET_MESHES)
     out["WIDE_LOBE_DISC_VARIANCE"] = repr(float(WIDE_LOBE_DISC_VARIANCE))
     return out

@@ -88,6 +88,11 @@ RAYS_PER_CHUNK = 1 << 18
 # Shadow-ray origin offset along the geometric normal, relative to the scene's bounding radius.
 # embree works in float32 (after trimesh rescales the scene to a ~100-unit box): ~1e-7 relative.
 SHADOW_EPS_REL = 1e-4
+# Sheer cloth (Material.alpha < 1): a primary ray goes on through at most this many sheets, and no
+# further once the share of it left is below MIN_RAY_SHARE (what it would see beyond is then added as
+# the environment's); a shadow ray, through at most MAX_LAYERS sheets (then: blocked).
+MAX_LAYERS = 16
+MIN_RAY_SHARE = 1e-6
 # Glossiness closer to 1 than this is the mirror (s > 1e7: a lobe ~0.03 degrees wide, far inside any texel).
 MIRROR_ONE_MINUS_G = 1e-7
 
@@ -157,7 +162,7 @@ def render_reference(meshes: list[Mesh], materials: list[Material], cube: np.nda
     sampler = EnvironmentSampler(cube)
 
     centre, radius = bounds_sphere(*bounds(meshes))
-    tracer = _ShadowTracer(scene.intersector, SHADOW_EPS_REL * radius, occlusion)
+    tracer = _ShadowTracer(scene.intersector, SHADOW_EPS_REL * radius, occlusion, scene.face_alpha)
     n_px, strata = width * height, k * k
     per_stratum, batches = sample_counts(spp, k, batches)
     slots = stratum_slots(seed, batches, n_px, strata) if strata > 1 else None
@@ -168,17 +173,36 @@ def render_reference(meshes: list[Mesh], materials: list[Material], cube: np.nda
     sums = np.zeros((batches, n_px, 3))   # per batch and pixel: the sum over its strata of their batch sums
     exact = np.zeros((n_px, 3))           # the sum over the strata of their mirror terms
     background = np.zeros((n_px, 3))      # the sum over the strata that miss of L along their rays
+    opacity = np.zeros(n_px)              # the sum over the strata of the share of their ray the meshes stop
     for s in range(strata):
         origins, dirs = primary_rays(camera, width, height, centre, radius,
                                      stratum_positions(width, height, k, s, seed))
-        tri = scene.intersector.intersects_first(origins, dirs)
-        hit = tri >= 0
-        idx = np.flatnonzero(hit)
-        surf = _surface(scene, tri[hit], origins[hit], dirs[hit])
-        exact[idx] += _integrate(sampler, tracer, surf, per_stratum, batches, seed, sums, idx, strata,
-                                 None if slots is None else slots[:, idx, s], () if strata == 1 else (strata, s))
-        background[~hit] += sampler.radiance(dirs[~hit])
-        edges.add(idx, scene.face_mesh[tri[hit]], surf.x, surf.n_geom)
+        live, weight = np.arange(n_px), np.ones(n_px)   # the rays still going on, the share of each left
+        for layer in range(MAX_LAYERS):
+            tri = scene.intersector.intersects_first(origins, dirs)
+            hit = tri >= 0
+            idx = live[hit]
+            surf = _surface(scene, tri[hit], origins[hit], dirs[hit])
+            alpha = scene.face_alpha[tri[hit]]
+            seen = weight[hit] * alpha            # the share of the ray this layer's fibres stop
+            exact[idx] += seen[:, None] * _integrate(
+                sampler, tracer, surf, per_stratum, batches, seed, sums, idx, strata,
+                None if slots is None else slots[:, idx, s], (() if strata == 1 else (strata, s)) + _layer(layer),
+                seen)
+            opacity[idx] += seen
+            background[live[~hit]] += weight[~hit, None] * sampler.radiance(dirs[~hit])
+            if layer == 0:
+                edges.add(idx, scene.face_mesh[tri[hit]], surf.x, surf.n_geom)
+            # Through the open weave: on from behind the sheet, with the share the fibres left.
+            on = np.flatnonzero(weight[hit] * (1.0 - alpha) > MIN_RAY_SHARE)
+            if on.size == 0:
+                break
+            origins = surf.x[on] - tracer.eps * surf.n_geom[on]
+            dirs = dirs[hit][on]
+            weight = weight[hit][on] * (1.0 - alpha[on])
+            live = idx[on]
+        else:   # the share still going after MAX_LAYERS sheets: what it would see beyond them
+            background[live] += weight[:, None] * sampler.radiance(dirs)
 
     mean, std = _pixel_estimate(sums, per_stratum, strata)
     if exact.any():
@@ -187,7 +211,7 @@ def render_reference(meshes: list[Mesh], materials: list[Material], cube: np.nda
     std[~covered] = 0.0   # the background's L is exact (a pixel with one batch has std NaN)
     foreground = np.zeros((n_px, 4), np.float32)
     foreground[:, :3] = mean
-    foreground[:, 3] = edges.hits / strata
+    foreground[:, 3] = opacity / strata
     image = foreground.copy()
     image[:, :3] = mean + background / strata
     frames = tuple(a.reshape(height, width, -1) for a in (image, std.astype(np.float32), foreground))
@@ -197,6 +221,11 @@ def render_reference(meshes: list[Mesh], materials: list[Material], cube: np.nda
     image, noise, foreground = frames
     return ReferenceFrame(image, noise, per_stratum * strata, int(strata * n_px + tracer.rays_cast),
                           time.perf_counter() - t0, foreground, edge, k)
+
+
+def _layer(layer: int) -> tuple:
+    """Words appended to a chunk's seed for the sheets behind the first (none for the first)."""
+    return () if layer == 0 else (1 << 20, layer)
 
 
 def primary_rays(camera: Camera, width: int, height: int, centre: np.ndarray, radius: float,
@@ -249,6 +278,17 @@ class _SceneArrays:
     back: tuple = ()
     # Per texture part: its material's anisotropy_rotation, in turns (Material; 0 where isotropic).
     anisotropy_rotations: tuple = ()
+    # Per triangle: its sheet's alpha and transmission (Material: the front's, both sides').
+    face_alpha: np.ndarray | None = None
+    face_transmission: np.ndarray | None = None
+
+    @property
+    def sheer(self) -> bool:
+        return bool((self.face_alpha < 1.0).any())
+
+    @property
+    def transmits(self) -> bool:
+        return bool((self.face_transmission > 0.0).any())
 
     @classmethod
     def build(cls, meshes: list[Mesh], materials: list[Material]) -> _SceneArrays:
@@ -260,7 +300,7 @@ class _SceneArrays:
             raise InvalidInputError(f"need one material per mesh; got {len(meshes)} meshes, {len(materials)} materials")
         pos, faces, nrm, alb, mat, uvs, face_mesh, maps, pbr, sheen = [], [], [], [], [], [], [], [], [], []
         normal_maps, face_part, pbr_parts, placements, rotations = [], [], [], [], []
-        face_part_back, back_arrays = [], []
+        face_part_back, back_arrays, face_alpha, face_transmission = [], [], [], []
         offset = 0
         for i, (mesh, material) in enumerate(zip(meshes, materials)):
             if not isinstance(mesh, Mesh) or not isinstance(material, Material):
@@ -293,6 +333,8 @@ class _SceneArrays:
             mat.append(m)
             uvs.append(mesh.uvs if mesh.uvs is not None else np.zeros((n, 2), np.float32))
             face_mesh.append(np.full(mesh.n_faces, i, np.int64))
+            face_alpha.append(np.full(mesh.n_faces, float(material.alpha)))
+            face_transmission.append(np.full(mesh.n_faces, float(material.transmission)))
             offset += n
         positions = np.concatenate(pos).astype(np.float64)
         faces = np.concatenate(faces)
@@ -308,7 +350,8 @@ class _SceneArrays:
         return cls(positions, faces, cat(nrm), *front_arrays, cat(uvs),
                    np.concatenate(face_mesh), tuple(maps), RayMeshIntersector(tm),
                    tuple(pbr_parts), tuple(normal_maps), np.concatenate(face_part), tuple(placements),
-                   np.concatenate(face_part_back), backs, tuple(rotations))
+                   np.concatenate(face_part_back), backs, tuple(rotations), np.concatenate(face_alpha),
+                   np.concatenate(face_transmission))
 
 
 @dataclass
@@ -326,6 +369,7 @@ class _Surface:
     pbr: np.ndarray | None = None     # (N, 4) metallic, roughness, sheen roughness, 1 + anisotropy (0: Phong)
     sheen: np.ndarray | None = None   # (N, 3) sheen colour
     tangent: np.ndarray | None = None  # (N, 3) the anisotropy's direction (Material.anisotropy_rotation)
+    transmission: np.ndarray | None = None  # (N,) the sheet's transmission (None: no sheet here transmits)
 
 
 def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np.ndarray) -> _Surface:
@@ -393,8 +437,9 @@ def _surface(scene: _SceneArrays, tri: np.ndarray, origins: np.ndarray, dirs: np
     if (pbr[:, 3] > 1.0).any():
         turns = np.asarray(scene.anisotropy_rotations, np.float64)[part_of]
         tangent = anisotropy_direction(n, e1, e2, scene.uvs[f], turns)
+    transmission = scene.face_transmission[tri] if scene.transmits else None
     return _Surface(x, n, n_geom, r, albedo, material[:, 0], np.clip(material[:, 1], 0.0, 1.0), -dirs,
-                    pbr, sheen, tangent)
+                    pbr, sheen, tangent, transmission)
 
 
 # Where a surface has no UV gradient (a mesh without UVs), an anisotropy's direction starts from the
@@ -465,30 +510,63 @@ def _texture_bilinear(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 
 class _ShadowTracer:
-    """V(x, w) by any-hit queries; counts the rays it casts."""
+    """V(x, w): by any-hit queries where every sheet is opaque; where some is sheer, the product of
+    (1 - alpha) over the sheets the ray crosses (closest-hit queries, sheet after sheet, at most
+    MAX_LAYERS). Counts the rays it casts."""
 
-    def __init__(self, intersector, eps: float, occlusion: bool = True):
+    def __init__(self, intersector, eps: float, occlusion: bool = True, face_alpha: np.ndarray | None = None):
         self.intersector, self.eps, self.occlusion, self.rays_cast = intersector, eps, occlusion, 0
+        self.face_alpha = face_alpha if face_alpha is not None and (face_alpha < 1.0).any() else None
 
-    def visible(self, x: np.ndarray, n_geom: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """bool (M,): w lies on the seen side of the surface (n_geom faces the camera) and the ray
-        from x, offset to that side, escapes. A direction behind the triangle's own plane goes
-        through the (opaque) sheet: no ray is cast. Without occlusion, every direction is visible."""
+    def visible(self, x: np.ndarray, n_geom: np.ndarray, w: np.ndarray, behind: bool = False) -> np.ndarray:
+        """(M,): w lies on the side of the surface n_geom faces (the other side with `behind`: the
+        light a sheet's fibres pass on) and the ray from x, offset to that side, escapes: bool, or
+        float where a sheet is sheer (the share of it that does). A direction on the sheet's other
+        side goes through the sheet itself: no ray is cast (its fibres' share: `alpha` of the caller).
+        Without occlusion, every direction is visible."""
         if not self.occlusion:
             return np.ones(len(w), bool)
-        vis = np.zeros(len(w), bool)
-        front = np.flatnonzero(_dot(n_geom, w) > 0.0)
+        side = -1.0 if behind else 1.0
+        vis = np.zeros(len(w), bool if self.face_alpha is None else np.float64)
+        front = np.flatnonzero(side * _dot(n_geom, w) > 0.0)
         if front.size:
-            self.rays_cast += front.size
-            vis[front] = ~self.intersector.intersects_any(x[front] + self.eps * n_geom[front], w[front])
+            origins = x[front] + (side * self.eps) * n_geom[front]
+            if self.face_alpha is None:
+                self.rays_cast += front.size
+                vis[front] = ~self.intersector.intersects_any(origins, w[front])
+            else:
+                vis[front] = self._transmittance(origins, w[front])
         return vis
+
+    def _transmittance(self, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+        share = np.ones(len(dirs))
+        live = np.arange(len(dirs))
+        for _ in range(MAX_LAYERS):
+            self.rays_cast += live.size
+            tri, ray, where = self.intersector.intersects_id(origins, dirs, multiple_hits=False,
+                                                             return_locations=True)
+            if ray.size == 0:
+                return share
+            share[live[ray]] *= 1.0 - self.face_alpha[tri]
+            on = np.flatnonzero(share[live[ray]] > 0.0)
+            if on.size == 0:
+                return share
+            ray, tri = ray[on], tri[on]
+            live = live[ray]
+            dirs = dirs[ray]
+            origins = where[on] + self.eps * dirs
+        share[live] = 0.0
+        return share
 
 
 def _integrate(sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: _Surface, spp: int, batches: int,
                seed: int, sums: np.ndarray, pixel: np.ndarray, strata: int = 1,
-               slots: np.ndarray | None = None, stream: tuple = ()) -> np.ndarray:
-    """spp samples at each of one stratum's N hits (surf): adds each batch's sum of a hit's samples to
-    sums[batch, pixel[hit]] (sums (B, pixels, 3)) and returns the hits' exact mirror terms (N, 3).
+               slots: np.ndarray | None = None, stream: tuple = (), weight: np.ndarray | None = None) -> np.ndarray:
+    """spp samples at each of one stratum's N hits (surf): adds each batch's sum of a hit's samples,
+    times its weight (N,) (the share of its ray the hit's fibres stop; None: 1), to
+    sums[batch, pixel[hit]] (sums (B, pixels, 3)) and returns the hits' exact mirror terms (N, 3),
+    unweighted. A sheet that transmits reflects (1 - transmission) of its model's light and adds
+    what its fibres pass on from behind (`_sample_transmitted`).
     slots: uint8 (B, N), each hit's block of its pixel's `strata` x n_b stratified slots per batch
     (None with one stratum); stream: words appended to every chunk's seed (the stratum's)."""
     n_px = len(surf.x)
@@ -531,7 +609,10 @@ def _integrate(sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: _Surfac
                     if physical.size:
                         est[physical] = _sample_chunk_pbr(sampler, tracer, surf, pbr, pix[physical], rng,
                                                           u_texel[physical], u_lobe[physical])
-                sums[b, pixel[p0:p1]] += est.reshape(n_j, p1 - p0, 3).sum(axis=0)
+                if surf.transmission is not None:
+                    est = _with_transmitted(est, sampler, tracer, surf, pix, rng, u_texel, u_lobe)
+                sum_j = est.reshape(n_j, p1 - p0, 3).sum(axis=0)
+                sums[b, pixel[p0:p1]] += sum_j if weight is None else weight[p0:p1, None] * sum_j
 
     exact = np.zeros((n_px, 3))
     if mirror.any():  # deterministic: no variance
@@ -539,7 +620,43 @@ def _integrate(sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: _Surfac
         w = surf.r[idx]
         vis = tracer.visible(surf.x[idx], surf.n_geom[idx], w)
         exact[idx] = surf.specular[idx, None] * sampler.radiance(w) * vis[:, None]
+        if surf.transmission is not None:
+            exact[idx] *= (1.0 - surf.transmission[idx])[:, None]
     return exact
+
+
+def _with_transmitted(est: np.ndarray, sampler: EnvironmentSampler, tracer: _ShadowTracer, surf: _Surface,
+                      pix: np.ndarray, rng: np.random.Generator, u_texel: np.ndarray,
+                      u_lobe: np.ndarray) -> np.ndarray:
+    """est (the reflected light's samples) times (1 - transmission), plus one sample of the light the
+    fibres pass on: transmission x base x integral over the sheet's other side of L(w) V(x, w)
+    max(0, -n.w) / pi dw (base: the albedo, x (1 - metallic) for a physically based pixel), by an
+    environment sample and a cosine-weighted one about -n, combined by the power heuristic."""
+    t = surf.transmission[pix]
+    out = est * (1.0 - t)[:, None]
+    idx = np.flatnonzero(t > 0.0)
+    if idx.size == 0:
+        return out
+    p = pix[idx]
+    tint = surf.albedo[p] * t[idx, None]
+    if surf.pbr is not None:
+        tint = np.where((surf.pbr[p, 3] > 0.5)[:, None], tint * (1.0 - np.clip(surf.pbr[p, :1], 0.0, 1.0)), tint)
+    back, x, ng = -surf.n[p], surf.x[p], surf.n_geom[p]
+    w, p_env = sampler.sample(idx.size, rng, u_texel[idx])
+    radiance = sampler.radiance(w)
+    q = np.maximum(_dot(back, w), 0.0) / np.pi
+    need = (q > 0.0) & (radiance.max(axis=1) > 0.0)
+    sel = np.flatnonzero(need)
+    vis = tracer.visible(x[sel], ng[sel], w[sel], behind=True)
+    out[idx[sel]] += (radiance[sel] * tint[sel] * (q[sel] * p_env[sel] / (p_env[sel] ** 2 + q[sel] ** 2)
+                                                   * vis)[:, None])
+    w, q = _sample_cosine(back, rng, u_lobe[idx])
+    radiance, p_env = sampler.radiance_pdf(w)
+    need = (q > 0.0) & (radiance.max(axis=1) > 0.0)
+    sel = np.flatnonzero(need)
+    vis = tracer.visible(x[sel], ng[sel], w[sel], behind=True)
+    out[idx[sel]] += radiance[sel] * tint[sel] * (q[sel] ** 2 / (q[sel] ** 2 + p_env[sel] ** 2) * vis)[:, None]
+    return out
 
 
 def _pixel_estimate(sums: np.ndarray, spp: int, strata: int) -> tuple[np.ndarray, np.ndarray]:
@@ -740,12 +857,16 @@ def _basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _add_visible(est, need, tracer, x, ng, w, value, idx=None) -> None:
-    """est[idx][need] += value[need] where the shadow ray escapes."""
+    """est[idx][need] += value[need] times the share of the shadow ray that escapes."""
     sel = np.flatnonzero(need)
     vis = tracer.visible(x[sel], ng[sel], w[sel])
-    sel = sel[vis]
-    target = sel if idx is None else idx[sel]
-    est[target] += value[sel]  # one entry per pixel-sample: indices are unique
+    if vis.dtype == bool:
+        sel = sel[vis]
+        target = sel if idx is None else idx[sel]
+        est[target] += value[sel]  # one entry per pixel-sample: indices are unique
+    else:
+        target = sel if idx is None else idx[sel]
+        est[target] += value[sel] * vis[:, None]
 
 
 def _phong_lobe(cos_r: np.ndarray, s: np.ndarray) -> np.ndarray:

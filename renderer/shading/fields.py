@@ -78,6 +78,13 @@ FIELDS = (
     MaterialField("anisotropy_rotation", "number", 0.0, -1.0, 1.0, ("pbr",), False,
                   "that direction, in turns counter-clockwise from the mesh's growing u towards its growing v "
                   "(a mesh without UVs: from the up axis)"),
+    MaterialField("alpha", "number", 1.0, 0.0, 1.0, MODELS, False,
+                  "the share of the cloth's area that is fibre (U3M's alpha): light and sight pass the rest "
+                  "straight, a voile's or a mesh's open weave (1: opaque)"),
+    MaterialField("transmission", "number", 0.0, 0.0, 1.0, MODELS, False,
+                  "the share of the light reaching the fibres that they pass on diffusely to the other side, "
+                  "tinted by the base colour (U3M's transmission): a thin fabric glowing against the light "
+                  "(0: none)"),
 )
 BY_NAME = {f.name: f for f in FIELDS}
 

@@ -162,6 +162,13 @@ class Material:
     sqrt(1 - 0.9 a), alpha_b = alpha sqrt(1 - 0.9 a)); anisotropy_rotation: that direction, in turns
     (1 = 360 degrees, U3M's unit) counter-clockwise from the direction of growing u towards growing v
     (the mesh's own UVs; a mesh without UVs: from the world's up axis projected onto the surface).
+    alpha: the share of the cloth's area that is fibre, in [0, 1] (U3M's alpha; 1: opaque): light and
+    sight pass the rest (1 - alpha) straight, the open weave of a voile or a mesh. transmission: the
+    share of the light reaching the fibres that they pass on diffusely to the other side, in [0, 1]
+    (U3M's transmission): a fibre reflects (1 - transmission) of what the model above says and passes
+    on transmission x its base colour (the albedo; x (1 - metallic) for "pbr") of the light from behind,
+    Lambertian about the other side's normal (a thin sheet: renderer/reference/montecarlo.py). Both
+    belong to the sheet, not to a side: a back's own are not read.
     back: the material of the cloth's other side (a fabric's back, U3M's back visualisation), of the
     same model, itself without a back; None: both sides alike. The front is the side a triangle's
     winding faces (counter-clockwise as seen, the side its normal points to): each pixel takes the
@@ -186,10 +193,12 @@ class Material:
     texture_set: np.ndarray | None = None
     anisotropy: float = 0.0
     anisotropy_rotation: float = 0.0
+    alpha: float = 1.0
+    transmission: float = 0.0
     back: Material | None = None
 
     def __post_init__(self):
-        for name in ("anisotropy", "anisotropy_rotation"):   # the registry's scalar-only fields
+        for name in ("anisotropy", "anisotropy_rotation", "alpha", "transmission"):   # the registry's scalar-only fields
             fields.BY_NAME[name].check(getattr(self, name))
         if float(self.anisotropy) > 0.0 and self.model != "pbr":
             raise InvalidInputError("anisotropy belongs to the pbr model's GGX layer, not phong")
@@ -257,6 +266,16 @@ class Material:
     def sides(self) -> tuple[Material, ...]:
         """The material of each side it draws: itself, and its back when it has one."""
         return (self,) if self.back is None else (self, self.back)
+
+    @property
+    def is_sheer(self) -> bool:
+        """Some light and sight pass the sheet straight (alpha < 1)."""
+        return float(self.alpha) < 1.0
+
+    @property
+    def transmits(self) -> bool:
+        """The fibres pass light on to the other side (transmission > 0)."""
+        return float(self.transmission) > 0.0
 
     def has_sheen(self) -> bool:
         return any(m.is_pbr and bool((np.asarray(m.sheen_colour, np.float64) > 0).any()) for m in self.sides())

@@ -19,9 +19,10 @@ normal map as a tangent-space map, its U3M scale applied; sheen_value s and shee
 colour s ((1 - t) white + t tint), the tint the base colour's hue at unit luminance (the mean colour of
 a texture), with a sheen roughness of SHEEN_ROUGHNESS (U3M names none); anisotropy_value and
 anisotropy_rotation GGX's anisotropy and its direction (Material.anisotropy: turns from the UVs' u, as
-U3M 1.1 measures them). What the model does not carry
-yet (alpha, transmission, clearcoat, displacement, subsurface, a specular level other than glTF's 4 %,
-a textured sheen or anisotropy, the cut edge's visualisation) is named in the warnings that come with
+U3M 1.1 measures them); alpha and transmission the sheet's (Material.alpha, .transmission: the
+outside visualisation's, for both sides). What the model does not carry
+yet (textured alpha or transmission, clearcoat, displacement, subsurface, a specular level other than
+glTF's 4 %, a textured sheen or anisotropy, the cut edge's visualisation) is named in the warnings that come with
 the material, never dropped silently. Front and back: the front's visualisation on the side the
 mesh's winding faces (its normals' side), the back's behind it (Material.back, chosen per pixel by
 the side the camera sees), the front's on both where the back is null.
@@ -188,13 +189,15 @@ def _side_material(u3m: U3MMaterial, face: Face, mesh: Mesh, scale: tuple[float,
         sheen_colour = tuple(float(c) for c in np.clip(s * ((1.0 - tint) + tint * hue), 0.0, 1.0))
 
     anisotropy, rotation = _constants(vis, ("anisotropy_value", "anisotropy_rotation"), warnings)
+    alpha, transmission = _constants(vis, ("alpha", "transmission"), warnings)
     if anisotropy > 1.0:
         warnings.append(f"anisotropy_value: {anisotropy:g} is beyond the renderer's 1 (the most stretched "
                         "highlight); 1 is used")
     return Material(albedo, model="pbr", metallic=float(np.clip(metallic, 0, 1)),
                     roughness=float(np.clip(roughness, 0, 1)), sheen_colour=sheen_colour,
                     sheen_roughness=SHEEN_ROUGHNESS, anisotropy=float(np.clip(anisotropy, 0.0, 1.0)),
-                    anisotropy_rotation=float(rotation), texture_sets=(TextureSet(**sets),),
+                    anisotropy_rotation=float(rotation), alpha=float(np.clip(alpha, 0.0, 1.0)),
+                    transmission=float(np.clip(transmission, 0.0, 1.0)), texture_sets=(TextureSet(**sets),),
                     texture_set=np.zeros(mesh.n_vertices, np.int32))
 
 
@@ -215,9 +218,7 @@ def _not_carried(u3m: U3MMaterial, vis: Visualisation, face, others: bool = True
         field = getattr(vis, name)
         return not isinstance(field, ScalarConstant) or abs(field.value - default) > 1e-6
 
-    for name, default, what in (("alpha", 1.0, "the fabric is drawn opaque"),
-                                ("transmission", 0.0, "no light passes through"),
-                                ("clearcoat_value", 0.0, "no clear coat"),
+    for name, default, what in (("clearcoat_value", 0.0, "no clear coat"),
                                 ("subsurface_value", 0.0, "no subsurface scattering"),
                                 ("specular_value", GLTF_SPECULAR_VALUE, "glTF's 4 % reflectance is used")):
         if off(name, default):

@@ -38,6 +38,14 @@ uniform float u_shadow_group;   // the mesh's shadow group (renderer/scene.py): 
 uniform float u_mesh_id;        // the mesh's place in the scene plus one (the id pass: renderer/aovs.py)
 uniform bool u_convex_surface;  // the mesh bounds a convex volume (renderer/scene.py, SceneMesh.convex)
 
+#ifdef PEEL
+// A layer behind sheer cloth (renderer.py, _sheer_layers): the nearest surface behind the last layer
+// drawn (its depth in u_peel_depth) where that layer let light through (the image so far is not yet
+// opaque there); nothing elsewhere.
+layout(binding = TEX_PEEL_DEPTH) uniform sampler2D u_peel_depth;
+layout(binding = TEX_PEEL_OPACITY) uniform sampler2D u_peel_opacity;
+#endif
+
 layout(location = 0) out vec4 o_position;   // xyz: world position; w: specular weight (>= 0; -1: no surface)
 layout(location = 1) out vec4 o_normal;     // xyz: shading normal, turned to the seen side; w: glossiness g
 layout(location = 2) out vec4 o_geometric;  // xyz: the triangle's own plane normal, facing the camera; w: shadow
@@ -105,5 +113,12 @@ void main() {
         o_normal.w = sheen_colour.g;
         o_albedo.a = sheen_colour.b;
     }
+#endif
+#ifdef PEEL
+    // At the end: the derivatives above are taken with every fragment of the quad alive. The depth
+    // buffer holds 24 bits or more: 2^-20 keeps the last layer's own surface out.
+    ivec2 px = ivec2(gl_FragCoord.xy);
+    if (gl_FragCoord.z <= texelFetch(u_peel_depth, px, 0).r + 1.0 / 1048576.0
+        || texelFetch(u_peel_opacity, px, 0).a >= 0.999) discard;
 #endif
 }

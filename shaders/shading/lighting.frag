@@ -125,6 +125,21 @@ bool g_catcher = false;
 vec3 g_free_diffuse = vec3(0.0);
 vec3 g_free_diffuse_exact = vec3(0.0);
 #endif
+#ifdef SHEETS
+// Sheer and transmitting cloth (Material.alpha, Material.transmission), per mesh: entry id - 1 of the
+// mesh's id in the geometric target's w (renderer.py, _sheets). A pixel's fibres reflect
+// (1 - transmission) of their model's light and pass on transmission x tint of the light from behind
+// the sheet (tint: the albedo, x (1 - metallic) for a physically based pixel): each light's PEM along
+// -n at the diffuse level (or its closed form about -n), its visibility at the point pushed off to
+// the sheet's other side (renderer/reference/montecarlo.py, _with_transmitted). The colour written is
+// premultiplied by alpha, alpha the share of the pixel's ray the fibres stop (the layers behind are
+// blended under it: renderer.py, _sheer_layers). The transmitted term is compiled in only where some
+// mesh transmits (TRANSMISSION): llvmpipe would run its lookups for every pixel.
+uniform vec2 u_sheets[MAX_SHEET_MESHES];
+float g_transmission = 0.0;
+vec3 g_transmitted = vec3(0.0);
+vec3 g_transmitted_exact = vec3(0.0);
+#endif
 float g_lobe_level[N_LOBES];
 float g_lobe_inv_s[N_LOBES];
 vec3 g_lobe_weight[N_LOBES];
@@ -172,9 +187,10 @@ void add_glossy(int i, vec3 pem_g[N_LOBES], bool pem_glossy, float vis, float sc
 // pem_diffuse / pem_glossy: the light's terms come from its PEMs (else in closed form); sharp: its map
 // is in the sharp array. Constants of the caller's loop (see main()).
 void add_light(int i, vec3 pem_d, vec3 pem_g[N_LOBES], vec3 n, vec3 ws_pos, bool pem_diffuse, bool pem_glossy,
-               bool sharp) {
+               bool sharp, vec3 pem_t) {
     float scale = lights[i].dir_scale.w;
     pem_d *= scale;
+    pem_t *= scale;
 #if MODE == MODE_NO_OCCLUSION
     if (!pem_diffuse) g_diffuse_exact += diffuse_from_light(i, n);
     else g_diffuse += pem_d;
@@ -214,6 +230,19 @@ void add_light(int i, vec3 pem_d, vec3 pem_g[N_LOBES], vec3 n, vec3 ws_pos, bool
                    horizon_crossing(i, n) >= horizon_crossing(i, g_geometric_normal) ? n : g_geometric_normal);
     else
         add_glossy(i, pem_g, pem_glossy, vis * above, scale, small, n);
+#ifdef TRANSMISSION
+    if (g_transmission > 0.0) {
+        // The light on the sheet's other side: its visibility there (the own group's lookup pushed
+        // off along -n), a small light's share of its disc behind the sheet's plane.
+        vec3 seen_side = g_geometric_normal;
+        g_geometric_normal = -seen_side;
+        float vis_t = visibility(i, ws_pos, -n, sharp);
+        if (small) vis_t *= disc_share_above(i, -seen_side);
+        g_geometric_normal = seen_side;
+        if (pem_diffuse) g_transmitted += vis_t * pem_t;
+        else g_transmitted_exact += vis_t * diffuse_from_light(i, -n);
+    }
+#endif
 #elif MODE == MODE_AO_GREY || MODE == MODE_AO_COLOUR
     add_light_ao(i, pem_d, pem_g, n, ws_pos, sharp, scale);   // research.glsl
 #endif
@@ -230,9 +259,14 @@ void shade_light(int i, bool pem_diffuse, bool pem_glossy, bool sharp, bool in_p
     if (!pem_diffuse) {
         vec3 l = lights[i].dir_scale.xyz;
         float sin_a = lights[i].params.w;
-        if (dot(g_geometric_normal, l) <= -sin_a && dot(n, l) <= -sin_a) return;
+        bool behind = dot(g_geometric_normal, l) <= -sin_a && dot(n, l) <= -sin_a;
+#ifdef TRANSMISSION
+        behind = behind && g_transmission <= 0.0;
+#endif
+        if (behind) return;
     }
 #endif
+    vec3 pem_t = vec3(0.0);   // the diffuse PEM along -n (a transmitting pixel's)
     vec3 pem_d = vec3(0.0);
     vec3 pem_g[N_LOBES];
     for (int k = 0; k < N_LOBES; ++k) pem_g[k] = vec3(0.0);
@@ -243,14 +277,20 @@ void shade_light(int i, bool pem_diffuse, bool pem_glossy, bool sharp, bool in_p
     if (in_pem1) {
         float layer = float(i - REGIONS_PER_TEXTURE);
         if (pem_diffuse) pem_d = textureLod(u_pem1, vec4(g_n_env, layer), u_diffuse_level).rgb;
+#ifdef TRANSMISSION
+        if (pem_diffuse && g_transmission > 0.0) pem_t = textureLod(u_pem1, vec4(-g_n_env, layer), u_diffuse_level).rgb;
+#endif
         if (pem_glossy && glossy)
             for (int k = 0; k < N_LOBES; ++k) pem_g[k] = textureLod(u_pem1, vec4(g_lobe_axis_env[k], layer), g_lobe_level[k]).rgb;
     } else {
         if (pem_diffuse) pem_d = textureLod(u_pem0, vec4(g_n_env, float(i)), u_diffuse_level).rgb;
+#ifdef TRANSMISSION
+        if (pem_diffuse && g_transmission > 0.0) pem_t = textureLod(u_pem0, vec4(-g_n_env, float(i)), u_diffuse_level).rgb;
+#endif
         if (pem_glossy && glossy)
             for (int k = 0; k < N_LOBES; ++k) pem_g[k] = textureLod(u_pem0, vec4(g_lobe_axis_env[k], float(i)), g_lobe_level[k]).rgb;
     }
-    add_light(i, pem_d, pem_g, n, ws_position, pem_diffuse, pem_glossy, sharp);
+    add_light(i, pem_d, pem_g, n, ws_position, pem_diffuse, pem_glossy, sharp, pem_t);
 }
 
 void main() {
@@ -272,6 +312,11 @@ void main() {
     int geometric_w = int(g_geo.w + 0.5) % MESH_ID_STRIDE;   // the mesh's id above it: the id pass's
 #ifdef SHADOW_CATCHER
     g_catcher = abs(floor((g_geo.w + 0.5) / float(MESH_ID_STRIDE)) - u_catcher_id) < 0.5;
+#endif
+#ifdef SHEETS
+    int mesh_id = int(floor((g_geo.w + 0.5) / float(MESH_ID_STRIDE)));
+    vec2 sheet = mesh_id >= 1 && mesh_id <= MAX_SHEET_MESHES ? u_sheets[mesh_id - 1] : vec2(1.0, 0.0);
+    g_transmission = sheet.y;
 #endif
     g_convex_surface = geometric_w >= CONVEX_SURFACE;
     g_shadow_group = g_convex_surface ? geometric_w - CONVEX_SURFACE : geometric_w;
@@ -295,6 +340,9 @@ void main() {
         g_glossy_exact[k] = vec3(0.0);
     }
     vec3 diffuse_weight = albedo;
+#ifdef TRANSMISSION
+    vec3 transmitted_tint = albedo;
+#endif
     g_lobe_level[0] = gloss_level(material.y);
     g_lobe_inv_s[0] = max(1.0 - material.y, 0.0);
     g_lobe_weight[0] = vec3(material.x);
@@ -305,6 +353,9 @@ void main() {
         // glTF metallic-roughness with sheen: albedo is the base colour; the sheen colour rides in the
         // targets' spare channels (gbuffer.frag). The normal faces the eye (lobes.glsl).
         n = facing_normal(n, to_eye);
+#ifdef TRANSMISSION
+        transmitted_tint = albedo * (1.0 - clamp(pbr.x, 0.0, 1.0));
+#endif
         pbr_anisotropy(pbr.w, g_nrm.xyz, n);
         diffuse_weight = pbr_lobes(n, to_eye, albedo, pbr.x, pbr.y, vec3(material, g_alb.a), pbr.z);
         glossy = true;
@@ -345,6 +396,9 @@ void main() {
 #ifdef SHADOW_CATCHER
     g_free_diffuse /= diffuse_norm;
 #endif
+#ifdef TRANSMISSION
+    if (g_transmission > 0.0) g_transmitted /= textureLod(u_pem_norm, vec4(-g_n_env, 0.0), u_diffuse_level).r;
+#endif
 #endif
     g_diffuse += max(g_diffuse_exact, vec3(0.0));
     for (int k = 0; k < N_LOBES; ++k) {
@@ -363,6 +417,13 @@ void main() {
     glossy_sum += g_pbr_exact;
 #endif
     vec4 color = vec4(diffuse_weight * g_diffuse + glossy_sum, 1.0);
+#ifdef TRANSMISSION
+    color.rgb = (1.0 - g_transmission) * color.rgb
+              + g_transmission * transmitted_tint * (g_transmitted + max(g_transmitted_exact, vec3(0.0)));
+#endif
+#ifdef SHEETS
+    color *= clamp(sheet.x, 0.0, 1.0);
+#endif
 #ifdef SHADOW_CATCHER
     if (g_catcher) {
         const vec3 LUMINANCE = vec3(0.2126, 0.7152, 0.0722);

@@ -31,9 +31,19 @@ vec2 moments(vec2 uv, float layer, bool sharp, bool zw, float level) {
                  : textureLod(u_moments, vec3(uv, layer + group * u_group_layers), level).xy;
 }
 
+#ifdef SHEETS
+// Each group's casters' alpha (Material.alpha; renderer/scene.py, Scene.group_alpha): sheer cloth is
+// drawn into its maps as if opaque, and stops only that share of the light it is found to block (one
+// sheet crossed; renderer/reference/montecarlo.py multiplies 1 - alpha per sheet crossed).
+uniform vec2 u_group_alpha;
+float through(float v, bool zw) { return 1.0 - (zw ? u_group_alpha.y : u_group_alpha.x) * (1.0 - v); }
+#else
+float through(float v, bool zw) { return v; }
+#endif
+
 // Chebyshev's visibility of one shadow group's pair (zw: group 1's) at receiver depth t.
 float group_visibility(vec2 uv, float layer, bool sharp, bool zw, float t, float least_variance) {
-    return chebyshev(moments(uv, layer, sharp, zw, 0.0), t, least_variance);
+    return through(chebyshev(moments(uv, layer, sharp, zw, 0.0), t, least_variance), zw);
 }
 
 #ifdef PENUMBRA_BLOCKER
@@ -69,7 +79,7 @@ float soft_visibility(vec2 uv, float layer, bool zw, float t, float least_varian
     float cf = zw ? shares.y : shares.x;
     if (cf <= 1e-3) return 1.0;
     vec2 mcf = (mf - (1.0 - cf)) / cf;
-    return (1.0 - cf) + cf * chebyshev(mcf, t, least_variance);
+    return through((1.0 - cf) + cf * chebyshev(mcf, t, least_variance), zw);
 }
 #endif
 
