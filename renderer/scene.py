@@ -360,7 +360,7 @@ class TexturePart:
     material has one set)."""
 
     def __init__(self, ctx, textures: TextureSet, is_pbr: bool, program, attributes, ibo, n_faces: int,
-                 anisotropy_rotation: float = 0.0):
+                 anisotropy_rotation: float = 0.0, front: bool = True):
         self.textures = []
         # The material's anisotropy direction, radians from growing u (Material.anisotropy_rotation).
         self.anisotropy_rotation = 2.0 * math.pi * float(anisotropy_rotation)
@@ -371,7 +371,10 @@ class TexturePart:
         self.gloss_tex = self._texture(ctx, gloss_map, 2, (0.0, 0.0))
         self.normal_tex = self._texture(ctx, normal_map, 3, (0.5, 0.5, 1.0))
         self.sheen_tex = self._texture(ctx, sheen_map, 4, (1.0, 1.0, 1.0, 1.0))
-        self.use_maps = (albedo_map is not None, gloss_map is not None, sheen_map is not None)
+        # The sheet's alpha map is its front's (TextureSet.alpha_map): a back's part reads none.
+        alpha_map = textures.alpha_texture() if front else None
+        self.alpha_tex = self._texture(ctx, alpha_map, 1, (1.0,))
+        self.use_maps = (albedo_map is not None, gloss_map is not None, sheen_map is not None, alpha_map is not None)
         # The normal map's scale of x and y; 0: no normal map.
         self.normal_scale = float(textures.normal_scale) if normal_map is not None else 0.0
         # Each map's placement as gbuffer.frag's mat3x2 (column-major: the affine map's columns).
@@ -408,10 +411,12 @@ class TexturePart:
         self.gloss_tex.use(location=GeometryTexture.GLOSS_MAP)
         self.normal_tex.use(location=GeometryTexture.NORMAL_MAP)
         self.sheen_tex.use(location=GeometryTexture.SHEEN_MAP)
+        self.alpha_tex.use(location=GeometryTexture.ALPHA_MAP)
         set_uniform(program, "u_normal_scale", self.normal_scale)
         set_uniform(program, "u_use_albedo_map", self.use_maps[0])
         set_uniform(program, "u_use_gloss_map", self.use_maps[1])
         set_uniform(program, "u_use_sheen_map", self.use_maps[2])
+        set_uniform(program, "u_use_alpha_map", self.use_maps[3])
         set_uniform(program, "u_anisotropy_rotation", self.anisotropy_rotation)
         for name, placement in self.placements.items():
             if f"u_{name}_placement" in program:
@@ -428,7 +433,7 @@ class MaterialBuffers:
     the mesh that reads it (TexturePart: one draw of the geometry pass each) over the mesh's own
     positions, normals and UVs (SceneMesh.variants)."""
 
-    def __init__(self, sm: SceneMesh, material: Material):
+    def __init__(self, sm: SceneMesh, material: Material, front: bool = True):
         ctx, n = sm._ctx, sm.n_vertices
         self.material = material
         albedo, mat = material.vertex_arrays(n)
@@ -455,9 +460,9 @@ class MaterialBuffers:
                     continue   # a set no triangle reads
                 ibo, n_faces = ctx.buffer(np.ascontiguousarray(faces, np.int32).tobytes()), len(faces)
             self.parts.append(TexturePart(ctx, textures, material.is_pbr, program, attributes, ibo, n_faces,
-                                          material.anisotropy_rotation))
+                                          material.anisotropy_rotation, front))
         # The cloth's other side (Material.back): drawn where the camera sees a triangle's back.
-        self.back = MaterialBuffers(sm, material.back) if material.back is not None else None
+        self.back = MaterialBuffers(sm, material.back, front=False) if material.back is not None else None
 
     def release(self) -> None:
         for part in self.parts:
@@ -531,10 +536,10 @@ class Scene:
         for sm, m in zip(self.meshes, materials):   # every mesh checked before any is given a variant
             if m is not None:
                 sm._check_maps(m)
-                if float(m.alpha) != float(sm.material.alpha):
+                if abs(m.mean_alpha() - sm.material.mean_alpha()) > 1e-6:
                     raise MeshError(f"a colourway keeps its fabric's open weave: mesh {sm.index}'s alpha is "
-                                    f"{float(sm.material.alpha):g}, the colourway's {float(m.alpha):g} (the shadow "
-                                    "maps, which every colourway shares, are drawn through it)")
+                                    f"{sm.material.mean_alpha():g} over its area, the colourway's {m.mean_alpha():g} "
+                                    "(the shadow maps, which every colourway shares, are drawn through it)")
         for sm, m in zip(self.meshes, materials):
             sm.add_variant(m)
         self._shading_needs()
@@ -566,11 +571,12 @@ class Scene:
                             "meshes; put those meshes first")
 
     def group_alpha(self) -> tuple[float, float]:
-        """Each shadow group's casters' alpha (the largest of its casters': a group whose casters
-        differ is as opaque as its most opaque), which scales the occlusion its maps give (vsm.glsl)."""
+        """Each shadow group's casters' alpha over their area (Material.mean_alpha; the largest of its
+        casters': a group whose casters differ is as opaque as its most opaque), which scales the
+        occlusion its maps give (vsm.glsl): an alpha map's holes are not resolved in the shadows."""
         out = [1.0, 1.0]
         for g in (0, 1):
-            alphas = [float(sm.material.alpha) for sm in self.meshes if sm.caster and sm.group == g]
+            alphas = [sm.material.mean_alpha() for sm in self.meshes if sm.caster and sm.group == g]
             out[g] = max(alphas) if alphas else 1.0
         return out[0], out[1]
 

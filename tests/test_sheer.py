@@ -176,3 +176,57 @@ def test_the_voile_fabric_carries_its_alpha_and_transmission():
     assert (material.alpha, material.transmission) == pytest.approx((0.35, 0.5))
     assert not any("alpha" in w or "transmission" in w for w in warnings), warnings
     assert dataclasses.replace(material, alpha=1.0).is_sheer is False
+
+
+def test_a_lace_shows_through_its_holes_where_the_reference_does(renderer, uniform_pems):
+    """A red sheet whose alpha map is a checker of holes (TextureSet.alpha_map) before a blue one: the
+    holes show blue, the rest red, pixel for pixel as the reference draws them (no occlusion, pixel
+    centres); alpha 1 throughout (the blue sheet behind)."""
+    from renderer.shading.material import TextureSet
+
+    y, x = np.mgrid[:8, :8]
+    holes = (((x // 2) + (y // 2)) % 2).astype(np.float32)[..., None]
+    corners = np.array([[-0.4, -0.4, 0.0], [0.4, -0.4, 0.0], [0.4, 0.4, 0.0], [-0.4, 0.4, 0.0]])
+    lace = Mesh.from_arrays(corners, np.array([[0, 1, 2], [0, 2, 3]]), uvs=np.array([[0, 0], [1, 0], [1, 1], [0, 1.0]]),
+                            name="lace")
+    materials = [Material(RED, texture_sets=(TextureSet(alpha_map=holes),), texture_set=np.zeros(4, np.int32)),
+                 Material(BLUE)]
+    assert materials[0].is_sheer and materials[0].mean_alpha() == pytest.approx(0.5)
+    meshes = [lace, _quad(0.6, -0.5, "back")]
+    scene = renderer.create_scene(meshes, materials)
+    try:
+        fs = FrameSettings(SIZE, SIZE, mode=ShadingMode.NO_OCCLUSION, background=Background.BLACK)
+        image = renderer.render(scene, uniform_pems, fs, camera=FRONT_CAM).image
+    finally:
+        scene.release()
+    ref = render_reference(meshes, materials, np.ones((6, 16, 16, 3), np.float32), FRONT_CAM, SIZE, SIZE, 16,
+                           occlusion=False).image
+    inner = (slice(SIZE // 2 - 10, SIZE // 2 + 10),) * 2
+    ours, exact = image[inner][..., :3], ref[inner][..., :3]
+    red = exact[..., 0] > exact[..., 2]
+    assert 0.3 < red.mean() < 0.7   # both show holes and fibre
+    # The texels' edges fall between pixel centres alike; bilinear filtering blurs them a little.
+    assert (np.abs(ours - exact).max(axis=-1) < 0.1).mean() > 0.85
+    np.testing.assert_allclose(image[inner][..., 3], 1.0, atol=1e-4)
+
+
+def test_a_u3m_alpha_texture_is_carried_at_its_size(tmp_path):
+    """A U3M lace (its alpha a texture 20 mm wide) becomes the material's alpha map, placed at its
+    physical size, no warning."""
+    from u3m_files import document, encode, image, scalar, scalar_texture, visualisation, write_u3ma
+
+    from renderer.procedural import procedural_garment
+    from renderer.u3m import load_u3m, material_from_u3m
+
+    y, x = np.mgrid[:16, :16]
+    holes = np.where(((x // 4) + (y // 4)) % 2 == 0, 255, 0).astype(np.uint8)
+    front = visualisation("1.1", alpha=scalar(1.0, scalar_texture(image("lace.png", "1.1", 20.0, 20.0))),
+                          transmission=scalar(0.2))
+    path = write_u3ma(tmp_path / "lace.u3ma", document("1.1", front), {"lace.png": encode(holes)})
+    material, warnings = material_from_u3m(load_u3m(path), procedural_garment(16), uv_scale=(1.0, 1.0))
+    ts = material.texture_sets[0]
+    assert ts.alpha_map is not None and ts.alpha_map.shape == (16, 16, 1) and material.alpha == 1.0
+    assert material.mean_alpha() == pytest.approx(0.5, abs=0.01) and material.transmission == pytest.approx(0.2)
+    # 20 mm a repeat: 50 repeats a metre of the garment's UVs.
+    np.testing.assert_allclose(np.abs(ts.placement("alpha")[:, :2]).max(), 50.0, rtol=1e-6)
+    assert not any("alpha" in w for w in warnings), warnings

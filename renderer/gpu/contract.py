@@ -60,6 +60,7 @@ class GeometryTexture(IntEnum):
     GLOSS_MAP = 4
     NORMAL_MAP = 5
     SHEEN_MAP = 6
+    ALPHA_MAP = 7           # multiplies the material's alpha (Material.alpha; gbuffer.frag packs it, below)
     PEEL_DEPTH = 16         # a layer behind sheer cloth: the last layer's depth (renderer.py, _sheer_layers)
     PEEL_OPACITY = 17       # ... and the image so far, whose alpha says where light still comes through
 
@@ -138,6 +139,9 @@ CONVEX_SURFACE = 4
 # ... and, in multiples of this, the mesh's place in the scene plus one (0: no surface; the `id` pass,
 # renderer/aovs.py): w = group + CONVEX_SURFACE (convex) + MESH_ID_STRIDE * (mesh + 1).
 MESH_ID_STRIDE = 8
+# ... and, below 1, the share an alpha map takes away (1 - its texel) times this: the integer part read
+# by rounding (w + 0.5) stays that of the group and id (shading/gbuffer.frag, lighting.frag SHEETS).
+ALPHA_MAP_FRACTION = 0.25
 # Sheer or transmitting cloth (Material.alpha, .transmission): the lighting pass reads each mesh's pair
 # by its id, for a scene's first this many meshes (renderer.py, _sheets; a scene whose later meshes are
 # sheer is refused).
@@ -168,5 +172,6 @@ def glsl_defines() -> dict[str, str]:
     out["CONVEX_SURFACE"] = str(CONVEX_SURFACE)
     out["MESH_ID_STRIDE"] = str(MESH_ID_STRIDE)
     out["MAX_SHEET_MESHES"] = str(MAX_SHEET_MESHES)
+    out["ALPHA_MAP_FRACTION"] = repr(float(ALPHA_MAP_FRACTION))
     out["WIDE_LOBE_DISC_VARIANCE"] = repr(float(WIDE_LOBE_DISC_VARIANCE))
     return out

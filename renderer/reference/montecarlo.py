@@ -162,7 +162,8 @@ def render_reference(meshes: list[Mesh], materials: list[Material], cube: np.nda
     sampler = EnvironmentSampler(cube)
 
     centre, radius = bounds_sphere(*bounds(meshes))
-    tracer = _ShadowTracer(scene.intersector, SHADOW_EPS_REL * radius, occlusion, scene.face_alpha)
+    tracer = _ShadowTracer(scene.intersector, SHADOW_EPS_REL * radius, occlusion,
+                           scene.alpha_at if scene.sheer else None)
     n_px, strata = width * height, k * k
     per_stratum, batches = sample_counts(spp, k, batches)
     slots = stratum_slots(seed, batches, n_px, strata) if strata > 1 else None
@@ -183,7 +184,7 @@ def render_reference(meshes: list[Mesh], materials: list[Material], cube: np.nda
             hit = tri >= 0
             idx = live[hit]
             surf = _surface(scene, tri[hit], origins[hit], dirs[hit])
-            alpha = scene.face_alpha[tri[hit]]
+            alpha = scene.alpha_at(tri[hit], surf.x)
             seen = weight[hit] * alpha            # the share of the ray this layer's fibres stop
             exact[idx] += seen[:, None] * _integrate(
                 sampler, tracer, surf, per_stratum, batches, seed, sums, idx, strata,
@@ -281,10 +282,30 @@ class _SceneArrays:
     # Per triangle: its sheet's alpha and transmission (Material: the front's, both sides').
     face_alpha: np.ndarray | None = None
     face_transmission: np.ndarray | None = None
+    # Per texture part: its alpha map (TextureSet.alpha_texture), read on the front's parts alone.
+    alpha_maps: tuple = ()
 
     @property
     def sheer(self) -> bool:
-        return bool((self.face_alpha < 1.0).any())
+        return bool((self.face_alpha < 1.0).any()) or any(m is not None for m in self.alpha_maps)
+
+    def alpha_at(self, tri: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """The sheet's alpha (N,) at points (N, 3) on triangles tri (N,): the material's, times its
+        front's alpha map at the point's UVs where its texture part has one."""
+        alpha = self.face_alpha[tri]
+        if not any(m is not None for m in self.alpha_maps):
+            return alpha
+        alpha = alpha.copy()
+        part = self.face_part[tri]
+        for i, alpha_map in enumerate(self.alpha_maps):
+            sel = np.flatnonzero(part == i) if alpha_map is not None else ()
+            if len(sel):
+                f = self.faces[tri[sel]]
+                p0, p1, p2 = (self.positions[f[:, k]] for k in range(3))
+                bary = _barycentric(points[sel], p0, p1, p2)
+                uv = np.einsum("nk,nkc->nc", bary, self.uvs[f])
+                alpha[sel] *= _texture_bilinear(alpha_map, _placed(self.placements[i]["alpha"], uv))[:, 0]
+        return alpha
 
     @property
     def transmits(self) -> bool:
@@ -299,7 +320,7 @@ class _SceneArrays:
         if not meshes or len(meshes) != len(materials):
             raise InvalidInputError(f"need one material per mesh; got {len(meshes)} meshes, {len(materials)} materials")
         pos, faces, nrm, alb, mat, uvs, face_mesh, maps, pbr, sheen = [], [], [], [], [], [], [], [], [], []
-        normal_maps, face_part, pbr_parts, placements, rotations = [], [], [], [], []
+        normal_maps, face_part, pbr_parts, placements, rotations, alpha_maps = [], [], [], [], [], []
         face_part_back, back_arrays, face_alpha, face_transmission = [], [], [], []
         offset = 0
         for i, (mesh, material) in enumerate(zip(meshes, materials)):
@@ -319,6 +340,7 @@ class _SceneArrays:
                     pbr_parts.append(side.is_pbr)
                     placements.append({name: ts.placement(name) for name in MAP_NAMES})
                     rotations.append(float(side.anisotropy_rotation))
+                    alpha_maps.append(ts.alpha_texture() if side is material else None)
             if material.back is None:
                 face_part_back.append(face_part[-1])
                 back_arrays.append((a, m, p, sh))
@@ -351,7 +373,7 @@ class _SceneArrays:
                    np.concatenate(face_mesh), tuple(maps), RayMeshIntersector(tm),
                    tuple(pbr_parts), tuple(normal_maps), np.concatenate(face_part), tuple(placements),
                    np.concatenate(face_part_back), backs, tuple(rotations), np.concatenate(face_alpha),
-                   np.concatenate(face_transmission))
+                   np.concatenate(face_transmission), tuple(alpha_maps))
 
 
 @dataclass
@@ -490,6 +512,19 @@ def _normal_mapped(n, n_geom, e1, e2, uv_corners, bary, normal_map, scale) -> np
     return np.where(ok[:, None], mapped, n)
 
 
+def _barycentric(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates (N, 3) of points on (or near) triangles (p0, p1, p2), each (N, 3)."""
+    e1, e2, d = p1 - p0, p2 - p0, points - p0
+    d11, d12, d22 = _dot(e1, e1), _dot(e1, e2), _dot(e2, e2)
+    d1, d2 = _dot(d, e1), _dot(d, e2)
+    det = d11 * d22 - d12 * d12
+    det = np.where(np.abs(det) > 1e-300, det, 1e-300)
+    b1 = (d22 * d1 - d12 * d2) / det
+    b2 = (d11 * d2 - d12 * d1) / det
+    bary = np.clip(np.stack([1.0 - b1 - b2, b1, b2], axis=1), 0.0, None)
+    return bary / np.maximum(bary.sum(axis=1, keepdims=True), 1e-300)
+
+
 def _texture_bilinear(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear lookup with repeat wrapping, GL convention (uv (0, 0) is the bottom-left of the image,
     whose row 0 is its top, as `scene.SceneMesh` uploads it): img (H, W, C), uv (N, 2) -> (N, C)."""
@@ -514,9 +549,10 @@ class _ShadowTracer:
     (1 - alpha) over the sheets the ray crosses (closest-hit queries, sheet after sheet, at most
     MAX_LAYERS). Counts the rays it casts."""
 
-    def __init__(self, intersector, eps: float, occlusion: bool = True, face_alpha: np.ndarray | None = None):
+    def __init__(self, intersector, eps: float, occlusion: bool = True, alpha_at=None):
+        """alpha_at: the sheets' alpha at (triangles, points) (`_SceneArrays.alpha_at`); None: all opaque."""
         self.intersector, self.eps, self.occlusion, self.rays_cast = intersector, eps, occlusion, 0
-        self.face_alpha = face_alpha if face_alpha is not None and (face_alpha < 1.0).any() else None
+        self.alpha_at = alpha_at
 
     def visible(self, x: np.ndarray, n_geom: np.ndarray, w: np.ndarray, behind: bool = False) -> np.ndarray:
         """(M,): w lies on the side of the surface n_geom faces (the other side with `behind`: the
@@ -527,11 +563,11 @@ class _ShadowTracer:
         if not self.occlusion:
             return np.ones(len(w), bool)
         side = -1.0 if behind else 1.0
-        vis = np.zeros(len(w), bool if self.face_alpha is None else np.float64)
+        vis = np.zeros(len(w), bool if self.alpha_at is None else np.float64)
         front = np.flatnonzero(side * _dot(n_geom, w) > 0.0)
         if front.size:
             origins = x[front] + (side * self.eps) * n_geom[front]
-            if self.face_alpha is None:
+            if self.alpha_at is None:
                 self.rays_cast += front.size
                 vis[front] = ~self.intersector.intersects_any(origins, w[front])
             else:
@@ -547,7 +583,7 @@ class _ShadowTracer:
                                                              return_locations=True)
             if ray.size == 0:
                 return share
-            share[live[ray]] *= 1.0 - self.face_alpha[tri]
+            share[live[ray]] *= 1.0 - self.alpha_at(tri, where)
             on = np.flatnonzero(share[live[ray]] > 0.0)
             if on.size == 0:
                 return share

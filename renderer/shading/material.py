@@ -58,7 +58,7 @@ def _texture(name: str, value, channels: int, meaning: str = "") -> np.ndarray |
 IDENTITY_PLACEMENT = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 # The maps of a set, each with its placement (TextureSet.placement): the second is the gloss or the
 # metallic-roughness map.
-MAP_NAMES = ("albedo", "second", "normal", "sheen")
+MAP_NAMES = ("albedo", "second", "normal", "sheen", "alpha")
 
 
 def _placement(name: str, value) -> np.ndarray:
@@ -79,8 +79,12 @@ class TextureSet:
     shirt's fabric and its buttons, each material of a glTF file with its own images).
 
     albedo_placement, second_placement (the gloss or metallic-roughness map's), normal_placement,
-    sheen_placement: each map's affine map from the mesh's UVs to the texture's (2, 3), None for the
-    identity; a fabric's textures each at their own physical size and rotation (renderer/u3m/place.py)."""
+    sheen_placement, alpha_placement: each map's affine map from the mesh's UVs to the texture's (2, 3),
+    None for the identity; a fabric's textures each at their own physical size and rotation
+    (renderer/u3m/place.py).
+    alpha_map: optional (H, W, 1) texture in [0, 1] that multiplies the material's alpha (a lace's
+    holes, a mesh fabric's open cells: U3M's alpha texture); read on the front's sets only (the sheet's
+    alpha is its front's, Material.alpha)."""
 
     albedo_map: np.ndarray | None = None
     gloss_map: np.ndarray | None = None
@@ -92,6 +96,8 @@ class TextureSet:
     second_placement: np.ndarray | None = None
     normal_placement: np.ndarray | None = None
     sheen_placement: np.ndarray | None = None
+    alpha_map: np.ndarray | None = None
+    alpha_placement: np.ndarray | None = None
 
     def placement(self, name: str) -> np.ndarray:
         """The (2, 3) affine map of one of MAP_NAMES, validated (the identity when none is given)."""
@@ -126,8 +132,13 @@ class TextureSet:
         """The sheen map (H, W, 4) float32 in [0, 1] = (sheen colour, sheen roughness), validated."""
         return _texture("sheen_map", self.sheen_map, 4, " = (sheen colour rgb, sheen roughness)")
 
+    def alpha_texture(self) -> np.ndarray | None:
+        """The alpha map (H, W, 1) float32 in [0, 1], validated (None without one)."""
+        return _texture("alpha_map", self.alpha_map, 1)
+
     def has_textures(self, is_pbr: bool) -> bool:
-        return any(m is not None for m in (*self.maps(is_pbr), self.normal_texture(), self.sheen_texture()))
+        return any(m is not None for m in (*self.maps(is_pbr), self.normal_texture(), self.sheen_texture(),
+                                           self.alpha_texture()))
 
 
 MAX_TEXTURE_SETS = 16   # one geometry-pass draw each: a garment's materials, not a texture per triangle
@@ -269,8 +280,14 @@ class Material:
 
     @property
     def is_sheer(self) -> bool:
-        """Some light and sight pass the sheet straight (alpha < 1)."""
-        return float(self.alpha) < 1.0
+        """Some light and sight pass the sheet straight (alpha < 1, or an alpha map)."""
+        return float(self.alpha) < 1.0 or any(ts.alpha_map is not None for ts in self.texture_groups())
+
+    def mean_alpha(self) -> float:
+        """The sheet's alpha over its area: alpha times the mean of its sets' alpha maps (a set without
+        one counts as 1), each set weighted alike."""
+        means = [1.0 if ts.alpha_map is None else float(np.mean(ts.alpha_texture())) for ts in self.texture_groups()]
+        return float(self.alpha) * float(np.mean(means))
 
     @property
     def transmits(self) -> bool:

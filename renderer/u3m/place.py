@@ -19,11 +19,11 @@ normal map as a tangent-space map, its U3M scale applied; sheen_value s and shee
 colour s ((1 - t) white + t tint), the tint the base colour's hue at unit luminance (the mean colour of
 a texture), with a sheen roughness of SHEEN_ROUGHNESS (U3M names none); anisotropy_value and
 anisotropy_rotation GGX's anisotropy and its direction (Material.anisotropy: turns from the UVs' u, as
-U3M 1.1 measures them); alpha and transmission the sheet's (Material.alpha, .transmission: the
-outside visualisation's, for both sides). What the model does not carry
-yet (textured alpha or transmission, clearcoat, displacement, subsurface, a specular level other than
-glTF's 4 %, a textured sheen or anisotropy, the cut edge's visualisation) is named in the warnings that come with
-the material, never dropped silently. Front and back: the front's visualisation on the side the
+U3M 1.1 measures them); alpha (a constant, or a texture at its size: TextureSet.alpha_map) and
+transmission the sheet's (Material.alpha, .transmission: the outside visualisation's, for both sides).
+What the model does not carry yet (a textured transmission, clearcoat, displacement, subsurface, a
+specular level other than glTF's 4 %, a textured sheen or anisotropy, the cut edge's visualisation) is
+named in the warnings that come with the material, never dropped silently. Front and back: the front's visualisation on the side the
 mesh's winding faces (its normals' side), the back's behind it (Material.back, chosen per pixel by
 the side the camera sees), the front's on both where the back is null.
 """
@@ -189,7 +189,13 @@ def _side_material(u3m: U3MMaterial, face: Face, mesh: Mesh, scale: tuple[float,
         sheen_colour = tuple(float(c) for c in np.clip(s * ((1.0 - tint) + tint * hue), 0.0, 1.0))
 
     anisotropy, rotation = _constants(vis, ("anisotropy_value", "anisotropy_rotation"), warnings)
-    alpha, transmission = _constants(vis, ("alpha", "transmission"), warnings)
+    alpha = 1.0
+    if isinstance(vis.alpha, ScalarTexture):   # a lace's holes: the map, at its size, multiplies alpha
+        sets["alpha_map"] = tiled(vis.alpha, np.clip(vis.alpha.values(), 0.0, 1.0)[..., None])
+        sets["alpha_placement"] = placement(vis.alpha, scale)
+    else:
+        alpha = float(vis.alpha.value)
+    transmission = _constants(vis, ("transmission",), warnings)[0]
     if anisotropy > 1.0:
         warnings.append(f"anisotropy_value: {anisotropy:g} is beyond the renderer's 1 (the most stretched "
                         "highlight); 1 is used")

@@ -33,6 +33,11 @@ uniform mat3x2 u_second_placement;
 uniform mat3x2 u_normal_placement;
 uniform bool u_use_albedo_map;
 uniform bool u_use_gloss_map;
+// A sheer fabric's alpha map (TextureSet.alpha_map): the share of its texel it takes away, packed
+// below 1 into the geometric target's w (ALPHA_MAP_FRACTION; lighting.frag multiplies the mesh's alpha).
+layout(binding = TEX_ALPHA_MAP) uniform sampler2D u_alpha_map;
+uniform bool u_use_alpha_map;
+uniform mat3x2 u_alpha_placement;
 uniform vec3 u_camera_pos;
 uniform float u_shadow_group;   // the mesh's shadow group (renderer/scene.py): 0, 1, or 2 (casts nothing)
 uniform float u_mesh_id;        // the mesh's place in the scene plus one (the id pass: renderer/aovs.py)
@@ -95,6 +100,9 @@ void main() {
     o_normal = vec4(n, material.y);
     o_geometric = vec4(geometric, u_shadow_group + (u_convex_surface ? float(CONVEX_SURFACE) : 0.0)
                                   + float(MESH_ID_STRIDE) * u_mesh_id);
+    if (u_use_alpha_map)
+        o_geometric.w += ALPHA_MAP_FRACTION * (1.0 - clamp(texture(u_alpha_map, u_alpha_placement * vec3(v_uv, 1.0)).r,
+                                                           0.0, 1.0));
     o_albedo = vec4(albedo, 1.0);
 #ifdef PBR
     // A pbr mesh's second map is glTF's metallic-roughness texture: it multiplies the two values.

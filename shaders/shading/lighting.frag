@@ -316,6 +316,8 @@ void main() {
 #ifdef SHEETS
     int mesh_id = int(floor((g_geo.w + 0.5) / float(MESH_ID_STRIDE)));
     vec2 sheet = mesh_id >= 1 && mesh_id <= MAX_SHEET_MESHES ? u_sheets[mesh_id - 1] : vec2(1.0, 0.0);
+    // An alpha map's texel: what it took away is packed below 1 in w (gbuffer.frag).
+    sheet.x *= 1.0 - (g_geo.w - floor(g_geo.w + 0.5)) / ALPHA_MAP_FRACTION;
     g_transmission = sheet.y;
 #endif
     g_convex_surface = geometric_w >= CONVEX_SURFACE;
