@@ -186,7 +186,7 @@ def check_budget_device(q: dict, renderer) -> None:
 
 def frame_settings(args, q: dict):
     """The frame's settings from the resolved quality (`resolve_quality`) and the output flags."""
-    from .renderer import Background, ShadingMode
+    from .settings import Background, ShadingMode
 
     w, h = args.size
     return presets_frame_settings(q, w, h, bleed_reduction=args.bleed_reduction, mode=ShadingMode(args.mode),

@@ -19,13 +19,11 @@ import numpy as np
 
 from .config import most_sharp_lights
 from .lighting.median_cut import RegionSet
-from .lighting.pem import PEMSettings, pem_cost
-from .scene import shadow_groups
-from .shadows.lights import LayerPlan, plan_layers, share_sharp_maps, small_lights
-from .shadows.vsm import GROUP_MOMENT_BYTES
+from .lighting.pem_plan import PEMSettings, pem_cost
+from .shadows.lights import GROUP_MOMENT_BYTES, LayerPlan, plan_layers, shadow_groups, share_sharp_maps, small_lights
 
 if TYPE_CHECKING:   # renderer.py may plan with this module one day: no import of it at run time
-    from .renderer import FrameSettings
+    from .settings import FrameSettings
 
 # Bytes a texel of the render targets (renderer.py _geometry_targets, _Targets, _StillTarget): the
 # lighting pass's output, the G-buffer and the anti-aliased image are RGBA32F; a depth texture or

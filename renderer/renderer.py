@@ -8,19 +8,16 @@ the driver's are meaningful).
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from collections.abc import Callable
-from dataclasses import KW_ONLY, asdict, dataclass, field, make_dataclass, replace
-from enum import Enum
+from dataclasses import dataclass, field, replace
 from typing import TypedDict
 
 import moderngl
 import numpy as np
 
-from . import config
-from .aovs import from_gbuffer, parse_aovs
+from .aovs import from_gbuffer
 from .camera import Camera, bounds_sphere, default_camera
 from .config import MAX_LIGHTS
 from .costs import light_maps
@@ -42,9 +39,11 @@ from .gpu.contract import (
 )
 from .gpu.shaders import compute_shader, program, set_uniform
 from .lighting import material_lobes
-from .lighting.pem import PAPER_PEMS, REGIONS_PER_TEXTURE, SUB_LIGHT_BYTES, PEMSet, PEMSettings
+from .lighting.pem import PEMSet
+from .lighting.pem_plan import PAPER_PEMS, REGIONS_PER_TEXTURE, SUB_LIGHT_BYTES, PEMSettings
 from .mesh import Mesh
 from .scene import Scene, snap_box
+from .settings import PAPER_FRAME, Background, FrameSettings, ShadingMode
 from .shading.background import BackgroundMap
 from .shading.material import Material
 from .shadows.lights import (
@@ -56,18 +55,6 @@ from .shadows.lights import (
 )
 from .shadows.vsm import LAYERS_PER_DRAW, ShadowMaps
 
-
-class ShadingMode(str, Enum):
-    """The paper's Figure 6 comparison (full method, no occlusion, grey AO, AO with colour) and the
-    plain many-light baseline."""
-
-    FULL = "full"
-    NO_OCCLUSION = "none"
-    AO_GREY = "ao"
-    AO_COLOUR = "ao-color"
-    MANY_LIGHTS = "many-lights"  # baseline: the N lights shade too (no PEMs), paper's introduction
-
-
 _MODE_INDEX = {ShadingMode.FULL: Mode.FULL, ShadingMode.NO_OCCLUSION: Mode.NO_OCCLUSION, ShadingMode.AO_GREY: Mode.AO_GREY,
                ShadingMode.AO_COLOUR: Mode.AO_COLOUR, ShadingMode.MANY_LIGHTS: Mode.MANY_LIGHTS}
 
@@ -76,16 +63,6 @@ _MODE_INDEX = {ShadingMode.FULL: Mode.FULL, ShadingMode.NO_OCCLUSION: Mode.NO_OC
 
 # The error split's oracle (render_views(visibility=)): (points, geometric normals, coverage) -> VIS_i.
 VisibilityOracle = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-
-
-class Background(str, Enum):
-    """What is behind the scene: the map; nothing (alpha 0); or nothing, the scene's shadow catcher
-    (Scene.catcher: a floor) drawn as the shadows on it alone, black with alpha the share of the
-    light the other meshes take from it, for product images composited over any backdrop."""
-
-    ENVIRONMENT = "env"
-    BLACK = "black"
-    SHADOW_CATCHER = "shadow-catcher"
 
 
 # Screen lines (slices) and steps per side of the contact-shadow search (lighting.frag).
@@ -118,49 +95,6 @@ def _plane_depth_tolerance(sample_positions: np.ndarray) -> float:
     return PLANE_DEPTH_TOLERANCE if symmetric else -1.0
 
 
-class _FrameChecks:
-    """FrameSettings' checks and record (its fields are made below)."""
-
-    def __post_init__(self):
-        if not (1 <= self.width <= 8192 and 1 <= self.height <= 8192):
-            raise InvalidInputError(f"image size must be within 1..8192 per side, got {self.width}x{self.height}")
-        object.__setattr__(self, "bleed_reduction", config.OPTION["bleed_reduction"].check(self.bleed_reduction))
-        for name in config.FRAME_SETTINGS:   # each setting against its declared limits (renderer/config.py)
-            object.__setattr__(self, name, config.check(name, getattr(self, name)))
-        if (why := config.shadow_side_error(self.shadow_size, self.small_light_scale)) is not None:
-            raise InvalidInputError(why)
-        turn = self.environment_rotation_deg
-        if isinstance(turn, bool) or not isinstance(turn, (int, float, np.integer, np.floating)) \
-                or not math.isfinite(float(turn)):
-            raise InvalidInputError(f"environment rotation must be a finite number of degrees, got {turn!r}")
-        # One angle, one plan: 360 is 0 and -90 is 270 (renderer/lighting/pem.py, PEMSet.turned).
-        object.__setattr__(self, "environment_rotation_deg", float(turn) % 360.0)
-        object.__setattr__(self, "aovs", parse_aovs(self.aovs))
-
-    def as_dict(self) -> dict:
-        d = asdict(self)
-        d["mode"], d["background"], d["aovs"] = self.mode.value, self.background.value, list(self.aovs)
-        return d
-
-
-FrameSettings = make_dataclass(
-    "FrameSettings",
-    [("width", int, field(default=512)), ("height", int, field(default=512)), ("_", KW_ONLY),   # the size by position
-     *config.fields(config.FRAME_SETTINGS),
-     ("bleed_reduction", float, field(default=config.OPTION["bleed_reduction"].default)),
-     ("mode", ShadingMode, field(default=ShadingMode.FULL)),
-     ("background", Background, field(default=Background.ENVIRONMENT)),
-     ("environment_rotation_deg", float, field(default=0.0)),
-     ("aovs", tuple, field(default=()))],
-    bases=(_FrameChecks,), frozen=True, namespace={"__module__": __name__, "__doc__": (
-        "Per-frame quality and output settings (the PEM set's are PEMSettings): the image's size, every frame "
-        "setting of the registry (renderer/config.py: each one's type, limits, default and what it does), "
-        "bleed_reduction, the shading mode, the background and the environment's rotation about the up axis "
-        "(degrees, counter-clockwise seen from above: a light at direction d is lit from R d; the PEM set is not "
-        "made again), and the passes beside the image (renderer/aovs.py: depth, normal, albedo, id; Frame.aovs). "
-        "FrameSettings() is the paper's method; a preset's "
-        "settings come from presets.resolve(...).frame(width, height).")})
-PAPER_FRAME = FrameSettings()   # render()'s default settings: the paper's method at 512 x 512
 
 
 class FrameTimings(TypedDict):

@@ -17,24 +17,8 @@ from .gpu.contract import MAX_SHEET_MESHES, GeometryTexture, NormalsBuffer
 from .gpu.shaders import set_uniform
 from .mesh import FALLBACK_NORMAL, Mesh, box, box_corners, vertex_normals
 from .shading.material import MAP_NAMES, Material, TextureSet
+from .shadows.lights import RECEIVER_ONLY, SHADOW_GROUPS, shadow_groups  # noqa: F401 (Scene's vocabulary)
 from .shadows.proxy import shadow_faces
-
-# Shadow groups (Scene): each caster's moments go to its group's pair of the shadow maps; a receiver
-# compares against its own group's pair with the bias that keeps a surface from shadowing itself and
-# against the other's without it. A mesh that casts nothing is in neither (RECEIVER_ONLY: no bias on both).
-SHADOW_GROUPS = 2
-RECEIVER_ONLY = SHADOW_GROUPS
-
-
-def shadow_groups(casters: list[bool]) -> list[int]:
-    """Each mesh's shadow group: the first caster (the garment of a garment-and-body scene) alone in
-    group 0, every other caster in group 1, a mesh that casts nothing RECEIVER_ONLY. A group's own
-    surfaces shadow each other through the bias; between the groups no bias hides a near occluder."""
-    groups, first = [], True
-    for c in casters:
-        groups.append(RECEIVER_ONLY if not c else 0 if first else 1)
-        first = first and not c
-    return groups
 
 
 def frustum_planes(view_proj: np.ndarray) -> np.ndarray | None:

@@ -18,9 +18,9 @@ import numpy as np
 
 from renderer.cache import cache_key
 from renderer.envmap import environment_from_array
-from renderer.lighting.pem import PEMSettings
+from renderer.lighting.pem_plan import PEMSettings
 from renderer.presets import pem_settings as resolved_pem_settings
-from renderer.renderer import Background
+from renderer.settings import Background
 
 from .codecs import decode_hdr, sniff_hdr_kind
 from .errors import ConflictError, InvalidRequestError, NotFoundError, PayloadTooLargeError, QueueFullError

@@ -11,6 +11,7 @@ import time
 from collections import OrderedDict, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -18,11 +19,13 @@ from renderer.camera import Camera
 from renderer.costs import FrameCost
 from renderer.envmap import EnvironmentMap, Layout, environment_from_array
 from renderer.envmap.io import TexelReport, check_texels
-from renderer.lighting.pem import PEMSettings
+from renderer.lighting.pem_plan import PEMSettings
 from renderer.mesh import Mesh
-from renderer.renderer import FrameSettings
-from renderer.scene import Scene
+from renderer.settings import FrameSettings
 from renderer.shading.background import background_face_size
+
+if TYPE_CHECKING:   # the GL side's type: the registry holds a scene, never makes one
+    from renderer.scene import Scene
 
 from .errors import ConflictError, NotFoundError
 

@@ -76,7 +76,7 @@ class ServiceSettings(BaseSettings):
     pem_cache_bytes: int = Field(1 << 30, ge=0, description="GPU memory of PEM sets kept resident (LRU); a set "
                                  "larger than this is refused before it is built")
     max_pem_build_bytes: int = Field(2 << 30, ge=1 << 20, description="most memory one PEM set's build may hold at "
-                                     "once, GPU and host together (renderer.lighting.pem.pem_cost), the copy for "
+                                     "once, GPU and host together (renderer.lighting.pem_plan.pem_cost), the copy for "
                                      "the disk cache included")
     max_pem_build_s: float = Field(30.0, gt=0, description="longest estimated build of one PEM set (its texels x "
                                    "lights x pem_build_ns_per_texel_light), during which no frame renders")

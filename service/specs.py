@@ -12,11 +12,11 @@ from renderer import config
 from renderer.camera import Camera, bounds_sphere, frame_meshes
 from renderer.costs import FrameCost, frame_cost
 from renderer.errors import MeshError
-from renderer.lighting.pem import PEMSettings, pem_cost
+from renderer.lighting.pem_plan import PEMSettings, pem_cost
 from renderer.mesh import Mesh, bounds, z_up_to_y_up
 from renderer.presets import pem_settings, resolve
 from renderer.procedural import floor_under
-from renderer.renderer import Background, FrameSettings, ShadingMode
+from renderer.settings import Background, FrameSettings, ShadingMode
 from renderer.shading.fields import FIELDS as MATERIAL_FIELDS
 from renderer.shading.material import Material, TextureSet
 from renderer.shadows.proxy import shadow_faces_isolated

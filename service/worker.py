@@ -35,7 +35,8 @@ from typing import Any, TypeVar
 
 from renderer.cache import CacheStats, PEMCache
 from renderer.errors import GLContextError, RenderStoppedError
-from renderer.lighting.pem import PEMSet, PEMSettings, pem_cost
+from renderer.lighting.pem import PEMSet
+from renderer.lighting.pem_plan import PEMSettings, pem_cost
 from renderer.renderer import Renderer
 from renderer.shading.background import BackgroundMap
 

@@ -188,7 +188,8 @@ def test_the_base_level_is_never_finer_than_a_lookup_the_shader_makes(face, g):
     # The shader interpolates the 257-entry gloss table: any g up to g_max reads at least the level of
     # the entry at or above g_max, which in the table's last step is far finer than level(g_max).
     from renderer.lighting.glossiness import lobe_table
-    from renderer.lighting.pem import PEMSet, finest_level_needed
+    from renderer.lighting.pem import PEMSet
+    from renderer.lighting.pem_plan import finest_level_needed
 
     table = lobe_table(face, Filter.SQRT_COSINE)
     base = finest_level_needed(face, Filter.SQRT_COSINE, g)
@@ -204,7 +205,7 @@ def test_the_base_level_is_never_finer_than_a_lookup_the_shader_makes(face, g):
 def test_a_set_with_a_base_level_stores_only_the_needed_levels_and_renders_the_same(renderer):
     from conftest import CAM, sphere
 
-    from renderer.lighting.pem import finest_level_needed
+    from renderer.lighting.pem_plan import finest_level_needed
     from renderer.renderer import FrameSettings
     from renderer.shading.material import Material
 

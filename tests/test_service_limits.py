@@ -435,7 +435,7 @@ def _rss_mib(pid: int) -> float:
 
 def test_the_pem_cost_is_the_set_s_memory(renderer):
     from renderer.envmap import environment_from_array, studio_environment
-    from renderer.lighting.pem import PEMSettings, pem_cost
+    from renderer.lighting.pem_plan import PEMSettings, pem_cost
 
     env = environment_from_array(studio_environment(128), "latlong", 32, name="studio")
     for settings in (PEMSettings(12), PEMSettings(24, base_level=2), PEMSettings(6, levels=3)):

@@ -52,7 +52,7 @@ def pem_settings(knobs: dict, filter, levels: int | None, materials=None):
     glossiness reads (the same image, a fraction of the memory and 4 % less frame time held out:
     docs/broad-benchmark.md); without materials, the whole chain."""
     from ..lighting.filters import Filter
-    from ..lighting.pem import PEMSettings
+    from ..lighting.pem_plan import PEMSettings
 
     config.check("face_size", knobs["face_size"])   # the others PEMSettings checks
     pem = PEMSettings(**{name: knobs[name] for name in config.PEM_FIELDS}, filter=Filter.parse(filter), levels=levels)

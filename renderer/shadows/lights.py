@@ -14,6 +14,26 @@ import numpy as np
 
 from ..mesh import box_corners
 
+# Shadow groups (Scene): each caster's moments go to its group's pair of the shadow maps; a receiver
+# compares against its own group's pair with the bias that keeps a surface from shadowing itself and
+# against the other's without it. A mesh that casts nothing is in neither (RECEIVER_ONLY: no bias on both).
+SHADOW_GROUPS = 2
+RECEIVER_ONLY = SHADOW_GROUPS
+
+
+def shadow_groups(casters: list[bool]) -> list[int]:
+    """Each mesh's shadow group: the first caster (the garment of a garment-and-body scene) alone in
+    group 0, every other caster in group 1, a mesh that casts nothing RECEIVER_ONLY. A group's own
+    surfaces shadow each other through the bias; between the groups no bias hides a near occluder."""
+    groups, first = [], True
+    for c in casters:
+        groups.append(RECEIVER_ONLY if not c else 0 if first else 1)
+        first = first and not c
+    return groups
+
+# Bytes per texel, layer and shadow group: (z, z^2) as float32 (RG32F; shadows/vsm.py).
+GROUP_MOMENT_BYTES = 8
+
 # Mirror of `struct Light` in shaders/common/lights.glsl (std430; mat4 is column-major).
 LIGHT_DTYPE = np.dtype([
     ("view_proj", np.float32, (16,)),

@@ -28,14 +28,12 @@ from ..gpu import rawgl
 from ..gpu.context import GLContext, StageTimer
 from ..gpu.contract import Image, LightingBuffer
 from ..gpu.shaders import compute_shader
-from .lights import MAX_BLUR_RADIUS
+from .lights import GROUP_MOMENT_BYTES, MAX_BLUR_RADIUS
 
 # Layers one instanced draw reaches: its projections are a uniform block of this many mat4 (16 KiB,
 # the least GL_MAX_UNIFORM_BLOCK_SIZE a GL 4.5 driver has; shaders/shadows/moments.vert).
 LAYERS_PER_DRAW = 256
 MAT4_BYTES = 64
-# Bytes per texel, layer and shadow group: (z, z^2) as float32 (RG32F).
-GROUP_MOMENT_BYTES = 8
 # ... of a scene with two groups (the most a map holds).
 MOMENT_BYTES = 2 * GROUP_MOMENT_BYTES
 

@@ -1,0 +1,30 @@
+"""What plans and judges a frame loads no GL (issue 63): the service validates a request, sizes a PEM
+set and a frame's memory from renderer.settings, renderer.lighting.pem_plan and renderer.costs without
+importing moderngl; only a process that renders does."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+GL_FREE = ("renderer.settings", "renderer.lighting.pem_plan", "renderer.costs", "renderer.presets",
+           "service.schemas", "service.specs", "service.registry")
+
+
+@pytest.mark.parametrize("module", GL_FREE)
+def test_the_planning_side_imports_no_gl(module):
+    code = f"import sys, {module}; print('moderngl' in sys.modules, 'renderer.renderer' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["False", "False"], f"{module} pulls GL in: {out.stdout}"
+
+
+def test_the_check_can_fail():
+    """The same probe on the module that renders says so."""
+    code = "import sys, renderer.renderer; print('moderngl' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.stdout.split() == ["True"]
