@@ -109,9 +109,7 @@ async def post_frame(
     scene = await find_scene(svc, scene_id)
     fmt = negotiate(format, request)
     json_image = _json_image(image)
-    blocks = parse_layout(x_frame_layout or layout, scene)
-    body = await raw_body(request, (OCTET_STREAM,), "a frame of vertex positions")
-    arrays = await anyio.to_thread.run_sync(decode_frame, body, blocks, scene, not worker.normals_on_gpu)
+    arrays = await read_frame(request, x_frame_layout or layout, scene, worker)
     async with client_gone(request) as gone:
         result = await worker.call(render_job(scene, arrays, environment_rotation), what=f"a frame of {scene.id}",
                                    abandoned=gone)
@@ -133,6 +131,14 @@ async def post_frame(
 # Frames a batch's GL job renders ahead of the handler that encodes them: one being encoded, one ready.
 BATCH_FRAMES_AHEAD = 2
 
+
+
+async def read_frame(request: Request, layout: str | None, scene, worker) -> FrameArrays:
+    """One frame's vertex positions from the request's body in `layout` (the frame and views routes),
+    decoded off the event loop."""
+    blocks = parse_layout(layout, scene)
+    body = await raw_body(request, (OCTET_STREAM,), "a frame of vertex positions")
+    return await anyio.to_thread.run_sync(decode_frame, body, blocks, scene, not worker.normals_on_gpu)
 
 @router.post("/scenes/{scene_id}/frames/batch", response_class=Response, openapi_extra=_FRAME_BODY,
              responses={200: {"content": {"application/json": {}, "application/zip": {}}}},
@@ -324,9 +330,7 @@ async def post_views(
             raise InvalidRequestError("layout none renders the scene's current pose again: send no body")
         arrays = None
     else:
-        blocks = parse_layout(x_frame_layout or layout, scene)
-        body = await raw_body(request, (OCTET_STREAM,), "a frame of vertex positions")
-        arrays = await anyio.to_thread.run_sync(decode_frame, body, blocks, scene, not worker.normals_on_gpu)
+        arrays = await read_frame(request, x_frame_layout or layout, scene, worker)
     async with client_gone(request) as gone:
         result = await worker.call(views_job(scene, arrays, cameras, variants, environment_rotation, aovs=False,
                                              quality=quality),

@@ -35,6 +35,9 @@ async def live() -> dict:
             "room and no job has held the thread beyond GARMENT_RENDER_READY_MAX_BUSY_S (else 503)",
             responses={503: {"description": "not ready; the body says why, with the current job and its age"}})
 async def ready(worker: WorkerDep) -> JSONResponse:
+    # The verdict first, then the job it reports: the job's age is read after the verdict was judged on
+    # it, never before (an age read first could lie under the limit that the verdict found passed).
+    busy = worker.overloaded() if worker.ready else None
     current = worker.current_job()
     state = {"queue_depth": worker.queue_depth,
              "current_job": None if current is None else {"what": current[0], "age_s": round(current[1], 3)}}
@@ -42,7 +45,6 @@ async def ready(worker: WorkerDep) -> JSONResponse:
         reason = str(worker.startup_error) if worker.startup_error else "the render thread is not running"
         return JSONResponse({"status": "not ready", "detail": reason, **state}, status_code=503,
                             headers={"Retry-After": "5"})
-    busy = worker.overloaded()
     if busy is not None:
         return JSONResponse({"status": "busy", "detail": busy, "gl": worker.gl_info, **state}, status_code=503,
                             headers={"Retry-After": str(worker.retry_after_s())})
