@@ -197,6 +197,10 @@ class _LightPlan:
     # The contact search's distance in world units (settings.contact_shadow_texels of the main maps'
     # median texel over all the casters; 0: no search).
     contact_radius: float
+    # The lights in the lighting pass's order, by kind, and where each kind ends (light_kinds): what
+    # the pass's loops read, planned with the rest (the pass binds them).
+    order: np.ndarray | None = None
+    kind_end: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -733,7 +737,9 @@ class Renderer:
             self._kept_plan = None   # a plan that fails half-way leaves nothing to be kept
             lp = self._plan_lights(pems, settings, fit_lo, fit_hi, fit_receivers, scene.footprint_unit)
             self._kept_plan = (pems, key, lp)
-        return replace(lp, contact_radius=self._contact_radius(lp, settings, lo, hi, scene.footprint_unit))
+        order, kind_end = light_kinds(lp.lights, lp.plan.sharp, settings, scene.max_glossiness)
+        return replace(lp, contact_radius=self._contact_radius(lp, settings, lo, hi, scene.footprint_unit),
+                       order=order, kind_end=kind_end)
 
     @staticmethod
     def _plan_lights(pems: PEMSet, settings: FrameSettings, fit_lo: np.ndarray, fit_hi: np.ndarray,
@@ -1088,8 +1094,7 @@ class Renderer:
         scene, pems, settings, lp, arrays = inputs.scene, inputs.pems, inputs.settings, inputs.lp, inputs.arrays
         lights_buf, fbo, gbuf, discs = inputs.lights_buf, inputs.fbo, inputs.gbuf, inputs.discs
         w, h = settings.width, settings.height
-        regions, n, plan, disc_radius, n_shadowed = lp.regions, lp.n, lp.plan, lp.disc_radius, lp.n_shadowed
-        lights = lp.lights
+        regions, n, disc_radius, n_shadowed = lp.regions, lp.n, lp.disc_radius, lp.n_shadowed
         shadow_maps = arrays["main"]
         groups = max(scene.shadow_groups, 1)
         with gl.stage(timer, "shading"):
@@ -1157,10 +1162,9 @@ class Renderer:
                              ).bind_to_uniform_block(LightingBuffer.LIGHT_SCREEN)
                 p["u_image_size"] = (float(w), float(h))
                 p["u_focal_px"] = 0.5 * h / float(np.tan(np.radians(camera.fov_y_deg) / 2.0))
-            order, kind_end = light_kinds(lights, plan.sharp, settings, scene.max_glossiness)
-            self._buffer("light_order", order.tobytes(), MAX_LIGHTS * 4).bind_to_uniform_block(LightingBuffer.LIGHT_ORDER)
+            self._buffer("light_order", lp.order.tobytes(), MAX_LIGHTS * 4).bind_to_uniform_block(LightingBuffer.LIGHT_ORDER)
             if "u_kind_end" in p:   # the compiler keeps the entries up to the last kind this variant loops over
-                p["u_kind_end"].write(kind_end[:p["u_kind_end"].array_length].tobytes())
+                p["u_kind_end"].write(lp.kind_end[:p["u_kind_end"].array_length].tobytes())
             set_uniform(p, "u_camera_pos", tuple(float(x) for x in camera.eye))
             set_uniform(p, "u_env_from_world", _mat3_bytes(pems.env_from_world))
             set_uniform(p, "u_n_lights", n)
