@@ -132,10 +132,12 @@ def test_a_sheer_sheet_casts_its_share_of_shadow_as_the_reference_does(renderer)
     assert abs(ours - exact) < 0.06, ratios
 
 
-def test_light_through_a_thin_fabric_from_behind(renderer):
+@pytest.mark.parametrize("mode", [ShadingMode.FULL, ShadingMode.NO_OCCLUSION])
+def test_light_through_a_thin_fabric_from_behind(renderer, mode):
     """A sheet lit from behind alone (the sun behind it, the camera in front): what shows is what its
     fibres pass on, transmission x albedo x the light behind; the renderer within 10 % of the
-    reference, little without transmission (the dim ground's light)."""
+    reference (its occlusion off in the no-occlusion mode), little without transmission (the dim
+    ground's light)."""
     cube = sun_sky_cube(32, (0.0, 0.3, -1.0), sun_radiance=300.0, sun_radius_deg=6, sky=0.0)
     sheet = _quad(0.6, 0.0, "sheet")
     out = {}
@@ -144,11 +146,13 @@ def test_light_through_a_thin_fabric_from_behind(renderer):
         pems = renderer.build_pems(cube, balanced_pems())
         scene = renderer.create_scene([sheet], mats)
         try:
-            image = renderer.render(scene, pems, balanced(SIZE, SIZE, background=Background.BLACK), FRONT_CAM).image
+            image = renderer.render(scene, pems, balanced(SIZE, SIZE, background=Background.BLACK, mode=mode),
+                                    FRONT_CAM).image
         finally:
             scene.release()
             pems.release()
-        ref = render_reference([sheet], mats, cube, FRONT_CAM, SIZE, SIZE, 64, seed=1).image
+        ref = render_reference([sheet], mats, cube, FRONT_CAM, SIZE, SIZE, 64, seed=1,
+                               occlusion=mode is ShadingMode.FULL).image
         inner = slice(SIZE // 2 - 6, SIZE // 2 + 6)
         out[t] = (float(image[inner, inner, :3].mean()), float(ref[inner, inner, :3].mean()))
     assert out[0.0][1] < 0.05 and out[0.0][0] < 0.05, out   # the ground's light alone

@@ -195,6 +195,13 @@ void add_light(int i, vec3 pem_d, vec3 pem_g[N_LOBES], vec3 n, vec3 ws_pos, bool
     if (!pem_diffuse) g_diffuse_exact += diffuse_from_light(i, n);
     else g_diffuse += pem_d;
     add_glossy(i, pem_g, pem_glossy, 1.0, scale, lights[i].shadow.w > 0.5, n);
+#ifdef TRANSMISSION
+    if (g_transmission > 0.0) {   // the light behind the sheet, unshadowed
+        float share_t = disc_share_above(i, -g_geometric_normal);
+        if (pem_diffuse) g_transmitted += share_t * pem_t;
+        else g_transmitted_exact += share_t * diffuse_from_light(i, -n);
+    }
+#endif
 #elif MODE == MODE_FULL
 #ifdef ORACLE_VISIBILITY
     float vis = texelFetch(u_oracle_visibility, ivec3(g_px, i), 0).r;
@@ -422,7 +429,8 @@ void main() {
     glossy_sum += g_pbr_exact;
 #endif
     vec4 color = vec4(diffuse_weight * g_diffuse + glossy_sum, 1.0);
-#ifdef TRANSMISSION
+#if defined(TRANSMISSION) && (MODE == MODE_FULL || MODE == MODE_NO_OCCLUSION)
+    // (The research modes leave transmission out: their terms are the reflected light's alone.)
     color.rgb = (1.0 - g_transmission) * color.rgb
               + g_transmission * transmitted_tint * (g_transmitted + max(g_transmitted_exact, vec3(0.0)));
 #endif
