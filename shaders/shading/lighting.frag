@@ -246,11 +246,7 @@ void add_light(int i, vec3 pem_d, vec3 pem_g[N_LOBES], vec3 n, vec3 ws_pos, bool
         // balanced rel. RMSE with the share for the small lights alone).
         vec3 seen_side = g_geometric_normal;
         g_geometric_normal = -seen_side;
-        // The point pushed out to the seen side by the maps' own bias first: light from behind must pass
-        // the other group (a body a finger's width under the dress) there too, which the maps cannot
-        // tell at the surface itself (the draped dress under three held-out maps: lower error on each).
-        float push = u_normal_offset_texels * lights[i].shadow.z;
-        float vis_t = visibility(i, ws_pos + push * n, -n, sharp);
+        float vis_t = visibility(i, ws_pos, -n, sharp);
         vis_t *= disc_share_above(i, -seen_side);
         g_geometric_normal = seen_side;
         if (pem_diffuse) g_transmitted += vis_t * pem_t;
