@@ -109,13 +109,36 @@ def test_the_reference_code_digest_follows_the_files_that_make_a_reference():
     from pathlib import Path
 
     root = Path(broad.__file__).resolve().parents[1]
-    covered = {p for name in broad._REFERENCE_SOURCES for p in ((root / name).rglob("*.py") if (root / name).is_dir()
-                                                               else [root / name])}
+    places = broad._REFERENCE_SOURCES.values()
+    covered = {p for place in places for p in ((root / place).rglob("*.py") if (root / place).is_dir()
+                                               else [root / place])}
     assert root / "reference" / "montecarlo.py" in covered and root / "bench" / "catalogue.py" in covered
     assert root / "bench" / "broad.py" not in covered     # the report may change without rendering anew
     assert root / "shading" / "brdf.py" in covered and root / "envmap" / "cube.py" in covered
     # What the environment and mesh code make enters as data (below): they may get faster.
     assert root / "envmap" / "layouts.py" not in covered and root / "mesh.py" not in covered
+
+
+def test_the_digest_names_a_source_not_its_place(tmp_path, monkeypatch):
+    """A source moved and given its old name keeps the digest (the cache survives a move); a source
+    given another name, or another content, changes it."""
+    import shutil
+    from pathlib import Path
+
+    root = Path(broad.__file__).resolve().parents[1]
+    before = broad.reference_code_digest()
+    moved = tmp_path / "lab_catalogue.py"
+    shutil.copy(root / "bench" / "catalogue.py", moved)
+    sources = dict(broad._REFERENCE_SOURCES)
+    sources["bench/catalogue.py"] = str(moved)   # an absolute place: root / place is the place itself
+    monkeypatch.setattr(broad, "_REFERENCE_SOURCES", sources)
+    assert broad.reference_code_digest() == before
+    moved.write_text(moved.read_text() + "\n# changed\n")
+    assert broad.reference_code_digest() != before
+    renamed = {("bench/other.py" if name == "bench/scenes.py" else name): place
+               for name, place in {**sources, "bench/catalogue.py": "bench/catalogue.py"}.items()}
+    monkeypatch.setattr(broad, "_REFERENCE_SOURCES", renamed)   # the same files, one under another name
+    assert broad.reference_code_digest() != before
 
 
 @needs_assets

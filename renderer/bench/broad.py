@@ -89,8 +89,11 @@ from .scenes import shared_assets
 # make of the files enters the key as data instead (`reference_inputs_digest`): the cube the tracer
 # reads and the meshes with the normals it shades with, so that code can be made faster without
 # rendering every reference anew, and any change to what it produces still does.
-_REFERENCE_SOURCES = ("reference", "envmap/cube.py", "camera.py", "shading/material.py", "shading/brdf.py",
-                      "bench/catalogue.py", "bench/scenes.py")
+# Each source by its name in the hash and where it lives (a folder: its .py files, named below it): the
+# names enter the hash, not the places, so that moving a file (the benchmarks out of the product's
+# package, issue 63) keeps every cached reference; give a moved file its old name here.
+_REFERENCE_SOURCES = {name: name for name in ("reference", "envmap/cube.py", "camera.py", "shading/material.py",
+                                               "shading/brdf.py", "bench/catalogue.py", "bench/scenes.py")}
 CACHE_VARIABLE = "GARMENT_RENDER_REFERENCE_CACHE"
 
 
@@ -98,10 +101,11 @@ def reference_code_digest() -> str:
     """SHA-256 of the source of everything that makes a reference image from a scene's inputs."""
     root = Path(__file__).resolve().parents[1]
     h = hashlib.sha256()
-    for name in _REFERENCE_SOURCES:
-        p = root / name
+    for name, place in _REFERENCE_SOURCES.items():
+        p = root / place
         for f in sorted(p.rglob("*.py")) if p.is_dir() else [p]:
-            h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes())
+            named = f"{name}/{f.relative_to(p).as_posix()}" if p.is_dir() else name
+            h.update(named.encode() + b"\0" + f.read_bytes())
     return h.hexdigest()
 
 
