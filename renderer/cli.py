@@ -825,8 +825,9 @@ def cmd_lobes(args) -> int:
 
 
 def cmd_area_lights(args) -> int:
+    from .bench.area_figures import write_preview
     from .envmap import load_environment
-    from .lighting.area_lights import decompose, report, write_preview
+    from .lighting.area_lights import decompose, report
 
     paths = list(args.env)
     if not paths:

@@ -28,3 +28,12 @@ def test_the_check_can_fail():
     code = "import sys, renderer.renderer; print('moderngl' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert out.stdout.split() == ["True"]
+
+
+def test_the_product_draws_no_figures():
+    """Figures are the lab's (renderer/bench): rendering and the area lights load no matplotlib."""
+    code = ("import sys, renderer.renderer, renderer.lighting.area_lights, renderer.cli, service.app; "
+            "print('matplotlib' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["False"]
