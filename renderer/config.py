@@ -50,9 +50,6 @@ class Setting:
     below_maximum: bool = False      # maximum itself excluded
     choices: tuple[str, ...] | None = None
     power_of_two: bool = False
-    # The values `garment-render bench` measures around balanced (renderer/bench/run.py); a dict
-    # changes several settings at once.
-    sweep: tuple = ()
 
     def __post_init__(self):
         assert self.group in GROUPS and self.invalidates in INVALIDATES, self.name
@@ -106,26 +103,20 @@ def regions_per_face(n_lights: int) -> int:
 SETTINGS: tuple[Setting, ...] = (
     # Lights and PEMs.
     Setting("lights", int, 48, "median-cut regions, one light and one shadow map each", "lights", "pem set",
-            6, MAX_LIGHTS,
-            sweep=(6, 12, 24, 48, 96, 192, 384)),
-    Setting("face_size", int, 128, "PEM cube face size", "lights", "pem set", 4, 2048, power_of_two=True,
-            sweep=(32, 64, 128, 256)),
+            6, MAX_LIGHTS),
+    Setting("face_size", int, 128, "PEM cube face size", "lights", "pem set", 4, 2048, power_of_two=True),
     Setting("whole_sources", bool, False, "median cut: no cut through a compact bright source (a sun), which keeps "
-            "it in one region (false: the paper's plain cut)", "lights", "pem set",
-            sweep=(False,)),
+            "it in one region (false: the paper's plain cut)", "lights", "pem set"),
     Setting("lights_from", str, "median-cut", "how the map becomes lights: median-cut (the paper), area (Arbree, "
             "Walter and Bala's area lights, each a disc with its own map, plus the remainder's median cut, at most "
             "`lights` in all) or auto (area where the map has area lights and none is wider than 15 degrees, else "
             "the median cut)", "lights", "pem set",
-            choices=("median-cut", "area", "auto"),
-            sweep=("median-cut", "area")),
+            choices=("median-cut", "area", "auto")),
     # Shadow maps.
     Setting("shadow_size", int, 256, "shadow-map side per light, texels", "shadows", "shadow maps", 16,
-            MAX_SHADOW_SIDE,
-            sweep=(64, 128, 256, 512)),
+            MAX_SHADOW_SIDE),
     Setting("blur_scale", float, 0.1, "scale of the paper's per-light shadow blur (0: hard shadows)", "shadows",
-            "shadow maps", 0.0, 100.0,
-            sweep=(0.0, 0.1, 0.25, 0.5, 1.0, 2.0)),
+            "shadow maps", 0.0, 100.0),
     # blocker: each area light's penumbra (a main map's) as wide as its angular radius and the blocker's
     # distance make it (shading/vsm.glsl, PENUMBRA_BLOCKER); fixed: the paper's blur alone, as for every
     # median-cut region.
@@ -136,18 +127,15 @@ SETTINGS: tuple[Setting, ...] = (
                                              # `garment-render bench --area` measures it
     # The proxy: shadows/proxy.py. The shadow pass costs per triangle on a CPU rasterizer.
     Setting("caster_detail", float, 1.0, "share of the casters' triangles the main maps draw (a proxy over the same "
-            "vertices; 1: the meshes themselves)", "shadows", "shadow maps", 0.0, 1.0, above_minimum=True,
-            sweep=(1.0, 0.5, 0.25, 0.1)),
+            "vertices; 1: the meshes themselves)", "shadows", "shadow maps", 0.0, 1.0, above_minimum=True),
     # The shadow maps' bias, in each map's own texels (main and sharp maps alike): the lookup pushed off
     # the surface, and Chebyshev's variance floor. Chosen on the benchmark scenes (docs/sweep.md, the
     # bias rows). Only against the receiver's own shadow group (renderer/scene.py): the other group's
     # casters are compared without it.
     Setting("normal_offset_texels", float, 1.5, "shadow lookups pushed off the surface along the normal, in each "
-            "map's texels", "shadows", "frame", 0.0, MAX_BIAS_TEXELS,
-            sweep=(1.0, 3.3)),
+            "map's texels", "shadows", "frame", 0.0, MAX_BIAS_TEXELS),
     Setting("min_sigma_texels", float, 3.0, "least deviation of the depths under a texel, in that map's texels "
-            "(keeps sloped surfaces from shadowing themselves)", "shadows", "frame", 0.0, MAX_BIAS_TEXELS,
-            sweep=(0.0, 6.0)),
+            "(keeps sloped surfaces from shadowing themselves)", "shadows", "frame", 0.0, MAX_BIAS_TEXELS),
     # The sharp maps: small lights' (angular radius <= ~6 degrees) in an array of their own, drawn at full
     # caster detail; 1: the same maps as every other light. Only the small lights carrying at least
     # small_light_min_energy x the mean light's energy get them (the others' edges, dim, cost more than
@@ -157,26 +145,21 @@ SETTINGS: tuple[Setting, ...] = (
     # one whose disc theirs overlaps share its map, drawn along the group's energy-weighted direction;
     # each keeps its own direction and energy for shading.
     Setting("small_light_scale", int, 1, "small lights (a sun, under ~6 degrees) get maps this many times "
-            "shadow_size per side, drawn from the casters themselves", "shadows", "shadow maps", 1, 8,
-            sweep=(1, 2, 4, {"small_light_scale": 2, "small_light_min_energy": 0.0})),
+            "shadow_size per side, drawn from the casters themselves", "shadows", "shadow maps", 1, 8),
     Setting("small_light_min_energy", float, 0.0, "only small lights with at least this many times the mean light's "
-            "energy get those maps (0: every small light)", "shadows", "shadow maps", 0.0, 1e6,
-            sweep=(0.0, 1.0, 4.8)),
+            "energy get those maps (0: every small light)", "shadows", "shadow maps", 0.0, 1e6),
     Setting("sharp_large_lights", bool, False, "large lights that bright get those maps too", "shadows",
-            "shadow maps",
-            sweep=(True, {"sharp_large_lights": True, "small_light_min_energy": 4.8})),
+            "shadow maps"),
     Setting("sharp_share_deg", float, 0.0, "sharp lights within this many degrees of a brighter one whose disc "
             "theirs overlaps share its map (a sun split into a few regions; 0: one map each)", "shadows",
-            "shadow maps", 0.0, MAX_SHARP_SHARE_DEG,
-            sweep=(0.0, 1.0, 4.0)),
+            "shadow maps", 0.0, MAX_SHARP_SHARE_DEG),
     # Contact shadows.
     # Full mode (shading/contact.glsl): along screen lines through the geometry pass's positions, those
     # occluders the maps' bias skips (the collar over the neck) and the near ones a map drawn from a
     # proxy blurs (a fold's lips). Chosen on the benchmark scenes (docs/sweep.md).
     Setting("contact_shadow_texels", float, 0.0, "occluders within this many main-map texels of a surface, which the "
             "maps' bias skips, found in the camera's view (0: off, the paper)", "contact", "shader variant", 0.0,
-            MAX_CONTACT_TEXELS,
-            sweep=(0.0, 8.0, 48.0)),
+            MAX_CONTACT_TEXELS),
     # Shading.
     # diffuse pem: PEM_i along the normal at the s = 1 level (the paper); lights: each region's energy
     # times the clamped cosine over its disc, no diffuse lookups. glossy wide: small lights (angular
@@ -185,18 +168,15 @@ SETTINGS: tuple[Setting, ...] = (
     # are the larger error; a narrow lobe reads the PEM's fine levels, which hold the region's detail).
     # Every closed-form glossy term loses the part of its disc below the triangle's own plane.
     Setting("diffuse", str, "pem", "diffuse term from the PEMs along the normal (pem, the paper) or from each "
-            "light's disc in closed form (lights)", "shading", "shader variant", choices=("pem", "lights"),
-            sweep=("pem",)),
+            "light's disc in closed form (lights)", "shading", "shader variant", choices=("pem", "lights")),
     Setting("glossy", str, "pem", "glossy term from the PEMs along the reflection vector (pem, the paper), or wide: "
             "small lights' from their disc through the Phong lobe, large lights' too where the lobe is wider than "
-            "their disc", "shading", "shader variant", choices=("pem", "wide"),
-            sweep=("pem",)),
+            "their disc", "shading", "shader variant", choices=("pem", "wide")),
     # Each region's closed-form glossy term (glossy wide) over this many discs: its texels cut further by
     # the same median cut (lighting/median_cut.py, SubLights), its visibility, diffuse term and PEMs
     # still the region's. Chosen on the benchmark scenes (docs/sweep.md, the sub_lights rows).
     Setting("sub_lights", int, 1, "discs per region in the closed-form glossy term (1: the paper's one light)",
-            "shading", "shader variant", 1, MAX_SUB_LIGHTS, power_of_two=True,
-            sweep=(1, 4, 8)),
+            "shading", "shader variant", 1, MAX_SUB_LIGHTS, power_of_two=True),
     # Anti-aliasing (shaders/edges/): the geometry pass multisampled, the lighting pass once a pixel, and
     # each pixel's samples given the colour of the neighbour that shaded their surface (renderer.py,
     # _edges_pass). The driver bounds it (GL_MAX_SAMPLES: 4 on llvmpipe).
