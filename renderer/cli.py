@@ -881,9 +881,22 @@ def cmd_devices(args) -> int:
 
 def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     """The command line; `show_all` False: `render`, `sequence` and `reference` list only COMMON_FLAGS
-    in their help (what `--help` shows; `--help-all` shows everything)."""
+    in their help (what `--help` shows; `--help-all` shows everything). The product's commands (render,
+    sequence, reference, serve, devices) and the lab's (bench, speed, error-split and the figures)."""
     p = argparse.ArgumentParser(prog="garment-render", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
+    _scene_commands(sub, show_all)
+    _bench_command(sub)
+    _speed_command(sub)
+    _error_split_command(sub)
+    _serve_command(sub)
+    _figure_commands(sub)
+    _devices_command(sub)
+    return p
+
+
+def _scene_commands(sub, show_all: bool) -> None:
+    """render, sequence and reference: a scene's flags each (add_scene_arguments) and their own."""
     r = sub.add_parser("render", help="render one frame")
     add_scene_arguments(r)
     v = r.add_argument_group("views and colourways")
@@ -924,6 +937,10 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
         scene_command.add_argument("--help-all", action="help", help="show every flag, the advanced ones too")
         if not show_all:
             _common_help_only(scene_command)
+
+
+def _bench_command(sub) -> None:
+    """The lab's benchmarks (renderer/bench)."""
     b = sub.add_parser("bench", help="sweep the quality knobs against the reference; write bench.json/md, pareto.png")
     b.add_argument("--quick", action="store_true", help="a reduced sweep that finishes in minutes on 2 cores")
     b.add_argument("--no-shared", action="store_true", help="bundled scene only (skip ../shared/assets)")
@@ -981,6 +998,9 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     b.add_argument("--store", action="store_true",
                    help="store the measured table in the package: budgets (--frame-budget-ms, --error-budget) choose from it")
     b.set_defaults(func=cmd_bench)
+
+
+def _speed_command(sub) -> None:
     sp = sub.add_parser("speed", help="frame times of the presets side by side (settings take turns, frame by frame)")
     sp.add_argument("--rounds", type=int, default=15, help="frames per setting and scene")
     sp.add_argument("--size", type=int, help="image side (default 256; 1024 with --large)")
@@ -1002,6 +1022,9 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     sp.add_argument("--workers", type=int, help="reference processes (default: one per core)")
     sp.add_argument("--out", type=Path, help="write the medians and ratios as JSON")
     sp.set_defaults(func=cmd_speed)
+
+
+def _error_split_command(sub) -> None:
     es = sub.add_parser("error-split", help="where each preset's error comes from: the lights alone, the same "
                                             "lights with exact visibility (rays), the shadow maps, per pixel class "
                                             "(needs ../shared/assets; error_split.md, .json, .png)")
@@ -1011,6 +1034,9 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     es.add_argument("--quick", action="store_true", help="one scene, fast and balanced (a check, minutes)")
     es.add_argument("--out", type=Path, default=Path("out/error-split"))
     es.set_defaults(func=cmd_error_split)
+
+
+def _serve_command(sub) -> None:
     sv = sub.add_parser("serve", help="run the HTTP render service (uvicorn); settings: GARMENT_RENDER_* variables")
     sv.add_argument("--host", help="default: GARMENT_RENDER_HOST, else 127.0.0.1")
     sv.add_argument("--port", type=int, help="default: GARMENT_RENDER_PORT, else 8000")
@@ -1025,6 +1051,10 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     sv.add_argument("--gpus-per-replica", type=float, default=0.0,
                     help="with --ray: GPUs Ray gives each replica (its EGL device follows the one it gets)")
     sv.set_defaults(func=cmd_serve)
+
+
+def _figure_commands(sub) -> None:
+    """The lab's figures: the paper's lobes, the physically based lobes' fit, the area lights."""
     lo = sub.add_parser("lobes", help="reproduce the paper's Figures 4 and 5 (lobe cross sections and errors)")
     lo.add_argument("--out", type=Path, default=Path("out/lobes"))
     lo.add_argument("--face-size", type=int, default=128)
@@ -1039,11 +1069,13 @@ def build_parser(show_all: bool = True) -> argparse.ArgumentParser:
     al.add_argument("--face-size", type=int, default=128, help="the cube the lights are found on (the PEM face size)")
     al.add_argument("--out", type=Path, default=Path("out/area-lights"))
     al.set_defaults(func=cmd_area_lights)
+
+
+def _devices_command(sub) -> None:
     dv = sub.add_parser("devices", help="the EGL devices in moderngl's order, with the CUDA device each is, and "
                                        "which one a GPU number (as Ray and CUDA_VISIBLE_DEVICES give it) renders on")
     dv.add_argument("--gpu", type=int, help="also say which EGL device this GPU is, and open a context on it")
     dv.set_defaults(func=cmd_devices)
-    return p
 
 
 def cli_reference() -> str:
