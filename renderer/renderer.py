@@ -979,12 +979,12 @@ class Renderer:
             still_alone = kept and all(sm.group != 0 for sm in meshes) and len(meshes) < len(scene.meshes)
             self._draw_geometry(g0 if still_alone else g, fbo, meshes, w, h, variant, clear)
 
+        for prog in (g, g0):
+            prog["u_view_proj"].write(depth_vp)
+            set_uniform(prog, "u_camera_pos", tuple(float(x) for x in camera.eye))
         for _ in range(1, SHEER_LAYERS):
             with self.gl.stage(timer, "sheer_layers"):
                 rawgl.copy_image(self.gl.gl, targets.depth.glo, extra.peel_depth.glo, rawgl.GL_TEXTURE_2D, w, h)
-                for prog in (g, g0):
-                    prog["u_view_proj"].write(depth_vp)
-                    set_uniform(prog, "u_camera_pos", tuple(float(x) for x in camera.eye))
                 extra.peel_depth.use(location=GeometryTexture.PEEL_DEPTH)
                 out.use(location=GeometryTexture.PEEL_OPACITY)
                 if kept:

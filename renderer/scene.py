@@ -475,6 +475,7 @@ class Scene:
         groups = shadow_groups(casters)
         self.gl = gl
         self.meshes: list[SceneMesh] = []
+        self._group_alpha: tuple[float, float] | None = None
         # A physically based material anywhere: the geometry and lighting passes' PBR variants, and
         # whether any has a sheen layer (its lobes are compiled in only then).
         self.has_pbr = any(mat.is_pbr for mat in materials) or any(
@@ -557,12 +558,15 @@ class Scene:
     def group_alpha(self) -> tuple[float, float]:
         """Each shadow group's casters' alpha over their area (Material.mean_alpha; the largest of its
         casters': a group whose casters differ is as opaque as its most opaque), which scales the
-        occlusion its maps give (vsm.glsl): an alpha map's holes are not resolved in the shadows."""
-        out = [1.0, 1.0]
-        for g in (0, 1):
-            alphas = [sm.material.mean_alpha() for sm in self.meshes if sm.caster and sm.group == g]
-            out[g] = max(alphas) if alphas else 1.0
-        return out[0], out[1]
+        occlusion its maps give (vsm.glsl): an alpha map's holes are not resolved in the shadows. The
+        registered materials' (a colourway keeps them), so worked out once."""
+        if self._group_alpha is None:
+            out = [1.0, 1.0]
+            for g in (0, 1):
+                alphas = [sm.material.mean_alpha() for sm in self.meshes if sm.caster and sm.group == g]
+                out[g] = max(alphas) if alphas else 1.0
+            self._group_alpha = (out[0], out[1])
+        return self._group_alpha
 
     def sheets(self, variant: int = 0) -> bytes:
         """(alpha, transmission) of each of the first MAX_SHEET_MESHES meshes in material variant

@@ -242,8 +242,7 @@ void add_light(int i, vec3 pem_d, vec3 pem_g[N_LOBES], vec3 n, vec3 ws_pos, bool
         // The light on the sheet's other side: its visibility there (the own group's lookup pushed
         // off along -n) and the share of its disc behind the sheet's plane (every light's: a region
         // whose centre lies in front reaches the -n lookup through the diffuse kernel alone, and the
-        // rest of the garment hides its part behind; measured on the draped dress, 0.392 -> 0.377
-        // balanced rel. RMSE with the share for the small lights alone).
+        // rest of the garment hides its part behind).
         vec3 seen_side = g_geometric_normal;
         g_geometric_normal = -seen_side;
         float vis_t = visibility(i, ws_pos, -n, sharp);
