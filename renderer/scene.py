@@ -524,7 +524,8 @@ class Scene:
                 if abs(m.mean_alpha() - sm.material.mean_alpha()) > 1e-6:
                     raise MeshError(f"a colourway keeps its fabric's open weave: mesh {sm.index}'s alpha is "
                                     f"{sm.material.mean_alpha():g} over its area, the colourway's {m.mean_alpha():g} "
-                                    "(the shadow maps, which every colourway shares, are drawn through it)")
+                                    "(the shadow maps, which every colourway shares, are drawn through it): give the "
+                                    "colourway the fabric's alpha, or register a scene of its own for the other fabric")
         for sm, m in zip(self.meshes, materials):
             sm.add_variant(m)
         self._shading_needs()
