@@ -67,8 +67,10 @@ vec3 glossy_disc(vec3 l, float sin_a, vec3 energy, vec3 axis, float inv_s) {
 vec3 glossy_from_light(int i, vec3 axis, float inv_s) {
 #ifdef SUB_LIGHTS
     vec3 sum = vec3(0.0);
-    for (int k = i * SUB_LIGHTS; k < (i + 1) * SUB_LIGHTS; ++k)
+    for (int j = 0; j < SUB_LIGHTS; ++j) {   // a constant count: the driver writes the loop out
+        int k = i * SUB_LIGHTS + j;
         sum += glossy_disc(sub_lights[k].dir_sin.xyz, sub_lights[k].dir_sin.w, sub_lights[k].energy.rgb, axis, inv_s);
+    }
     return sum;
 #else
     return glossy_disc(lights[i].dir_scale.xyz, lights[i].params.w, lights[i].energy.rgb, axis, inv_s);

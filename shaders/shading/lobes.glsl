@@ -127,8 +127,10 @@ vec3 pbr_disc_above(vec3 l, float sin_a, vec3 energy, vec3 p) {
 vec3 pbr_from_light_above(int i, vec3 p) {
 #ifdef SUB_LIGHTS
     vec3 sum = vec3(0.0);
-    for (int k = i * SUB_LIGHTS; k < (i + 1) * SUB_LIGHTS; ++k)
+    for (int j = 0; j < SUB_LIGHTS; ++j) {   // a constant count: the driver writes the loop out
+        int k = i * SUB_LIGHTS + j;
         sum += pbr_disc_above(sub_lights[k].dir_sin.xyz, sub_lights[k].dir_sin.w, sub_lights[k].energy.rgb, p);
+    }
     return sum;
 #else
     return pbr_disc_above(lights[i].dir_scale.xyz, lights[i].params.w, lights[i].energy.rgb, p);
