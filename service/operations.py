@@ -11,7 +11,7 @@ import hashlib
 import logging
 import re
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import anyio
 import numpy as np
@@ -24,11 +24,19 @@ from renderer.settings import Background
 
 from .codecs import decode_hdr, sniff_hdr_kind
 from .errors import ConflictError, InvalidRequestError, NotFoundError, PayloadTooLargeError, QueueFullError
-from .fabrics import FabricStore, scene_fabrics
+from .fabrics import FabricStore, fabric_material, find_fabric, scene_fabrics
 from .registry import EnvironmentRecord, EnvironmentStore, MeshStore, PemInfo, SceneMeshInfo, SceneRecord, SceneStore
-from .schemas import MeshSpec, OutputSpec, QualitySpec, SceneCreate
+from .schemas import MAX_COLOURWAYS, FabricRef, MaterialSpec, MeshSpec, OutputSpec, QualitySpec, SceneCreate
 from .settings import ServiceSettings
-from .specs import SHADOW_FLOOR, RequestQuality, check_frame_cost, check_pem_set, prepare_scene, resolve_quality
+from .specs import (
+    SHADOW_FLOOR,
+    RequestQuality,
+    build_material,
+    check_frame_cost,
+    check_pem_set,
+    prepare_scene,
+    resolve_quality,
+)
 from .state import StateDir
 from .worker import GLResources, RenderWorker
 
@@ -282,6 +290,64 @@ async def create_scene(svc: Services, body: SceneCreate, scene_id: str | None = 
         # left to the preset must stay the preset's (a full dump would pin every schema default).
         await anyio.to_thread.run_sync(svc.state.save_scene, record.id, stored.model_dump_json(exclude_unset=True))
     return record
+
+
+async def add_colourway(svc: Services, scene_id: str, spec: MaterialSpec | FabricRef) -> int:
+    """One more garment material or fabric for a registered scene (the viewer's fabric choice): judged
+    as a registration judges its colourways, made on the GL thread beside the others (they share the
+    shadow maps), kept in the state directory with the scene. Returns its index (the views route's
+    `colourway`). A glossier one than the scene's materials deepens its PEM set, made here."""
+    rec = await find_scene(svc, scene_id)
+    scene = rec.gpu
+    if scene is None:
+        raise NotFoundError(f"scene {scene_id} was deleted")
+    if scene.n_variants - 1 >= MAX_COLOURWAYS:
+        raise ConflictError(f"scene {scene_id} has {MAX_COLOURWAYS} colourways, the most a scene holds: register "
+                            "another scene for more")
+    role = f"colourway {scene.n_variants}"
+    garment = scene.meshes[0].mesh
+    notes: list[str] = []
+    if isinstance(spec, FabricRef):
+        fabric = await find_fabric(svc, spec.fabric_id)
+        material, notes = await anyio.to_thread.run_sync(
+            fabric_material, {fabric.id: fabric}, fabric.id, spec.uv_scale, garment, role)
+    else:
+        material = await anyio.to_thread.run_sync(build_material, spec, garment, role)
+    if material.is_pbr and not scene.has_pbr:
+        raise InvalidRequestError(f"{role}: a physically based material (every fabric is) needs a scene registered "
+                                  "with one, and this scene's materials are all Phong: register the scene with it "
+                                  "among its colourways")
+    # The scene's PEM set keeps the levels its glossiest lookup reads: a glossier colourway needs finer ones.
+    pem = rec.pem_settings
+    needed = pem.for_materials(rec.face_size, [material]).base_level
+    if needed < pem.base_level:
+        pem = replace(pem, base_level=needed)
+    env = rec.environment
+    key = cache_key(env.content_hash, rec.face_size, pem)
+
+    def job(gl: GLResources) -> int:
+        if rec.released or rec.gpu is None:
+            raise NotFoundError(f"scene {scene_id} was deleted while its colourway waited")
+        if pem != rec.pem_settings:
+            pems, source = gl.pem_set(env.content_hash, env.cubes[rec.face_size], pem)
+            env.note_pem_set(key, rec.face_size, pem, pems, source)
+        index = rec.gpu.add_variant([material] + [None] * (len(rec.gpu.meshes) - 1))   # MeshError: 422
+        rec.pem_settings, rec.pem_key = pem, key
+        return index
+
+    if pem != rec.pem_settings:   # the finer levels' calibration, off the GL thread (as a registration's)
+        await anyio.to_thread.run_sync(env.cube, rec.face_size)
+    index = await svc.worker.call(job, what=f"a colourway of scene {scene_id}")
+    if isinstance(spec, FabricRef) and spec.fabric_id not in rec.fabric_ids:
+        rec.fabric_ids.append(spec.fabric_id)
+    rec.material_notes.extend(notes)
+    if svc.state is not None:   # a restored scene has it too (create_scene reads the stored body)
+        text = await anyio.to_thread.run_sync(svc.state.load_scene, scene_id)
+        if text is not None:
+            stored = SceneCreate.model_validate_json(text)
+            stored = stored.model_copy(update={"colourways": [*stored.colourways, spec]})
+            await anyio.to_thread.run_sync(svc.state.save_scene, scene_id, stored.model_dump_json(exclude_unset=True))
+    return index
 
 
 async def find_scene(svc: Services, scene_id: str) -> SceneRecord:

@@ -461,6 +461,8 @@ class SceneInfo(BaseModel):
                           "PEM set's light plan (renderer.costs.frame_cost): the shadow maps (judged against "
                           "GARMENT_RENDER_MAX_SHADOW_MAP_BYTES), the render targets and the PEM set")
     fabrics: list[str] = Field([], description="the fabrics its meshes and colourways name")
+    colourways: int = Field(0, description="garment materials beyond its own (registered, or added by POST "
+                            "/scenes/{id}/colourways): POST .../frames/views?colourway=1..n renders each")
     material_notes: list[str] = Field([], description="what of its fabrics the renderer does not carry yet "
                                       "(textured alpha, clear coat, displacement, ...), each naming its mesh or colourway")
 

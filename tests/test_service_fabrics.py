@@ -15,7 +15,7 @@ import httpx
 import numpy as np
 import pytest
 from PIL import Image
-from service_server import FAST_QUALITY, ServiceProcess, garment, scene_body, upload_environment
+from service_server import FAST_QUALITY, ServiceProcess, assert_error, garment, scene_body, upload_environment
 from u3m_files import (
     color,
     color_texture,
@@ -193,6 +193,54 @@ def test_colourways_of_two_fabrics_in_one_sheet(http, env_id, mesh):
     assert first[..., 0].mean() - first[..., 2].mean() > 10 and second[..., 2].mean() - second[..., 0].mean() > 10
     assert http.delete(f"/fabrics/{blue}").status_code == 409   # a colourway uses it too
     assert http.delete(f"/scenes/{sid}").status_code == 204
+
+
+def test_a_colourway_added_to_a_registered_scene_renders_and_is_kept(http, server, env_id, mesh, state_dir):
+    """POST /scenes/{id}/colourways: a fabric uploaded after its scene joins its colourways (the viewer's
+    fabric choice), renders in its colour, keeps the fabric in use and is stored with the scene; what
+    cannot join is refused before any GL work, naming the rule."""
+    red = upload(http, checker_fabric((230, 30, 30), (200, 20, 20))).json()["id"]
+    r = http.post("/scenes", json=fabric_scene(env_id, mesh, red))
+    assert r.status_code == 201, r.text
+    sid = r.json()["id"]
+    assert r.json()["colourways"] == 0
+    blue = upload(http, checker_fabric((30, 30, 230), (20, 20, 200))).json()["id"]
+    added = http.post(f"/scenes/{sid}/colourways", json={"fabric_id": blue})
+    assert added.status_code == 201, added.text
+    assert added.json()["colourways"] == 1 and added.json()["fabrics"] == [red, blue]
+    # The scene's current pose again, in the new colourway alone (as the viewer asks for it).
+    views = http.post(f"/scenes/{sid}/frames/views", params={"turntable": 1, "colourway": 1, "layout": "none"})
+    assert views.status_code == 200, views.text
+    tile = np.asarray(Image.open(io.BytesIO(views.content)))
+    lit = tile[..., 3] == 255
+    assert lit.sum() > 200 and tile[lit, 2].mean() - tile[lit, 0].mean() > 10   # blue, not the garment's red
+    # A Phong material joins a physically based scene too (here through the client); the scene is stored
+    # with both.
+    with RenderClient(server.url) as client:
+        assert client.add_colourway(sid, material={"albedo": [0.2, 0.7, 0.2], "specular": 0.2})["colourways"] == 2
+    stored = json.loads((state_dir / "scenes" / f"{sid}.json").read_text())
+    assert [c.get("fabric_id") for c in stored["colourways"]] == [blue, None]
+    assert_error(http.delete(f"/fabrics/{blue}"), 409, sid)   # in use by the colourway
+    # Refused, and the scene unchanged: an unknown fabric or scene, another alpha, a fabric on a Phong scene.
+    assert_error(http.post(f"/scenes/{sid}/colourways", json={"fabric_id": "fab_0000000000000000"}), 404,
+                 "fab_0000000000000000")
+    assert_error(http.post("/scenes/scn_0000000000000000/colourways", json={"fabric_id": blue}), 404,
+                 "scn_0000000000000000")
+    assert_error(http.post(f"/scenes/{sid}/colourways", json={"model": "pbr", "albedo": [0.5, 0.5, 0.5],
+                                                              "alpha": 0.4}), 422, "alpha")
+    phong_scene = http.post("/scenes", json=fabric_scene(env_id, mesh, None))
+    assert phong_scene.status_code == 201, phong_scene.text
+    assert_error(http.post(f"/scenes/{phong_scene.json()['id']}/colourways", json={"fabric_id": blue}), 422,
+                 "physically based", "register the scene with it")
+    assert http.get(f"/scenes/{sid}").json()["colourways"] == 2
+    # A scene's colourways are bounded, added or registered.
+    full = http.post("/scenes", json=fabric_scene(env_id, mesh, None, colourways=[{"albedo": [0.5, 0.5, 0.5]}] * 16))
+    assert full.status_code == 201, full.text
+    assert_error(http.post(f"/scenes/{full.json()['id']}/colourways", json={"albedo": [0.1, 0.1, 0.1]}), 409, "16")
+    assert http.delete(f"/scenes/{full.json()['id']}").status_code == 204
+    for scene in (sid, phong_scene.json()["id"]):
+        assert http.delete(f"/scenes/{scene}").status_code == 204
+    assert http.delete(f"/fabrics/{blue}").status_code == 204
 
 
 def test_the_client_uploads_names_and_forgets_a_fabric(server, env_id, mesh, tmp_path):

@@ -9,6 +9,7 @@ import shutil
 import signal
 import subprocess
 import time
+from contextlib import contextmanager
 from html.parser import HTMLParser
 
 import httpx
@@ -229,15 +230,47 @@ class _DevTools:
             time.sleep(0.2)
 
 
+@contextmanager
+def driven_page(url: str, profile):
+    """The page at `url` in headless Chromium, driven through its DevTools protocol (_DevTools)."""
+    from websockets.sync.client import connect
+
+    proc = subprocess.Popen([chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
+                             "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                             "--remote-debugging-port=0", f"--user-data-dir={profile}", "--window-size=1200,2400", url],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while not (profile / "DevToolsActivePort").exists():
+            assert time.monotonic() < deadline and proc.poll() is None, "chromium did not open its DevTools port"
+            time.sleep(0.1)
+        port = int((profile / "DevToolsActivePort").read_text().split()[0])
+        pages = [t for t in httpx.get(f"http://127.0.0.1:{port}/json/list").json() if t["type"] == "page"]
+        with connect(pages[0]["webSocketDebuggerUrl"], max_size=None) as ws:
+            yield _DevTools(ws)
+    finally:
+        proc.terminate()
+        proc.wait(30)
+
+
+def click(page: _DevTools, element_js: str) -> None:
+    """A left click of the mouse on the element `element_js` evaluates to, scrolled into view."""
+    x, y = page.eval(f"""(() => {{
+        const b = {element_js};
+        b.scrollIntoView();
+        const r = b.getBoundingClientRect();
+        return [r.x + r.width / 2, r.y + r.height / 2];
+    }})()""")
+    for kind in ("mousePressed", "mouseReleased"):
+        page.send("Input.dispatchMouseEvent", type=kind, x=x, y=y, button="left", clickCount=1)
+
+
 def test_the_page_driven_in_chromium_orbits_turns_the_light_switches_colourway_and_charts_timings(server, scenes,
                                                                                                    tmp_path):
     """A person's use of the page, in headless Chromium driven through its DevTools protocol: on a scene
     with a colourway, the orbit, height and light sliders are moved, the colourway and another preset
     chosen, the render button clicked with the mouse; the scene's current pose is rendered again so (its
     latest frame the view, the sheet's one tile), shown, and its stages drawn as bars."""
-    from websockets.sync.client import connect
-
-    browser = chromium()
     with RenderClient(server.url, token=TOKEN) as c:
         env = c._json("GET", "/environments")[0]["id"]
         sim = ClothSim(sheet(12), mannequin(), ClothSettings(frame_dt_s=1 / 10))
@@ -246,55 +279,33 @@ def test_the_page_driven_in_chromium_orbits_turns_the_light_switches_colourway_a
                                colourways=[{"albedo": [0.1, 0.2, 0.8], "specular": 0.3, "glossiness": 0.7}])
         c.send_frame(scene["id"], sim.positions)
         sid = scene["id"]
-        profile = tmp_path / "profile"
-        proc = subprocess.Popen([browser, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
-                                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                                 "--remote-debugging-port=0", f"--user-data-dir={profile}", "--window-size=1200,2400",
-                                 f"{server.url}/view#token={TOKEN}"],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        try:
-            deadline = time.monotonic() + 60
-            while not (profile / "DevToolsActivePort").exists():
-                assert time.monotonic() < deadline and proc.poll() is None, "chromium did not open its DevTools port"
-                time.sleep(0.1)
-            port = int((profile / "DevToolsActivePort").read_text().split()[0])
-            pages = [t for t in httpx.get(f"http://127.0.0.1:{port}/json/list").json() if t["type"] == "page"]
-            with connect(pages[0]["webSocketDebuggerUrl"], max_size=None) as ws:
-                page = _DevTools(ws)
-                card = f'document.querySelector(\'[data-scene-id="{sid}"]\')'
-                page.wait_for(f"{card} && {card}.getAttribute('data-shown-sequence') === '1'")
-                assert page.eval(f"{card}.querySelectorAll('select[name=colourway] option').length") == 2
-                assert page.eval(f"{card}.querySelector('select[name=preset]').value") == "fast"
-                # The sliders moved and the colourway chosen as their input events say, then a mouse click.
-                x, y = page.eval(f"""(() => {{
-                    const c = {card};
-                    for (const [n, v] of [["azimuth", 90], ["elevation", 20], ["rotation", 135]]) {{
-                        const i = c.querySelector(`input[name=${{n}}]`);
-                        i.value = String(v);
-                        i.dispatchEvent(new Event("input"));
-                    }}
-                    for (const [n, v] of [["colourway", "1"], ["preset", "balanced"]]) {{
-                        const s = c.querySelector(`select[name=${{n}}]`);
-                        s.value = v;
-                        s.dispatchEvent(new Event("change"));
-                    }}
-                    const b = c.querySelector("button.render");
-                    b.scrollIntoView();
-                    const r = b.getBoundingClientRect();
-                    return [r.x + r.width / 2, r.y + r.height / 2];
-                }})()""")
-                assert page.eval(f"{card}.querySelector('.controls .value').textContent") == "90\u00b0"
-                for kind in ("mousePressed", "mouseReleased"):
-                    page.send("Input.dispatchMouseEvent", type=kind, x=x, y=y, button="left", clickCount=1)
-                page.wait_for(f"{card}.getAttribute('data-rendered') === '90,20,135,1,balanced'")
-                # The view is the scene's latest frame, shown by the next poll, its stages as bars.
-                page.wait_for(f"{card}.getAttribute('data-shown-sequence') === {card}.getAttribute('data-rendered-sequence')")
-                bars = page.eval(f"[...{card}.querySelectorAll('.bar')].map(b => Number(b.dataset.width))")
-                assert len(bars) >= 4 and max(bars) == 120 and sum(b > 0 for b in bars) >= 3, bars
-                assert page.eval(f"{card}.querySelector('img.frame').getAttribute('data-natural-width')") == "96"
-        finally:
-            proc.terminate()
-            proc.wait(30)
+        with driven_page(f"{server.url}/view#token={TOKEN}", tmp_path / "profile") as page:
+            card = f'document.querySelector(\'[data-scene-id="{sid}"]\')'
+            page.wait_for(f"{card} && {card}.getAttribute('data-shown-sequence') === '1'")
+            assert page.eval(f"{card}.querySelectorAll('select[name=colourway] option').length") == 2
+            assert page.eval(f"{card}.querySelector('select[name=preset]').value") == "fast"
+            # The sliders moved and the colourway chosen as their input events say, then a mouse click.
+            page.eval(f"""(() => {{
+                const c = {card};
+                for (const [n, v] of [["azimuth", 90], ["elevation", 20], ["rotation", 135]]) {{
+                    const i = c.querySelector(`input[name=${{n}}]`);
+                    i.value = String(v);
+                    i.dispatchEvent(new Event("input"));
+                }}
+                for (const [n, v] of [["colourway", "1"], ["preset", "balanced"]]) {{
+                    const s = c.querySelector(`select[name=${{n}}]`);
+                    s.value = v;
+                    s.dispatchEvent(new Event("change"));
+                }}
+            }})()""")
+            assert page.eval(f"{card}.querySelector('.controls .value').textContent") == "90\u00b0"
+            click(page, f"{card}.querySelector('button.render')")
+            page.wait_for(f"{card}.getAttribute('data-rendered') === '90,20,135,1,balanced'")
+            # The view is the scene's latest frame, shown by the next poll, its stages as bars.
+            page.wait_for(f"{card}.getAttribute('data-shown-sequence') === {card}.getAttribute('data-rendered-sequence')")
+            bars = page.eval(f"[...{card}.querySelectorAll('.bar')].map(b => Number(b.dataset.width))")
+            assert len(bars) >= 4 and max(bars) == 120 and sum(b > 0 for b in bars) >= 3, bars
+            assert page.eval(f"{card}.querySelector('img.frame').getAttribute('data-natural-width')") == "96"
         latest = c._json("GET", f"/scenes/{sid}/latest")
         assert latest["frame"]["sequence"] == 2 and "shading" in latest["frame"]["timings_ms"]
         # Another preset's views are another picture of the same pose (its own PEM set and maps).
@@ -315,3 +326,48 @@ def test_the_page_driven_in_chromium_orbits_turns_the_light_switches_colourway_a
                             headers={**auth, "Content-Type": "application/octet-stream"})
             assert r.status_code == 422 and words in r.json()["detail"], (params, r.text)
         c.delete_scene(sid)
+
+
+def test_a_fabric_uploaded_after_its_scene_is_chosen_in_the_page_and_rendered(server, scenes, tmp_path):
+    """The designer's fabric choice: a .u3ma uploaded while the page is open appears in each scene's
+    fabric list; chosen and added with the mouse it becomes the scene's next colourway (named by the
+    fabric), chosen at once, and the render button draws the garment in it."""
+    from service_server import garment
+    from u3m_files import color, document, scalar, u3ma_bytes, visualisation
+
+    blue = u3ma_bytes(document("1.1", visualisation("1.1", basecolor=color((0.05, 0.1, 0.8)), roughness=scalar(0.7)),
+                               name="Blue twill"), {})
+    with RenderClient(server.url, token=TOKEN) as c:
+        env = c._json("GET", "/environments")[0]["id"]
+        mesh = garment(16)
+        scene = c.create_scene(env, name="fabric", positions=mesh.positions, faces=mesh.faces, uvs=mesh.uvs,
+                               material={"model": "pbr", "albedo": [0.8, 0.15, 0.1], "roughness": 0.7},
+                               quality=dict(FAST_QUALITY), output={**OUTPUT, "background": "black"})
+        sid = scene["id"]
+        c.send_frame(sid, mesh.positions)
+        with driven_page(f"{server.url}/view#token={TOKEN}", tmp_path / "profile") as page:
+            card = f'document.querySelector(\'[data-scene-id="{sid}"]\')'
+            page.wait_for(f"{card} && {card}.getAttribute('data-shown-sequence') === '1'")
+            fabric = c.upload_fabric(blue, name="blue-twill.u3ma")["id"]
+            # Listed by the next poll; chosen, added and rendered with the mouse.
+            page.wait_for(f"[...{card}.querySelectorAll('select[name=fabric] option')].some(o => o.value === '{fabric}')")
+            page.eval(f"(() => {{ const s = {card}.querySelector('select[name=fabric]'); s.value = '{fabric}'; "
+                      "s.dispatchEvent(new Event('change')); })()")
+            click(page, f"{card}.querySelector('button.add-fabric')")
+            page.wait_for(f"{card}.getAttribute('data-added-colourway') === '1'")
+            chosen = page.eval(f"(() => {{ const s = {card}.querySelector('select[name=colourway]'); "
+                               "return [s.value, s.options[s.selectedIndex].textContent]; })()")
+            assert chosen == ["1", "blue-twill.u3ma"], chosen
+            click(page, f"{card}.querySelector('button.render')")
+            page.wait_for(f"{card}.getAttribute('data-rendered') === '0,0,0,1,fast'")
+            page.wait_for(f"{card}.getAttribute('data-shown-sequence') === {card}.getAttribute('data-rendered-sequence')")
+            assert "error" not in (page.eval("document.getElementById('status').className") or "")
+        import io
+
+        from PIL import Image
+        latest = np.asarray(Image.open(io.BytesIO(c.http.get(f"/scenes/{sid}/latest.png").content)))
+        lit = latest[..., 3] == 255
+        assert lit.sum() > 200 and latest[lit, 2].mean() - latest[lit, 0].mean() > 10   # blue, not the red garment
+        assert c._json("GET", f"/scenes/{sid}")["fabrics"] == [fabric]
+        c.delete_scene(sid)
+        c.delete_fabric(fabric)

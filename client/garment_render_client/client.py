@@ -309,6 +309,16 @@ class RenderClient:
         (mesh_spec dicts), camera, quality, output, up, name, colourways."""
         return self._json("POST", "/scenes", idempotent=False, json=self.scene_spec(environment_id, **kw))
 
+    def add_colourway(self, scene_id: str, material: dict | None = None, fabric_id: str | None = None,
+                      uv_scale: list[float] | None = None) -> dict:
+        """One more garment material (`material`, a MaterialSpec dict) or uploaded fabric (`fabric_id`,
+        optionally `uv_scale`) for a registered scene; returns the scene, whose `colourways` is the new
+        one's index (the views route's `colourway`; send_views renders every colourway)."""
+        if (material is None) == (fabric_id is None):
+            raise ValueError("give a material or a fabric_id")
+        body = material if material is not None else {"fabric_id": fabric_id, **({"uv_scale": uv_scale} if uv_scale else {})}
+        return self._json("POST", f"/scenes/{scene_id}/colourways", idempotent=False, json=body)
+
     def delete_scene(self, scene_id: str) -> None:
         self._request("DELETE", f"/scenes/{scene_id}")
 

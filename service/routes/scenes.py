@@ -15,7 +15,7 @@ from .. import operations
 from ..deps import ScenesDep, ServicesDep, require_token
 from ..errors import ConflictError, ServiceError
 from ..registry import SceneRecord
-from ..schemas import SceneCreate, SceneInfo, SceneMeshOut
+from ..schemas import FabricRef, MaterialSpec, SceneCreate, SceneInfo, SceneMeshOut
 from ..specs import camera_dict
 from .environments import pem_set_info
 
@@ -33,7 +33,8 @@ def scene_info(rec: SceneRecord) -> SceneInfo:
         pem_set=pem_set_info(rec.environment, pem, with_lights=False) if pem else None,
         frames_rendered=rec.count_frames(0), created=rec.created,
         frame_memory=rec.frame_cost.as_dict() if rec.frame_cost is not None else None,
-        fabrics=rec.fabric_ids, material_notes=rec.material_notes)
+        fabrics=rec.fabric_ids, colourways=rec.gpu.n_variants - 1 if rec.gpu is not None else 0,
+        material_notes=rec.material_notes)
 
 
 @router.post("", response_model=SceneInfo, status_code=status.HTTP_201_CREATED,
@@ -66,6 +67,17 @@ async def list_scenes(scenes: ScenesDep, svc: ServicesDep) -> list[SceneInfo]:
 
 @router.get("/{scene_id}", response_model=SceneInfo)
 async def get_scene(scene_id: str, svc: ServicesDep) -> SceneInfo:
+    return scene_info(await operations.find_scene(svc, scene_id))
+
+
+@router.post("/{scene_id}/colourways", response_model=SceneInfo, status_code=status.HTTP_201_CREATED,
+             summary="Add a colourway to a registered scene: a material, or an uploaded fabric ({fabric_id, uv_scale})")
+async def add_colourway(scene_id: str, body: MaterialSpec | FabricRef, svc: ServicesDep) -> SceneInfo:
+    """The new colourway is the scene's last (`colourways` in the answer: its index for
+    POST .../frames/views?colourway=). It keeps the garment's alpha (every colourway shares the shadow
+    maps); a physically based one (every fabric is) needs a scene registered with one; a glossier one
+    than the scene's materials makes finer levels of its PEM set, here."""
+    await operations.add_colourway(svc, scene_id, body)
     return scene_info(await operations.find_scene(svc, scene_id))
 
 
