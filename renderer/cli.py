@@ -472,14 +472,8 @@ def pem_set(r, env, settings, args):
     """`env`'s PEM set for `settings`: from the user's cache folder (user_cache.py), else built and
     stored there for the next command (the light decomposition is in it); built and not stored with
     --no-cache. Returns (the set, where it came from: "disk" or "built")."""
-    if getattr(args, "no_cache", False):
-        return r.build_pems(env.cube, settings), "built"
-    from .cache import PEMCache
-    from .user_cache import user_cache_dir
-
-    cache = PEMCache(r.gl, disk_dir=user_cache_dir("pem-sets"), name="user")
-    pems = cache.get(env.content_hash, env.cube, settings)
-    return pems, "disk" if cache.stats.disk_hits else "built"
+    pems = r.pem_set(env, settings, cache=not getattr(args, "no_cache", False))
+    return pems, pems.source
 
 
 def _pem_line(pems, source: str) -> str:

@@ -496,6 +496,23 @@ class Renderer:
         """Build the PEM set of a cube map (6, F, F, 3); the caller owns it (cache it per map)."""
         return PEMSet(self.gl, cube, settings, timer)
 
+    def pem_set(self, env, settings: PEMSettings, cache: bool = True) -> PEMSet:
+        """`env`'s (an EnvironmentMap) PEM set for `settings` (Quality.pems(materials=...)): from the
+        user's cache folder when a process made it before (user_cache.py), else built and stored there
+        for the next one (the light decomposition is in it); `cache` False: built and not stored. Its
+        `source` says which ("disk" or "built"); the caller owns it (release())."""
+        if not cache:
+            pems = self.build_pems(env.cube, settings)
+            pems.source = "built"
+            return pems
+        from .cache import PEMCache
+        from .user_cache import user_cache_dir
+
+        store = PEMCache(self.gl, disk_dir=user_cache_dir("pem-sets"), name="user")
+        pems = store.get(env.content_hash, env.cube, settings)
+        pems.source = "disk" if store.stats.disk_hits else "built"
+        return pems
+
     def create_scene(self, meshes: list[Mesh], materials: list[Material] | None = None,
                      casters: list[bool] | None = None,
                      proxies: dict[float, list[np.ndarray | None]] | None = None,

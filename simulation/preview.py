@@ -24,33 +24,30 @@ def render_preview(out: Path | str, garment: tuple[np.ndarray, np.ndarray, np.nd
     all. garment: (positions (V, 3), faces (F, 3), uvs (V, 2)); body, floor: (positions, faces);
     metres, Y-up, faces counter-clockwise seen from outside. views: (eye, target) per view,
     metres."""
-    from renderer.camera import Camera
-    from renderer.cli import build_parser, frame_settings, pem_set, pem_settings, png_image, resolve_quality
-    from renderer.envmap import environment_from_array, studio_environment
-    from renderer.mesh import Mesh
-    from renderer.renderer import Renderer
-    from renderer.shading.material import Material
-    from renderer.shading.tonemap import ToneCurve, auto_exposure_ev, write_png
+    import renderer as gr
+    from renderer.cli import png_image
+    from renderer.envmap import studio_environment
+    from renderer.shading.tonemap import DEFAULT_CURVE, auto_exposure_ev
 
     w = h = int(height)
-    args = build_parser().parse_args(["render", "--preset", "fast", "--size", f"{w}x{h}", "--background", "black"])
-    q = resolve_quality(args)
-    env = environment_from_array(studio_environment(1024), "latlong", q["face_size"], name="studio (bundled)")
-    meshes = [Mesh.from_arrays(*garment, name="garment"), Mesh.from_arrays(*body, name="body"),
-              Mesh.from_arrays(*floor, name="floor")]
-    materials = [Material(GARMENT_ALBEDO, 0.35, 0.75), Material(BODY_ALBEDO, 0.05, 0.3),
-                 Material(FLOOR_ALBEDO, 0.0, 0.2)]
+    quality = gr.quality("fast")
+    env = gr.environment_from_array(studio_environment(1024), "latlong", quality.face_size, name="studio (bundled)")
+    meshes = [gr.Mesh.from_arrays(*garment, name="garment"), gr.Mesh.from_arrays(*body, name="body"),
+              gr.Mesh.from_arrays(*floor, name="floor")]
+    materials = [gr.Material(GARMENT_ALBEDO, 0.35, 0.75), gr.Material(BODY_ALBEDO, 0.05, 0.3),
+                 gr.Material(FLOOR_ALBEDO, 0.0, 0.2)]
+    settings = quality.frame(w, h, background=gr.Background.BLACK)
     images = []
-    with Renderer() as r:
-        pems, _ = pem_set(r, env, pem_settings(args, q, materials), args)
+    with gr.Renderer() as r:
+        pems = r.pem_set(env, quality.pems(materials=materials))
         scene = r.create_scene(meshes, materials, casters=[True, True, False])
         for eye, target in views:
-            frame = r.render(scene, pems, frame_settings(args, q), Camera(eye, target, fov_y_deg=fov_y_deg))
+            frame = r.render(scene, pems, settings, gr.Camera(eye, target, fov_y_deg=fov_y_deg))
             images.append(png_image(frame.image, False))
         scene.release()
         pems.release()
     img = np.concatenate(images, axis=1)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    write_png(out, img, auto_exposure_ev(img[..., :3], img[..., 3]), ToneCurve(args.tone))
+    gr.write_png(out, img, auto_exposure_ev(img[..., :3], img[..., 3]), DEFAULT_CURVE)
     return out

@@ -129,6 +129,7 @@ class PEMSet:
             raise InvalidInputError("cube map has NaN, Inf or negative texels; load it with repair=True")
         self.gl = gl
         self.settings = settings
+        self.source = "built"   # or "disk": read from a cache folder (Renderer.pem_set)
         self._gloss_tables: dict[Calibration, np.ndarray] = {}
         self.face_size = n
         full = mip_levels(n)

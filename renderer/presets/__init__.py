@@ -42,7 +42,7 @@ def merge_knobs(base: dict, explicit: dict) -> dict:
 def frame_settings(knobs: dict, width: int, height: int, **output):
     """The FrameSettings of resolved knobs (`merge_knobs`) for a width x height image; `output` are
     the settings no preset chooses (mode, background, bleed_reduction)."""
-    from ..renderer import FrameSettings
+    from ..settings import FrameSettings
 
     return FrameSettings(width=width, height=height, **{k: knobs[k] for k in config.FRAME_SETTINGS}, **output)
 
@@ -93,6 +93,11 @@ class Quality:
 
     def __getitem__(self, name: str):
         return self.knobs[name]
+
+    @property
+    def face_size(self) -> int:
+        """The PEM faces' side: the cube an environment map is resampled to (load_environment)."""
+        return int(self.knobs["face_size"])
 
     def key(self, invalidates: str) -> tuple:
         """The values of the settings whose change makes `invalidates` anew (config.INVALIDATES: the
