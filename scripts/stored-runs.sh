@@ -4,7 +4,7 @@
 # preset change makes every one of them stale (tests/test_stored_runs.py fails until they are made
 # again). Names the runs to make (default all, in this order):
 #   broad-256   garment-render bench --broad --size 256   (~20 min warm, an hour from a cold cache; then
-#               docs/presets.md from it: python -m renderer.bench.preset_report)
+#               docs/presets.md from it: python -m garment_lab.preset_report)
 #   broad-512   garment-render bench --broad --size 512   (~30 min warm, an hour cold)
 #   error-split garment-render error-split                (~35 min)
 #   energy      garment-render bench --energy             (~2 min)
@@ -59,7 +59,7 @@ broad() {   # size, the stored run, its trade curve (curve.curve_stem names it),
 import sys
 from pathlib import Path
 
-from renderer.bench import broad
+from garment_lab import broad
 
 data = broad.rewrite(Path(sys.argv[1]))   # its report, with today's targets
 if Path(sys.argv[1]).as_posix().endswith(broad.README_RUN):
@@ -81,11 +81,11 @@ for run in "${runs[@]}"; do
     case "$run" in
         broad-256)   # and the presets' report, made from it (docs/presets.md)
             broad 256 docs/broad/broad-256.json docs/broad/trade_curve.json run
-            "$py" -m renderer.bench.preset_report ;;
+            "$py" -m garment_lab.preset_report ;;
         broad-512) broad 512 docs/broad/broad-512.json docs/broad/trade_curve-512.json run ;;
         broad-256-retime)
             broad 256 docs/broad/broad-256.json docs/broad/trade_curve.json retime
-            "$py" -m renderer.bench.preset_report ;;
+            "$py" -m garment_lab.preset_report ;;
         broad-512-retime) broad 512 docs/broad/broad-512.json docs/broad/trade_curve-512.json retime ;;
         error-split) "${gr[@]}" error-split --out docs/error-split ;;
         energy) "${gr[@]}" bench --energy --out docs/energy ;;

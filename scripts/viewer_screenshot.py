@@ -28,7 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from renderer.bench.fabrics import fabric_archive  # noqa: E402
+from garment_lab.fabrics import fabric_archive  # noqa: E402
 from renderer.envmap import studio_environment, write_exr  # noqa: E402
 from renderer.procedural import procedural_body, procedural_garment  # noqa: E402
 

@@ -14,26 +14,20 @@ the renderer does not carry of it said in notes.
 from __future__ import annotations
 
 import contextlib
-import functools
-import hashlib
 import threading
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-import anyio
-
 from renderer.errors import MaterialError
 from renderer.mesh import Mesh
 from renderer.shading.material import Material
-from renderer.u3m import DEFAULT_LIMITS, U3MLimits, U3MMaterial, load_u3m, material_from_u3m
+from renderer.u3m import DEFAULT_LIMITS, U3MLimits, U3MMaterial, material_from_u3m
 
 from .errors import ConflictError, NotFoundError
 
 if TYPE_CHECKING:
-    from .operations import Services
-    from .schemas import SceneCreate
     from .settings import ServiceSettings
 
 # The most a decoded pixel keeps: a colour or a normal image's three float32 (a scalar's one).
@@ -120,7 +114,7 @@ class FabricStore:
         return len(self._by_id)
 
 
-def _unknown(fabric_id: str) -> NotFoundError:
+def unknown_fabric(fabric_id: str) -> NotFoundError:
     return NotFoundError(f"unknown fabric id {fabric_id!r}; upload the fabric with POST /fabrics (ids are listed by "
                          "GET /fabrics)")
 
@@ -136,7 +130,7 @@ def fabric_limits(settings: ServiceSettings, room_bytes: int) -> U3MLimits:
                      max_archive_bytes=min(DEFAULT_LIMITS.max_archive_bytes, settings.max_upload_bytes))
 
 
-def _in_service_terms(exc: MaterialError, settings: ServiceSettings, limits: U3MLimits, room_bytes: int,
+def in_service_terms(exc: MaterialError, settings: ServiceSettings, limits: U3MLimits, room_bytes: int,
                       fabrics: FabricStore) -> Exception:
     """The reader's refusal with the service's settings named in place of the reader's bounds; a 409
     where the fabrics' memory budget, not a fabric's own limit, was what refused it."""
@@ -157,74 +151,6 @@ def _in_service_terms(exc: MaterialError, settings: ServiceSettings, limits: U3M
     return MaterialError(reason, file=exc.file, field=exc.field)
 
 
-async def add_fabric(svc: Services, data: bytes, name: str | None, store: bool = True) -> tuple[FabricRecord, bool]:
-    """Read and keep an uploaded fabric, once per distinct file; written to the state directory where
-    there is one (unless `store` is false: a restoration). Returns (record, cached)."""
-    file_sha = await anyio.to_thread.run_sync(lambda: hashlib.sha256(data).hexdigest())
-    fabric_id = "fab_" + file_sha[:16]
-    existing = svc.fabrics.find(fabric_id)
-    if existing is not None:
-        return existing, True
-    svc.fabrics.check_count()   # before any of it is read
-    settings = svc.settings
-    label = name or f"fabric-{file_sha[:8]}.u3ma"
-    with svc.fabrics.reserve(settings.max_fabric_pixels * BYTES_PER_PIXEL) as room:
-        limits = fabric_limits(settings, room)
-        t0 = time.perf_counter()
-        try:
-            material = await anyio.to_thread.run_sync(functools.partial(load_u3m, data, name=label, limits=limits))
-        except MaterialError as exc:
-            raise _in_service_terms(exc, settings, limits, room, svc.fabrics) from None
-        record = FabricRecord(id=fabric_id, name=name or material.name, label=label, material=material,
-                              file_sha256=file_sha, archive_bytes=len(data),
-                              decode_ms=(time.perf_counter() - t0) * 1e3)
-        rec, created = svc.fabrics.add(record)
-    if created and store and svc.state is not None:
-        await anyio.to_thread.run_sync(svc.state.save_fabric, rec.id, data, {"name": name})
-    return rec, not created
-
-
-async def find_fabric(svc: Services, fabric_id: str) -> FabricRecord:
-    """The fabric in this process, else restored from the state directory (read again from its bytes)."""
-    rec = svc.fabrics.find(fabric_id)
-    if rec is not None:
-        return rec
-    if svc.state is None:
-        raise _unknown(fabric_id)
-    async with svc._lock(fabric_id):
-        rec = svc.fabrics.find(fabric_id)
-        if rec is not None:
-            return rec
-        stored = await anyio.to_thread.run_sync(svc.state.load_fabric, fabric_id)
-        if stored is None:
-            raise _unknown(fabric_id)
-        data, meta = stored
-        rec, _ = await add_fabric(svc, data, meta.get("name"), store=False)
-        return rec
-
-
-async def scene_fabrics(svc: Services, body: SceneCreate) -> dict[str, FabricRecord]:
-    """Every fabric a scene names, by id (NotFoundError for one that neither this process nor the
-    state directory has)."""
-    return {fabric_id: await find_fabric(svc, fabric_id) for fabric_id in body.fabric_ids()}
-
-
-async def delete_fabric(svc: Services, fabric_id: str) -> None:
-    users = svc.scenes.using_fabric(fabric_id)
-    if users:
-        raise ConflictError(f"fabric {fabric_id} is used by scenes {users}; delete them first")
-    try:
-        svc.fabrics.remove(fabric_id)
-    except NotFoundError:
-        if svc.state is None or svc.state.load_fabric(fabric_id) is None:
-            raise
-    if svc.state is not None:
-        svc.state.delete_fabric(fabric_id)
-
-
-# -- on a mesh -------------------------------------------------------------------------------------
-
-
 def fabric_material(fabrics: dict[str, FabricRecord], fabric_id: str, uv_scale: list[float] | None, mesh: Mesh,
                     role: str) -> tuple[Material, list[str]]:
     """The renderer's Material of a fabric on `mesh` (its front outward, each texture at its physical
@@ -232,7 +158,7 @@ def fabric_material(fabrics: dict[str, FabricRecord], fabric_id: str, uv_scale: 
     renderer does not carry, one note each naming `role` and the fabric."""
     rec = fabrics.get(fabric_id)
     if rec is None:   # pragma: no cover - scene_fabrics found every one the scene names
-        raise _unknown(fabric_id)
+        raise unknown_fabric(fabric_id)
     if mesh.uvs is None:
         raise MaterialError(f"{role} mesh {mesh.name!r} has no UVs, and fabric {rec.id} ({rec.name}) is laid on the "
                             "mesh by them: send uvs (V, 2), or a mesh file with UVs")

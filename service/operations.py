@@ -1,5 +1,5 @@
-"""What the routes do, without HTTP: add an environment map, make sure a PEM set exists, register a
-scene, and find an environment or a scene by id (fabrics: service/fabrics.py) (in memory, else restored from the state directory,
+"""What the routes do, without HTTP: add an environment map or a fabric, make sure a PEM set exists,
+register a scene, and find an environment, a fabric or a scene by id (in memory, else restored from the state directory,
 which is how several worker processes, or a restarted service, share them)."""
 
 from __future__ import annotations
@@ -18,13 +18,23 @@ import numpy as np
 
 from renderer.cache import cache_key
 from renderer.envmap import environment_from_array
+from renderer.errors import MaterialError
 from renderer.lighting.pem_plan import PEMSettings
 from renderer.presets import pem_settings as resolved_pem_settings
 from renderer.settings import Background
+from renderer.u3m import load_u3m
 
 from .codecs import decode_hdr, sniff_hdr_kind
 from .errors import ConflictError, InvalidRequestError, NotFoundError, PayloadTooLargeError, QueueFullError
-from .fabrics import FabricStore, fabric_material, find_fabric, scene_fabrics
+from .fabrics import (
+    BYTES_PER_PIXEL,
+    FabricRecord,
+    FabricStore,
+    fabric_limits,
+    fabric_material,
+    in_service_terms,
+    unknown_fabric,
+)
 from .registry import EnvironmentRecord, EnvironmentStore, MeshStore, PemInfo, SceneMeshInfo, SceneRecord, SceneStore
 from .schemas import MAX_COLOURWAYS, FabricRef, MaterialSpec, MeshSpec, OutputSpec, QualitySpec, SceneCreate
 from .settings import ServiceSettings
@@ -145,6 +155,76 @@ async def ensure_pem_set(worker: RenderWorker, env: EnvironmentRecord, face_size
 
     await worker.call(job, what=f"the PEM set of {env.id} at {face_size}^2 x {pem_settings.lights} lights")
     return env.pem_sets[key]
+
+
+# --- fabrics (service/fabrics.py: the store, the reader's bounds, the material on a mesh) -----------------
+
+async def add_fabric(svc: Services, data: bytes, name: str | None, store: bool = True) -> tuple[FabricRecord, bool]:
+    """Read and keep an uploaded fabric, once per distinct file; written to the state directory where
+    there is one (unless `store` is false: a restoration). Returns (record, cached)."""
+    file_sha = await anyio.to_thread.run_sync(lambda: hashlib.sha256(data).hexdigest())
+    fabric_id = "fab_" + file_sha[:16]
+    existing = svc.fabrics.find(fabric_id)
+    if existing is not None:
+        return existing, True
+    svc.fabrics.check_count()   # before any of it is read
+    settings = svc.settings
+    label = name or f"fabric-{file_sha[:8]}.u3ma"
+    with svc.fabrics.reserve(settings.max_fabric_pixels * BYTES_PER_PIXEL) as room:
+        limits = fabric_limits(settings, room)
+        t0 = time.perf_counter()
+        try:
+            material = await anyio.to_thread.run_sync(functools.partial(load_u3m, data, name=label, limits=limits))
+        except MaterialError as exc:
+            raise in_service_terms(exc, settings, limits, room, svc.fabrics) from None
+        record = FabricRecord(id=fabric_id, name=name or material.name, label=label, material=material,
+                              file_sha256=file_sha, archive_bytes=len(data),
+                              decode_ms=(time.perf_counter() - t0) * 1e3)
+        rec, created = svc.fabrics.add(record)
+    if created and store and svc.state is not None:
+        await anyio.to_thread.run_sync(svc.state.save_fabric, rec.id, data, {"name": name})
+    return rec, not created
+
+
+async def find_fabric(svc: Services, fabric_id: str) -> FabricRecord:
+    """The fabric in this process, else restored from the state directory (read again from its bytes)."""
+    rec = svc.fabrics.find(fabric_id)
+    if rec is not None:
+        return rec
+    if svc.state is None:
+        raise unknown_fabric(fabric_id)
+    async with svc._lock(fabric_id):
+        rec = svc.fabrics.find(fabric_id)
+        if rec is not None:
+            return rec
+        stored = await anyio.to_thread.run_sync(svc.state.load_fabric, fabric_id)
+        if stored is None:
+            raise unknown_fabric(fabric_id)
+        data, meta = stored
+        rec, _ = await add_fabric(svc, data, meta.get("name"), store=False)
+        return rec
+
+
+async def scene_fabrics(svc: Services, body: SceneCreate) -> dict[str, FabricRecord]:
+    """Every fabric a scene names, by id (NotFoundError for one that neither this process nor the
+    state directory has)."""
+    return {fabric_id: await find_fabric(svc, fabric_id) for fabric_id in body.fabric_ids()}
+
+
+async def delete_fabric(svc: Services, fabric_id: str) -> None:
+    users = svc.scenes.using_fabric(fabric_id)
+    if users:
+        raise ConflictError(f"fabric {fabric_id} is used by scenes {users}; delete them first")
+    try:
+        svc.fabrics.remove(fabric_id)
+    except NotFoundError:
+        if svc.state is None or svc.state.load_fabric(fabric_id) is None:
+            raise
+    if svc.state is not None:
+        svc.state.delete_fabric(fabric_id)
+
+
+# -- on a mesh -------------------------------------------------------------------------------------
 
 
 async def find_environment(svc: Services, env_id: str) -> EnvironmentRecord:

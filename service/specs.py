@@ -280,7 +280,7 @@ SHADOW_FLOOR = "shadow floor"
 def prepare_scene(body: SceneCreate, presets: dict, measured: dict | None, meshes: MeshStore,
                   settings: ServiceSettings, device: str | None = None,
                   fabrics: dict[str, FabricRecord] | None = None) -> PreparedScene:
-    """`fabrics`: every fabric the scene names, by id (fabrics.scene_fabrics)."""
+    """`fabrics`: every fabric the scene names, by id (operations.scene_fabrics)."""
     quality = resolve_quality(body.quality, body.output, presets, measured, settings, device)
     specs = [("garment", body.garment)] + [(role, getattr(body, role)) for role in ("body", "floor")
                                            if getattr(body, role) is not None]

@@ -1,11 +1,11 @@
-"""`garment-render bench --area`'s comparison (renderer/bench/area.py): equal light count, equal frame
+"""`garment-render bench --area`'s comparison (lab/garment_lab/area.py): equal light count, equal frame
 time, auto against the better of the two, and the blocker penumbrae's column, on rows of known values."""
 
 from __future__ import annotations
 
 import pytest
 
-from renderer.bench.area import compare, markdown
+from garment_lab.area import compare, markdown
 
 
 def _row(lights_from, budget, err, ms, area_lights=2, penumbra="fixed"):

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from renderer.bench.report import pareto_front, write_pareto
-from renderer.bench.run import BALANCED, QUICK_SWEEPS, SWEEPS, Row, _settings_list
+from garment_lab.report import pareto_front, write_pareto
+from garment_lab.run import BALANCED, QUICK_SWEEPS, SWEEPS, Row, _settings_list
 from renderer.presets import presets
 
 
@@ -43,7 +43,7 @@ def test_every_sweep_value_is_one_setting_that_differs_from_balanced():
 def test_speed_times_every_variant_side_by_side(tmp_path):
     import json
 
-    from renderer.bench.speed import UPLOAD_VARIANTS, VARIANTS, markdown, run_speed
+    from garment_lab.speed import UPLOAD_VARIANTS, VARIANTS, markdown, run_speed
 
     result = run_speed(tmp_path / "speed.json", rounds=2, size=16, shared=False, log=lambda *_: None)
     rows = result["scenes"]["studio-dress"]
@@ -58,7 +58,7 @@ def test_speed_times_every_variant_side_by_side(tmp_path):
 def test_speed_times_the_gpu_targets_large_scene(tmp_path):
     from conftest import asset
 
-    from renderer.bench.speed import markdown, run_speed
+    from garment_lab.speed import markdown, run_speed
     from renderer.errors import InvalidInputError
 
     asset("sim", "newton_shirt_drape_f060.obj")
@@ -79,7 +79,7 @@ def test_speed_times_the_gpu_targets_large_scene(tmp_path):
 
 
 def test_error_split_summary_says_which_part_is_larger():
-    from renderer.bench.split import CLASSES, summary
+    from garment_lab.split import CLASSES, summary
 
     def config(exact_excess, maps_vs_exact):
         classes = {c: {"pixels": 1 / 3, "share": 1 / 3, "rel_rmse": 0.1} for c in CLASSES}
@@ -96,7 +96,7 @@ def test_error_split_summary_says_which_part_is_larger():
 def test_the_assets_folder_can_be_named(monkeypatch, tmp_path):
     from conftest import asset
 
-    from renderer.bench import scenes
+    from garment_lab import scenes
 
     real = asset("sim", "newton_shirt_drape_f060.obj").parents[1]
     monkeypatch.setenv(scenes.ASSETS_VARIABLE, str(tmp_path))      # an empty folder: no target scenes
@@ -112,7 +112,7 @@ def test_the_assets_folder_can_be_named(monkeypatch, tmp_path):
 def test_speed_large_equal_error_sets_each_setting_against_a_reference_ladder():
     from conftest import asset
 
-    from renderer.bench.speed import run_speed
+    from garment_lab.speed import run_speed
 
     asset("sim", "newton_shirt_drape_f060.obj")
     logged = []
@@ -140,7 +140,7 @@ def test_bench_end_to_end_writes_its_three_outputs(tmp_path):
     # the targets; pareto.png is an image.
     import json
 
-    from renderer.bench.run import BASELINE_MODES, BenchConfig, run_bench
+    from garment_lab.run import BASELINE_MODES, BenchConfig, run_bench
 
     cfg = BenchConfig(quick=True, size=24, frames=1, ref_spp=8, ladder=(1, 4), shared=False)
     rows = run_bench(tmp_path, cfg, log=lambda *a: None)
@@ -175,8 +175,8 @@ def test_bench_end_to_end_writes_its_three_outputs(tmp_path):
 def test_a_setting_the_renderer_refuses_is_reported_under_its_scene(tmp_path):
     # The sweep goes on past a setting whose maps the driver cannot hold (run.bench_scene); the report
     # names it, with the renderer's reason, under the scene that refused it.
-    from renderer.bench.report import write_markdown
-    from renderer.bench.run import BenchConfig
+    from garment_lab.report import write_markdown
+    from garment_lab.run import BenchConfig
 
     rows = [_row("balanced", "balanced", 90.0, 0.05, scene="a"), _row("balanced", "balanced", 95.0, 0.06, scene="b")]
     why = "35 shadow maps of 2048^2 (2240 MiB of moments in one texture array) are more than this GL driver allocates"
@@ -188,8 +188,8 @@ def test_a_setting_the_renderer_refuses_is_reported_under_its_scene(tmp_path):
 
 
 def test_a_preset_over_its_frame_budget_is_a_missed_row():
-    from renderer.bench.catalogue import TARGETS
-    from renderer.bench.speed import budget_rows, markdown
+    from garment_lab.catalogue import TARGETS
+    from garment_lab.speed import budget_rows, markdown
 
     def row(ms):
         return {"median_ms": ms, "p10_ms": ms, "p90_ms": ms}
@@ -211,7 +211,7 @@ def test_a_preset_over_its_frame_budget_is_a_missed_row():
 
 
 def test_the_one_shot_targets_are_rows_met_or_missed():
-    from renderer.bench.one_shot import CACHED_TARGET_S, NEW_MAP_TARGET_S, STATES, markdown, targets
+    from garment_lab.one_shot import CACHED_TARGET_S, NEW_MAP_TARGET_S, STATES, markdown, targets
 
     def row(name, new, cached):
         walls = {"first run": [5.0], "new map": [new], "cached": [cached]}

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from conftest import HDRI, needs_assets
 
+from garment_lab import broad, catalogue
+from garment_lab.catalogue import MAPS, Scene, fit_body_inside, scenes, split
+from garment_lab.scenes import TARGET_PROBES
 from renderer import presets as presets_mod
-from renderer.bench import broad, catalogue
-from renderer.bench.catalogue import MAPS, Scene, fit_body_inside, scenes, split
-from renderer.bench.scenes import TARGET_PROBES
 from renderer.presets import PRESET_NAMES
 
 
@@ -108,37 +108,55 @@ def test_references_are_cached_by_scene_samples_seed_pixel_samples_and_code(tmp_
 def test_the_reference_code_digest_follows_the_files_that_make_a_reference():
     from pathlib import Path
 
-    root = Path(broad.__file__).resolve().parents[1]
+    import renderer
+
+    product, lab = Path(renderer.__file__).resolve().parent, Path(broad.__file__).resolve().parent
     places = broad._REFERENCE_SOURCES.values()
-    covered = {p for place in places for p in ((root / place).rglob("*.py") if (root / place).is_dir()
-                                               else [root / place])}
-    assert root / "reference" / "montecarlo.py" in covered and root / "bench" / "catalogue.py" in covered
-    assert root / "bench" / "broad.py" not in covered     # the report may change without rendering anew
-    assert root / "shading" / "brdf.py" in covered and root / "envmap" / "cube.py" in covered
+    covered = {p for place in places for p in (place.rglob("*.py") if place.is_dir() else [place])}
+    assert product / "reference" / "montecarlo.py" in covered and lab / "catalogue.py" in covered
+    assert lab / "broad.py" not in covered     # the report may change without rendering anew
+    assert product / "shading" / "brdf.py" in covered and product / "envmap" / "cube.py" in covered
     # What the environment and mesh code make enters as data (below): they may get faster.
-    assert root / "envmap" / "layouts.py" not in covered and root / "mesh.py" not in covered
+    assert product / "envmap" / "layouts.py" not in covered and product / "mesh.py" not in covered
 
 
 def test_the_digest_names_a_source_not_its_place(tmp_path, monkeypatch):
-    """A source moved and given its old name keeps the digest (the cache survives a move); a source
-    given another name, or another content, changes it."""
+    """A source moved and given its old name keeps the digest; a source given another name, or
+    another content, changes it."""
     import shutil
-    from pathlib import Path
 
-    root = Path(broad.__file__).resolve().parents[1]
     before = broad.reference_code_digest()
     moved = tmp_path / "lab_catalogue.py"
-    shutil.copy(root / "bench" / "catalogue.py", moved)
-    sources = dict(broad._REFERENCE_SOURCES)
-    sources["bench/catalogue.py"] = str(moved)   # an absolute place: root / place is the place itself
+    shutil.copy(broad._REFERENCE_SOURCES["bench/catalogue.py"], moved)
+    sources = {**broad._REFERENCE_SOURCES, "bench/catalogue.py": moved}
     monkeypatch.setattr(broad, "_REFERENCE_SOURCES", sources)
     assert broad.reference_code_digest() == before
     moved.write_text(moved.read_text() + "\n# changed\n")
     assert broad.reference_code_digest() != before
     renamed = {("bench/other.py" if name == "bench/scenes.py" else name): place
-               for name, place in {**sources, "bench/catalogue.py": "bench/catalogue.py"}.items()}
+               for name, place in {**sources, "bench/catalogue.py": broad._LAB / "catalogue.py"}.items()}
     monkeypatch.setattr(broad, "_REFERENCE_SOURCES", renamed)   # the same files, one under another name
     assert broad.reference_code_digest() != before
+
+
+@needs_assets
+def test_a_move_of_the_references_code_renames_the_cached_references(tmp_path):
+    """ReferenceCache.rekey (scripts/fill_reference_cache.py --rekey-from): an entry made under an
+    earlier code digest is found again under today's, once; one today's code has is left alone."""
+    cache = broad.ReferenceCache(tmp_path, pixel_samples=4)
+    scene = catalogue.scenes(quick=True)[0]
+    spp_of = broad.BroadConfig().spp_of
+    ref = {"image": np.ones((2, 2, 3), np.float32), "foreground": np.ones((2, 2, 4), np.float32),
+           "edge": np.zeros((2, 2), bool), "spp": 8}
+    old = "0" * 64
+    for seed in broad.SEEDS:
+        (tmp_path / f"{cache.key(scene, spp_of(scene), seed, old)}.npz").write_bytes(b"x")
+    cache.put(scene, spp_of(scene), broad.SEEDS[0], ref, 1.0)   # today's code has this one already
+    assert cache.get(scene, spp_of(scene), broad.SEEDS[1]) is None
+    assert cache.rekey([scene], spp_of, old) == 1
+    assert cache.path(scene, spp_of(scene), broad.SEEDS[1]).read_bytes() == b"x"
+    assert cache.get(scene, spp_of(scene), broad.SEEDS[0])["spp"] == 8   # kept, not overwritten
+    assert cache.rekey([scene], spp_of, old) == 0
 
 
 @needs_assets

@@ -46,23 +46,6 @@ def test_a_retired_flag_is_refused_with_what_replaced_it(name, capsys):
     assert "removed" in capsys.readouterr().err
 
 
-def test_a_lab_command_without_the_lab_extra_says_which_extra(monkeypatch, capsys):
-    """`pip install .` leaves the benchmarks' figures and FLIP out: a lab command that needs them ends
-    in a line naming the extra, not a traceback."""
-    import sys
-
-    from renderer import cli
-
-    def needs_flip(args):
-        import flip_evaluator  # noqa: F401
-
-    monkeypatch.setitem(sys.modules, "flip_evaluator", None)   # as if not installed
-    monkeypatch.setattr(cli, "cmd_bench", needs_flip)
-    assert cli.main(["bench", "--quick"]) == 2
-    err = capsys.readouterr().err
-    assert "flip_evaluator" in err and "pip install 'garment-render[lab]'" in err
-
-
 @pytest.mark.parametrize("command", ["render", "reference"])
 def test_a_render_that_would_write_nothing_or_into_no_folder_is_refused_before_the_work(tmp_path, capsys, command):
     from renderer import cli
@@ -100,3 +83,23 @@ def test_meshes_in_other_units_or_lying_down_are_warned_of_and_take_a_scale_and_
     assert "warning" not in capsys.readouterr().err
     assert cli.main(common + meshes + ["--mesh-scale", "0.01,1,1"]) == 2
     assert "--mesh-scale gives 3 values for 2 meshes" in capsys.readouterr().err
+
+
+def test_an_install_without_the_lab_names_it_for_each_of_its_commands(monkeypatch, capsys):
+    """The lab's commands come from its entry point (renderer/cli.py, lab_commands); without the lab
+    each is still a command, which answers with the line that installs it."""
+    import importlib.metadata
+
+    from renderer import cli
+
+    real = importlib.metadata.entry_points
+    monkeypatch.setattr(importlib.metadata, "entry_points",
+                        lambda **kw: [] if kw.get("group") == cli.LAB_ENTRY_POINTS else real(**kw))
+    for name in cli.LAB_COMMANDS:
+        assert cli.main([name, "--broad"]) == 2
+        err = capsys.readouterr().err
+        assert f"{name} is one of the lab's commands" in err and "pip install ./lab" in err, err
+    monkeypatch.undo()
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    assert sub.choices["bench"].get_default("func").__module__ == "garment_lab.cli"   # installed here: the lab's own

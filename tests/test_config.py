@@ -156,9 +156,9 @@ def test_numpy_scalars_pass_as_their_python_kind():
 
 
 def test_the_bench_sweeps_settings_of_the_registry_in_its_order_and_each_value_is_valid():
-    """The sweep's table is the lab's (renderer/bench/run.py), not the registry's: its rows name
+    """The sweep's table is the lab's (lab/garment_lab/run.py), not the registry's: its rows name
     settings of the registry, in the registry's order, and every value passes the registry's check."""
-    from renderer.bench.run import SETTING_SWEEPS, SWEEPS
+    from garment_lab.run import SETTING_SWEEPS, SWEEPS
 
     assert list(SETTING_SWEEPS) == [n for n in config.NAMES if n in SETTING_SWEEPS]
     assert set(SETTING_SWEEPS) <= set(config.BY_NAME) and set(SETTING_SWEEPS) <= set(SWEEPS)

@@ -1,5 +1,5 @@
 """The physically based materials keep their energy against the reference where the fitted lobes
-alone lost it (renderer/bench/energy.py sweeps every material and map; these are the cases that
+alone lost it (lab/garment_lab/energy.py sweeps every material and map; these are the cases that
 were furthest off): a glossy metal under one 6-degree light (its highlight at grazing views, where the
 fit loses GGX's tail), velvet under a light behind it, and a coated dielectric under coloured
 windows (the horizon clipped twice)."""
@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from renderer.bench import energy as bench
+from garment_lab import energy as bench
 from renderer.presets import frame_settings, pem_settings, preset
 from renderer.reference import relative_rmse, render_reference
 from renderer.renderer import ShadingMode

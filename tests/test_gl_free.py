@@ -43,7 +43,7 @@ def test_the_check_can_fail():
 
 
 def test_the_product_draws_no_figures():
-    """Figures are the lab's (renderer/bench): rendering and the area lights load no matplotlib."""
+    """Figures are the lab's (lab/garment_lab): rendering and the area lights load no matplotlib."""
     code = ("import sys, renderer.renderer, renderer.lighting.area_lights, renderer.cli, service.app; "
             "print('matplotlib' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)

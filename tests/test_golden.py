@@ -1,11 +1,11 @@
-"""The knob sweep's scenes at every preset against their stored frames (renderer/bench/golden.py):
+"""The knob sweep's scenes at every preset against their stored frames (lab/garment_lab/golden.py):
 a refactor keeps the images; a change meant to alter them stores them anew
-(`python -m renderer.bench.golden --store`) and says so."""
+(`python -m garment_lab.golden --store`) and says so."""
 
 import numpy as np
 import pytest
 
-from renderer.bench.golden import GOLDEN_FILE, golden_frames
+from garment_lab.golden import GOLDEN_FILE, golden_frames
 from renderer.presets import PRESET_NAMES
 from renderer.reference import relative_rmse
 

@@ -8,7 +8,7 @@ import math
 import pytest
 from PIL import Image
 
-from renderer.bench.lobe_figures import DEFAULT_S_VALUES, write_lobe_report
+from garment_lab.lobe_figures import DEFAULT_S_VALUES, write_lobe_report
 from renderer.errors import InvalidInputError
 from renderer.lighting.filters import Filter
 

@@ -54,6 +54,21 @@ def test_the_package_list_names_every_folder_of_code_and_shaders():
     assert sorted(_client_project()["tool"]["setuptools"]["packages"]) == sorted(client)
 
 
+def test_the_lab_is_its_own_distribution_that_the_product_never_imports():
+    """The benchmarks and figures (lab/garment_lab) ship in garment-render-lab, not in the product's
+    wheel; they reach the command line through the core's entry-point group, and no module of the
+    product, the service or the simulation imports them."""
+    lab = tomllib.loads((ROOT / "lab" / "pyproject.toml").read_text())
+    assert lab["tool"]["setuptools"]["packages"] == sorted(_folders(ROOT / "lab", "garment_lab")) == ["garment_lab"]
+    assert lab["project"]["entry-points"]["garment_render.commands"] == {"lab": "garment_lab.cli:add_commands"}
+    assert "garment-render" in _requirement_names(lab["project"]["dependencies"])
+    assert not any(name.startswith("garment_lab") or ".bench" in name for name in _packages())
+    product = [p for top in ("renderer", "service", "simulation") for p in (ROOT / top).rglob("*.py")]
+    assert len(product) > 50
+    imports_lab = re.compile(r"^\s*(from|import)\s+garment_lab\b|import_module\([^)]*garment_lab", re.M)
+    assert [p for p in product if imports_lab.search(p.read_text())] == []
+
+
 def test_the_client_is_released_with_the_server_and_needs_numpy_and_httpx_alone():
     client, server = _client_project()["project"], _project()
     assert (client["version"], client["requires-python"]) == (server["version"], server["requires-python"])
@@ -181,6 +196,10 @@ def test_the_wheel_without_extras_renders_and_serves_outside_the_checkout(wheel,
     image = np.asarray(Image.open(work / "frame.png"))
     assert image.shape[:2] == (48, 48) and image.std() > 1.0   # a shaded frame, not a blank one
     assert json.loads((work / "timings.json").read_text())["timings"]["frame_wall_ms"] > 0
+    # The lab is not in it: its commands say how to install it.
+    assert _absent(python, env, work, ("garment_lab",)) == []
+    lab = subprocess.run([str(cli), "bench", "--broad"], capture_output=True, text=True, cwd=work, env=env, timeout=120)
+    assert lab.returncode == 2 and "pip install ./lab" in lab.stderr, lab.stderr[-2000:]
 
     import httpx
     from service_server import free_port

@@ -19,7 +19,7 @@ from renderer.renderer import ShadingMode
 from renderer.shading import brdf
 from renderer.shading.material import Material
 
-# The fabrics of the benchmark's material rows (renderer/bench/materials.py uses the same kinds).
+# The fabrics of the benchmark's material rows (lab/garment_lab/materials.py uses the same kinds).
 MATERIALS = {
     "matte cotton": Material((0.8, 0.8, 0.8), model="pbr", metallic=0.0, roughness=0.9),
     "coated": Material((0.1, 0.2, 0.6), model="pbr", metallic=0.0, roughness=0.3),
@@ -204,7 +204,7 @@ def test_bad_pbr_materials_are_refused_with_the_limit():
 
 @pytest.mark.system
 def test_the_figure_7_report_says_where_the_fit_misses_its_target(tmp_path):
-    from renderer.bench.material_figures import write_brdf_lobe_report
+    from garment_lab.material_figures import write_brdf_lobe_report
 
     s = write_brdf_lobe_report(tmp_path)
     for name in ("brdf_lobes_fig7.png", "brdf_lobes_slices.png", "brdf_lobes.md", "brdf_lobes.json"):
@@ -240,7 +240,7 @@ def test_a_material_file_or_the_flags_make_the_garment_material(tmp_path):
 
 
 def test_the_material_bench_reports_ratios_to_the_phong_fabric_per_set():
-    from renderer.bench.materials import PHONG_BASELINE, lobe_choice, markdown, summary
+    from garment_lab.materials import PHONG_BASELINE, lobe_choice, markdown, summary
 
     rows = []
     for which, scale in (("tuning", 1.0), ("held-out", 2.0)):
@@ -267,7 +267,7 @@ def test_the_material_bench_reports_ratios_to_the_phong_fabric_per_set():
 def test_the_stored_figure_7_table_is_what_the_tables_give():
     from pathlib import Path
 
-    from renderer.bench.material_figures import markdown, summary
+    from garment_lab.material_figures import markdown, summary
 
     stored = (Path(__file__).resolve().parent.parent / "docs" / "brdf-lobes.md").read_text()
     assert stored == markdown(summary()), "docs/brdf-lobes.md is stale: run garment-render brdf-lobes and copy it"

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from renderer.bench.preset_report import STORED, reasons, report
+from garment_lab.preset_report import STORED, reasons, report
 from renderer.preset_files import PRESET_DIR
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -21,7 +21,7 @@ MEASUREMENT = re.compile(r"\d+\.\d+|\d+ ?%|\d+(\.\d+)?x\b|\d+\^2|[+-]\d")
 def test_the_report_is_made_from_the_files_and_the_stored_run():
     stored = json.loads(STORED.read_text())
     assert (ROOT / "docs" / "presets.md").read_text() == report(stored), \
-        "docs/presets.md is stale: python -m renderer.bench.preset_report"
+        "docs/presets.md is stale: python -m garment_lab.preset_report"
 
 
 def _faults(folder: Path) -> list[str]:

@@ -100,11 +100,11 @@ def test_the_readme_is_a_newcomers_page_whose_links_lead_somewhere():
 
 
 def test_the_readme_quality_table_is_the_one_the_stored_held_out_run_makes():
-    """The README's measured numbers come from the stored run (renderer.bench.broad.readme_table), made
+    """The README's measured numbers come from the stored run (garment_lab.broad.readme_table), made
     with today's preset files (tests/test_stored_runs.py): a number there cannot outlive its run."""
     import json
 
-    from renderer.bench import broad
+    from garment_lab import broad
     from renderer.presets import presets_digest
 
     text = (ROOT / "README.md").read_text()

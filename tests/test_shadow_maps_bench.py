@@ -1,11 +1,11 @@
-"""`garment-render bench --shadow-maps` (renderer/bench/shadow_maps.py): its variants keep the contact
+"""`garment-render bench --shadow-maps` (lab/garment_lab/shadow_maps.py): its variants keep the contact
 search's reach in the scene, and its report compares each variant with the first scene by scene."""
 
 from __future__ import annotations
 
 import pytest
 
-from renderer.bench.shadow_maps import VARIANTS, markdown, summary
+from garment_lab.shadow_maps import VARIANTS, markdown, summary
 
 
 def test_every_variant_keeps_the_contact_reach_of_24_texels_at_256():

@@ -171,7 +171,7 @@ def test_a_colourway_keeps_its_fabrics_open_weave(renderer):
 
 
 def test_the_voile_fabric_carries_its_alpha_and_transmission():
-    from renderer.bench.fabrics import fabric_archive
+    from garment_lab.fabrics import fabric_archive
     from renderer.procedural import procedural_garment
     from renderer.u3m import load_u3m, material_from_u3m
 

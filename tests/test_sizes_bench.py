@@ -1,4 +1,4 @@
-"""`garment-render bench --sizes` (renderer/bench/sizes.py): its settings per size, the box filter to
+"""`garment-render bench --sizes` (lab/garment_lab/sizes.py): its settings per size, the box filter to
 256, the excess over the floor, the rim ring, and the report on rows of known values."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from renderer.bench.sizes import TEXEL_KNOBS, _rim, box_down, excess, markdown, summary, variants
+from garment_lab.sizes import TEXEL_KNOBS, _rim, box_down, excess, markdown, summary, variants
 from renderer.config import BY_NAME
 from renderer.presets import preset
 

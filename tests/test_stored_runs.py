@@ -64,7 +64,7 @@ def test_a_changed_preset_file_changes_the_digest(tmp_path):
 
 def test_the_stored_reports_are_what_their_runs_make():
     """Each current report is generated from its stored run: no number in it was typed."""
-    from renderer.bench import area, broad, one_shot, shadow_maps, split, views
+    from garment_lab import area, broad, one_shot, shadow_maps, split, views
     from service import load
 
     for run, make in (("docs/error-split/error_split.json", split.markdown),
@@ -79,8 +79,8 @@ def test_the_stored_reports_are_what_their_runs_make():
 
 
 def test_the_stored_sweep_report_is_what_its_run_makes(tmp_path):
-    from renderer.bench.report import write_markdown
-    from renderer.bench.run import BenchConfig, Row
+    from garment_lab.report import write_markdown
+    from garment_lab.run import BenchConfig, Row
 
     data = json.loads((ROOT / "docs/sweep.json").read_text())
     cfg = BenchConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in data["config"].items()})

@@ -1,4 +1,4 @@
-"""The trade curve of a stored broad run (renderer/bench/curve.py): a point per setting, the tracer's
+"""The trade curve of a stored broad run (lab/garment_lab/curve.py): a point per setting, the tracer's
 points from the run's model, and which settings are on the lower envelope of both methods."""
 
 import json
@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from renderer.bench import curve
-from renderer.bench.broad import BroadRow
+from garment_lab import curve
+from garment_lab.broad import BroadRow
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -72,7 +72,7 @@ def test_the_stored_curve_is_what_its_run_makes(size):
 
 
 def test_a_retime_of_a_run_with_settings_this_code_lacks_is_refused(tmp_path):
-    from renderer.bench import broad
+    from garment_lab import broad
 
     run = _run([_row("shirt/sheen/front/m@256", "balanced:gone=1", 100.0, 0.1)])
     (tmp_path / "run.json").write_text(json.dumps(run))

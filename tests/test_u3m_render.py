@@ -229,9 +229,9 @@ def test_render_takes_a_u3m_fabric_and_says_what_it_leaves_out(tmp_path):
 
 
 def test_the_fabric_benchs_fabrics_load_as_a_users_would_and_say_what_is_not_carried():
-    """renderer/bench/fabrics.py writes its fabrics with renderer/u3m/write.py: each reads back through
+    """lab/garment_lab/fabrics.py writes its fabrics with renderer/u3m/write.py: each reads back through
     load_u3m (the schema, the images), on a sheet with UVs, with the fields the renderer leaves out named."""
-    from renderer.bench.fabrics import FABRIC_NAMES, fabric_archive
+    from garment_lab.fabrics import FABRIC_NAMES, fabric_archive
 
     expected = {}
     sheet = quad(0.5, 0.5, (1.0, 1.0))
@@ -258,7 +258,7 @@ def test_the_writer_writes_linear_colours_as_the_spec_stores_them(tmp_path):
 
 @pytest.mark.system
 def test_the_fabric_bench_runs_and_reports_textured_against_plain(tmp_path):
-    from renderer.bench.scenes import shared_assets
+    from garment_lab.scenes import shared_assets
 
     if not (shared_assets() / "hdri").is_dir():
         pytest.skip(f"the fabric bench needs the shared assets ({shared_assets()})")

@@ -127,7 +127,7 @@ def test_the_command_line_writes_a_turntable_in_two_colourways(tmp_path):
 
 
 def test_the_views_bench_reports_the_saving_it_measured():
-    from renderer.bench.views import _compare, markdown
+    from garment_lab.views import _compare, markdown
 
     calls = []
 

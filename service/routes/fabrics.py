@@ -10,7 +10,7 @@ from fastapi import APIRouter, Depends, Query, Request, Response, status
 
 from renderer.u3m import FIELDS, ColorConstant, NormalConstant, ScalarConstant, Texture, Visualisation
 
-from .. import fabrics as ops
+from .. import operations as ops
 from ..deps import OCTET_STREAM, FabricsDep, ScenesDep, ServicesDep, raw_body, require_token
 from ..fabrics import FabricRecord
 from ..schemas import FabricFaceOut, FabricFieldOut, FabricInfo, FabricTextureOut

@@ -53,8 +53,7 @@ from ..codecs import (
 )
 from ..deps import OCTET_STREAM, MetricsDep, ServicesDep, SettingsDep, WorkerDep, client_gone, raw_body, require_token
 from ..errors import ClientGoneError, InvalidRequestError, PayloadTooLargeError, RenderTimeoutError
-from ..fabrics import scene_fabrics
-from ..operations import find_environment, find_scene, preset_views_quality
+from ..operations import find_environment, find_scene, preset_views_quality, scene_fabrics
 from ..pipeline import (
     encode_async,
     frame_payload,

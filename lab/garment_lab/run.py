@@ -17,15 +17,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import presets
-from ..camera import frame_meshes
-from ..errors import InvalidInputError
-from ..gpu.context import GLContext
-from ..lighting.filters import Filter
-from ..presets import PRESET_NAMES, knob_defaults, preset
-from ..presets.budget import OLD_SHADOW_BIAS
-from ..reference import artefact_share, mean_flip, relative_rmse, render_reference
-from ..renderer import FrameSettings, Renderer, ShadingMode
+from renderer import presets
+from renderer.camera import frame_meshes
+from renderer.errors import InvalidInputError
+from renderer.gpu.context import GLContext
+from renderer.lighting.filters import Filter
+from renderer.presets import PRESET_NAMES, knob_defaults, preset
+from renderer.presets.budget import OLD_SHADOW_BIAS
+from renderer.reference import artefact_share, mean_flip, relative_rmse, render_reference
+from renderer.renderer import FrameSettings, Renderer, ShadingMode
+
 from .report import machine_info
 from .scenes import BenchScene, bundled_scene, shared_scenes
 
@@ -239,7 +240,8 @@ def run_bench(out_dir: Path, cfg: BenchConfig, log=print) -> list[Row]:
 
 
 def _write(out_dir: Path, rows: list[Row], machine: dict, cfg: BenchConfig, refused: list[dict] = ()) -> None:
-    from ..presets import presets_digest
+    from renderer.presets import presets_digest
+
     from .report import write_markdown, write_pareto
 
     (out_dir / "bench.json").write_text(json.dumps(

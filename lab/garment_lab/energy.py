@@ -27,14 +27,15 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ..camera import Camera
-from ..envmap.cube import texel_directions
-from ..mesh import Mesh
-from ..presets import frame_settings, pem_settings, preset, presets_digest
-from ..reference import relative_rmse
-from ..reference.montecarlo import primary_rays
-from ..renderer import Renderer, ShadingMode
-from ..shading.material import Material
+from renderer.camera import Camera
+from renderer.envmap.cube import texel_directions
+from renderer.mesh import Mesh
+from renderer.presets import frame_settings, pem_settings, preset, presets_digest
+from renderer.reference import relative_rmse
+from renderer.reference.montecarlo import primary_rays
+from renderer.renderer import Renderer, ShadingMode
+from renderer.shading.material import Material
+
 from .materials import ReferencePair, energy
 from .report import machine_info
 
@@ -199,7 +200,7 @@ def outside(row: dict) -> bool:
 
 def _reference(mesh, material, cube, size, spp, seed, occlusion) -> np.ndarray:
     """The reference at size x size, SUPERSAMPLE^2 sub-pixels a pixel of spp / SUPERSAMPLE^2 samples each."""
-    from ..reference import render_reference
+    from renderer.reference import render_reference
 
     sub = max(1, spp // SUPERSAMPLE ** 2)
     return box_down(render_reference(mesh, [material], cube, CAMERA, size * SUPERSAMPLE, size * SUPERSAMPLE, sub,
@@ -214,7 +215,7 @@ def markdown(data: dict) -> str:
              f"{m['cores']} cores ({m['date']}): preset {data['preset']}, a sphere at {data['size']} x {data['size']}, "
              f"{data.get('supersample', 1) ** 2} samples a pixel on both sides (box-filtered), "
              f"references of {data['spp']} spp per technique a pixel (two seeds; the floor is their mean's own rel. RMSE), "
-             f"{data['wall_s'] / 60:.0f} min in all (renderer/bench/energy.py).",
+             f"{data['wall_s'] / 60:.0f} min in all (lab/garment_lab/energy.py).",
              "Energy: the image's RGB summed over the sphere against the reference's, minus 1; grazing: over "
              f"n.v < {GRAZING_N_DOT_V}. Full: the method with its shadow maps against the reference with occlusion; "
              "none: both without.", ""]

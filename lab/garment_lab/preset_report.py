@@ -6,7 +6,7 @@ preset on the same scenes). The preset files hold values and reasons, no numbers
 report, never them (scripts/stored-runs.sh makes it after the broad run; tests/test_preset_report.py
 holds it to its inputs).
 
-    python -m renderer.bench.preset_report            # writes docs/presets.md
+    python -m garment_lab.preset_report            # writes docs/presets.md
 """
 
 from __future__ import annotations
@@ -16,7 +16,8 @@ import re
 import sys
 from pathlib import Path
 
-from .. import presets as _presets
+from renderer import presets as _presets
+
 from .broad import KNOB_VARIANTS, knob_base, knob_table
 from .catalogue import TARGETS
 
@@ -61,7 +62,7 @@ def report(stored: dict, folder: Path = PRESET_DIR, stored_name: str = "docs/bro
     rows = stored["rows"]
     machine = stored["machine"]
     lines = ["# Presets: their values and what chose them", "",
-             f"Made by `python -m renderer.bench.preset_report` from the preset files (renderer/presets/) and the "
+             f"Made by `python -m garment_lab.preset_report` from the preset files (renderer/presets/) and the "
              f"stored broad run `{stored_name}` (`garment-render bench --broad --size 256` on {machine['gl_renderer']}, "
              f"{machine['cores']} cores, {machine['date']}). The files hold each value and one line of reason; the "
              "measurements are here, made again with the runs.", "",

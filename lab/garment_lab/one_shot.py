@@ -14,7 +14,7 @@ state here as on any machine that rendered once; the package's modules are compi
 as `pip install` leaves them (a checkout run with PYTHONDONTWRITEBYTECODE would compile them in every
 process, ~0.1 s here).
 Scenes: the bundled default (the dress in the studio) and the newton shirt on its form under the
-first held-out maps of the broad catalogue (renderer/bench/catalogue.py), 256 x 256, balanced, with
+first held-out maps of the broad catalogue (lab/garment_lab/catalogue.py), 256 x 256, balanced, with
 its PNG and EXR written. Targets (issue 35): cached <= CACHED_TARGET_S, new map <= NEW_MAP_TARGET_S;
 a missed target is a row of the report, with the scenes it is missed on."""
 
@@ -31,8 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..presets import presets_digest
-from ..user_cache import ENV_VAR
+import renderer
+from renderer.presets import presets_digest
+from renderer.user_cache import ENV_VAR
+
 from .catalogue import MAPS, split
 from .scenes import shared_assets
 
@@ -76,7 +78,7 @@ def _compile_package() -> None:
     """Bytecode for every module of the package, as an installed one has it."""
     import compileall
 
-    compileall.compile_dir(str(Path(__file__).resolve().parents[1]), quiet=1)
+    compileall.compile_dir(str(Path(renderer.__file__).resolve().parent), quiet=1)
 
 
 def run_one_shot(out_dir: Path | None, rounds: int = 3, log=print) -> dict:
@@ -96,7 +98,8 @@ def run_one_shot(out_dir: Path | None, rounds: int = 3, log=print) -> dict:
                 walls["cached"].append(_one(flags, cache, tmp))
                 log(f"  {name}: " + ", ".join(f"{s} {walls[s][-1]:.2f} s" for s in STATES))
             rows.append({"scene": name, "wall_s": walls, "median_s": {s: float(np.median(v)) for s, v in walls.items()}})
-    from ..gpu.context import GLContext
+    from renderer.gpu.context import GLContext
+
     from .report import machine_info
 
     gl = GLContext()

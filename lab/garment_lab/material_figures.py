@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..lighting import material_lobes
-from ..lighting.lobe_fit import N, lobe_values, view_direction
-from ..shading import brdf
+from renderer.lighting import material_lobes
+from renderer.lighting.lobe_fit import N, lobe_values, view_direction
+from renderer.shading import brdf
 
 # The target for the fit itself: rel. RMS <= 5 % at every view elevation, with two lobes, for
 # GGX roughness >= 0.2 and for sheen.

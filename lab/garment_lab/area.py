@@ -27,10 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import BY_NAME
-from ..presets import frame_settings, pem_settings, preset, presets_digest
-from ..reference import relative_rmse
-from ..renderer import Renderer
+from renderer.config import BY_NAME
+from renderer.presets import frame_settings, pem_settings, preset, presets_digest
+from renderer.reference import relative_rmse
+from renderer.renderer import Renderer
+
 from .catalogue import BODY, FABRICS, MAPS, Scene, environment_cube, split
 from .materials import ReferencePair
 from .report import machine_info
@@ -103,7 +104,7 @@ def run(out_dir: Path, quick: bool = False, spp: int = 128, frames: int = 3, log
 def sweep_scenes(r: Renderer, base: dict, spp: int, frames: int, log=print, scenes=None) -> list[dict]:
     """The knob sweep's scenes at 128 x 128: balanced with the median cut and with auto, each twice,
     taking turns (the frame time the median of both turns' medians)."""
-    from ..camera import frame_meshes
+    from renderer.camera import frame_meshes
 
     out = []
     for bs in scenes if scenes is not None else [bundled_scene()] + shared_scenes():

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ..envmap import environment_from_array, load_environment, studio_environment
-from ..mesh import Mesh, load_mesh
-from ..procedural import procedural_body, procedural_garment
-from ..shading.material import Material
+from renderer.envmap import environment_from_array, load_environment, studio_environment
+from renderer.mesh import Mesh, load_mesh
+from renderer.procedural import procedural_body, procedural_garment
+from renderer.shading.material import Material
 
 SHARED_ASSETS = Path(__file__).resolve().parents[2].parent / "shared" / "assets"
 # Where the shared assets are when not beside the project (a copy elsewhere on a benchmark machine).

@@ -1,7 +1,7 @@
 """`garment-render bench --edges`: the ways to anti-alias, each one's cost and error against a truth that
 integrates each pixel's area.
 
-The held-out maps of the broad benchmark (renderer/bench/catalogue.py), one garment each in turn, at
+The held-out maps of the broad benchmark (lab/garment_lab/catalogue.py), one garment each in turn, at
 256 x 256, against the broad benchmark's reference pair (4 x 4 strata a pixel, its cache shared). Per
 preset (fast, balanced) and way:
 
@@ -29,9 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..presets import frame_settings, preset, presets_digest
-from ..reference import relative_rmse, silhouette_error
-from ..renderer import Background, Renderer
+from renderer.presets import frame_settings, preset, presets_digest
+from renderer.reference import relative_rmse, silhouette_error
+from renderer.renderer import Background, Renderer
+
 from .broad import (
     SEEDS,
     BroadConfig,
@@ -148,7 +149,7 @@ def markdown(data: dict) -> str:
              f"({m.get('date', '?')}): {len({r['scene'] for r in data['rows']})} held-out scenes at "
              f"{data['size']} x {data['size']}, the reference pair at {data['spp']} samples a pixel over "
              f"{data['pixel_samples']} x {data['pixel_samples']} strata; medians over the scenes "
-             "(renderer/bench/edges.py says how each is measured). Errors are the excess over the references' "
+             "(lab/garment_lab/edges.py says how each is measured). Errors are the excess over the references' "
              "own; the frame ratio is to the same preset's frame without anti-aliasing, scene by scene.", "",
              "| preset | way | silhouette rel. RMSE, median / worst | coverage RMSE | interior rel. RMSE | frame | "
              "frame ratio |", "|---|---|---|---|---|---|---|"]

@@ -27,12 +27,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import frame_meshes
-from ..config import BY_NAME
-from ..presets import frame_settings, pem_settings, preset
-from ..reference import relative_rmse
-from ..reference.metrics import relative_squared_errors
-from ..renderer import Renderer
+from renderer.camera import frame_meshes
+from renderer.config import BY_NAME
+from renderer.presets import frame_settings, pem_settings, preset
+from renderer.reference import relative_rmse
+from renderer.reference.metrics import relative_squared_errors
+from renderer.renderer import Renderer
+
 from .catalogue import LARGE_FABRIC, LARGE_VIEW, MAPS, Scene, environment_cube, split
 from .materials import ReferencePair
 from .report import machine_info

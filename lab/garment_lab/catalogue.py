@@ -14,9 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera, bounds_sphere, default_camera
-from ..mesh import Mesh, bounds, load_mesh
-from ..shading.material import Material
+from renderer.camera import Camera, bounds_sphere, default_camera
+from renderer.mesh import Mesh, bounds, load_mesh
+from renderer.shading.material import Material
+
 from .scenes import TARGET_PROBES, shared_assets
 
 # --- the scenes ---------------------------------------------------------------------------------
@@ -132,7 +133,7 @@ def garment_meshes(garment: str) -> tuple[Mesh, Mesh]:
 
 @cache
 def environment_cube(name: str, face_size: int) -> np.ndarray:
-    from ..envmap import load_environment
+    from renderer.envmap import load_environment
 
     return load_environment(shared_assets() / "hdri" / name, face_size=face_size, repair=True).cube
 

@@ -1,7 +1,7 @@
 """Stored frames of the knob sweep's scenes at every preset: a change meant to keep the images (a
 refactor of the passes, a shader split) is checked against them by tests/test_golden.py.
 
-    python -m renderer.bench.golden --store     # after a change meant to alter the images, say which
+    python -m garment_lab.golden --store     # after a change meant to alter the images, say which
 
 The frames are small (GOLDEN_SIZE per side, float16) so that the file stays a few hundred kB; the
 check is a rel. RMSE over each frame's covered pixels, loose enough for another GPU's rounding and
@@ -25,9 +25,10 @@ def golden_frames(renderer=None, presets: tuple[str, ...] | None = None) -> dict
     on `renderer` (None: one of its own)."""
     from contextlib import nullcontext
 
-    from ..camera import frame_meshes
-    from ..presets import PRESET_NAMES, preset, preset_frame, preset_pems
-    from ..renderer import Renderer
+    from renderer.camera import frame_meshes
+    from renderer.presets import PRESET_NAMES, preset, preset_frame, preset_pems
+    from renderer.renderer import Renderer
+
     from .scenes import bundled_scene, shared_scenes
 
     scenes = [bundled_scene()] + shared_scenes()   # shared_scenes: none without the shared assets
@@ -50,7 +51,7 @@ def golden_frames(renderer=None, presets: tuple[str, ...] | None = None) -> dict
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m renderer.bench.golden", description=__doc__,
+    p = argparse.ArgumentParser(prog="python -m garment_lab.golden", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--store", action="store_true", help=f"write {GOLDEN_FILE}")
     args = p.parse_args(argv)

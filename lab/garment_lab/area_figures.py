@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..lighting.area_lights import Decomposition, disc_tangents
-from ..lighting.median_cut import LUMINANCE_RGB
+from renderer.lighting.area_lights import Decomposition, disc_tangents
+from renderer.lighting.median_cut import LUMINANCE_RGB
 
 
 def write_preview(cube: np.ndarray, dec: Decomposition, path, title: str = "") -> None:
@@ -17,7 +17,7 @@ def write_preview(cube: np.ndarray, dec: Decomposition, path, title: str = "") -
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..envmap.layouts import Layout, cube_to_latlong, dir_to_image
+    from renderer.envmap.layouts import Layout, cube_to_latlong, dir_to_image
 
     h, w = 256, 512
     images = [cube_to_latlong(np.asarray(cube, np.float32)[..., :3], h, w), cube_to_latlong(dec.ambient, h, w)]

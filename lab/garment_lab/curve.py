@@ -2,7 +2,7 @@
 
 Frame time against error over one set of scenes (the held-out ones at 256 x 256 by default) for every
 preset and knob variant the run measured, beside the Monte Carlo tracer's at 4-1024 samples on the
-same scenes and cores. The tracer's points follow the broad benchmark's model (renderer/bench/broad.py):
+same scenes and cores. The tracer's points follow the broad benchmark's model (lab/garment_lab/broad.py):
 its error at N samples is the pair's floor / sqrt(2) x sqrt(reference spp / N) (it is unbiased, its
 relMSE falls as 1/N), its time the run's measured rate with the samples split over every core
 (`broad.tracer_time_ms`, with the setup a retimed run measured). Each setting is judged against both
@@ -82,7 +82,7 @@ def markdown(curve: dict, source: str) -> str:
     lines = [f"# Trade curve: {curve['set']} scenes at {curve['size']} x {curve['size']}", "",
              f"Made by `garment-render bench --broad --curve {source}{size_flag}` from that stored run (errors of "
              f"{curve['run_date']}, times on {m['gl_renderer']}, {curve['cores']} cores, {m['date']}); the tracer's "
-             "points follow the run's model (renderer/bench/curve.py). Medians (worst) over the scenes.", "",
+             "points follow the run's model (lab/garment_lab/curve.py). Medians (worst) over the scenes.", "",
              f"![time against error]({curve_stem(curve['size'])}.png)", "",
              "| setting | frame ms | rel. RMSE | tracer's time at its error | on the lower envelope |",
              "|---|---|---|---|---|"]

@@ -22,9 +22,10 @@ import time
 
 import numpy as np
 
-from ..camera import frame_meshes
-from ..errors import InvalidInputError
-from ..reference import mean_flip, relative_rmse, render_reference
+from renderer.camera import frame_meshes
+from renderer.errors import InvalidInputError
+from renderer.reference import mean_flip, relative_rmse, render_reference
+
 from .processes import one_thread_pool
 from .scenes import large_scene
 

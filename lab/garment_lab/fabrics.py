@@ -12,7 +12,7 @@ colour and its constants (the satin's anisotropy among them) and no texture: the
 the textures' own cost and error.
 
 Scenes: the broad benchmark's draped dress (the one of its garments with UVs) on its body, front view,
-at 256 x 256, under the first HELD_OUT_MAPS held-out maps (renderer/bench/catalogue.py's split). Per
+at 256 x 256, under the first HELD_OUT_MAPS held-out maps (lab/garment_lab/catalogue.py's split). Per
 scene and fabric the truth is the mean of two reference renders (SPP samples, 4 x 4 strata a pixel);
 the error is the excess rel. RMSE over their floor on the pixels both cover wholly (broad.py), the
 share of those pixels 2x off (reference.metrics.artefact_share) and of 5 x 5 windows 1.5x off; the
@@ -29,9 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..presets import frame_settings, preset, presets_digest
-from ..reference import artefact_share, relative_rmse, render_reference, window_share
-from ..renderer import Renderer
+from renderer.presets import frame_settings, preset, presets_digest
+from renderer.reference import artefact_share, relative_rmse, render_reference, window_share
+from renderer.renderer import Renderer
+
 from .broad import MapResources, Truth, _reference_cube, excess_rel_rmse
 from .catalogue import LARGE_VIEW, MAPS, Scene, split
 from .processes import one_thread_pool
@@ -62,7 +63,7 @@ def _normal_from_height(h: np.ndarray, strength: float) -> np.ndarray:
 
 def fabric_archive(name: str) -> bytes:
     """The U3M archive of one of FABRIC_NAMES (deterministic)."""
-    from ..u3m import write as w
+    from renderer.u3m import write as w
 
     if name == "print":
         y, x = np.mgrid[:256, :256] / 256 * 2 * np.pi
@@ -96,7 +97,7 @@ def fabric_materials(name: str, scene: Scene):
     """(the fabric's garment Material, its plain twin, the warnings) on `scene`'s garment."""
     from dataclasses import replace
 
-    from ..u3m import load_u3m, material_from_u3m
+    from renderer.u3m import load_u3m, material_from_u3m
 
     garment = scene.meshes()[0]
     material, warnings = material_from_u3m(load_u3m(fabric_archive(name), name=f"{name}.u3ma"), garment)
@@ -231,7 +232,7 @@ def markdown(data: dict) -> str:
              f"the {data['garment']} at {data['size']} x {data['size']} under held-out maps, references of "
              f"{data['spp']} samples and {data['pixel_samples']} x {data['pixel_samples']} strata a pixel (two "
              "each). Medians over the maps; the worst map's shares. The plain twin: the fabric's mean colour and "
-             "constants, no texture (renderer/bench/fabrics.py).", "",
+             "constants, no texture (lab/garment_lab/fabrics.py).", "",
              "| preset | fabric | rel. RMSE | plain | error ratio | pixels 2x (worst) | windows 1.5x (worst) | "
              "frame ms | cost ratio | not carried |", "|---|---|---|---|---|---|---|---|---|---|"]
     for s in summary(data["rows"]):

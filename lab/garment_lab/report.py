@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..reference.metrics import REL_MSE_EPS
+from renderer.reference.metrics import REL_MSE_EPS
 
 MB = 1 << 20
 
@@ -103,7 +103,7 @@ def write_markdown(path: Path, rows, machine: dict, cfg, refused: list[dict] = (
     """The sweep's report: a table per scene, the settings this machine refused under it (run.bench_scene),
     then the targets at the balanced preset."""
     lines = [f"# Benchmark ({'quick' if cfg.quick else 'full'})", "",
-             f"Made by `garment-render bench{' --quick' if cfg.quick else ''}` (renderer/bench/run.py): every knob "
+             f"Made by `garment-render bench{' --quick' if cfg.quick else ''}` (lab/garment_lab/run.py): every knob "
              "varied alone from the balanced preset of the preset files of the day (bench.json records their digest).",
              "",
              f"Machine: {machine['cpu']}, OpenGL: {machine['gl_renderer']} ({machine['gl_version']}), "

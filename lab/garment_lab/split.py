@@ -29,11 +29,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InvalidInputError
-from ..presets import frame_settings, pem_settings, preset, presets_digest
-from ..reference import relative_rmse, relative_squared_errors, render_reference
-from ..reference.visibility import ExactVisibility
-from ..renderer import Renderer, ShadingMode
+from renderer.errors import InvalidInputError
+from renderer.presets import frame_settings, pem_settings, preset, presets_digest
+from renderer.reference import relative_rmse, relative_squared_errors, render_reference
+from renderer.reference.visibility import ExactVisibility
+from renderer.renderer import Renderer, ShadingMode
+
 from .catalogue import GARMENTS, LARGE_FABRIC, LARGE_VIEW, MAPS, Scene, environment_cube, split
 from .materials import SEEDS, ReferencePair
 from .report import machine_info

@@ -18,9 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..presets import frame_settings, pem_settings, preset, presets_digest
-from ..reference import relative_rmse
-from ..renderer import Renderer
+from renderer.presets import frame_settings, pem_settings, preset, presets_digest
+from renderer.reference import relative_rmse
+from renderer.renderer import Renderer
+
 from .broad import maps_of_side
 from .catalogue import GARMENTS, LARGE_FABRIC, LARGE_VIEW, MAPS, Scene, environment_cube, split
 from .materials import ReferencePair

@@ -64,12 +64,21 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_file
-from ..mesh import FALLBACK_NORMAL, vertex_normals
-from ..presets import PRESET_NAMES as PRESETS  # every preset, paper's included (targets: TARGETS)
-from ..reference import artefact_share, mean_flip, relative_rmse, render_reference, silhouette_error, window_share
-from ..reference.metrics import FULL_COVERAGE
-from ..shading.background import background_truth
+import renderer
+from renderer.atomic import atomic_file
+from renderer.mesh import FALLBACK_NORMAL, vertex_normals
+from renderer.presets import PRESET_NAMES as PRESETS  # every preset, paper's included (targets: TARGETS)
+from renderer.reference import (
+    artefact_share,
+    mean_flip,
+    relative_rmse,
+    render_reference,
+    silhouette_error,
+    window_share,
+)
+from renderer.reference.metrics import FULL_COVERAGE
+from renderer.shading.background import background_truth
+
 from .catalogue import (
     EQUAL_ERROR_TARGETS,
     REFERENCE_FACE_SIZE,
@@ -90,19 +99,21 @@ from .scenes import shared_assets
 # reads and the meshes with the normals it shades with, so that code can be made faster without
 # rendering every reference anew, and any change to what it produces still does.
 # Each source by its name in the hash and where it lives (a folder: its .py files, named below it): the
-# names enter the hash, not the places, so that moving a file (the benchmarks out of the product's
-# package, issue 63) keeps every cached reference; give a moved file its old name here.
-_REFERENCE_SOURCES = {name: name for name in ("reference", "envmap/cube.py", "camera.py", "shading/material.py",
-                                               "shading/brdf.py", "bench/catalogue.py", "bench/scenes.py")}
+# names enter the hash, not the places (the lab's two kept the names they had in the product's package).
+# A change that moves code without changing what a reference is (a file's imports) changes the digest
+# all the same: scripts/fill_reference_cache.py --rekey-from OLD_DIGEST renames the cached references.
+_PRODUCT = Path(renderer.__file__).resolve().parent
+_LAB = Path(__file__).resolve().parent
+_REFERENCE_SOURCES = {**{name: _PRODUCT / name for name in ("reference", "envmap/cube.py", "camera.py",
+                                                            "shading/material.py", "shading/brdf.py")},
+                      "bench/catalogue.py": _LAB / "catalogue.py", "bench/scenes.py": _LAB / "scenes.py"}
 CACHE_VARIABLE = "GARMENT_RENDER_REFERENCE_CACHE"
 
 
 def reference_code_digest() -> str:
     """SHA-256 of the source of everything that makes a reference image from a scene's inputs."""
-    root = Path(__file__).resolve().parents[1]
     h = hashlib.sha256()
-    for name, place in _REFERENCE_SOURCES.items():
-        p = root / place
+    for name, p in _REFERENCE_SOURCES.items():
         for f in sorted(p.rglob("*.py")) if p.is_dir() else [p]:
             named = f"{name}/{f.relative_to(p).as_posix()}" if p.is_dir() else name
             h.update(named.encode() + b"\0" + f.read_bytes())
@@ -123,8 +134,8 @@ def _arrays_digest(*arrays: np.ndarray | None) -> str:
 def _reference_cube(map_name: str) -> np.ndarray:
     """`environment_cube`'s cube of a map at the references' face size, kept in the user's cache folder
     between runs (renderer/user_cache.py: the same array, its entry named by the resampling code)."""
-    from ..envmap import environment_from_array, read_hdr_image
-    from ..user_cache import user_cache_dir
+    from renderer.envmap import environment_from_array, read_hdr_image
+    from renderer.user_cache import user_cache_dir
 
     path = shared_assets() / "hdri" / map_name
     return environment_from_array(read_hdr_image(path), "auto", REFERENCE_FACE_SIZE, name=path.stem, repair=True,
@@ -166,13 +177,29 @@ class ReferenceCache:
         self.code = reference_code_digest()
         self.pixel_samples = int(pixel_samples)
 
-    def key(self, scene: Scene, spp: int, seed: int) -> str:
-        spec = {"inputs": reference_inputs_digest(scene), "spp": spp, "seed": seed, "code": self.code,
+    def key(self, scene: Scene, spp: int, seed: int, code: str | None = None) -> str:
+        """The entry's name: the scene's inputs, the samples, the seed, the strata and the reference's
+        code digest (`code`; default today's)."""
+        spec = {"inputs": reference_inputs_digest(scene), "spp": spp, "seed": seed, "code": code or self.code,
                 "pixel_samples": self.pixel_samples}
         return hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()[:32]
 
     def path(self, scene: Scene, spp: int, seed: int) -> Path:
         return self.folder / f"{self.key(scene, spp, seed)}.npz"
+
+    def rekey(self, scenes: list[Scene], spp_of, old_code: str) -> int:
+        """The references of `scenes` made under the code digest `old_code` renamed to today's, for a
+        change that moved the reference's code without changing what it computes (say so in its commit);
+        returns how many. Entries today's code already has are left as they are."""
+        moved = 0
+        for scene in scenes:
+            for seed in SEEDS:
+                old = self.folder / f"{self.key(scene, spp_of(scene), seed, old_code)}.npz"
+                new = self.path(scene, spp_of(scene), seed)
+                if old.exists() and not new.exists():
+                    old.rename(new)
+                    moved += 1
+        return moved
 
     def get(self, scene: Scene, spp: int, seed: int) -> dict | None:
         """{"image", "foreground": (H, W, 4) float32, "edge": (H, W) bool, "spp": samples a pixel taken,
@@ -264,7 +291,7 @@ class BroadRow:
 
 
 def _luminance_mean(img: np.ndarray, mask: np.ndarray) -> float:
-    from ..reference.metrics import LUMINANCE_RGB
+    from renderer.reference.metrics import LUMINANCE_RGB
 
     return float((img[..., :3][mask].astype(np.float64) @ LUMINANCE_RGB).mean())
 
@@ -411,9 +438,9 @@ class MapResources:
     setting, its background map, and its source image (for the background's truth)."""
 
     def __init__(self, r, name: str):
-        from ..envmap import read_hdr_image
-        from ..envmap.layouts import detect_layout
-        from ..shading.background import background_source
+        from renderer.envmap import read_hdr_image
+        from renderer.envmap.layouts import detect_layout
+        from renderer.shading.background import background_source
 
         self.r, self.name = r, name
         self.raw = read_hdr_image(shared_assets() / "hdri" / name)   # cubes from it, repaired as the reference's
@@ -423,8 +450,8 @@ class MapResources:
         self.background = r.background_map(background_source(self.raw, self.layout, repair=True, name=name))
 
     def pem_set(self, knobs: dict, materials):
-        from .. import presets as presets_mod
-        from ..envmap import environment_from_array
+        from renderer import presets as presets_mod
+        from renderer.envmap import environment_from_array
 
         pem = presets_mod.pem_settings(knobs, knobs["filter"], None, materials)
         key = (knobs["face_size"], pem.key())
@@ -443,8 +470,8 @@ def render_presets(r, scene: Scene, knobs_of: dict, frames: int, res: MapResourc
                    black: bool = False) -> dict[str, tuple[np.ndarray, float, np.ndarray | None]]:
     """Each setting's image of the scene (`knobs_of`: name -> knobs), its median frame time (after
     one warm-up frame) and, with `black`, one more frame over a black background (untimed; else None)."""
-    from .. import presets as presets_mod
-    from ..renderer import Background
+    from renderer import presets as presets_mod
+    from renderer.renderer import Background
 
     meshes, materials = scene.meshes(), scene.materials()
     gl_scene = r.create_scene(meshes, materials)
@@ -502,9 +529,9 @@ def bench_scenes(quick: bool = False) -> list[Scene]:
 
 
 def run_broad(out_dir: Path, cfg: BroadConfig, log=print, only: list[Scene] | None = None) -> list[BroadRow]:
-    from .. import presets as presets_mod
-    from ..gpu.context import GLContext
-    from ..renderer import Renderer
+    from renderer import presets as presets_mod
+    from renderer.gpu.context import GLContext
+    from renderer.renderer import Renderer
 
     out_dir.mkdir(parents=True, exist_ok=True)
     todo = only if only is not None else [s for s in bench_scenes(cfg.quick) if s.size in cfg.sizes]
@@ -638,7 +665,7 @@ def _rates_json(rates: dict[str, tuple[float, float]]) -> dict:
 
 def write(out_dir: Path, rows: list[BroadRow], machine: dict, cfg: BroadConfig, source: str, ref_s: float,
           sets_timed: dict | None = None, tracer: dict | None = None) -> None:
-    from ..presets import presets_digest
+    from renderer.presets import presets_digest
 
     data = {"machine": machine, "config": asdict(cfg), "presets": source, "presets_digest": presets_digest(),
             "reference_code": reference_code_digest(), "split": split(), "tracer": tracer or {},
@@ -652,7 +679,7 @@ def write(out_dir: Path, rows: list[BroadRow], machine: dict, cfg: BroadConfig, 
 # The README's quality table: generated from the stored held-out run at 256 x 256 (tests/test_readme.py
 # checks that the README holds what this makes of docs/broad/broad-256.json).
 README_RUN = "docs/broad/broad-256.json"
-README_BEGIN = "<!-- quality table: generated from docs/broad/broad-256.json (renderer.bench.broad.readme_table) -->"
+README_BEGIN = "<!-- quality table: generated from docs/broad/broad-256.json (garment_lab.broad.readme_table) -->"
 README_END = "<!-- end of the generated table -->"
 
 
@@ -666,7 +693,8 @@ def with_readme_table(text: str, data: dict) -> str:
 def readme_table(data: dict) -> str:
     """The presets on the held-out scenes at 256 x 256: light count, frame budget and measured frame,
     error, artefact share and the tracer's time at the same error, as markdown between the markers."""
-    from ..presets import presets
+    from renderer.presets import presets
+
     from .catalogue import TARGETS
 
     in_use, _ = presets()
@@ -728,7 +756,7 @@ def spp_at_error(error: float, floor: float, ref_spp: int) -> float:
 def setting_knobs(in_use: dict) -> dict[str, dict]:
     """Every setting the benchmark renders, by its row name: the presets (`in_use`, presets.presets()'s
     table, as the CLI and service apply them) and each knob variant ("PRESET:KNOB=VALUE", KNOB_VARIANTS)."""
-    from .. import presets as presets_mod
+    from renderer import presets as presets_mod
 
     knobs = {p: {**presets_mod.merge_knobs(in_use[p], {}), "filter": "sqrt-cosine"} for p in PRESETS}
     knobs.update({name: {**knobs[knob_base(name)], **v} for name, v in KNOB_VARIANTS.items()})
@@ -751,9 +779,9 @@ def retime(path: Path, out: Path, frames: int = BroadConfig.frames, log=print) -
     (`tracer_time_ms`). The errors stay the stored run's: the images of the code that retimes must be
     the ones the run measured (a change that alters them re-runs the benchmark). Written to `out`
     (.json and .md) with the retime's machine and date, the preset files' digest and the tracer's rates."""
-    from .. import presets as presets_mod
-    from ..gpu.context import GLContext
-    from ..renderer import Renderer
+    from renderer import presets as presets_mod
+    from renderer.gpu.context import GLContext
+    from renderer.renderer import Renderer
 
     data = json.loads(Path(path).read_text())
     rows = [BroadRow(**r) for r in data["rows"]]
@@ -796,7 +824,7 @@ def retime(path: Path, out: Path, frames: int = BroadConfig.frames, log=print) -
                 res.release()
     finally:
         gl.release()
-    from ..presets import presets_digest
+    from renderer.presets import presets_digest
 
     data["retimed"] = {"machine": machine, "from": str(path), "cores": cores, "frames": frames,
                        "presets_digest": presets_digest(), "tracer": rates}

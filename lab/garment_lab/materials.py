@@ -19,10 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..presets import frame_settings, pem_settings, preset, presets_digest
-from ..reference import artefact_share, relative_rmse, render_reference
-from ..renderer import Renderer
-from ..shading.material import Material
+from renderer.presets import frame_settings, pem_settings, preset, presets_digest
+from renderer.reference import artefact_share, relative_rmse, render_reference
+from renderer.renderer import Renderer
+from renderer.shading.material import Material
+
 from .broad import SEEDS
 from .catalogue import BODY, FABRICS, MAPS, Scene, environment_cube, split
 from .report import machine_info
@@ -170,7 +171,7 @@ def markdown(data: dict) -> str:
              f"the median of {data['frames']} frames side by side in one run ({data['wall_s'] / 60:.0f} min in all).",
              "Ratios are to the Phong fabric's (the broad benchmark's mid-gloss) on the same scene, then the median.", "",
              "Energy: the image's RGB summed over the object against the reference's, minus 1 (the median over the "
-             "scenes; renderer/bench/energy.py sweeps it per material on a sphere).", "",
+             "scenes; lab/garment_lab/energy.py sweeps it per material on a sphere).", "",
              "| set | material | lobes | rel. RMSE | noise floor | energy | artefacts | frame ms | error / Phong | "
              "time / Phong |",
              "|---|---|---|---|---|---|---|---|---|---|"]

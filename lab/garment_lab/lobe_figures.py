@@ -22,11 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..envmap.cube import sample_bilinear
-from ..errors import InvalidInputError
-from ..lighting.filters import Filter
-from ..lighting.glossiness import LobeTable, cosine_lobe, lobe_table, target_volume
-from ..lighting.pem_reference import pem_chain
+from renderer.envmap.cube import sample_bilinear
+from renderer.errors import InvalidInputError
+from renderer.lighting.filters import Filter
+from renderer.lighting.glossiness import LobeTable, cosine_lobe, lobe_table, target_volume
+from renderer.lighting.pem_reference import pem_chain
 
 DEFAULT_S_VALUES = (1, 2, 4, 8, 16, 32, 64, 128, 256, 1024)
 CURVE_POINTS = 60

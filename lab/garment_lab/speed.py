@@ -19,11 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import frame_meshes
-from ..errors import InvalidInputError
-from ..gpu.context import GLContext, StageTimer
-from ..presets import merge_knobs, pem_settings, presets
-from ..renderer import Renderer
+from renderer.camera import frame_meshes
+from renderer.errors import InvalidInputError
+from renderer.gpu.context import GLContext, StageTimer
+from renderer.presets import merge_knobs, pem_settings, presets
+from renderer.renderer import Renderer
+
 from .run import _pems_for, frame_settings
 from .scenes import LARGE_GARMENT_TRIANGLES, bundled_scene, large_scene, shared_scenes
 
@@ -101,7 +102,7 @@ def run_speed(out: Path | None, rounds: int = 15, size: int = 256, shared: bool 
     else:
         scenes = (shared_scenes() if shared else []) or [bundled_scene()]
     table, source = presets()
-    from ..presets import presets_digest
+    from renderer.presets import presets_digest
 
     result = {"size": size, "rounds": rounds, "presets": source, "presets_digest": presets_digest(), "large": large,
               "scenes": {}}

@@ -16,13 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import frame_meshes
-from ..envmap import environment_from_array, studio_environment
-from ..presets import frame_settings, pem_settings, preset, presets_digest
-from ..procedural import default_scene
-from ..renderer import Renderer
-from ..shading.material import Material
-from ..views import turntable
+from renderer.camera import frame_meshes
+from renderer.envmap import environment_from_array, studio_environment
+from renderer.presets import frame_settings, pem_settings, preset, presets_digest
+from renderer.procedural import default_scene
+from renderer.renderer import Renderer
+from renderer.shading.material import Material
+from renderer.views import turntable
+
 from .report import machine_info
 
 VIEW_COUNTS = (1, 4, 8)
