@@ -5,7 +5,7 @@
 #                                    then exec the HTTP service: python -m service.main [FLAGS]
 #                                    (host, port and every limit from GARMENT_RENDER_* variables)
 #   check                            only the checks above; exit 0 when a GL 4.5 context can be made
-#   render|sequence|reference|bench|lobes ARGS
+#   render|sequence|reference|devices ARGS
 #                                    one-shot garment-render command (e.g. render --out /out/frame.png)
 #   anything else                    executed as given (bash, python, ...)
 #
@@ -78,7 +78,7 @@ case "$command" in
         check_dirs
         check_gl
         ;;
-    render|sequence|reference|bench|lobes)
+    render|sequence|reference|devices)
         exec garment-render "$command" "$@"
         ;;
     *)
