@@ -246,9 +246,9 @@ OPTIONS: tuple[Setting, ...] = (
     Setting("bleed_reduction", float, 0.2, "variance shadow maps' light-bleeding reduction: the share of "
             "Chebyshev's bound below which a point is in full shadow", "shadows", "frame", 0.0, 1.0,
             below_maximum=True),
-    Setting("mode", str, "full", "the full method, no occlusion, grey AO, AO with colour (the paper's Fig. 6), or "
-            "the plain many-light baseline (the N lights shade as well as shadow)", "shading", "shader variant",
-            choices=("full", "none", "ao", "ao-color", "many-lights")),
+    Setting("mode", str, "full", "the full method, or the same without occlusion (the paper's Fig. 6; its "
+            "ambient-occlusion and many-light baselines are the lab's comparisons, not the product's)", "shading",
+            "shader variant", choices=("full", "none")),
 )
 OPTION = {o.name: o for o in OPTIONS}
 

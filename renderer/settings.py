@@ -17,7 +17,9 @@ from .errors import InvalidInputError
 
 class ShadingMode(str, Enum):
     """The paper's Figure 6 comparison (full method, no occlusion, grey AO, AO with colour) and the
-    plain many-light baseline."""
+    plain many-light baseline. The product offers the first two (the `mode` option of the command line
+    and the service); the three baselines are the lab's comparisons (garment_lab/run.py), reached
+    through FrameSettings alone."""
 
     FULL = "full"
     NO_OCCLUSION = "none"

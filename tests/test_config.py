@@ -211,7 +211,8 @@ def test_the_options_no_preset_chooses_are_declared_once_and_read_by_every_side(
     opt = config.OPTION
     # The renderer's own enums hold the registry's values (layout's "auto" is a choice, not a layout).
     assert tuple(f.value for f in Filter) == opt["filter"].choices
-    assert tuple(m.value for m in ShadingMode) == opt["mode"].choices
+    # The renderer's modes begin with the product's (the rest are the lab's baselines).
+    assert tuple(m.value for m in ShadingMode)[:len(opt["mode"].choices)] == opt["mode"].choices
     assert ("auto",) + tuple(lay.value for lay in Layout) == opt["layout"].choices
     # The service's enums and defaults, and the command line's choices and defaults.
     for enum, name in ((FilterName, "filter"), (ModeName, "mode"), (LayoutName, "layout")):
@@ -246,3 +247,16 @@ def test_the_rules_between_settings_are_declared_once_and_applied_both_ways():
     # The most lights that may get sharp maps, which the service's memory bound counts.
     assert config.most_sharp_lights(48, 1, 0.0) == 0 and config.most_sharp_lights(48, 2, 0.0) == 48
     assert config.most_sharp_lights(48, 2, 2.4) == 20 and config.most_sharp_lights(48, 2, 1e-320) == 48
+
+
+def test_the_papers_baselines_are_the_labs_not_a_public_option():
+    """The mode option (command line, service) offers the method and its no-occlusion twin; the
+    ambient-occlusion and many-light baselines stay reachable through FrameSettings, for the lab."""
+    from renderer.errors import InvalidInputError
+    from renderer.settings import FrameSettings, ShadingMode
+
+    assert config.OPTION["mode"].choices == ("full", "none")
+    for research in ("ao", "ao-color", "many-lights"):
+        with pytest.raises(InvalidInputError, match="one of full, none"):
+            config.OPTION["mode"].check(research)
+    assert FrameSettings(16, 16, mode=ShadingMode.MANY_LIGHTS).mode is ShadingMode.MANY_LIGHTS
