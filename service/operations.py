@@ -376,8 +376,14 @@ async def add_colourway(svc: Services, scene_id: str, spec: MaterialSpec | Fabri
     """One more garment material or fabric for a registered scene (the viewer's fabric choice): judged
     as a registration judges its colourways, made on the GL thread beside the others (they share the
     shadow maps), kept in the state directory with the scene. Returns its index (the views route's
-    `colourway`). A glossier one than the scene's materials deepens its PEM set, made here."""
+    `colourway`). A glossier one than the scene's materials deepens its PEM set, made here. One add
+    at a time per scene: the bound, the PEM settings and the stored scene are read and written whole."""
     rec = await find_scene(svc, scene_id)
+    async with svc._lock(f"colourway of {scene_id}"):
+        return await _add_colourway(svc, rec, scene_id, spec)
+
+
+async def _add_colourway(svc: Services, rec: SceneRecord, scene_id: str, spec: MaterialSpec | FabricRef) -> int:
     scene = rec.gpu
     if scene is None:
         raise NotFoundError(f"scene {scene_id} was deleted")
