@@ -5,7 +5,7 @@ it ended. A change to the reference's code (lab/garment_lab/broad.py, `_REFERENC
 cache: fill it after the last such change, on a machine left to it (cold: hours; `--workers 1` leaves a
 core free).
 
-    python scripts/fill_reference_cache.py [--sizes 128,256,512] [--workers N] [--dry-run]
+    python scripts/fill_reference_cache.py [--sizes 128,256,512] [--workers N] [--dry-run] [--rekey-from DIGEST]
 """
 
 from __future__ import annotations
