@@ -502,9 +502,7 @@ class Renderer:
         for the next one (the light decomposition is in it); `cache` False: built and not stored. Its
         `source` says which ("disk" or "built"); the caller owns it (release())."""
         if not cache:
-            pems = self.build_pems(env.cube, settings)
-            pems.source = "built"
-            return pems
+            return self.build_pems(env.cube, settings)
         from .cache import PEMCache
         from .user_cache import user_cache_dir
 

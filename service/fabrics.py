@@ -151,6 +151,8 @@ def in_service_terms(exc: MaterialError, settings: ServiceSettings, limits: U3ML
     return MaterialError(reason, file=exc.file, field=exc.field)
 
 
+# -- on a mesh -------------------------------------------------------------------------------------
+
 def fabric_material(fabrics: dict[str, FabricRecord], fabric_id: str, uv_scale: list[float] | None, mesh: Mesh,
                     role: str) -> tuple[Material, list[str]]:
     """The renderer's Material of a fabric on `mesh` (its front outward, each texture at its physical

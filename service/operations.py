@@ -157,7 +157,29 @@ async def ensure_pem_set(worker: RenderWorker, env: EnvironmentRecord, face_size
     return env.pem_sets[key]
 
 
-# --- fabrics (service/fabrics.py: the store, the reader's bounds, the material on a mesh) -----------------
+async def find_environment(svc: Services, env_id: str) -> EnvironmentRecord:
+    try:
+        return svc.environments.get(env_id)
+    except NotFoundError:
+        if svc.state is None:
+            raise
+    async with svc._lock(env_id):
+        try:
+            return svc.environments.get(env_id)
+        except NotFoundError:
+            pass
+        stored = await anyio.to_thread.run_sync(svc.state.load_environment, env_id)
+        if stored is None:
+            raise NotFoundError(f"unknown environment id {env_id!r}; upload the map with POST /environments "
+                                "(ids are listed by GET /environments)")
+        data, meta = stored
+        face_size = svc.quality(QualitySpec()).face_size
+        env, _ = await add_environment(svc, data, meta["layout"], meta["repair"], meta["name"], face_size,
+                                       env_id=env_id)
+        return env
+
+
+# -- fabrics (service/fabrics.py: the store, the reader's bounds, the material on a mesh) ---------------
 
 async def add_fabric(svc: Services, data: bytes, name: str | None, store: bool = True) -> tuple[FabricRecord, bool]:
     """Read and keep an uploaded fabric, once per distinct file; written to the state directory where
@@ -222,31 +244,6 @@ async def delete_fabric(svc: Services, fabric_id: str) -> None:
             raise
     if svc.state is not None:
         svc.state.delete_fabric(fabric_id)
-
-
-# -- on a mesh -------------------------------------------------------------------------------------
-
-
-async def find_environment(svc: Services, env_id: str) -> EnvironmentRecord:
-    try:
-        return svc.environments.get(env_id)
-    except NotFoundError:
-        if svc.state is None:
-            raise
-    async with svc._lock(env_id):
-        try:
-            return svc.environments.get(env_id)
-        except NotFoundError:
-            pass
-        stored = await anyio.to_thread.run_sync(svc.state.load_environment, env_id)
-        if stored is None:
-            raise NotFoundError(f"unknown environment id {env_id!r}; upload the map with POST /environments "
-                                "(ids are listed by GET /environments)")
-        data, meta = stored
-        face_size = svc.quality(QualitySpec()).face_size
-        env, _ = await add_environment(svc, data, meta["layout"], meta["repair"], meta["name"], face_size,
-                                       env_id=env_id)
-        return env
 
 
 # -- scenes ----------------------------------------------------------------------------------------

@@ -25,7 +25,6 @@ def render_preview(out: Path | str, garment: tuple[np.ndarray, np.ndarray, np.nd
     metres, Y-up, faces counter-clockwise seen from outside. views: (eye, target) per view,
     metres."""
     import renderer as gr
-    from renderer.cli import png_image
     from renderer.envmap import studio_environment
     from renderer.shading.tonemap import DEFAULT_CURVE, auto_exposure_ev
 
@@ -43,7 +42,7 @@ def render_preview(out: Path | str, garment: tuple[np.ndarray, np.ndarray, np.nd
         scene = r.create_scene(meshes, materials, casters=[True, True, False])
         for eye, target in views:
             frame = r.render(scene, pems, settings, gr.Camera(eye, target, fov_y_deg=fov_y_deg))
-            images.append(png_image(frame.image, False))
+            images.append(frame.image)
         scene.release()
         pems.release()
     img = np.concatenate(images, axis=1)
