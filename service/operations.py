@@ -233,17 +233,23 @@ async def scene_fabrics(svc: Services, body: SceneCreate) -> dict[str, FabricRec
     return {fabric_id: await find_fabric(svc, fabric_id) for fabric_id in body.fabric_ids()}
 
 
-async def delete_fabric(svc: Services, fabric_id: str) -> None:
-    users = svc.scenes.using_fabric(fabric_id)
+def _delete_unused(svc: Services, kind: str, item_id: str, users: list, registry) -> None:
+    """Deletes a fabric or an environment (`kind`) that no scene uses, from this process's `registry`
+    and the state directory (where it may be alone: a restart's, not loaded yet); 409 while scenes use it."""
     if users:
-        raise ConflictError(f"fabric {fabric_id} is used by scenes {users}; delete them first")
+        raise ConflictError(f"{kind} {item_id} is used by scenes {users}; delete them first")
+    state = svc.state
     try:
-        svc.fabrics.remove(fabric_id)
+        registry.remove(item_id)
     except NotFoundError:
-        if svc.state is None or svc.state.load_fabric(fabric_id) is None:
+        if state is None or getattr(state, f"load_{kind}")(item_id) is None:
             raise
-    if svc.state is not None:
-        svc.state.delete_fabric(fabric_id)
+    if state is not None:
+        getattr(state, f"delete_{kind}")(item_id)
+
+
+async def delete_fabric(svc: Services, fabric_id: str) -> None:
+    _delete_unused(svc, "fabric", fabric_id, svc.scenes.using_fabric(fabric_id), svc.fabrics)
 
 
 # -- scenes ----------------------------------------------------------------------------------------
@@ -451,16 +457,7 @@ async def find_scene(svc: Services, scene_id: str) -> SceneRecord:
 
 
 async def delete_environment(svc: Services, env_id: str) -> None:
-    users = [s for s in svc.scenes.using_environment(env_id)]
-    if users:
-        raise ConflictError(f"environment {env_id} is used by scenes {users}; delete them first")
-    try:
-        svc.environments.remove(env_id)
-    except NotFoundError:
-        if svc.state is None or svc.state.load_environment(env_id) is None:
-            raise
-    if svc.state is not None:
-        svc.state.delete_environment(env_id)
+    _delete_unused(svc, "environment", env_id, list(svc.scenes.using_environment(env_id)), svc.environments)
 
 
 async def delete_scene(svc: Services, scene_id: str) -> None:
