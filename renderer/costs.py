@@ -60,7 +60,7 @@ def plan_maps(regions: RegionSet, settings: FrameSettings) -> LayerPlan:
 
 
 def light_maps(regions: RegionSet, settings: FrameSettings) -> tuple[LayerPlan, np.ndarray]:
-    """The light plan's rule, written once (Renderer._plan_lights plans with it, the costs count with
+    """The light plan's rule, written once (renderer/plan.py plans with it, the costs count with
     it): every light has a map (none in the no-occlusion mode); the small lights (angular radius under
     ~6 degrees) carrying at least small_light_min_energy x the mean light's energy, and with
     sharp_large_lights the large ones that bright too, get sharp maps; sharp lights within

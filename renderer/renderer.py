@@ -20,21 +20,17 @@ import numpy as np
 from .aovs import from_gbuffer
 from .camera import Camera, bounds_sphere, default_camera
 from .config import MAX_LIGHTS
-from .costs import light_maps
 from .errors import InvalidInputError, RenderStoppedError
 from .gpu import rawgl
 from .gpu.context import GLContext, StageTimer
 from .gpu.contract import (
     G_BUFFER_UNITS,
-    N_LIGHT_KINDS,
     SHEER_LAYERS,
-    WIDE_LOBE_DISC_VARIANCE,
     EdgeTexture,
     GeometryTexture,
     Image,
     LightingBuffer,
     LightingTexture,
-    LightKind,
     Mode,
 )
 from .gpu.shaders import compute_shader, program, set_uniform
@@ -42,17 +38,12 @@ from .lighting import material_lobes
 from .lighting.pem import PEMSet
 from .lighting.pem_plan import PAPER_PEMS, REGIONS_PER_TEXTURE, SUB_LIGHT_BYTES, PEMSettings
 from .mesh import Mesh
-from .scene import Scene, snap_box
+from .plan import CLOSED_FORM_MODES, LightPlan, LightPlanner, discs_per_region, no_diffuse_pems, snap_box
+from .scene import Scene
 from .settings import PAPER_FRAME, Background, FrameSettings, ShadingMode
 from .shading.background import BackgroundMap
 from .shading.material import Material
-from .shadows.lights import (
-    LIGHT_DTYPE,
-    blur_sigma_texels,
-    fit_light_view_projs,
-    pack_lights,
-    texel_sizes,
-)
+from .shadows.lights import LIGHT_DTYPE
 from .shadows.vsm import LAYERS_PER_DRAW, ShadowMaps
 
 _MODE_INDEX = {ShadingMode.FULL: Mode.FULL, ShadingMode.NO_OCCLUSION: Mode.NO_OCCLUSION, ShadingMode.AO_GREY: Mode.AO_GREY,
@@ -130,87 +121,6 @@ class Frame:
     aovs: dict = field(default_factory=dict)
 
 
-# The modes whose lighting pass has closed-form terms (the others read every PEM).
-_CLOSED_FORM_MODES = (ShadingMode.FULL, ShadingMode.NO_OCCLUSION)
-# light_kinds: a large light counts as wide at every pixel only by this margin in 1 - g (a pixel's g is
-# interpolated in float32 between vertices or texels).
-WIDE_LOBE_MARGIN = 1e-3
-
-
-def _glossy_closed_form(mode: ShadingMode, glossy: str) -> bool:
-    """Whether some light's glossy term is in closed form (with "wide": small lights', and large ones'
-    where the lobe is wide): what FrameSettings.sub_lights applies to."""
-    return mode in _CLOSED_FORM_MODES and glossy == "wide"
-
-
-def _no_diffuse_pems(mode: ShadingMode, diffuse: str) -> bool:
-    """Every light's diffuse term without PEM lookups: the DIFFUSE_LIGHTS program variant, whose
-    loops are compiled only for the kinds light_kinds then gives (one rule for both)."""
-    return diffuse == "lights" and mode in _CLOSED_FORM_MODES
-
-
-def light_kinds(lights: np.ndarray, sharp: np.ndarray, settings: FrameSettings,
-                max_glossiness: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """The lighting pass's order of the lights and the end of each kind in it (int32 arrays: the
-    light_order buffer and u_kind_end of lighting.frag). A light's kind, the bits of LightKind
-    (renderer/gpu/contract.py): it reads its diffuse PEM, its glossy PEM, its map is in the sharp
-    array, its region is in the second PEM texture. Whether a term comes from the PEM follows the shader's modes: in the full and
-    no-occlusion modes every light's diffuse term is in closed form with diffuse "lights", and small
-    lights' (angular radius <= ~6 degrees) glossy term with glossy "wide"; there a large light whose disc is narrower than the lobe at every pixel (at the scene's
-    `max_glossiness`, the widest lobe being the least glossy) has its glossy term in closed form
-    everywhere: its glossy PEM is not read (the shader's wide_lobe would discard the lookup at every
-    pixel; a CPU rasterizer runs it anyway)."""
-    n = len(lights)
-    exact_modes = settings.mode in _CLOSED_FORM_MODES
-    small = lights["shadow"][:, 3] > 0.5   # pack_lights' flag, which the lighting pass reads too
-    pem_diffuse = np.full(n, not _no_diffuse_pems(settings.mode, settings.diffuse))
-    pem_glossy = ~(small & _glossy_closed_form(settings.mode, settings.glossy))
-    if exact_modes and settings.glossy == "wide":
-        # wide_lobe in lighting.frag at the glossiest pixel, with a margin for the interpolated g.
-        sin_a = lights["params"][:, 3].astype(np.float64)
-        pem_glossy &= ~(max(1.0 - max_glossiness, 0.0) - WIDE_LOBE_MARGIN >= WIDE_LOBE_DISC_VARIANCE * sin_a * sin_a)
-    second = np.arange(n) >= REGIONS_PER_TEXTURE
-    kind = (pem_diffuse.astype(np.int32) * LightKind.PEM_DIFFUSE | pem_glossy.astype(np.int32) * LightKind.PEM_GLOSSY
-            | np.asarray(sharp, np.int32) * LightKind.SHARP | second.astype(np.int32) * LightKind.SECOND_PEM)
-    order = np.argsort(kind, kind="stable").astype(np.int32)
-    kind_end = np.searchsorted(kind[order], np.arange(1, N_LIGHT_KINDS + 1)).astype(np.int32)
-    return order, kind_end
-
-
-@dataclass
-class _LightPlan:
-    """A frame's lights as the passes need them (Renderer._light_plan, the frame's CPU planning): the
-    PEM set's regions, each light's layer, disc, map plan and shadow direction, map size, blur width,
-    projection's texel size, the packed records the shaders read and the contact search's distance."""
-
-    regions: object
-    layers: np.ndarray
-    disc_radius: np.ndarray
-    plan: object
-    shadow_dirs: np.ndarray
-    sizes: np.ndarray
-    sigma: np.ndarray
-    blur: bool
-    texels: np.ndarray
-    lights: np.ndarray
-    blocker: bool    # some light's penumbra follows the blocker's distance (the main maps carry MIP chains)
-    # The contact search's distance in world units (settings.contact_shadow_texels of the main maps'
-    # median texel over all the casters; 0: no search).
-    contact_radius: float
-    # The lights in the lighting pass's order, by kind, and where each kind ends (light_kinds): what
-    # the pass's loops read, planned with the rest (the pass binds them).
-    order: np.ndarray | None = None
-    kind_end: np.ndarray | None = None
-
-    @property
-    def n(self) -> int:
-        return self.regions.n_regions
-
-    @property
-    def n_shadowed(self) -> int:
-        return int((self.layers >= 0).sum())
-
-
 @dataclass
 class _FrameInputs:
     """What every view of a frame shades with, the lighting pass's inputs beyond its view: the scene, its
@@ -221,7 +131,7 @@ class _FrameInputs:
     scene: Scene
     pems: PEMSet
     settings: FrameSettings
-    lp: _LightPlan
+    lp: LightPlan
     arrays: dict
     lights_buf: moderngl.Buffer
     fbo: object
@@ -395,9 +305,8 @@ class Renderer:
         self._target: _Targets | None = None
         # The still meshes' targets of the geometry and coverage passes (_with_still_meshes).
         self._still_targets: dict[str, _StillTarget] = {}
-        # The last frame's light plan: (its PEM set, its key, the plan) (_light_plan).
-        self._kept_plan: tuple | None = None
-        self.kept_plan_hits = 0
+        # Plans each frame's lights and maps on the CPU, keeping the last plan while it holds (renderer/plan.py).
+        self.planner = LightPlanner()
         self.geometry_still_hits = 0   # frames whose still meshes were copied, not drawn (tests)
         self._readback: np.ndarray | None = None
         self._buffers: dict[str, moderngl.Buffer] = {}
@@ -430,15 +339,15 @@ class Renderer:
         full and no-occlusion modes only); `two_textures`: the PEM set spans two textures (more than
         REGIONS_PER_TEXTURE regions), whose second needs loops of its own; `sub_lights`: discs per
         region in the glossy closed form (FrameSettings.sub_lights; 1 where no glossy term is in
-        closed form, `_glossy_closed_form`); `lobes`: (GGX lobes, sheen lobes) of a scene with a
+        closed form, plan.discs_per_region); `lobes`: (GGX lobes, sheen lobes) of a scene with a
         physically based material (None: Phong materials only, one lobe a pixel); `blocker`: some
         light's penumbra follows the blocker's distance (FrameSettings.penumbra, area lights); `oracle`:
         the full mode with each light's visibility read from a texture (`render_views(visibility=)`);
         `catcher`: the full mode's shadow catcher (Background.SHADOW_CATCHER); `sheets`: "sheer" or
         "transmission" where some mesh is sheer or some transmits (Scene.has_sheets: each mesh's pair
         read by its id; the transmitted term compiled in for "transmission" alone)."""
-        closed = _no_diffuse_pems(mode, diffuse)
-        wide = glossy == "wide" and mode in _CLOSED_FORM_MODES
+        closed = no_diffuse_pems(mode, diffuse)
+        wide = glossy == "wide" and mode in CLOSED_FORM_MODES
         oracle = oracle and mode is ShadingMode.FULL
         contact = contact and mode is ShadingMode.FULL and not oracle
         blocker = blocker and not oracle
@@ -647,7 +556,7 @@ class Renderer:
         receivers = (np.min([b[0] for b in seen], axis=0), np.max([b[1] for b in seen], axis=0)) if seen else None
         # A turned environment: the set's view whose lights are turned (the same textures).
         pems = pems.turned(settings.environment_rotation_deg)
-        lp = self._light_plan(scene, pems, settings, receivers)
+        lp = self.planner.plan(scene, pems, settings, receivers)
         # One buffer for the storage-buffer readers and, where it fits, the lighting pass's uniform block
         # (then the block's whole declared size).
         lights_buf = self._buffer("lights", lp.lights.tobytes(), self._lights_block or None)
@@ -659,7 +568,7 @@ class Renderer:
         fbo, gbuf = targets.image_fbo, targets.gbuf
         # The PEM set's tables the shading pass reads (the glossy discs), made once per set when a
         # frame first asks for them: that frame reports them as their own stage.
-        discs = settings.sub_lights if _glossy_closed_form(settings.mode, settings.glossy) else 1
+        discs = discs_per_region(settings)
         t0 = time.perf_counter()
         if pems.prepare_tables(discs):
             shared.wall_ms["light_tables"] = (time.perf_counter() - t0) * 1e3
@@ -698,7 +607,7 @@ class Renderer:
                 frames.append(Frame(image, timings, info, aovs))
         return frames
 
-    def _frame_report(self, scene: Scene, pems: PEMSet, settings: FrameSettings, lp: _LightPlan, arrays: dict,
+    def _frame_report(self, scene: Scene, pems: PEMSet, settings: FrameSettings, lp: LightPlan, arrays: dict,
                       uploaded: bool, views: int) -> tuple[dict, dict]:
         """What every view of a frame reports alike: its counts (FrameTimings beyond the stages) and
         its settings (Frame.settings beyond the camera and the contact search), made once a frame."""
@@ -727,83 +636,8 @@ class Renderer:
                 "shadowed_lights": n_shadowed}
         return timings, info
 
-    def _light_plan(self, scene: Scene, pems: PEMSet, settings: FrameSettings,
-                    receivers: tuple[np.ndarray, np.ndarray] | None) -> _LightPlan:
-        """Which lights get which maps, and each map's projection: numpy, once per frame.
-        `receivers`: the box of what the cameras see (Scene.visible_bounds; None: all the casters)."""
-        # Lights: directions and energies from the PEM set, projections fitted to the casters now,
-        # over the receivers in view.
-        lo, hi = scene.bounds(casters_only=True)
-        # The projections' boxes, snapped to a grid: the same while what moves stays inside its
-        # cells, so the still casters' maps are kept too (snap_box); the contact search's reach
-        # follows the casters' own box.
-        fit_lo, fit_hi = snap_box(lo, hi, scene.footprint_unit)
-        fit_receivers = None if receivers is None else snap_box(*receivers, scene.footprint_unit)
-        # The plan is a function of the PEM set, the settings and the snapped boxes alone: the last
-        # frame's is kept while they stay (a garment moving within its cells), as the still casters'
-        # maps are. The contact search's distance follows the casters' own box: made every frame.
-        key = (settings, scene.footprint_unit, fit_lo.tobytes(), fit_hi.tobytes(),
-               None if fit_receivers is None else b"".join(b.tobytes() for b in fit_receivers))
-        kept = self._kept_plan
-        if kept is not None and kept[0] is pems and kept[1] == key:
-            lp = kept[2]
-            self.kept_plan_hits += 1
-        else:
-            self._kept_plan = None   # a plan that fails half-way leaves nothing to be kept
-            lp = self._plan_lights(pems, settings, fit_lo, fit_hi, fit_receivers, scene.footprint_unit)
-            self._kept_plan = (pems, key, lp)
-        order, kind_end = light_kinds(lp.lights, lp.plan.sharp, settings, scene.max_glossiness)
-        return replace(lp, contact_radius=self._contact_radius(lp, settings, lo, hi, scene.footprint_unit),
-                       order=order, kind_end=kind_end)
 
-    @staticmethod
-    def _plan_lights(pems: PEMSet, settings: FrameSettings, fit_lo: np.ndarray, fit_hi: np.ndarray,
-                     fit_receivers: tuple[np.ndarray, np.ndarray] | None, unit: float) -> _LightPlan:
-        """_light_plan's lights and maps from the snapped boxes (the contact search's distance 0)."""
-        regions = pems.regions
-        # Which lights get which maps (renderer/costs.py, light_maps: the rule the costs count with).
-        plan, shadow_dirs = light_maps(regions, settings)
-        n = regions.n_regions
-        # Every light has a map (none in the no-occlusion mode).
-        shadowed = settings.mode is not ShadingMode.NO_OCCLUSION
-        layers = np.arange(n, dtype=np.int32) if shadowed else np.full(n, -1, np.int32)
-        disc_radius = regions.disc_radius_rad()
-        k = settings.small_light_scale
-        # Each light's map size; blur widths are in the light's own texels.
-        sizes = np.where(plan.sharp, settings.shadow_size * k, settings.shadow_size)
-        sigma = blur_sigma_texels(regions.light_radius_rad(), sizes, settings.blur_scale)
-        blur = bool((sigma > 0).any())   # blur scale 0 (every preset): the maps stay as drawn
-        # Square texels: the blur's sigma is in texels, the same on both axes, so rectangular texels
-        # would make penumbrae anisotropic (a side run fitting x and y separately gained 0-2.5 %).
-        vp = fit_light_view_projs(shadow_dirs, fit_lo, fit_hi, sigma, sizes, unit, fit_receivers)
-        # Lights sharing a map look it up through the projection it was drawn with (its first light's:
-        # with a blur the fit's margin follows each light's own width).
-        sharp_layer = plan.layer[plan.sharp]
-        vp[plan.sharp] = vp[plan.sharp_lights[sharp_layer]]
-        texels = texel_sizes(vp, sizes)
-        # Contact-hardening penumbrae for the area lights in the main maps (their discs are bounded
-        # sources; a median-cut region's spread is not a disc's, docs/area-bench.md).
-        blocker = (settings.penumbra == "blocker") & regions.area_mask & (plan.layer >= 0) & ~plan.sharp
-        lights = pack_lights(regions.directions, pems.scale, regions.solid_angle_sr, regions.energy_rgb, vp,
-                             sigma, plan.layer, disc_radius, plan.sharp, texels, blocker)
-        return _LightPlan(regions, layers, disc_radius, plan, shadow_dirs, sizes, sigma, blur, texels, lights,
-                          bool(blocker.any()), 0.0)
-
-    @staticmethod
-    def _contact_radius(lp: _LightPlan, settings: FrameSettings, lo: np.ndarray, hi: np.ndarray, unit: float) -> float:
-        """The contact search's distance in world units (0: no search): settings.contact_shadow_texels
-        in main-map texels (the maps whose bias hides the contact), else the sharp maps', of maps over
-        all the casters (lo, hi), not the view: the search's distance in the scene does not follow the
-        camera (a closer view, finer maps, the same search)."""
-        if not (settings.contact_shadow_texels > 0 and settings.mode is ShadingMode.FULL):
-            return 0.0
-        main = ~lp.plan.sharp
-        pick = main if main.any() else np.ones(lp.n, bool)
-        scene_texels = texel_sizes(fit_light_view_projs(lp.shadow_dirs[pick], lo, hi, lp.sigma[pick], lp.sizes[pick],
-                                                        unit), lp.sizes[pick])
-        return settings.contact_shadow_texels * float(np.median(scene_texels[:, 0]))
-
-    def _shadow_pass(self, scene: Scene, settings: FrameSettings, lp: _LightPlan, lights_buf: moderngl.Buffer,
+    def _shadow_pass(self, scene: Scene, settings: FrameSettings, lp: LightPlan, lights_buf: moderngl.Buffer,
                      timer: StageTimer) -> dict[str, ShadowMaps]:
         """Every shadowed light's moments: the main maps and the small lights' sharp maps."""
         plan, k, blur = lp.plan, settings.small_light_scale, lp.blur

@@ -140,25 +140,9 @@ def longest_edge(positions: np.ndarray, faces: np.ndarray) -> float:
     return float(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max())
 
 
-def snap_box(lo: np.ndarray, hi: np.ndarray, unit: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """The box (lo, hi) grown outwards to a grid of cells `unit` x a power of two, between
-    1/(2 SNAP_CELLS) and 1/SNAP_CELLS of its longest side (`unit`: a length fixed for the scene,
-    Scene.footprint_unit, so that a scene's scale does not change its picture). A function of the box
-    alone (the same positions give the same maps), and the same box while what moves stays inside its
-    cells: the shadow maps are fitted to snapped boxes, so a garment moving a little keeps its maps'
-    projections and the casters that hold still need not be drawn again (shadows/vsm.py)."""
-    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    extent = float((hi - lo).max())
-    scale = max(extent, float(np.abs(np.concatenate([lo, hi])).max()) * 1e-6, 1e-300)
-    cell = unit * float(np.exp2(np.floor(np.log2(scale / unit / SNAP_CELLS))))
-    return np.floor(lo / cell) * cell, np.ceil(hi / cell) * cell
-
-
 # Work groups per dispatch dimension that every GL 4.5 driver takes (llvmpipe's limit): larger meshes'
 # normals pass dispatches a second dimension.
 MAX_GROUPS_X = 65535
-# snap_box: a box's sides snap outwards to a grid of at least this many cells along its longest side.
-SNAP_CELLS = 16
 
 
 _SERIALS = itertools.count()

@@ -153,7 +153,7 @@ def test_a_second_context_on_the_thread_does_not_steal_the_first(renderer):
 
 def test_the_lighting_pass_visits_every_light_once_grouped_by_kind():
     from renderer.lighting.pem import REGIONS_PER_TEXTURE
-    from renderer.renderer import FrameSettings, ShadingMode, light_kinds
+    from renderer.plan import FrameSettings, ShadingMode, light_kinds
 
     n = REGIONS_PER_TEXTURE + 8
     lights = np.zeros(n, LIGHT_DTYPE)

@@ -428,7 +428,7 @@ def test_maps_are_fitted_to_the_casters_not_the_scene(renderer):
     # floor that casts nothing); the frame reports the main maps' median texel. Maps over the whole
     # scene (a knob until the broad bench: worse on 24 of 27 held-out scenes, rel. RMSE +0.056 on
     # average, docs/broad-benchmark.md) would have texels at least 4 m / 256 across; the sphere's
-    # box, snapped to its grid (renderer.scene.snap_box) and rounded up to a footprint step, to
+    # box, snapped to its grid (renderer.plan.snap_box) and rounded up to a footprint step, to
     # about 1.4 m / 256.
     cube = sun_sky_cube(32, (1.0, 1.0, 0.3), sun_radiance=2e3, sun_radius_deg=3)
     meshes, mats = [sphere(0.4, centre=(0, 0.6, 0)), plane(4.0)], [Material((0.8, 0.8, 0.8)), Material((0.8, 0.8, 0.8))]
@@ -748,7 +748,7 @@ def test_normals_on_the_gpu_give_the_image_of_normals_on_the_cpu(renderer):
 
 def test_lights_wide_at_every_pixel_skip_their_glossy_pem_for_the_same_image(renderer):
     # glossy "wide": a large light whose disc is narrower than the lobe at the scene's glossiest pixel
-    # has its glossy term in closed form everywhere (renderer.py, light_kinds), so its glossy PEM is
+    # has its glossy term in closed form everywhere (renderer/plan.py, light_kinds), so its glossy PEM is
     # not read; the image is the one where the shader decides per pixel.
     scene = renderer.create_scene([sphere(0.4, centre=(0, 0.5, 0)), plane(4.0)],
                                   [Material((0.5, 0.4, 0.3), 0.6, 0.8), Material((0.6, 0.6, 0.6), 0.2, 0.3)])

@@ -1,6 +1,6 @@
 """Casters that hold still are drawn once (shadows/vsm.py): a body under a moving garment keeps its
 shadow-map layers while its positions and the lights' projections stay the same (the projections are
-fitted to boxes snapped to a grid: renderer.scene.snap_box)."""
+fitted to boxes snapped to a grid: renderer.plan.snap_box)."""
 
 import dataclasses
 
@@ -11,8 +11,8 @@ from conftest import plane, sphere, sun_sky_cube
 from renderer.camera import Camera
 from renderer.gpu.context import GLContext
 from renderer.lighting.pem import PEMSettings
+from renderer.plan import SNAP_CELLS, snap_box
 from renderer.renderer import Background, FrameSettings, Renderer
-from renderer.scene import SNAP_CELLS, snap_box
 from renderer.shading.material import Material
 from renderer.shadows.vsm import ShadowMaps
 
@@ -182,16 +182,16 @@ def test_the_light_plan_is_kept_while_the_snapped_boxes_stay_and_the_frames_are_
     scenes = [r.create_scene(meshes, mats) for r in (keeps, plans)]
     try:
         for positions, settings, kept in frames:
-            hits = keeps.kept_plan_hits
+            hits = keeps.planner.hits
             out = []
             for r, scene in zip((keeps, plans), scenes):
                 if r is plans:
-                    r._kept_plan = None   # nothing kept: planned anew
+                    r.planner.forget()   # nothing kept: planned anew
                 out.append(r.render_views(scene, pems, settings, [CAM], positions=positions)[0])
             np.testing.assert_array_equal(out[0].image, out[1].image)
             assert out[0].settings["contact_radius"] == out[1].settings["contact_radius"] > 0.0
-            assert keeps.kept_plan_hits - hits == int(kept)
-        assert plans.kept_plan_hits == 0
+            assert keeps.planner.hits - hits == int(kept)
+        assert plans.planner.hits == 0
     finally:
         pems.release()
         for s in scenes:

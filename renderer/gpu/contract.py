@@ -23,7 +23,7 @@ class LightingBuffer(IntEnum):
     GLOSS_LEVELS = 1        # glossiness -> PEM level (renderer/lighting/glossiness.py)
     SHADOW_LIGHTS = 2       # each shadow layer's light (common/lights.glsl)
     LAYER_PROJECTIONS = 3   # a draw's layers' view-projections (shadows/moments.vert), a uniform block
-    LIGHT_ORDER = 4         # the lights sorted by kind (renderer.light_kinds), a uniform block
+    LIGHT_ORDER = 4         # the lights sorted by kind (renderer.plan.light_kinds), a uniform block
     LIGHT_SCREEN = 5        # each light in clip space for the contact search (shading/contact.glsl)
     SUB_LIGHTS = 6          # each region's glossy discs (shading/discs.glsl): a uniform block or storage
     MATERIAL_LOBES = 7      # the fitted lobe tables (shading/lobes.glsl)
@@ -124,7 +124,7 @@ class Mode(IntEnum):
 
 
 class LightKind(IntEnum):
-    """Bits of a light's kind (renderer.light_kinds; the lighting pass's KIND_LOOP)."""
+    """Bits of a light's kind (renderer.plan.light_kinds; the lighting pass's KIND_LOOP)."""
 
     PEM_DIFFUSE = 1         # its diffuse term from its PEM
     PEM_GLOSSY = 2          # its glossy terms from its PEM
@@ -151,7 +151,7 @@ MAX_SHEET_MESHES = 64
 # last is the background's (renderer.py, _sheer_layers).
 SHEER_LAYERS = 3
 
-# The wide-lobe rule (shading/discs.glsl, wide_lobe; renderer.light_kinds): a lobe of variance 1 / s is
+# The wide-lobe rule (shading/discs.glsl, wide_lobe; renderer.plan.light_kinds): a lobe of variance 1 / s is
 # wider than a disc of angular radius a where 1 / s >= WIDE_LOBE_DISC_VARIANCE * a^2 (the disc's own
 # variance, a^2 / 4), and then its term is in closed form.
 WIDE_LOBE_DISC_VARIANCE = 0.25

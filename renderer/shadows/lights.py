@@ -272,7 +272,7 @@ def pack_lights(directions, scales, solid_angle_sr, energy_rgb, view_proj, sigma
     texel = np.zeros((n, 2)) if texel is None else np.asarray(texel, np.float64)
     arr["shadow"][:, 2] = texel[:, 0]
     # Small (a sun): decided here once, on the packed sine the shaders see, and read by both the light
-    # plan (renderer.light_kinds) and the lighting pass.
+    # plan (renderer.plan.light_kinds) and the lighting pass.
     arr["shadow"][:, 3] = small_lights(radius_rad if radius_rad is not None else np.zeros(n))
     arr["params"][:, 1] = texel[:, 1]
     return arr

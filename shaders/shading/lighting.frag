@@ -19,7 +19,7 @@
 // light's terms may be in closed form instead), which shadow-map array holds its map, and which PEM
 // texture holds its region. The renderer sorts the lights by kind (light_order, u_kind_end) and each
 // kind has a loop of its own in which those choices are constants, so that no light pays for the
-// lookups and closed forms of another kind (renderer.py, light_kinds).
+// lookups and closed forms of another kind (renderer/plan.py, light_kinds).
 #include "common/lights.glsl"
 
 #ifdef LIGHTING_COMPUTE
@@ -411,7 +411,7 @@ void main() {
     g_has_glossy = glossy;
     // One loop per kind of light (see the top): the constants fold the choices away. Only the kinds
     // this variant can have are compiled: without diffuse PEMs (DIFFUSE_LIGHTS) none reads one, and
-    // the ambient-occlusion modes read both PEMs of every light (renderer.py, light_kinds).
+    // the ambient-occlusion modes read both PEMs of every light (renderer/plan.py, light_kinds).
 #define KIND_LOOP(K) for (int k = (K) == 0 ? 0 : u_kind_end[max((K) - 1, 0)]; k < u_kind_end[K]; ++k) shade_light(light_order(k), ((K) & KIND_PEM_DIFFUSE) != 0, ((K) & KIND_PEM_GLOSSY) != 0, ((K) & KIND_SHARP) != 0, ((K) & KIND_SECOND_PEM) != 0, n, glossy, ws_position);
 #if defined(DIFFUSE_LIGHTS)
     KIND_LOOP(0) KIND_LOOP(2) KIND_LOOP(4) KIND_LOOP(6)
