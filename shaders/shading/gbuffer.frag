@@ -57,6 +57,17 @@ layout(location = 2) out vec4 o_geometric;  // xyz: the triangle's own plane nor
                                             // group, + CONVEX_SURFACE on a convex surface, + MESH_ID_STRIDE x id
 layout(location = 3) out vec4 o_albedo;     // rgb: diffuse reflectance; a: 1 (covered)
 
+// A material map's MIP level from the area of the pixel's footprint in its texels (the square root
+// of the UV Jacobian's determinant): one trilinear lookup whose filter is as wide as a square of the
+// footprint's area. GL's own level follows the footprint's longest side, which greys out a print seen
+// obliquely (a pixel's area in the reference is a box); anisotropic filtering would follow the
+// footprint, at a cost llvmpipe cannot pay for a finely repeating weave (its geometry pass 11 -> 480 ms).
+// Called in uniform control flow (derivatives).
+float area_lod(vec2 uv, ivec2 size) {
+    vec2 dx = dFdx(uv) * vec2(size), dy = dFdy(uv) * vec2(size);
+    return 0.5 * log2(max(abs(dx.x * dy.y - dx.y * dy.x), 1e-20));
+}
+
 void main() {
     vec3 n = normalize(v_ws_normal);
     vec3 to_eye = normalize(u_camera_pos - v_ws_position);
@@ -80,6 +91,7 @@ void main() {
         // The map's own UVs: its frame follows them (a rotated or mirrored placement turns it too).
         vec2 uv_n = u_normal_placement * vec3(v_uv, 1.0);
         vec2 duv1 = dFdx(uv_n), duv2 = dFdy(uv_n);
+        float lod_n = area_lod(uv_n, textureSize(u_normal_map, 0));
         vec3 dp2perp = cross(dp2, n), dp1perp = cross(n, dp1);
         vec3 t = dp2perp * duv1.x + dp1perp * duv2.x;
         vec3 b = dp2perp * duv1.y + dp1perp * duv2.y;
@@ -87,28 +99,34 @@ void main() {
         float m = max(dot(t, t), dot(b, b));
         if (m > 1e-30) {
             float s = (det < 0.0 ? -1.0 : 1.0) * inversesqrt(m);
-            vec3 tn = texture(u_normal_map, uv_n).rgb * 2.0 - 1.0;
+            vec3 tn = textureLod(u_normal_map, uv_n, lod_n).rgb * 2.0 - 1.0;
             vec3 mapped = normalize(s * (t * (tn.x * u_normal_scale) + b * (tn.y * u_normal_scale)) + n * tn.z);
             n = dot(mapped, geometric) < 0.0 ? -mapped : mapped;
         }
     }
     vec2 uv_second = u_second_placement * vec3(v_uv, 1.0);
-    vec3 albedo = u_use_albedo_map ? v_albedo * texture(u_albedo_map, u_albedo_placement * vec3(v_uv, 1.0)).rgb
+    vec2 uv_albedo = u_albedo_placement * vec3(v_uv, 1.0);
+    float lod_second = area_lod(uv_second, textureSize(u_gloss_map, 0));
+    vec3 albedo = u_use_albedo_map ? v_albedo * textureLod(u_albedo_map, uv_albedo,
+                                                           area_lod(uv_albedo, textureSize(u_albedo_map, 0))).rgb
                                    : v_albedo;
-    vec2 material = u_use_gloss_map ? texture(u_gloss_map, uv_second).rg : v_material;
+    vec2 material = u_use_gloss_map ? textureLod(u_gloss_map, uv_second, lod_second).rg : v_material;
     o_position = vec4(v_ws_position, material.x);
     o_normal = vec4(n, material.y);
     o_geometric = vec4(geometric, u_shadow_group + (u_convex_surface ? float(CONVEX_SURFACE) : 0.0)
                                   + float(MESH_ID_STRIDE) * u_mesh_id);
+    vec2 uv_alpha = u_alpha_placement * vec3(v_uv, 1.0);
+    float lod_alpha = area_lod(uv_alpha, textureSize(u_alpha_map, 0));
     if (u_use_alpha_map)
-        o_geometric.w += ALPHA_MAP_FRACTION * (1.0 - clamp(texture(u_alpha_map, u_alpha_placement * vec3(v_uv, 1.0)).r,
-                                                           0.0, 1.0));
+        o_geometric.w += ALPHA_MAP_FRACTION * (1.0 - clamp(textureLod(u_alpha_map, uv_alpha, lod_alpha).r, 0.0, 1.0));
     o_albedo = vec4(albedo, 1.0);
 #ifdef PBR
     // A pbr mesh's second map is glTF's metallic-roughness texture: it multiplies the two values.
-    vec2 mr = u_use_gloss_map ? texture(u_gloss_map, uv_second).rg : vec2(1.0);
+    vec2 mr = u_use_gloss_map ? textureLod(u_gloss_map, uv_second, lod_second).rg : vec2(1.0);
     // KHR_materials_sheen's textures multiply the sheen colour and roughness.
-    vec4 sheen = u_use_sheen_map ? texture(u_sheen_map, u_sheen_placement * vec3(v_uv, 1.0)) : vec4(1.0);
+    vec2 uv_sheen = u_sheen_placement * vec3(v_uv, 1.0);
+    vec4 sheen = u_use_sheen_map ? textureLod(u_sheen_map, uv_sheen, area_lod(uv_sheen, textureSize(u_sheen_map, 0)))
+                                 : vec4(1.0);
     float kind = 1.0;
     float anisotropy = clamp(v_pbr.w - 1.0, 0.0, 1.0);
     if (anisotropy > 0.5 / 255.0)
