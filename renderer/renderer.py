@@ -38,7 +38,7 @@ from .lighting import material_lobes
 from .lighting.pem import PEMSet
 from .lighting.pem_plan import PAPER_PEMS, REGIONS_PER_TEXTURE, SUB_LIGHT_BYTES, PEMSettings
 from .mesh import Mesh
-from .plan import CLOSED_FORM_MODES, LightPlan, LightPlanner, discs_per_region, no_diffuse_pems, snap_box
+from .plan import LightPlan, LightPlanner, discs_per_region, glossy_closed_form, no_diffuse_pems, snap_box
 from .scene import Scene
 from .settings import PAPER_FRAME, Background, FrameSettings, ShadingMode
 from .shading.background import BackgroundMap
@@ -347,7 +347,7 @@ class Renderer:
         "transmission" where some mesh is sheer or some transmits (Scene.has_sheets: each mesh's pair
         read by its id; the transmitted term compiled in for "transmission" alone)."""
         closed = no_diffuse_pems(mode, diffuse)
-        wide = glossy == "wide" and mode in CLOSED_FORM_MODES
+        wide = glossy_closed_form(mode, glossy)
         oracle = oracle and mode is ShadingMode.FULL
         contact = contact and mode is ShadingMode.FULL and not oracle
         blocker = blocker and not oracle
